@@ -1,0 +1,1 @@
+"""Classical consensus controllers (baselines) and the deadline benchmark: see issue 4."""

@@ -1,0 +1,148 @@
+"""The ``fxc`` command line: ``fxc simulate`` runs a scenario and writes its figures."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fxc_env.scenarios import SCENARIOS
+
+
+def _env_arguments(parser: argparse.ArgumentParser) -> None:
+    """Environment settings shared by the subcommands (None keeps the scenario's value)."""
+    group = parser.add_argument_group("environment")
+    group.add_argument("--scenario", default="paper_fig1", help=f"named scenario {tuple(SCENARIOS)} or 'none'")
+    group.add_argument("--topology", help="ring, path, star, complete, random, paper_fig1")
+    group.add_argument("--n-agents", type=int, help="number of agents N")
+    group.add_argument("--n-intervals", type=int, help="number of sampling intervals K")
+    group.add_argument("--settling-time", type=float, help="deadline T_s in seconds")
+    group.add_argument("--schedule", choices=("paper", "uniform"), help="sampling schedule")
+    group.add_argument("--dim", type=int, help="space dimension n")
+    group.add_argument("--action-mode", default="plan", choices=("plan", "accel"))
+    group.add_argument("--obs-mode", default="normalized", choices=("normalized", "raw"))
+    group.add_argument("--topology-seed", type=int, default=0, help="seed of the random topology")
+    group.add_argument("--mean-in-degree", type=float, help="mean in-degree of the random topology")
+    group.add_argument("--topology-period", type=int, help="graphs per switching period of the random topology")
+    group.add_argument("--seed", type=int, default=0, help="seed of the random initial state")
+
+
+def env_kwargs_from(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``make_config`` keyword arguments an argparse namespace asks for."""
+    names = (
+        "topology",
+        "n_agents",
+        "n_intervals",
+        "settling_time",
+        "schedule",
+        "dim",
+        "action_mode",
+        "obs_mode",
+        "topology_seed",
+        "mean_in_degree",
+        "topology_period",
+    )
+    kwargs = {name: getattr(args, name) for name in names if getattr(args, name) is not None}
+    scenario = None if args.scenario in (None, "none") else args.scenario
+    return {"scenario": scenario, **kwargs}
+
+
+def _format(value: float) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "n/a"
+    return f"{value:.15g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.3e}"
+
+
+def simulate_command(args: argparse.Namespace) -> int:
+    from fxc_env.plots import write_figures
+    from fxc_env.simulation import simulate
+
+    kwargs = env_kwargs_from(args)
+    scenario = kwargs.pop("scenario")
+    trajectory = simulate("reference", scenario, seed=args.seed, points_per_interval=args.points_per_interval, **kwargs)
+    c, m = trajectory.config, trajectory.metrics
+    out = Path(args.out)
+    files = write_figures(trajectory, out)
+    xi = c.topology.consensus_weights() if c.n_agents <= 2000 else None
+    record = {
+        "scenario": scenario,
+        "settings": {
+            "topology": c.topology.describe(),
+            "topology_note": c.topology.note,
+            "n_agents": c.n_agents,
+            "n_intervals": c.n_intervals,
+            "settling_time": c.settling_time,
+            "schedule": c.schedule.name,
+            "dim": c.dim,
+            "action_mode": c.action_mode,
+            "obs_mode": c.obs_mode,
+            "seed": args.seed,
+        },
+        "xi": None if xi is None else xi.tolist(),
+        "metrics": m.as_dict(),
+    }
+    (out / "metrics.json").write_text(json.dumps(record, indent=2) + "\n")
+    files.append(out / "metrics.json")
+
+    print(f"fxc simulate: {scenario or 'custom'} — {c.topology.describe()}")
+    if c.topology.note:
+        print(f"  topology: {c.topology.note}")
+    print(f"  T_s = {c.settling_time:g} s, K = {c.n_intervals} intervals ({c.schedule.name} schedule), dim = {c.dim}")
+    if xi is not None:
+        print("  xi = [" + ", ".join(f"{w:.6g}" for w in xi) + "]")
+    rows = [
+        ("x*(T_s): mean position", m.predicted_final_position, m.achieved_final_position),
+        ("v*: mean velocity", m.predicted_final_velocity, m.achieved_final_velocity),
+    ]
+    print()
+    print(f"| {'quantity':<38} | {'predicted (xi)':>22} | {'achieved':>22} |")
+    print(f"|{'-' * 40}|{'-' * 24}|{'-' * 24}|")
+    for name, predicted, achieved in rows:
+        print(f"| {name:<38} | {_format(predicted):>22} | {_format(achieved):>22} |")
+    singles = [
+        ("relative deadline error D(T_s)/D(0)", m.relative_deadline_error),
+        ("position spread e_x(T_s) (m)", m.final_position_spread),
+        ("velocity spread e_v(T_s) (m/s)", m.final_velocity_spread),
+        ("t_eps, eps = 1e-2 (s)", m.t_eps_1e_2),
+        ("t_eps, eps = 1e-6 (s)", m.t_eps_1e_6),
+        ("energy sum_i ∫ u_i² dt (m²/s³)", m.energy),
+        ("peak abs(u) (m/s²)", m.peak_input),
+        ("sampling instants K", float(m.sampling_instants)),
+    ]
+    for name, value in singles:
+        print(f"| {name:<38} | {'':>22} | {_format(value):>22} |")
+    print()
+    print("wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="fxc", description="Fixed-time consensus of double integrators (fxc_env).")
+    commands = parser.add_subparsers(dest="command", required=True)
+    sim = commands.add_parser("simulate", help="run the reference policy on a scenario and write figures")
+    _env_arguments(sim)
+    sim.add_argument("--out", default="out", help="directory for PNGs and metrics.json")
+    sim.add_argument("--points-per-interval", type=int, default=24, help="dense samples per interval in the figures")
+    sim.set_defaults(handler=simulate_command)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.handler(args)
+    except (ValueError, TypeError) as exc:
+        print(f"fxc {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    np.set_printoptions(precision=6)
+    sys.exit(main())

@@ -1,0 +1,244 @@
+"""Validated environment settings and the observation/action layout they imply.
+
+:func:`make_config` turns the keyword arguments of SPEC 4.1 into an immutable
+:class:`EnvConfig`; every bad argument raises an exception that names it. The engine, the
+PettingZoo environment, the SB3 VecEnv and the policies all read the same config.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fxc_env.core.graphs import Topology, make_topology
+from fxc_env.core.schedules import Schedule, make_schedule
+from fxc_env.scenarios import scenario_kwargs
+
+ACTION_MODES = ("plan", "accel")
+OBS_MODES = ("normalized", "raw")
+OBS_FORMATS = ("flat", "dict")
+
+#: Half-widths of the action Box per (action_mode, obs_mode). Normalised bounds hold the
+#: reference for every state (its plan is at most 2 and 1, its accel ends at most 10 and 8);
+#: raw bounds suit the documented random initial ranges and the paper's example.
+DEFAULT_ACTION_BOUNDS = {
+    ("plan", "normalized"): 2.0,
+    ("accel", "normalized"): 10.0,
+    ("plan", "raw"): 1.0e3,
+    ("accel", "raw"): 1.0e6,
+}
+
+#: Clock features at the end of every observation: ``t_k / T_s``, ``T_{k+1} / T_s``, ``k / K``.
+CLOCK_SIZE = 3
+
+
+@dataclass(frozen=True, eq=False)
+class ObservationLayout:
+    """Where things sit in one agent's flat observation vector.
+
+    ``[rows (d_max * 2 * dim) | mask (d_max) | clock (3)]``; row r is
+    ``[x_j - x_i (dim), v_j - v_i (dim)]`` for the r-th in-neighbour j (ascending), zero
+    padded. In ``normalized`` mode rows are ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i``.
+    """
+
+    max_in_degree: int
+    dim: int
+
+    @property
+    def row_size(self) -> int:
+        return 2 * self.dim
+
+    @property
+    def rows_end(self) -> int:
+        return self.max_in_degree * self.row_size
+
+    @property
+    def mask_end(self) -> int:
+        return self.rows_end + self.max_in_degree
+
+    @property
+    def size(self) -> int:
+        """Length of the flat observation."""
+        return self.mask_end + CLOCK_SIZE
+
+    def split(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(..., size)`` -> rows ``(..., d_max, 2, dim)``, mask ``(..., d_max)``, clock ``(..., 3)``."""
+        lead = obs.shape[:-1]
+        rows = obs[..., : self.rows_end].reshape(lead + (self.max_in_degree, 2, self.dim))
+        return rows, obs[..., self.rows_end : self.mask_end], obs[..., self.mask_end :]
+
+
+@dataclass(frozen=True, eq=False)
+class EnvConfig:
+    """Everything that defines an episode family. Build it with :func:`make_config`."""
+
+    topology: Topology
+    schedule: Schedule
+    dim: int
+    action_mode: str
+    obs_mode: str
+    obs_format: str
+    action_bound: float
+    reward_floor: float
+    initial_state: tuple[np.ndarray, np.ndarray] | None
+    position_range: float
+    velocity_range: float
+    scenario: str | None
+
+    @property
+    def n_agents(self) -> int:
+        return self.topology.n_agents
+
+    @property
+    def settling_time(self) -> float:
+        return self.schedule.settling_time
+
+    @property
+    def n_intervals(self) -> int:
+        return self.schedule.n_intervals
+
+    @property
+    def layout(self) -> ObservationLayout:
+        return ObservationLayout(self.topology.max_in_degree, self.dim)
+
+    @property
+    def action_size(self) -> int:
+        return 2 * self.dim
+
+
+def _positive_int(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")
+    return int(value)
+
+
+def _positive_float(name: str, value: Any) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name}: expected a positive finite number, got {value!r}") from exc
+    if isinstance(value, bool) or not math.isfinite(number) or number <= 0:
+        raise ValueError(f"{name}: expected a positive finite number, got {value!r}")
+    return number
+
+
+def _choice(name: str, value: Any, options: tuple[str, ...]) -> str:
+    if value not in options:
+        raise ValueError(f"{name}: expected one of {options}, got {value!r}")
+    return value
+
+
+def validate_state_array(name: str, value: Any, n_agents: int, dim: int) -> np.ndarray:
+    """``value`` as a float64 ``(N, dim)`` array (``(N,)`` accepted when ``dim = 1``).
+
+    Raises ``ValueError``/``TypeError`` naming ``name`` for a wrong shape, type or a
+    non-finite entry.
+    """
+    array = np.asarray(value)
+    if array.dtype.kind not in "biuf":
+        raise TypeError(f"{name}: expected real numbers, got an array of dtype {array.dtype}")
+    array = array.astype(np.float64)
+    if dim == 1 and array.shape == (n_agents,):
+        array = array[:, None]
+    if array.shape != (n_agents, dim):
+        accepted = f"({n_agents}, {dim})" + (f" or ({n_agents},)" if dim == 1 else "")
+        raise ValueError(f"{name}: expected shape {accepted}, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name}: every entry must be finite (no NaN or inf)")
+    return array
+
+
+def make_config(
+    scenario: str | None = None,
+    *,
+    n_agents: int | None = None,
+    topology: Any = None,
+    settling_time: float | None = None,
+    n_intervals: int | None = None,
+    schedule: Any = None,
+    dim: int | None = None,
+    action_mode: str = "plan",
+    obs_mode: str = "normalized",
+    obs_format: str = "flat",
+    action_bound: float | None = None,
+    reward_floor: float = 1e-12,
+    initial_state: Any = None,
+    position_range: float = 5.0,
+    velocity_range: float = 2.0,
+    topology_seed: int | None = 0,
+    mean_in_degree: float | None = None,
+    topology_period: int | None = None,
+) -> EnvConfig:
+    """Validate SPEC 4.1's keyword arguments (a scenario's values first, explicit ones win).
+
+    A scenario's fixed initial state is dropped (random draws instead) when ``n_agents`` or
+    ``dim`` is overridden, since it has the scenario's shape.
+    """
+    given = {
+        "n_agents": n_agents,
+        "topology": topology,
+        "settling_time": settling_time,
+        "n_intervals": n_intervals,
+        "schedule": schedule,
+        "dim": dim,
+        "initial_state": initial_state,
+        "mean_in_degree": mean_in_degree,
+        "topology_period": topology_period,
+    }
+    merged: dict[str, Any] = scenario_kwargs(scenario) if scenario is not None else {}
+    resized = any(given[k] is not None and given[k] != merged.get(k) for k in ("n_agents", "dim") if k in merged)
+    if resized and initial_state is None:
+        merged.pop("initial_state", None)  # the scenario's state has the scenario's shape
+    merged.update({k: v for k, v in given.items() if v is not None})
+    merged.setdefault("topology", "paper_fig1")
+    merged.setdefault("settling_time", 20.0)
+    merged.setdefault("schedule", "paper")
+    merged.setdefault("dim", 1)
+    if isinstance(merged["schedule"], str):
+        merged.setdefault("n_intervals", 200)
+
+    dim_value = _positive_int("dim", merged["dim"])
+    topo = make_topology(
+        merged["topology"],
+        merged.get("n_agents"),
+        seed=topology_seed,
+        mean_in_degree=merged.get("mean_in_degree", 2.0),
+        period=merged.get("topology_period", 1),
+    )
+    sched = make_schedule(merged["settling_time"], merged.get("n_intervals"), merged["schedule"])
+    action_mode = _choice("action_mode", action_mode, ACTION_MODES)
+    obs_mode = _choice("obs_mode", obs_mode, OBS_MODES)
+    obs_format = _choice("obs_format", obs_format, OBS_FORMATS)
+    bound = (
+        DEFAULT_ACTION_BOUNDS[(action_mode, obs_mode)]
+        if action_bound is None
+        else _positive_float("action_bound", action_bound)
+    )
+    init = merged.get("initial_state")
+    if init is not None:
+        if not isinstance(init, tuple | list) or len(init) != 2:
+            raise ValueError("initial_state: expected a pair (x0, v0) of arrays of shape (N, dim)")
+        init = (
+            validate_state_array("initial_state[0] (x0)", init[0], topo.n_agents, dim_value),
+            validate_state_array("initial_state[1] (v0)", init[1], topo.n_agents, dim_value),
+        )
+    floor = float(reward_floor)
+    if not math.isfinite(floor) or floor <= 0:
+        raise ValueError(f"reward_floor: expected a positive finite number, got {reward_floor!r}")
+    return EnvConfig(
+        topology=topo,
+        schedule=sched,
+        dim=dim_value,
+        action_mode=action_mode,
+        obs_mode=obs_mode,
+        obs_format=obs_format,
+        action_bound=bound,
+        reward_floor=floor,
+        initial_state=init,
+        position_range=_positive_float("position_range", position_range),
+        velocity_range=_positive_float("velocity_range", velocity_range),
+        scenario=scenario,
+    )

@@ -1,0 +1,64 @@
+"""Exact double-integrator motion under an input that is affine in time.
+
+Every agent obeys ``x' = v``, ``v' = u`` (paper eq. 10). On a sampling interval of length T
+the input is the straight line ``u(t_k + s) = u0 + (u1 - u0) s / T``, ``0 <= s <= T``, given by
+its values at both ends. The paper's controller (eq. 11) is of this form, and so are both
+action modes. The state is then a polynomial in s (v quadratic, x cubic) and is evaluated in
+closed form: no ODE solver and no time step.
+
+All functions broadcast over leading dimensions: ``x, v, u0, u1`` are ``(..., dim)`` and
+``T`` is a scalar or ``(..., 1)``. Units: seconds, metres, metres/second, metres/second^2.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def input_from_plan(plan_x: np.ndarray, plan_v: np.ndarray, T: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Minimum-energy affine input that realises a planned change relative to coasting.
+
+    The plan asks for ``x(t_k + T) = x + T v + a_x`` and ``v(t_k + T) = v + a_v``. The unique
+    minimiser of ``integral |u|^2`` is ``u(t_k + s) = alpha + beta s`` with
+    ``alpha = 6 a_x / T^2 - 2 a_v / T`` and ``beta = (6 a_v T - 12 a_x) / T^3`` (SPEC 2,
+    paper Remark 1). Returns the end values ``(u0, u1) = (alpha, alpha + beta T)``.
+    """
+    inv_t = 1.0 / np.asarray(T, dtype=float)
+    u0 = 6.0 * plan_x * inv_t**2 - 2.0 * plan_v * inv_t
+    u1 = -6.0 * plan_x * inv_t**2 + 4.0 * plan_v * inv_t
+    return u0, u1
+
+
+def advance(
+    x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float
+) -> tuple[np.ndarray, np.ndarray]:
+    """State at the end of the interval: ``x + T v + T^2 (2 u0 + u1) / 6`` and ``v + T (u0 + u1) / 2``."""
+    x_next = x + T * v + (T * T / 6.0) * (2.0 * u0 + u1)
+    v_next = v + (0.5 * T) * (u0 + u1)
+    return x_next, v_next
+
+
+def state_inside(
+    x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float, s: np.ndarray | float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position, velocity and input at offset ``s`` in ``[0, T]`` into the interval (dense plots).
+
+    ``s`` broadcasts against ``x`` like ``T`` does (e.g. ``(P, 1, 1, 1)`` against ``(K, N, dim)``
+    evaluates P points in each of K intervals). Returns ``x(s), v(s), u(s)`` of the broadcast shape.
+    """
+    slope = (u1 - u0) / T
+    u = u0 + slope * s
+    v_s = v + u0 * s + slope * s**2 / 2.0
+    x_s = x + v * s + u0 * s**2 / 2.0 + slope * s**3 / 6.0
+    return x_s, v_s, u
+
+
+def interval_energy(u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float) -> np.ndarray:
+    """``integral_0^T |u|^2 ds = T (|u0|^2 + u0.u1 + |u1|^2) / 3``, summed over components: ``(...)``."""
+    per_component = (u0 * u0 + u0 * u1 + u1 * u1) / 3.0
+    return np.sum(per_component * T, axis=-1)
+
+
+def interval_peak(u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
+    """Peak ``|u|`` on the interval: the largest absolute component, reached at an end, ``(...)``."""
+    return np.maximum(np.max(np.abs(u0), axis=-1), np.max(np.abs(u1), axis=-1))

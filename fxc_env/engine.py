@@ -1,0 +1,250 @@
+"""The batched consensus engine: B independent episodes of N double-integrator agents.
+
+This is the one code path behind every front end: the PettingZoo environment is the
+``n_episodes = 1`` case, the SB3 VecEnv and :func:`fxc_env.simulate` use larger batches.
+All episodes share a config and advance in lock step (every episode has exactly K
+intervals), each with its own initial state. Arrays are float64: positions ``x`` and
+velocities ``v`` are ``(B, N, dim)``; observations ``(B, N, obs_size)``; actions
+``(B, N, 2 dim)``.
+
+One step integrates the affine input on ``[t_k, t_{k+1})`` in closed form
+(:mod:`fxc_env.core.dynamics`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fxc_env.config import EnvConfig, validate_state_array
+from fxc_env.core import dynamics
+from fxc_env.core.graphs import DENSE_LIMIT
+from fxc_env.core.metrics import SETTLING_THRESHOLDS, EpisodeMetrics, disagreement, reward_floor, spread
+
+
+@dataclass(frozen=True)
+class StepOutcome:
+    """What one interval did, per episode ``(B,)`` or per agent ``(B, N)``.
+
+    Attributes:
+        reward: team reward ``log(D(t_k) + f) - log(D(t_{k+1}) + f)``, ``(B,)``.
+        energy: ``integral |u_i|^2 dt`` over the interval, ``(B, N)``.
+        peak_input: peak ``|u_i|`` (largest component) over the interval, ``(B, N)``.
+        u_start, u_end: the applied input at ``t_k+`` and ``t_{k+1}-``, ``(B, N, dim)``.
+        terminated: the deadline ``T_s`` was reached (``k = K``).
+    """
+
+    reward: np.ndarray
+    energy: np.ndarray
+    peak_input: np.ndarray
+    u_start: np.ndarray
+    u_end: np.ndarray
+    terminated: bool
+
+
+class ConsensusEngine:
+    """B episodes advanced as arrays. Call :meth:`reset` before :meth:`step`."""
+
+    def __init__(self, config: EnvConfig, n_episodes: int = 1) -> None:
+        self.config = config
+        self.n_episodes = int(n_episodes)
+        self.layout = config.layout
+        n, dim = config.n_agents, config.dim
+        shape = (self.n_episodes, n, dim)
+        self.x = np.zeros(shape)
+        self.v = np.zeros(shape)
+        self.x0 = np.zeros(shape)
+        self.v0 = np.zeros(shape)
+        self.k = 0
+        self._xi = config.topology.consensus_weights() if n <= DENSE_LIMIT else None
+        self._mask_features = config.topology.neighbour_mask.astype(np.float64)
+        self._reset_trackers()
+
+    # ------------------------------------------------------------------ state
+    def sample_initial_state(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """One episode's ``(x0, v0)``: the config's initial state, else uniform draws.
+
+        Positions are drawn from ``U(-position_range, position_range)`` and velocities from
+        ``U(-velocity_range, velocity_range)`` per component (defaults 5 m and 2 m/s).
+        """
+        c = self.config
+        if c.initial_state is not None:
+            return c.initial_state[0].copy(), c.initial_state[1].copy()
+        shape = (c.n_agents, c.dim)
+        x0 = rng.uniform(-c.position_range, c.position_range, size=shape)
+        v0 = rng.uniform(-c.velocity_range, c.velocity_range, size=shape)
+        return x0, v0
+
+    def reset(self, x0: np.ndarray, v0: np.ndarray, episodes: np.ndarray | slice | None = None) -> None:
+        """Start episodes at ``t_0 = 0`` from ``x0, v0`` of shape ``(b, N, dim)``.
+
+        ``episodes`` selects which of the B episodes restart (all by default); all episodes
+        must restart together because they share the clock ``k``.
+        """
+        index = slice(None) if episodes is None else episodes
+        self.x[index] = x0
+        self.v[index] = v0
+        self.x0[index] = x0
+        self.v0[index] = v0
+        self.k = 0
+        self._reset_trackers()
+
+    def validate_state(self, name: str, value: object) -> np.ndarray:
+        """A user-given ``(N, dim)`` state array, checked (see :func:`validate_state_array`)."""
+        return validate_state_array(name, value, self.config.n_agents, self.config.dim)
+
+    def _reset_trackers(self) -> None:
+        b, n = self.n_episodes, self.config.n_agents
+        self.initial_disagreement = disagreement(self.x, self.v, self.config.settling_time)
+        self.current_disagreement = self.initial_disagreement.copy()
+        self.floor = reward_floor(self.initial_disagreement, self.config.reward_floor)
+        self.energy_total = np.zeros((b, n))
+        self.peak_total = np.zeros((b, n))
+        # Index of the last sampling instant whose D(t_k)/D(0) was >= eps, per threshold.
+        self.last_above = np.zeros((len(SETTLING_THRESHOLDS), b), dtype=np.int64)
+        self._rows_cache: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    @property
+    def done(self) -> bool:
+        """The deadline has been reached: ``t_k = T_s``."""
+        return self.k >= self.config.n_intervals
+
+    @property
+    def time(self) -> float:
+        """Current sampling instant ``t_k`` in seconds."""
+        return float(self.config.schedule.times[self.k])
+
+    def current_interval(self) -> float:
+        """Length ``T = t_{k+1} - t_k`` of the interval about to be played (seconds)."""
+        return float(self.config.schedule.intervals[min(self.k, self.config.n_intervals - 1)])
+
+    def graph_index(self) -> int:
+        """Index ``k mod m`` of the graph active on the current interval."""
+        return self.k % self.config.topology.period
+
+    # ------------------------------------------------------------ observation
+    def relative_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sampled neighbour measurements at ``t_k`` and each agent's local scale.
+
+        Returns:
+            ``dx = x_j - x_i`` and ``dv = v_j - v_i``, each ``(B, N, d_max, dim)`` (zero in
+            padded slots), and ``scale`` ``(B, N)``: ``s_i = max(|x_j - x_i|, T |v_j - v_i|)``
+            over agent i's rows (0 when it sees no disagreement).
+        """
+        if self._rows_cache is not None and self._rows_cache[0] == self.k:
+            return self._rows_cache[1:]
+        index = self.config.topology.neighbour_index[self.graph_index()]
+        dx = self.x[:, index, :] - self.x[:, :, None, :]
+        dv = self.v[:, index, :] - self.v[:, :, None, :]
+        T = self.current_interval()
+        if dx.shape[2]:
+            scale = np.maximum(np.abs(dx).max(axis=(2, 3)), T * np.abs(dv).max(axis=(2, 3)))
+        else:
+            scale = np.zeros(dx.shape[:2])
+        self._rows_cache = (self.k, dx, dv, scale)
+        return dx, dv, scale
+
+    def observations(self) -> np.ndarray:
+        """Every agent's flat observation at ``t_k``, ``(B, N, obs_size)`` (SPEC 4.2)."""
+        c = self.config
+        dx, dv, scale = self.relative_rows()
+        b, n, d_max, dim = dx.shape
+        if c.obs_mode == "normalized":
+            T = self.current_interval()
+            inv = np.divide(1.0, scale, out=np.zeros_like(scale), where=scale > 0)[..., None, None]
+            # |rows| <= 1 by construction; the clip only removes rounding above 1.
+            dx = np.clip(dx * inv, -1.0, 1.0)
+            dv = np.clip(dv * (T * inv), -1.0, 1.0)
+        obs = np.empty((b, n, self.layout.size))
+        obs[..., : self.layout.rows_end] = np.stack([dx, dv], axis=3).reshape(b, n, -1)
+        obs[..., self.layout.rows_end : self.layout.mask_end] = self._mask_features[self.graph_index()]
+        k = min(self.k, c.n_intervals - 1)
+        obs[..., self.layout.mask_end :] = (
+            c.schedule.times[self.k] / c.settling_time,
+            c.schedule.intervals[k] / c.settling_time,
+            self.k / c.n_intervals,
+        )
+        return obs
+
+    # ----------------------------------------------------------------- action
+    def validate_actions(self, actions: object, name: str = "actions") -> np.ndarray:
+        """Check a ``(B, N, 2 dim)`` real, finite action array; raise naming ``name``."""
+        array = np.asarray(actions)
+        expected = (self.n_episodes, self.config.n_agents, self.config.action_size)
+        if array.dtype.kind not in "biuf":
+            raise TypeError(f"{name}: expected real numbers, got dtype {array.dtype}")
+        if array.shape != expected:
+            raise ValueError(f"{name}: expected shape {expected}, got {array.shape}")
+        if not np.all(np.isfinite(array)):
+            raise ValueError(f"{name}: every entry must be finite (no NaN or inf)")
+        return array.astype(np.float64, copy=False)
+
+    def inputs_from_actions(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Map actions to the affine input's end values ``(u(t_k+), u(t_{k+1}-))`` (SPEC 4.3)."""
+        c, dim = self.config, self.config.dim
+        T = self.current_interval()
+        first, second = actions[..., :dim], actions[..., dim:]
+        if c.obs_mode == "normalized":
+            _, _, scale = self.relative_rows()
+            s = scale[..., None]
+            if c.action_mode == "plan":
+                return dynamics.input_from_plan(s * first, (s / T) * second, T)
+            gain = s / (T * T)
+            return gain * first, gain * second
+        if c.action_mode == "plan":
+            return dynamics.input_from_plan(first, second, T)
+        return first, second
+
+    def step(self, actions: np.ndarray) -> StepOutcome:
+        """Play one interval with already validated ``(B, N, 2 dim)`` actions."""
+        if self.done:
+            raise RuntimeError("step: the episode reached T_s; reset before stepping again")
+        T = self.current_interval()
+        u0, u1 = self.inputs_from_actions(actions)
+        energy = dynamics.interval_energy(u0, u1, T)
+        peak = dynamics.interval_peak(u0, u1)
+        self.x, self.v = dynamics.advance(self.x, self.v, u0, u1, T)
+        self.k += 1
+        previous = self.current_disagreement
+        self.current_disagreement = disagreement(self.x, self.v, self.config.settling_time)
+        reward = np.log(previous + self.floor) - np.log(self.current_disagreement + self.floor)
+        self.energy_total += energy
+        np.maximum(self.peak_total, peak, out=self.peak_total)
+        ratio = self._ratio(self.current_disagreement)
+        for row, eps in enumerate(SETTLING_THRESHOLDS):
+            self.last_above[row][ratio >= eps] = self.k
+        self._rows_cache = None
+        return StepOutcome(reward, energy, peak, u0, u1, self.done)
+
+    def _ratio(self, value: np.ndarray) -> np.ndarray:
+        d0 = self.initial_disagreement
+        return np.divide(value, d0, out=np.zeros_like(value), where=d0 > 0)
+
+    # ---------------------------------------------------------------- metrics
+    def episode_metrics(self, episode: int = 0) -> EpisodeMetrics:
+        """SPEC 5 metrics of one episode so far (final values are those at ``t_k``)."""
+        c = self.config
+        times = np.concatenate([c.schedule.times, [np.inf]])
+        t_eps = [float(times[last + 1]) for last in self.last_above[:, episode]]
+        if self._xi is not None:
+            predicted_x = float(
+                self._xi @ self.x0[episode, :, 0] + c.settling_time * (self._xi @ self.v0[episode, :, 0])
+            )
+            predicted_v = float(self._xi @ self.v0[episode, :, 0])
+        else:
+            predicted_x = predicted_v = float("nan")
+        return EpisodeMetrics(
+            final_position_spread=float(spread(self.x[episode])),
+            final_velocity_spread=float(spread(self.v[episode])),
+            relative_deadline_error=float(self._ratio(self.current_disagreement)[episode]),
+            t_eps_1e_2=t_eps[0],
+            t_eps_1e_6=t_eps[1],
+            energy=float(self.energy_total[episode].sum()),
+            peak_input=float(self.peak_total[episode].max(initial=0.0)),
+            sampling_instants=int(self.k),
+            predicted_final_position=predicted_x,
+            achieved_final_position=float(self.x[episode, :, 0].mean()),
+            predicted_final_velocity=predicted_v,
+            achieved_final_velocity=float(self.v[episode, :, 0].mean()),
+        )

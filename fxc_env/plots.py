@@ -1,0 +1,153 @@
+"""Figures of a whole run, written as PNG (the paper's Figs 1-3, inputs, disagreement)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from fxc_env.rendering import agent_colours, draw_graph
+from fxc_env.simulation import Trajectory
+
+#: Agents drawn individually; beyond this the curves carry no legend.
+LEGEND_LIMIT = 12
+
+
+def _figure(width: float = 7.0, height: float = 4.2) -> Figure:
+    fig = Figure(figsize=(width, height), dpi=120)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path)
+    return path
+
+
+def _component_note(trajectory: Trajectory) -> str:
+    return " (first component)" if trajectory.config.dim > 1 else ""
+
+
+def topology_figure(trajectory: Trajectory, path: Path) -> Path:
+    """The graphs of the switching period and their union (SPEC 2's assumed Fig. 1)."""
+    topology = trajectory.config.topology
+    m = topology.period
+    panels = m + 1 if m > 1 else 1
+    fig = _figure(2.6 * panels, 3.0)
+    axes = np.atleast_1d(fig.subplots(1, panels))
+    for g in range(m):
+        title = f"G_{g}" if m > 1 else "G"
+        draw_graph(axes[g], topology, g, title=title + f"  ({len(topology.edges[g])} edges)")
+    if m > 1:
+        from fxc_env.core.graphs import Topology
+
+        union = Topology(topology.n_agents, (np.concatenate(topology.edges),))
+        draw_graph(axes[m], union, 0, title="union of the period")
+    heading = topology.name + (f": {topology.note}" if topology.note else "")
+    fig.suptitle(heading + "\narrow j -> i: agent i receives from agent j (0-based)", fontsize=9)
+    return _save(fig, path)
+
+
+def _state_figure(trajectory: Trajectory, path: Path, which: str) -> Path:
+    c = trajectory.config
+    dense = trajectory.dense_x if which == "x" else trajectory.dense_v
+    sampled = trajectory.x if which == "x" else trajectory.v
+    fig = _figure()
+    ax = fig.subplots()
+    colours = agent_colours(c.n_agents)
+    for i in range(c.n_agents):
+        label = f"agent_{i}" if c.n_agents <= LEGEND_LIMIT else None
+        ax.plot(trajectory.dense_times, dense[:, i, 0], color=colours[i], lw=1.2, label=label)
+        ax.plot(trajectory.times, sampled[:, i, 0], ".", color=colours[i], ms=3)
+    metrics = trajectory.metrics
+    if np.isfinite(metrics.predicted_final_velocity):
+        # Theorems 1-2: x*(t) = xi^T x(0) + t xi^T v(0), v* = xi^T v(0).
+        slope = metrics.predicted_final_velocity
+        base = metrics.predicted_final_position - slope * c.settling_time
+        final = base + slope * trajectory.dense_times if which == "x" else np.full_like(trajectory.dense_times, slope)
+        ax.plot(trajectory.dense_times, final, "k--", lw=0.9, label="x*(t) from xi" if which == "x" else "v* from xi")
+    ax.axvline(c.settling_time, color="grey", lw=0.8, ls=":")
+    quantity = "position x_i(t)" if which == "x" else "velocity v_i(t)"
+    unit = "m" if which == "x" else "m/s"
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel(f"{quantity} ({unit}){_component_note(trajectory)}")
+    ax.set_title(
+        f"{quantity}: {c.topology.name}, N={c.n_agents}, K={c.n_intervals}, T_s={c.settling_time:g} s "
+        "(dots: sampling instants)",
+        fontsize=9,
+    )
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    return _save(fig, path)
+
+
+def positions_figure(trajectory: Trajectory, path: Path) -> Path:
+    """Positions against time, continuous, sampling instants marked (the paper's Fig. 2)."""
+    return _state_figure(trajectory, path, "x")
+
+
+def velocities_figure(trajectory: Trajectory, path: Path) -> Path:
+    """Velocities against time, continuous, sampling instants marked (the paper's Fig. 3)."""
+    return _state_figure(trajectory, path, "v")
+
+
+def inputs_figure(trajectory: Trajectory, path: Path) -> Path:
+    """Inputs ``u_i(t)`` (affine on each interval) on a symmetric-log axis."""
+    c = trajectory.config
+    fig = _figure()
+    ax = fig.subplots()
+    colours = agent_colours(c.n_agents)
+    for i in range(c.n_agents):
+        label = f"agent_{i}" if c.n_agents <= LEGEND_LIMIT else None
+        ax.plot(trajectory.dense_times, trajectory.dense_u[:, i, 0], color=colours[i], lw=1.0, label=label)
+    ax.set_yscale("symlog", linthresh=1.0)
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel(f"input u_i(t) (m/s²){_component_note(trajectory)}")
+    ax.set_title(f"inputs (symmetric log axis); peak |u| = {trajectory.metrics.peak_input:.3g} m/s²", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    return _save(fig, path)
+
+
+def disagreement_figure(trajectory: Trajectory, path: Path) -> Path:
+    """``D(t) / D(0)`` on a log axis, against time and against the sample index."""
+    c = trajectory.config
+    d0 = trajectory.disagreement[0] if trajectory.disagreement[0] > 0 else 1.0
+    tiny = np.finfo(float).tiny
+    fig = _figure(9.0, 3.8)
+    left, right = fig.subplots(1, 2)
+    left.semilogy(
+        trajectory.dense_times, np.maximum(trajectory.dense_disagreement / d0, tiny), lw=1.0, label="D(t)/D(0)"
+    )
+    left.semilogy(trajectory.times, np.maximum(trajectory.disagreement / d0, tiny), ".", ms=3, label="at t_k")
+    left.axvline(c.settling_time, color="grey", lw=0.8, ls=":")
+    left.set_xlabel("t (s)")
+    left.set_ylabel("relative disagreement D(t)/D(0)")
+    left.legend(fontsize=7)
+    left.grid(alpha=0.3, which="both")
+    k = np.arange(len(trajectory.times))
+    right.semilogy(k, np.maximum(trajectory.disagreement / d0, tiny), ".-", ms=3, lw=0.8)
+    right.set_xlabel("sampling instant k")
+    right.set_ylabel("D(t_k)/D(0)")
+    right.grid(alpha=0.3, which="both")
+    fig.suptitle(
+        f"D = e_x + T_s e_v; deadline error D(T_s)/D(0) = {trajectory.metrics.relative_deadline_error:.2e} "
+        f"with K = {c.n_intervals}",
+        fontsize=9,
+    )
+    return _save(fig, path)
+
+
+def write_figures(trajectory: Trajectory, out_dir: Path) -> list[Path]:
+    """Write topology, positions, velocities, inputs and disagreement PNGs into ``out_dir``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return [
+        topology_figure(trajectory, out_dir / "topology.png"),
+        positions_figure(trajectory, out_dir / "positions.png"),
+        velocities_figure(trajectory, out_dir / "velocities.png"),
+        inputs_figure(trajectory, out_dir / "inputs.png"),
+        disagreement_figure(trajectory, out_dir / "disagreement.png"),
+    ]

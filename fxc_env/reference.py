@@ -1,0 +1,82 @@
+"""The paper's controller, eq. (11), as a policy on the local observation.
+
+Agent i plans, over the coming interval of length T, to reach the average over itself and
+its in-neighbours of their *coasted* states (paper Remark 1, SPEC 2):
+
+    a_v = mean_{j in {i} u N_i} (v_j - v_i)
+    a_x = mean_{j in {i} u N_i} ((x_j - x_i) + T (v_j - v_i))
+
+and the minimum-energy affine input realising that plan is exactly eq. (11):
+``u(t_k+) = -6 e_x / T^2 - 4 e_v / T`` and ``u(t_{k+1}-) = 6 e_x / T^2 + 2 e_v / T``.
+
+The policy reads nothing but the observation (its rows, mask and clock) and the
+environment's settings (``T_s``, modes, layout): no state, no global information.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from fxc_env.config import EnvConfig
+from fxc_env.core.dynamics import input_from_plan
+
+
+def _config_of(source: Any) -> EnvConfig:
+    if isinstance(source, EnvConfig):
+        return source
+    for candidate in (source, getattr(source, "unwrapped", None)):
+        config = getattr(candidate, "config", None)
+        if isinstance(config, EnvConfig):
+            return config
+    raise TypeError(
+        "ReferencePolicy: expected an fxc_env environment (parallel, AEC or VecEnv) or an EnvConfig, "
+        f"got {type(source).__name__}"
+    )
+
+
+class ReferencePolicy:
+    """Eq. (11) for every action mode (``plan``, ``accel``) and observation mode.
+
+    ``ReferencePolicy(env)(obs)`` maps one agent's observation ``(obs_size,)`` (or a dict
+    observation) to its action ``(2 dim,)``; an array with leading dimensions
+    ``(..., obs_size)`` maps to ``(..., 2 dim)`` in one vectorised call.
+    """
+
+    def __init__(self, env: Any) -> None:
+        self.config = _config_of(env)
+        self.layout = self.config.layout
+
+    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
+        """Action(s) for observation(s); see the class docstring for shapes."""
+        if isinstance(observation, Mapping):
+            rows = np.asarray(observation["neighbours"], dtype=np.float64)
+            rows = rows.reshape(rows.shape[:-1] + (2, self.config.dim))
+            mask = np.asarray(observation["mask"], dtype=np.float64)
+            clock = np.asarray(observation["clock"], dtype=np.float64)
+        else:
+            rows, mask, clock = self.layout.split(np.asarray(observation, dtype=np.float64))
+        return self.act(rows, mask, clock)
+
+    def act(self, rows: np.ndarray, mask: np.ndarray, clock: np.ndarray) -> np.ndarray:
+        """Eq. (11) from split observations: rows ``(..., d_max, 2, dim)``, mask ``(..., d_max)``, clock ``(..., 3)``."""
+        c = self.config
+        weight = 1.0 / (mask.sum(axis=-1) + 1.0)  # 1 / (d_i + 1)
+        rel_x = rows[..., 0, :].sum(axis=-2)  # padded rows are zero
+        rel_v = rows[..., 1, :].sum(axis=-2)
+        if c.obs_mode == "normalized":
+            # Rows are (x_j - x_i)/s and T (v_j - v_i)/s: the plan is scale-free.
+            plan_x = weight[..., None] * (rel_x + rel_v)
+            plan_v = weight[..., None] * rel_v
+            if c.action_mode == "plan":
+                return np.concatenate([plan_x, plan_v], axis=-1)
+            # accel: u = (s / T^2) * alpha, with input_from_plan at T = 1 in these units.
+            return np.concatenate(input_from_plan(plan_x, plan_v, 1.0), axis=-1)
+        T = (clock[..., 1] * c.settling_time)[..., None]
+        plan_x = weight[..., None] * (rel_x + T * rel_v)
+        plan_v = weight[..., None] * rel_v
+        if c.action_mode == "plan":
+            return np.concatenate([plan_x, plan_v], axis=-1)
+        return np.concatenate(input_from_plan(plan_x, plan_v, T), axis=-1)

@@ -1,0 +1,115 @@
+"""Drawing: the environment's frames and the directed graphs (matplotlib, headless).
+
+``rgb_array`` frames are drawn on an Agg canvas without pyplot, so they work on machines
+without a display; ``human`` mode opens a pyplot window when the backend is interactive.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import FancyArrowPatch
+
+from fxc_env.config import EnvConfig
+from fxc_env.core.graphs import Topology
+
+#: Graphs with more agents than this are summarised in text instead of drawn.
+DRAW_GRAPH_LIMIT = 60
+
+
+def circle_layout(n_agents: int) -> np.ndarray:
+    """Agent positions on the unit circle, agent 0 at the top, clockwise; ``(N, 2)``."""
+    angle = np.pi / 2 - 2 * np.pi * np.arange(n_agents) / max(n_agents, 1)
+    return np.stack([np.cos(angle), np.sin(angle)], axis=1)
+
+
+def draw_graph(ax: Axes, topology: Topology, graph: int, *, title: str | None = None, one_based: bool = False) -> None:
+    """Draw graph ``graph`` of the period: nodes on a circle, arrows ``j -> i`` (i receives from j)."""
+    n = topology.n_agents
+    ax.set_aspect("equal")
+    ax.set_axis_off()
+    ax.set_xlim(-1.35, 1.35)
+    ax.set_ylim(-1.35, 1.35)
+    if title:
+        ax.set_title(title, fontsize=10)
+    if n > DRAW_GRAPH_LIMIT:
+        edges = len(topology.edges[graph])
+        ax.text(0, 0, f"{n} agents\n{edges} edges", ha="center", va="center")
+        return
+    where = circle_layout(n)
+    for j, i in topology.edges[graph]:
+        arrow = FancyArrowPatch(
+            where[j],
+            where[i],
+            arrowstyle="-|>",
+            mutation_scale=12,
+            shrinkA=9,
+            shrinkB=9,
+            color="tab:blue",
+            lw=1.3,
+            connectionstyle="arc3,rad=0.12",
+        )
+        ax.add_patch(arrow)
+    ax.scatter(where[:, 0], where[:, 1], s=260, color="white", edgecolor="black", zorder=3)
+    offset = 1 if one_based else 0
+    for node, (px, py) in enumerate(where):
+        ax.text(px, py, str(node + offset), ha="center", va="center", fontsize=8, zorder=4)
+
+
+def agent_colours(n_agents: int) -> list:
+    """One colour per agent (tab10 cycled)."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10"]
+    return [cmap(i % 10) for i in range(n_agents)]
+
+
+class EpisodeRenderer:
+    """Frames of the episode so far: positions and velocities (first component) and the current graph."""
+
+    def __init__(self, config: EnvConfig, *, interactive: bool = False) -> None:
+        self.config = config
+        self.interactive = interactive
+        if interactive:
+            import matplotlib.pyplot as plt
+
+            self._plt = plt
+            self.figure = plt.figure(figsize=(9, 3.2), dpi=80)
+        else:
+            self.figure = Figure(figsize=(9, 3.2), dpi=80)
+            FigureCanvasAgg(self.figure)
+
+    def draw(self, history: Sequence[tuple[float, np.ndarray, np.ndarray]], graph: int) -> np.ndarray:
+        """Redraw and return the frame as an ``(H, W, 3)`` uint8 array."""
+        c = self.config
+        fig = self.figure
+        fig.clear()
+        axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.4, 1.4, 1]})
+        times = np.array([h[0] for h in history])
+        xs = np.array([h[1][:, 0] for h in history])
+        vs = np.array([h[2][:, 0] for h in history])
+        colours = agent_colours(c.n_agents)
+        for ax, values, label in ((axes[0], xs, "position x"), (axes[1], vs, "velocity v")):
+            shown = min(c.n_agents, 30)
+            for i in range(shown):
+                ax.plot(times, values[:, i], marker=".", ms=3, lw=1, color=colours[i])
+            ax.set_xlim(0, c.settling_time)
+            ax.set_xlabel("t (s)")
+            ax.set_ylabel(label + (" (1st component)" if c.dim > 1 else ""))
+            ax.grid(alpha=0.3)
+        k = len(history) - 1
+        draw_graph(axes[2], c.topology, graph, title=f"k = {k}, graph G_{graph}")
+        fig.tight_layout()
+        fig.canvas.draw()
+        frame = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+        if self.interactive:
+            self._plt.pause(0.001)
+        return frame
+
+    def close(self) -> None:
+        if self.interactive:
+            self._plt.close(self.figure)

@@ -1,0 +1,1 @@
+"""Training of learned policies with stable-baselines3: see issue 5."""
