@@ -67,7 +67,7 @@ class ObservationLayout:
     def split(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(..., size)`` -> rows ``(..., d_max, 2, dim)``, mask ``(..., d_max)``, clock ``(..., 3)``."""
         lead = obs.shape[:-1]
-        rows = obs[..., : self.rows_end].reshape(lead + (self.max_in_degree, 2, self.dim))
+        rows = obs[..., : self.rows_end].reshape((*lead, self.max_in_degree, 2, self.dim))
         return rows, obs[..., self.rows_end : self.mask_end], obs[..., self.mask_end :]
 
 

@@ -149,7 +149,7 @@ class ConsensusEngine:
         """Every agent's flat observation at ``t_k``, ``(B, N, obs_size)`` (SPEC 4.2)."""
         c = self.config
         dx, dv, scale = self.relative_rows()
-        b, n, d_max, dim = dx.shape
+        b, n, _d_max, _dim = dx.shape
         if c.obs_mode == "normalized":
             T = self.current_interval()
             inv = np.divide(1.0, scale, out=np.zeros_like(scale), where=scale > 0)[..., None, None]

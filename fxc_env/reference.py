@@ -53,7 +53,7 @@ class ReferencePolicy:
         """Action(s) for observation(s); see the class docstring for shapes."""
         if isinstance(observation, Mapping):
             rows = np.asarray(observation["neighbours"], dtype=np.float64)
-            rows = rows.reshape(rows.shape[:-1] + (2, self.config.dim))
+            rows = rows.reshape((*rows.shape[:-1], 2, self.config.dim))
             mask = np.asarray(observation["mask"], dtype=np.float64)
             clock = np.asarray(observation["clock"], dtype=np.float64)
         else:

@@ -95,7 +95,7 @@ def simulate(
     s = offsets[:, :, None, None]
     pick = lambda a: a[:, None]  # noqa: E731  (K, ...) -> (K, 1, ...) against s (K, P, 1, 1)
     dx, dv, du = state_inside(pick(x[:-1]), pick(v[:-1]), pick(u0), pick(u1), intervals[:, None, None, None], s)
-    flat = (k_total * points_per_interval,) + x.shape[1:]
+    flat = (k_total * points_per_interval, *x.shape[1:])
     dense_times = np.concatenate([(times[:-1, None] + offsets).ravel(), times[-1:]])
     dense_x = np.concatenate([dx.reshape(flat), x[-1:]])
     dense_v = np.concatenate([dv.reshape(flat), v[-1:]])

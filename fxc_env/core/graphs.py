@@ -402,7 +402,7 @@ def random_topology(n_agents: int, *, seed: int | None = 0, mean_in_degree: floa
     position = np.arange(1, n)
     parents = order[(rng.random(n - 1) * position).astype(np.int64)]
     tree = np.stack([parents, order[1:]], axis=1)
-    target = min(int(round(mean_in_degree * n)), n * (n - 1))
+    target = min(round(mean_in_degree * n), n * (n - 1))
     extra_count = max(target - len(tree), 0)
     keys = tree[:, 1] * n + tree[:, 0]
     if extra_count:
