@@ -51,12 +51,10 @@ def topology_figure(trajectory: Trajectory, path: Path) -> Path:
     return _save(fig, path)
 
 
-def _state_figure(trajectory: Trajectory, path: Path, which: str) -> Path:
+def _draw_state(ax, trajectory: Trajectory, which: str) -> None:
     c = trajectory.config
     dense = trajectory.dense_x if which == "x" else trajectory.dense_v
     sampled = trajectory.x if which == "x" else trajectory.v
-    fig = _figure()
-    ax = fig.subplots()
     colours = agent_colours(c.n_agents)
     for i in range(c.n_agents):
         label = f"agent_{i}" if c.n_agents <= LEGEND_LIMIT else None
@@ -81,6 +79,20 @@ def _state_figure(trajectory: Trajectory, path: Path, which: str) -> Path:
     )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
+
+
+def _state_figure(trajectory: Trajectory, path: Path, which: str) -> Path:
+    fig = _figure()
+    _draw_state(fig.subplots(), trajectory, which)
+    return _save(fig, path)
+
+
+def overview_figure(trajectory: Trajectory, path: Path) -> Path:
+    """Positions and velocities side by side (the README's picture)."""
+    fig = _figure(12.0, 4.2)
+    left, right = fig.subplots(1, 2)
+    _draw_state(left, trajectory, "x")
+    _draw_state(right, trajectory, "v")
     return _save(fig, path)
 
 
@@ -142,7 +154,7 @@ def disagreement_figure(trajectory: Trajectory, path: Path) -> Path:
 
 
 def write_figures(trajectory: Trajectory, out_dir: Path) -> list[Path]:
-    """Write topology, positions, velocities, inputs and disagreement PNGs into ``out_dir``."""
+    """Write topology, positions, velocities, inputs, disagreement and overview PNGs into ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     return [
         topology_figure(trajectory, out_dir / "topology.png"),
@@ -150,4 +162,5 @@ def write_figures(trajectory: Trajectory, out_dir: Path) -> list[Path]:
         velocities_figure(trajectory, out_dir / "velocities.png"),
         inputs_figure(trajectory, out_dir / "inputs.png"),
         disagreement_figure(trajectory, out_dir / "disagreement.png"),
+        overview_figure(trajectory, out_dir / "overview.png"),
     ]
