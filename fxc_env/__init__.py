@@ -19,10 +19,12 @@ from fxc_env.fxc_consensus_v0 import env, parallel_env, raw_env
 from fxc_env.reference import ReferencePolicy
 from fxc_env.scenarios import SCENARIOS
 from fxc_env.simulation import Trajectory, simulate
+from fxc_env.vec_env import ConsensusVecEnv
 
 __all__ = [
     "SCENARIOS",
     "ConsensusEngine",
+    "ConsensusVecEnv",
     "EnvConfig",
     "ReferencePolicy",
     "Schedule",

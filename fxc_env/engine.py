@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fxc_env.config import EnvConfig, validate_state_array
-from fxc_env.core import dynamics
+from fxc_env.core import dynamics, slots
 from fxc_env.core.graphs import DENSE_LIMIT
 from fxc_env.core.metrics import SETTLING_THRESHOLDS, EpisodeMetrics, disagreement, reward_floor, spread
 
@@ -52,8 +52,9 @@ class ConsensusEngine:
         self.layout = config.layout
         n, dim = config.n_agents, config.dim
         shape = (self.n_episodes, n, dim)
-        self.x = np.zeros(shape)
-        self.v = np.zeros(shape)
+        #: ``(B, N, 2, dim)``: ``state[:, :, 0]`` positions, ``state[:, :, 1]`` velocities,
+        #: side by side so one gather fetches both of a neighbour's values.
+        self.state = np.zeros((self.n_episodes, n, 2, dim))
         self.x0 = np.zeros(shape)
         self.v0 = np.zeros(shape)
         self.k = 0
@@ -62,6 +63,16 @@ class ConsensusEngine:
         self._reset_trackers()
 
     # ------------------------------------------------------------------ state
+    @property
+    def x(self) -> np.ndarray:
+        """Positions ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`)."""
+        return self.state[:, :, 0]
+
+    @property
+    def v(self) -> np.ndarray:
+        """Velocities ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`)."""
+        return self.state[:, :, 1]
+
     def sample_initial_state(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """One episode's ``(x0, v0)``: the config's initial state, else uniform draws.
 
@@ -103,7 +114,7 @@ class ConsensusEngine:
         self.peak_total = np.zeros((b, n))
         # Index of the last sampling instant whose D(t_k)/D(0) was >= eps, per threshold.
         self.last_above = np.zeros((len(SETTLING_THRESHOLDS), b), dtype=np.int64)
-        self._rows_cache: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._scale: tuple[int, np.ndarray] | None = None
 
     @property
     def done(self) -> bool:
@@ -124,48 +135,47 @@ class ConsensusEngine:
         return self.k % self.config.topology.period
 
     # ------------------------------------------------------------ observation
-    def relative_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Sampled neighbour measurements at ``t_k`` and each agent's local scale.
+    def observations(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Every agent's flat observation at ``t_k``, ``(B, N, obs_size)`` (SPEC 4.2).
 
-        Returns:
-            ``dx = x_j - x_i`` and ``dv = v_j - v_i``, each ``(B, N, d_max, dim)`` (zero in
-            padded slots), and ``scale`` ``(B, N)``: ``s_i = max(|x_j - x_i|, T |v_j - v_i|)``
-            over agent i's rows (0 when it sees no disagreement).
+        ``out`` (optional, ``(B, N, obs_size)`` float64) is filled instead of a fresh
+        array: for loops that consume observations at once, it saves the page faults of
+        a new large buffer every step.
+
+        One pass: gather ``x_j``, subtract ``x_i`` (padded slots point
+        at i itself and give exact zeros), take the local scale
+        ``s_i = max(|x_j - x_i|, T |v_j - v_i|)`` and, in normalized mode, divide by it.
+        Division (not multiplication by ``1/s``) keeps every entry within [-1, 1] exactly.
         """
-        if self._rows_cache is not None and self._rows_cache[0] == self.k:
-            return self._rows_cache[1:]
-        index = self.config.topology.neighbour_index[self.graph_index()]
-        dx = self.x[:, index, :] - self.x[:, :, None, :]
-        dv = self.v[:, index, :] - self.v[:, :, None, :]
+        c, layout = self.config, self.layout
+        b, n, dim, d_max = self.n_episodes, c.n_agents, c.dim, layout.max_in_degree
         T = self.current_interval()
-        if dx.shape[2]:
-            scale = np.maximum(np.abs(dx).max(axis=(2, 3)), T * np.abs(dv).max(axis=(2, 3)))
-        else:
-            scale = np.zeros(dx.shape[:2])
-        self._rows_cache = (self.k, dx, dv, scale)
-        return dx, dv, scale
-
-    def observations(self) -> np.ndarray:
-        """Every agent's flat observation at ``t_k``, ``(B, N, obs_size)`` (SPEC 4.2)."""
-        c = self.config
-        dx, dv, scale = self.relative_rows()
-        b, n, _d_max, _dim = dx.shape
-        if c.obs_mode == "normalized":
-            T = self.current_interval()
-            inv = np.divide(1.0, scale, out=np.zeros_like(scale), where=scale > 0)[..., None, None]
-            # |rows| <= 1 by construction; the clip only removes rounding above 1.
-            dx = np.clip(dx * inv, -1.0, 1.0)
-            dv = np.clip(dv * (T * inv), -1.0, 1.0)
-        obs = np.empty((b, n, self.layout.size))
-        obs[..., : self.layout.rows_end] = np.stack([dx, dv], axis=3).reshape(b, n, -1)
-        obs[..., self.layout.rows_end : self.layout.mask_end] = self._mask_features[self.graph_index()]
-        k = min(self.k, c.n_intervals - 1)
-        obs[..., self.layout.mask_end :] = (
+        obs = np.empty((b, n, layout.size)) if out is None else out
+        rows = obs[..., : layout.rows_end].reshape(b, n, d_max, 2, dim)
+        # Gather [x_j, v_j] together (one random access per edge), then subtract [x_i, v_i].
+        index = c.topology.neighbour_index[self.graph_index()]
+        gathered = np.take(self.state, index, axis=1, mode="clip")  # (B, N, d_max, 2, dim)
+        gathered -= self.state[:, :, None]
+        dx, dv = gathered[..., 0, :], gathered[..., 1, :]
+        scale = np.maximum(slots.max_abs(dx), T * slots.max_abs(dv))
+        self._scale = (self.k, scale)
+        if c.obs_mode == "normalized" and d_max:
+            dv *= T
+            gathered /= np.where(scale > 0, scale, 1.0)[:, :, None, None, None]
+        rows[...] = gathered
+        obs[..., layout.rows_end : layout.mask_end] = self._mask_features[self.graph_index()]
+        obs[..., layout.mask_end :] = (
             c.schedule.times[self.k] / c.settling_time,
-            c.schedule.intervals[k] / c.settling_time,
+            T / c.settling_time,
             self.k / c.n_intervals,
         )
         return obs
+
+    def local_scale(self) -> np.ndarray:
+        """Each agent's local scale ``s_i`` at ``t_k`` (metres), ``(B, N)``; 0 if it sees no disagreement."""
+        if self._scale is None or self._scale[0] != self.k:
+            self.observations()
+        return self._scale[1]
 
     # ----------------------------------------------------------------- action
     def validate_actions(self, actions: object, name: str = "actions") -> np.ndarray:
@@ -186,8 +196,7 @@ class ConsensusEngine:
         T = self.current_interval()
         first, second = actions[..., :dim], actions[..., dim:]
         if c.obs_mode == "normalized":
-            _, _, scale = self.relative_rows()
-            s = scale[..., None]
+            s = self.local_scale()[..., None]
             if c.action_mode == "plan":
                 return dynamics.input_from_plan(s * first, (s / T) * second, T)
             gain = s / (T * T)
@@ -204,7 +213,9 @@ class ConsensusEngine:
         u0, u1 = self.inputs_from_actions(actions)
         energy = dynamics.interval_energy(u0, u1, T)
         peak = dynamics.interval_peak(u0, u1)
-        self.x, self.v = dynamics.advance(self.x, self.v, u0, u1, T)
+        x_next, v_next = dynamics.advance(self.x, self.v, u0, u1, T)
+        self.x[...] = x_next
+        self.v[...] = v_next
         self.k += 1
         previous = self.current_disagreement
         self.current_disagreement = disagreement(self.x, self.v, self.config.settling_time)
@@ -214,7 +225,6 @@ class ConsensusEngine:
         ratio = self._ratio(self.current_disagreement)
         for row, eps in enumerate(SETTLING_THRESHOLDS):
             self.last_above[row][ratio >= eps] = self.k
-        self._rows_cache = None
         return StepOutcome(reward, energy, peak, u0, u1, self.done)
 
     def _ratio(self, value: np.ndarray) -> np.ndarray:

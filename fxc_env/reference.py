@@ -48,35 +48,46 @@ class ReferencePolicy:
     def __init__(self, env: Any) -> None:
         self.config = _config_of(env)
         self.layout = self.config.layout
+        # One matrix product sums the x rows, the v rows and the mask of every agent in a
+        # single pass over the observations: columns [sum (x_j - x_i) | sum (v_j - v_i) | d_i].
+        layout, dim = self.layout, self.config.dim
+        summation = np.zeros((layout.mask_end, 2 * dim + 1))
+        slot = np.arange(layout.max_in_degree)[:, None]
+        component = np.arange(dim)[None, :]
+        summation[(slot * layout.row_size + component).ravel(), np.tile(component.ravel(), layout.max_in_degree)] = 1.0
+        summation[
+            (slot * layout.row_size + dim + component).ravel(), np.tile(dim + component.ravel(), layout.max_in_degree)
+        ] = 1.0
+        summation[layout.rows_end : layout.mask_end, 2 * dim] = 1.0
+        self._summation = summation
 
     def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
         """Action(s) for observation(s); see the class docstring for shapes."""
         if isinstance(observation, Mapping):
-            rows = np.asarray(observation["neighbours"], dtype=np.float64)
-            rows = rows.reshape((*rows.shape[:-1], 2, self.config.dim))
-            mask = np.asarray(observation["mask"], dtype=np.float64)
-            clock = np.asarray(observation["clock"], dtype=np.float64)
+            neighbours = np.asarray(observation["neighbours"], dtype=np.float64)
+            parts = (neighbours.reshape((*neighbours.shape[:-2], -1)), observation["mask"], observation["clock"])
+            obs = np.concatenate([np.asarray(p, dtype=np.float64) for p in parts], axis=-1)
         else:
-            rows, mask, clock = self.layout.split(np.asarray(observation, dtype=np.float64))
-        return self.act(rows, mask, clock)
+            obs = np.asarray(observation, dtype=np.float64)
+        return self.act(obs)
 
-    def act(self, rows: np.ndarray, mask: np.ndarray, clock: np.ndarray) -> np.ndarray:
-        """Eq. (11) from split observations: rows ``(..., d_max, 2, dim)``, mask ``(..., d_max)``, clock ``(..., 3)``."""
-        c = self.config
-        weight = 1.0 / (mask.sum(axis=-1) + 1.0)  # 1 / (d_i + 1)
-        rel_x = rows[..., 0, :].sum(axis=-2)  # padded rows are zero
-        rel_v = rows[..., 1, :].sum(axis=-2)
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Eq. (11) from flat observations ``(..., obs_size)``: actions ``(..., 2 dim)``."""
+        c, dim = self.config, self.config.dim
+        sums = obs[..., : self.layout.mask_end] @ self._summation  # padded rows are zero
+        rel_x, rel_v = sums[..., :dim], sums[..., dim : 2 * dim]
+        weight = 1.0 / (sums[..., 2 * dim :] + 1.0)  # 1 / (d_i + 1)
         if c.obs_mode == "normalized":
             # Rows are (x_j - x_i)/s and T (v_j - v_i)/s: the plan is scale-free.
-            plan_x = weight[..., None] * (rel_x + rel_v)
-            plan_v = weight[..., None] * rel_v
+            plan_x = weight * (rel_x + rel_v)
+            plan_v = weight * rel_v
             if c.action_mode == "plan":
                 return np.concatenate([plan_x, plan_v], axis=-1)
             # accel: u = (s / T^2) * alpha, with input_from_plan at T = 1 in these units.
             return np.concatenate(input_from_plan(plan_x, plan_v, 1.0), axis=-1)
-        T = (clock[..., 1] * c.settling_time)[..., None]
-        plan_x = weight[..., None] * (rel_x + T * rel_v)
-        plan_v = weight[..., None] * rel_v
+        T = obs[..., self.layout.mask_end + 1 : self.layout.mask_end + 2] * c.settling_time
+        plan_x = weight * (rel_x + T * rel_v)
+        plan_v = weight * rel_v
         if c.action_mode == "plan":
             return np.concatenate([plan_x, plan_v], axis=-1)
         return np.concatenate(input_from_plan(plan_x, plan_v, T), axis=-1)

@@ -387,10 +387,13 @@ def named_topology(
 def random_topology(n_agents: int, *, seed: int | None = 0, mean_in_degree: float = 2.0, period: int = 1) -> Topology:
     """Seeded random digraph(s) whose union has a directed spanning tree; O(N + |E|).
 
-    A random order of the agents is drawn; each agent but the first receives from one
-    uniformly chosen earlier agent (a random spanning tree), then ``mean_in_degree * N``
-    edges in all are reached by adding uniform random pairs (self-loops and duplicates
-    dropped). With ``period = m > 1`` every edge goes to one of the m graphs at random.
+    A random order of the agents is drawn and each agent but the first receives from one
+    uniformly chosen earlier agent (a random spanning tree). Every agent's in-degree is
+    then raised to ``floor(mean_in_degree)`` or ``ceil(mean_in_degree)`` (at random, so the
+    mean is ``mean_in_degree``; never below the tree's, never above N - 1) with senders
+    drawn uniformly without repeats. Near-equal in-degrees keep the padded observation
+    (its width is the largest in-degree) small at any N. With ``period = m > 1`` every edge
+    goes to one of the m graphs at random, so only their union is sure to span.
     """
     if not np.isfinite(mean_in_degree) or mean_in_degree < 0:
         raise ValueError(f"mean_in_degree: expected a finite number >= 0, got {mean_in_degree!r}")
@@ -399,21 +402,24 @@ def random_topology(n_agents: int, *, seed: int | None = 0, mean_in_degree: floa
     rng = np.random.default_rng(seed)
     n = n_agents
     order = rng.permutation(n)
-    position = np.arange(1, n)
-    parents = order[(rng.random(n - 1) * position).astype(np.int64)]
-    tree = np.stack([parents, order[1:]], axis=1)
-    target = min(round(mean_in_degree * n), n * (n - 1))
-    extra_count = max(target - len(tree), 0)
-    keys = tree[:, 1] * n + tree[:, 0]
-    if extra_count:
-        # Oversample, then keep the first new distinct non-loop pairs.
-        draw = rng.integers(0, n, size=(int(extra_count * 1.2) + 16, 2))
-        draw = draw[draw[:, 0] != draw[:, 1]]
-        draw_keys = draw[:, 1] * n + draw[:, 0]
-        _, first = np.unique(draw_keys, return_index=True)
-        first = np.sort(first)
-        fresh = first[~np.isin(draw_keys[first], keys)][:extra_count]
-        keys = np.concatenate([keys, draw_keys[fresh]])
+    parents = order[(rng.random(n - 1) * np.arange(1, n)).astype(np.int64)]
+    keys = np.sort(order[1:] * n + parents)  # key = receiver * N + sender, kept sorted
+    base = np.floor(mean_in_degree)
+    degree = np.minimum(base + (rng.random(n) < mean_in_degree - base), n - 1).astype(np.int64)
+    missing = np.maximum(degree - np.bincount(keys // n, minlength=n), 0)
+    while missing.any():
+        receivers = np.repeat(np.arange(n), missing)
+        senders = rng.integers(0, n - 1, size=len(receivers))
+        senders += senders >= receivers  # uniform over the other agents
+        fresh = np.sort(receivers * n + senders)
+        fresh = fresh[np.concatenate(([True], fresh[1:] != fresh[:-1]))]
+        at = np.minimum(np.searchsorted(keys, fresh), len(keys) - 1)
+        fresh = fresh[keys[at] != fresh] if len(keys) else fresh
+        # Keep at most `missing` new senders per receiver (the first in key order).
+        rank = np.arange(len(fresh)) - np.searchsorted(fresh // n, fresh // n)
+        fresh = fresh[rank < missing[fresh // n]]
+        keys = np.sort(np.concatenate([keys, fresh]))
+        missing = np.maximum(degree - np.bincount(keys // n, minlength=n), 0)
     pairs = np.stack([keys % n, keys // n], axis=1)
     graph_of_edge = rng.integers(0, period, size=len(pairs))
     edges = tuple(_normalise_edges(pairs[graph_of_edge == g], n, "topology", f"graph {g}") for g in range(period))

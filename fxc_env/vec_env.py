@@ -1,0 +1,321 @@
+"""A native stable-baselines3 ``VecEnv`` with parameter sharing over every agent.
+
+One :class:`ConsensusEngine` runs ``n_envs`` episodes in lock step; each of their N agents
+is one SB3 sub-environment, so a single policy acts for all ``n_envs * N`` agents in one
+vectorised call. No Python loop over agents or episodes runs per step (SPEC 7: SuperSuit's
+wrappers break seeding and attribute access and are slower).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import fields
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
+
+from fxc_env.config import EnvConfig, make_config
+from fxc_env.consensus_env import RENDER_MODES, ConsensusParallelEnv
+from fxc_env.core.graphs import DENSE_LIMIT
+from fxc_env.core.metrics import EpisodeMetrics, spread
+from fxc_env.engine import ConsensusEngine, StepOutcome
+
+
+class ConsensusVecEnv(VecEnv):
+    """SB3 ``VecEnv`` over all agents of ``n_envs`` parallel episodes (parameter sharing).
+
+    Sub-environment ``i = episode * N + agent`` is agent ``agent`` of episode ``episode``;
+    ``num_envs = n_envs * N``. Every sub-environment has one agent's spaces (those of
+    :class:`ConsensusParallelEnv`; flat ``Box`` only):
+
+    | quantity           | shape                       | dtype   |
+    |--------------------|-----------------------------|---------|
+    | observations       | ``(num_envs, obs_size)``    | float64 |
+    | actions (accepted) | ``(num_envs, 2 dim)``       | any real, applied as float64 |
+    | rewards            | ``(num_envs,)``             | float32 (team reward repeated per agent) |
+    | dones              | ``(num_envs,)``             | bool    |
+
+    Episodes share the clock and end together: terminated at ``T_s`` after K steps, or
+    truncated when ``max_cycles < K`` steps cut them. Then every sub-environment is done and
+    all episodes restart at once (auto-reset, as :class:`DummyVecEnv`). Infos are empty
+    dicts during an episode; at its end each carries ``terminal_observation`` (the last
+    observation before the reset), ``TimeLimit.truncated`` (True only for a ``max_cycles``
+    cut; the deadline is a termination) and ``episode_metrics`` (its episode's
+    ``EpisodeMetrics.as_dict()``, one dict shared by the episode's agents). Per-agent energy
+    and peak input of the last step are in :attr:`last_outcome` (arrays ``(n_envs, N)``).
+
+    Seeding follows SB3: :meth:`seed` sets ``seed + i`` for sub-environment i, used at the
+    next :meth:`reset` only. Episode b reads the seed (and the :meth:`set_options` options,
+    ``x0``/``v0`` as in :meth:`ConsensusParallelEnv.reset`) of its first sub-environment
+    ``b * N``, so it draws its initial states from ``np.random.default_rng(seed + b * N)``
+    and replays exactly the episodes of a ``ConsensusParallelEnv`` reset with that seed;
+    later episodes continue that generator. Unseeded episodes use independent
+    nondeterministic generators.
+
+    All sub-environments share one environment: :meth:`get_attr`, :meth:`set_attr` and
+    :meth:`env_method` act on this object (falling back to :attr:`config` for reading), and
+    return one value per requested index. ``render_mode="rgb_array"`` or ``"human"`` draws
+    episode 0 (:meth:`render`).
+
+    Args:
+        n_envs: number of parallel episodes.
+        render_mode: None, ``"rgb_array"`` or ``"human"``.
+        max_cycles: truncate every episode after this many steps (None: run to ``T_s``).
+        env_kwargs: any keyword argument of :func:`fxc_env.make_config` (``scenario``, ...).
+    """
+
+    def __init__(
+        self, n_envs: int, *, render_mode: str | None = None, max_cycles: int | None = None, **env_kwargs: Any
+    ) -> None:
+        if isinstance(n_envs, bool) or not isinstance(n_envs, int | np.integer) or n_envs < 1:
+            raise ValueError(f"n_envs: expected an integer >= 1, got {n_envs!r}")
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode: expected None or one of {RENDER_MODES}, got {render_mode!r}")
+        _check_max_cycles(max_cycles)
+        config = make_config(**env_kwargs)
+        if config.obs_format != "flat":
+            raise ValueError(
+                f"obs_format: ConsensusVecEnv supports only obs_format='flat' (a Box per agent), "
+                f"got {config.obs_format!r}"
+            )
+        self.config: EnvConfig = config
+        self.n_envs = int(n_envs)
+        self.n_agents = config.n_agents
+        self.max_cycles = max_cycles
+        self.render_mode = render_mode
+        self.engine = ConsensusEngine(config, n_episodes=self.n_envs)
+        #: What the last step did per episode and agent (``None`` before the first step).
+        self.last_outcome: StepOutcome | None = None
+        self._xi = config.topology.consensus_weights() if self.n_agents <= DENSE_LIMIT else None
+        self._rngs = [np.random.default_rng(s) for s in np.random.SeedSequence().spawn(self.n_envs)]
+        self._actions: np.ndarray | None = None
+        self._needs_reset = True
+        self._steps = 0
+        self._history: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self._renderer: Any = None
+        super().__init__(self.n_envs * self.n_agents, agent_observation_space(config), agent_action_space(config))
+        self.metadata = dict(ConsensusParallelEnv.metadata)
+
+    # ------------------------------------------------------------ reset/seed
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Seed sub-environment i with ``seed + i`` at the next :meth:`reset` (random if None)."""
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0):
+            raise ValueError(f"seed: expected None or an integer >= 0, got {seed!r}")
+        return super().seed(None if seed is None else int(seed))
+
+    def reset(self) -> np.ndarray:
+        """Restart every episode; observations ``(num_envs, obs_size)``.
+
+        Consumes the seeds and options set since the last reset (see the class docstring).
+        """
+        n = self.n_agents
+        overrides = {b: self._initial_state_options(o) for b, o in enumerate(self._options[::n]) if o}
+        x0, v0 = self._draw_initial_states(self._seeds[::n])
+        for b, (given_x, given_v) in overrides.items():
+            if given_x is not None:
+                x0[b] = given_x
+            if given_v is not None:
+                v0[b] = given_v
+        self._reset_seeds()
+        self._reset_options()
+        self._start(x0, v0)
+        return self._observe()
+
+    def _initial_state_options(self, options: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
+        if not isinstance(options, Mapping):
+            raise TypeError(f"options: expected a dict or None, got {type(options).__name__}")
+        validate = self.engine.validate_state
+        x0 = validate("options['x0']", options["x0"]) if "x0" in options else None
+        v0 = validate("options['v0']", options["v0"]) if "v0" in options else None
+        return x0, v0
+
+    def _draw_initial_states(self, seeds: Sequence[int | None] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Each episode's ``(x0, v0)`` from its own generator, re-seeded where ``seeds[b]`` is given."""
+        shape = (self.n_envs, self.n_agents, self.config.dim)
+        x0, v0 = np.empty(shape), np.empty(shape)
+        for b in range(self.n_envs):  # the one per-episode loop: independent generators
+            if seeds is not None and seeds[b] is not None:
+                self._rngs[b] = np.random.default_rng(seeds[b])
+            x0[b], v0[b] = self.engine.sample_initial_state(self._rngs[b])
+        return x0, v0
+
+    def _start(self, x0: np.ndarray, v0: np.ndarray) -> None:
+        self.engine.reset(x0, v0)
+        self._steps = 0
+        self._needs_reset = False
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        self._history = [(0.0, x0[0].copy(), v0[0].copy())] if self.render_mode else []
+
+    def _observe(self) -> np.ndarray:
+        return self.engine.observations().reshape(self.num_envs, -1)
+
+    # ------------------------------------------------------------------ step
+    def step_async(self, actions: np.ndarray) -> None:
+        """Check and store actions ``(num_envs, 2 dim)``; raise naming ``actions`` if bad."""
+        if self._needs_reset:
+            raise RuntimeError("step: call reset() before the first step")
+        array = np.asarray(actions)
+        expected = (self.num_envs, self.config.action_size)
+        if array.dtype.kind not in "biuf":
+            raise TypeError(f"actions: expected real numbers, got dtype {array.dtype}")
+        if array.shape != expected:
+            raise ValueError(f"actions: expected shape {expected} (num_envs, 2 dim), got {array.shape}")
+        if not np.all(np.isfinite(array)):
+            raise ValueError("actions: every entry must be finite (no NaN or inf)")
+        self._actions = array.astype(np.float64).reshape(self.n_envs, self.n_agents, -1)
+
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
+        """Play one interval in every episode; auto-reset all of them when they end."""
+        if self._actions is None:
+            raise RuntimeError("step_wait: call step_async(actions) first")
+        outcome = self.engine.step(self._actions)
+        self._actions = None
+        self.last_outcome = outcome
+        self._steps += 1
+        terminated = outcome.terminated
+        truncated = not terminated and self.max_cycles is not None and self._steps >= self.max_cycles
+        rewards = np.repeat(outcome.reward.astype(np.float32), self.n_agents)
+        obs = self._observe()
+        if self.render_mode:
+            self._history.append((self.engine.time, self.engine.x[0].copy(), self.engine.v[0].copy()))
+        if not (terminated or truncated):
+            return obs, rewards, np.zeros(self.num_envs, dtype=bool), [{} for _ in range(self.num_envs)]
+        per_agent = [episode for episode in self._batch_metrics() for _ in range(self.n_agents)]
+        infos = [
+            {"terminal_observation": row, "TimeLimit.truncated": truncated, "episode_metrics": episode}
+            for row, episode in zip(obs, per_agent, strict=True)
+        ]
+        self._start(*self._draw_initial_states())
+        return self._observe(), rewards, np.ones(self.num_envs, dtype=bool), infos
+
+    def _batch_metrics(self) -> list[dict[str, Any]]:
+        """``engine.episode_metrics(b).as_dict()`` for every episode b, vectorised over b."""
+        e, c = self.engine, self.config
+        times = np.concatenate([c.schedule.times, [np.inf]])
+        t_eps = times[e.last_above + 1]  # (thresholds, B)
+        d0 = e.initial_disagreement
+        if self._xi is not None:
+            predicted_x = e.x0[:, :, 0] @ self._xi + c.settling_time * (e.v0[:, :, 0] @ self._xi)
+            predicted_v = e.v0[:, :, 0] @ self._xi
+        else:
+            predicted_x = predicted_v = np.full(self.n_envs, np.nan)
+        columns = {
+            "final_position_spread": spread(e.x),
+            "final_velocity_spread": spread(e.v),
+            "relative_deadline_error": np.divide(e.current_disagreement, d0, out=np.zeros_like(d0), where=d0 > 0),
+            "t_eps_1e_2": t_eps[0],
+            "t_eps_1e_6": t_eps[0],
+            "energy": e.energy_total.sum(axis=1),
+            "peak_input": e.peak_total.max(axis=1, initial=0.0),
+            "sampling_instants": np.full(self.n_envs, e.k),
+            "predicted_final_position": predicted_x,
+            "achieved_final_position": e.x[:, :, 0].mean(axis=1),
+            "predicted_final_velocity": predicted_v,
+            "achieved_final_velocity": e.v[:, :, 0].mean(axis=1),
+        }
+        keys = [f.name for f in fields(EpisodeMetrics)]
+        values = [_json_column(columns[key]) for key in keys]
+        return [dict(zip(keys, row, strict=True)) for row in zip(*values, strict=True)]
+
+    # ------------------------------------------------------------ attributes
+    def _resolve(self, name: str) -> Any:
+        if hasattr(self, name):
+            return getattr(self, name)
+        if hasattr(self.config, name):
+            return getattr(self.config, name)
+        raise AttributeError(f"attr_name: neither ConsensusVecEnv nor its EnvConfig has an attribute {name!r}")
+
+    def _index_list(self, indices: VecEnvIndices) -> list[int]:
+        chosen = list(self._get_indices(indices))
+        bad = [i for i in chosen if not -self.num_envs <= i < self.num_envs]
+        if bad:
+            raise IndexError(f"indices: {bad} out of range for num_envs = {self.num_envs}")
+        return chosen
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """The shared value of ``attr_name`` (here, else on :attr:`config`), once per index."""
+        return [self._resolve(attr_name)] * len(self._index_list(indices))
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """Set ``attr_name`` on the shared environment; ``indices`` must cover every sub-env."""
+        if {i % self.num_envs for i in self._index_list(indices)} != set(range(self.num_envs)):
+            raise ValueError(
+                "indices: all sub-environments share one environment, so set_attr applies to all of them; "
+                "pass indices=None"
+            )
+        if attr_name == "max_cycles":
+            _check_max_cycles(value)
+        if not hasattr(self, attr_name) and hasattr(self.config, attr_name):
+            raise AttributeError(
+                f"attr_name: {attr_name!r} belongs to the immutable EnvConfig; build a new ConsensusVecEnv instead"
+            )
+        setattr(self, attr_name, value)
+
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
+        """Call the shared environment's method once; its result repeated once per index."""
+        chosen = self._index_list(indices)
+        return [self._resolve(method_name)(*method_args, **method_kwargs)] * len(chosen)
+
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
+        """Always False: the sub-environments are no gymnasium envs and carry no wrappers."""
+        return [False] * len(self._index_list(indices))
+
+    def state(self) -> np.ndarray:
+        """Global states of all episodes ``(n_envs, N, 2 dim)``: rows ``[x_i, v_i]``."""
+        return np.concatenate([self.engine.x, self.engine.v], axis=-1)
+
+    # ---------------------------------------------------------------- render
+    def render(self, mode: str | None = None) -> np.ndarray | None:
+        """Frame of episode 0 so far: ``(H, W, 3)`` uint8 for ``rgb_array``, None for ``human``."""
+        if mode is not None and mode != self.render_mode:
+            warnings.warn(f"render: mode {mode!r} differs from render_mode {self.render_mode!r}", stacklevel=2)
+            return None
+        if self.render_mode is None:
+            warnings.warn("render: build the ConsensusVecEnv with render_mode='rgb_array' or 'human'", stacklevel=2)
+            return None
+        from fxc_env.rendering import EpisodeRenderer
+
+        if self._renderer is None:
+            self._renderer = EpisodeRenderer(self.config, interactive=self.render_mode == "human")
+        frame = self._renderer.draw(self._history, self.engine.graph_index())
+        return frame if self.render_mode == "rgb_array" else None
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def agent_observation_space(config: EnvConfig) -> spaces.Box:
+    """One agent's flat observation ``Box`` (as :class:`ConsensusParallelEnv` builds it)."""
+    layout = config.layout
+    row_bound = 1.0 if config.obs_mode == "normalized" else np.inf
+    low = np.concatenate([np.full(layout.rows_end, -row_bound), np.zeros(layout.max_in_degree), np.zeros(3)])
+    high = np.concatenate([np.full(layout.rows_end, row_bound), np.ones(layout.max_in_degree), np.ones(3)])
+    return spaces.Box(low, high, dtype=np.float64)
+
+
+def agent_action_space(config: EnvConfig) -> spaces.Box:
+    """One agent's action ``Box(-b, b, (2 dim,))`` (as :class:`ConsensusParallelEnv` builds it)."""
+    bound = config.action_bound
+    return spaces.Box(-bound, bound, shape=(config.action_size,), dtype=np.float64)
+
+
+def _check_max_cycles(value: Any) -> None:
+    if value is not None and (isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1):
+        raise ValueError(f"max_cycles: expected None or an integer >= 1, got {value!r}")
+
+
+def _json_column(values: np.ndarray) -> list[Any]:
+    """Python numbers, with non-finite floats as None (as ``EpisodeMetrics.as_dict``)."""
+    if values.dtype.kind != "f":
+        return values.tolist()
+    column = values.astype(object)
+    column[~np.isfinite(values)] = None
+    return column.tolist()
