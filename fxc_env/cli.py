@@ -122,6 +122,13 @@ def simulate_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def speed_command(args: argparse.Namespace) -> int:
+    from fxc_env import speed
+
+    speed.pin_threads_or_reexec(sys.argv[1:] if args.argv is None else args.argv)
+    return speed.run(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fxc", description="Fixed-time consensus of double integrators (fxc_env).")
     commands = parser.add_subparsers(dest="command", required=True)
@@ -130,12 +137,20 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--out", default="out", help="directory for PNGs and metrics.json")
     sim.add_argument("--points-per-interval", type=int, default=24, help="dense samples per interval in the figures")
     sim.set_defaults(handler=simulate_command)
+    fast = commands.add_parser("speed", help="throughput against MPE2 and VMAS, and scaling to 10^6 agents")
+    fast.add_argument("--rounds", type=int, default=5, help="alternating rounds per contender")
+    fast.add_argument("--total-agents", type=int, default=100_000, help="agents in all for the VecEnv vs VMAS table")
+    fast.add_argument("--largest", type=int, default=1_000_000, help="largest N of the scaling table")
+    fast.add_argument("--skip-contenders", action="store_true", help="only the scaling table (no MPE2/VMAS)")
+    fast.set_defaults(handler=speed_command, argv=None)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if argv is not None and hasattr(args, "argv"):
+        args.argv = list(argv)
     try:
         return args.handler(args)
     except (ValueError, TypeError) as exc:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -47,19 +48,19 @@ class ObservationLayout:
     max_in_degree: int
     dim: int
 
-    @property
+    @cached_property
     def row_size(self) -> int:
         return 2 * self.dim
 
-    @property
+    @cached_property
     def rows_end(self) -> int:
         return self.max_in_degree * self.row_size
 
-    @property
+    @cached_property
     def mask_end(self) -> int:
         return self.rows_end + self.max_in_degree
 
-    @property
+    @cached_property
     def size(self) -> int:
         """Length of the flat observation."""
         return self.mask_end + CLOCK_SIZE
@@ -100,7 +101,7 @@ class EnvConfig:
     def n_intervals(self) -> int:
         return self.schedule.n_intervals
 
-    @property
+    @cached_property
     def layout(self) -> ObservationLayout:
         return ObservationLayout(self.topology.max_in_degree, self.dim)
 

@@ -195,7 +195,7 @@ class ConsensusParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------- step
     def _action_array(self, actions: Any) -> np.ndarray:
-        if not isinstance(actions, Mapping):
+        if type(actions) is not dict and not isinstance(actions, Mapping):
             raise TypeError(f"actions: expected a dict from agent name to action, got {type(actions).__name__}")
         unknown = sorted(set(actions) - set(self.possible_agents), key=str)
         if unknown:
@@ -206,17 +206,20 @@ class ConsensusParallelEnv(ParallelEnv):
         if missing:
             raise ValueError(f"actions: missing an action for agent(s) {missing}")
         size = self.config.action_size
-        array = np.empty((1, len(self.possible_agents), size))
-        for agent, i in self._agent_index.items():
-            action = np.asarray(actions[agent])
-            if action.dtype.kind not in "biuf":
-                raise TypeError(f"actions[{agent!r}]: expected real numbers, got {action!r}")
-            if action.shape != (size,):
-                raise ValueError(f"actions[{agent!r}]: expected shape ({size},), got {action.shape}")
-            if not np.all(np.isfinite(action)):
-                raise ValueError(f"actions[{agent!r}]: every entry must be finite (no NaN or inf), got {action}")
-            array[0, i] = action
-        return array
+        try:
+            array = np.array([actions[agent] for agent in self.possible_agents], dtype=np.float64)
+        except (TypeError, ValueError):
+            array = None  # ragged, non-numeric or complex: the loop below names the agent
+        if array is None or array.shape != (len(self.possible_agents), size) or not np.isfinite(array).all():
+            for agent in self.possible_agents:
+                action = np.asarray(actions[agent])
+                if action.dtype.kind not in "biuf":
+                    raise TypeError(f"actions[{agent!r}]: expected real numbers, got {action!r}")
+                if action.shape != (size,):
+                    raise ValueError(f"actions[{agent!r}]: expected shape ({size},), got {action.shape}")
+                if not np.all(np.isfinite(action)):
+                    raise ValueError(f"actions[{agent!r}]: every entry must be finite (no NaN or inf), got {action}")
+        return array[None]
 
     def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if not self.agents:
@@ -232,13 +235,9 @@ class ConsensusParallelEnv(ParallelEnv):
         rewards = dict.fromkeys(self.agents, reward)
         terminations = dict.fromkeys(self.agents, terminated)
         truncations = dict.fromkeys(self.agents, truncated)
+        energy, peak = outcome.energy[0].tolist(), outcome.peak_input[0].tolist()
         infos = {
-            agent: {
-                "t": t,
-                "interval": engine.k,
-                "energy": float(outcome.energy[0, i]),
-                "peak_u": float(outcome.peak_input[0, i]),
-            }
+            agent: {"t": t, "interval": engine.k, "energy": energy[i], "peak_u": peak[i]}
             for agent, i in self._agent_index.items()
         }
         if terminated or truncated:

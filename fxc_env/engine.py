@@ -22,6 +22,8 @@ from fxc_env.core import dynamics, slots
 from fxc_env.core.graphs import DENSE_LIMIT
 from fxc_env.core.metrics import SETTLING_THRESHOLDS, EpisodeMetrics, disagreement, reward_floor, spread
 
+TINY = np.finfo(np.float64).tiny
+
 
 @dataclass(frozen=True)
 class StepOutcome:
@@ -60,6 +62,15 @@ class ConsensusEngine:
         self.k = 0
         self._xi = config.topology.consensus_weights() if n <= DENSE_LIMIT else None
         self._mask_features = config.topology.neighbour_mask.astype(np.float64)
+        schedule = config.schedule
+        k_all = np.arange(schedule.n_intervals + 1)
+        next_interval = schedule.intervals[np.minimum(k_all, schedule.n_intervals - 1)]
+        #: Clock features of every sampling instant: ``t_k / T_s, T_{k+1} / T_s, k / K``, ``(K + 1, 3)``.
+        self._clock = np.stack([schedule.times, next_interval, 0 * k_all], axis=1) / schedule.settling_time
+        self._clock[:, 2] = k_all / schedule.n_intervals
+        self._next_interval = next_interval.tolist()
+        #: Settling thresholds as a column, ``(len(SETTLING_THRESHOLDS), 1)``.
+        self._thresholds = np.array(SETTLING_THRESHOLDS)[:, None]
         self._reset_trackers()
 
     # ------------------------------------------------------------------ state
@@ -107,9 +118,12 @@ class ConsensusEngine:
 
     def _reset_trackers(self) -> None:
         b, n = self.n_episodes, self.config.n_agents
-        self.initial_disagreement = disagreement(self.x, self.v, self.config.settling_time)
+        self.initial_disagreement = self._disagreement()
         self.current_disagreement = self.initial_disagreement.copy()
         self.floor = reward_floor(self.initial_disagreement, self.config.reward_floor)
+        self._log_disagreement = np.log(self.current_disagreement + self.floor)
+        d0 = self.initial_disagreement
+        self._inverse_d0 = np.divide(1.0, d0, out=np.zeros_like(d0), where=d0 > 0)
         self.energy_total = np.zeros((b, n))
         self.peak_total = np.zeros((b, n))
         # Index of the last sampling instant whose D(t_k)/D(0) was >= eps, per threshold.
@@ -119,7 +133,7 @@ class ConsensusEngine:
     @property
     def done(self) -> bool:
         """The deadline has been reached: ``t_k = T_s``."""
-        return self.k >= self.config.n_intervals
+        return self.k >= self.config.schedule.n_intervals
 
     @property
     def time(self) -> float:
@@ -128,7 +142,7 @@ class ConsensusEngine:
 
     def current_interval(self) -> float:
         """Length ``T = t_{k+1} - t_k`` of the interval about to be played (seconds)."""
-        return float(self.config.schedule.intervals[min(self.k, self.config.n_intervals - 1)])
+        return self._next_interval[self.k]
 
     def graph_index(self) -> int:
         """Index ``k mod m`` of the graph active on the current interval."""
@@ -161,14 +175,11 @@ class ConsensusEngine:
         self._scale = (self.k, scale)
         if c.obs_mode == "normalized" and d_max:
             dv *= T
-            gathered /= np.where(scale > 0, scale, 1.0)[:, :, None, None, None]
+            # s = 0 only when every row is 0; the floor keeps 0 / s at 0 without a branch.
+            gathered /= np.maximum(scale, TINY)[:, :, None, None, None]
         rows[...] = gathered
         obs[..., layout.rows_end : layout.mask_end] = self._mask_features[self.graph_index()]
-        obs[..., layout.mask_end :] = (
-            c.schedule.times[self.k] / c.settling_time,
-            T / c.settling_time,
-            self.k / c.n_intervals,
-        )
+        obs[..., layout.mask_end :] = self._clock[self.k]
         return obs
 
     def local_scale(self) -> np.ndarray:
@@ -217,19 +228,22 @@ class ConsensusEngine:
         self.x[...] = x_next
         self.v[...] = v_next
         self.k += 1
-        previous = self.current_disagreement
-        self.current_disagreement = disagreement(self.x, self.v, self.config.settling_time)
-        reward = np.log(previous + self.floor) - np.log(self.current_disagreement + self.floor)
+        self.current_disagreement = self._disagreement()
+        log_previous = self._log_disagreement
+        self._log_disagreement = np.log(self.current_disagreement + self.floor)
+        reward = log_previous - self._log_disagreement
         self.energy_total += energy
         np.maximum(self.peak_total, peak, out=self.peak_total)
-        ratio = self._ratio(self.current_disagreement)
-        for row, eps in enumerate(SETTLING_THRESHOLDS):
-            self.last_above[row][ratio >= eps] = self.k
+        above = self.current_disagreement * self._inverse_d0 >= self._thresholds
+        np.copyto(self.last_above, self.k, where=above)
         return StepOutcome(reward, energy, peak, u0, u1, self.done)
 
-    def _ratio(self, value: np.ndarray) -> np.ndarray:
-        d0 = self.initial_disagreement
-        return np.divide(value, d0, out=np.zeros_like(value), where=d0 > 0)
+    def _disagreement(self) -> np.ndarray:
+        """``D = e_x + T_s e_v`` per episode; for ``dim = 1`` from one max and one min over agents."""
+        if self.config.dim == 1:
+            ranges = self.state.max(axis=1) - self.state.min(axis=1)  # (B, 2, 1)
+            return ranges[:, 0, 0] + self.config.settling_time * ranges[:, 1, 0]
+        return disagreement(self.x, self.v, self.config.settling_time)
 
     # ---------------------------------------------------------------- metrics
     def episode_metrics(self, episode: int = 0) -> EpisodeMetrics:
@@ -247,7 +261,7 @@ class ConsensusEngine:
         return EpisodeMetrics(
             final_position_spread=float(spread(self.x[episode])),
             final_velocity_spread=float(spread(self.v[episode])),
-            relative_deadline_error=float(self._ratio(self.current_disagreement)[episode]),
+            relative_deadline_error=float(self.current_disagreement[episode] * self._inverse_d0[episode]),
             t_eps_1e_2=t_eps[0],
             t_eps_1e_6=t_eps[1],
             energy=float(self.energy_total[episode].sum()),

@@ -2,8 +2,9 @@
 
 One :class:`ConsensusEngine` runs ``n_envs`` episodes in lock step; each of their N agents
 is one SB3 sub-environment, so a single policy acts for all ``n_envs * N`` agents in one
-vectorised call. No Python loop over agents or episodes runs per step (SPEC 7: SuperSuit's
-wrappers break seeding and attribute access and are slower).
+vectorised call. Stepping is array code; the only per-step Python work that grows with
+``num_envs`` is the list of info dicts SB3's contract asks for. (SPEC 7: SuperSuit's
+wrappers break seeding and attribute access, and are slower.)
 """
 
 from __future__ import annotations
@@ -208,7 +209,7 @@ class ConsensusVecEnv(VecEnv):
             "final_velocity_spread": spread(e.v),
             "relative_deadline_error": np.divide(e.current_disagreement, d0, out=np.zeros_like(d0), where=d0 > 0),
             "t_eps_1e_2": t_eps[0],
-            "t_eps_1e_6": t_eps[0],
+            "t_eps_1e_6": t_eps[1],
             "energy": e.energy_total.sum(axis=1),
             "peak_input": e.peak_total.max(axis=1, initial=0.0),
             "sampling_instants": np.full(self.n_envs, e.k),

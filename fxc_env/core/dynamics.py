@@ -23,10 +23,10 @@ def input_from_plan(plan_x: np.ndarray, plan_v: np.ndarray, T: np.ndarray | floa
     ``alpha = 6 a_x / T^2 - 2 a_v / T`` and ``beta = (6 a_v T - 12 a_x) / T^3`` (SPEC 2,
     paper Remark 1). Returns the end values ``(u0, u1) = (alpha, alpha + beta T)``.
     """
-    inv_t = 1.0 / np.asarray(T, dtype=float)
-    u0 = 6.0 * plan_x * inv_t**2 - 2.0 * plan_v * inv_t
-    u1 = -6.0 * plan_x * inv_t**2 + 4.0 * plan_v * inv_t
-    return u0, u1
+    inv_t = 1.0 / T
+    position_term = (6.0 * inv_t * inv_t) * plan_x
+    velocity_term = (2.0 * inv_t) * plan_v
+    return position_term - velocity_term, 2.0 * velocity_term - position_term
 
 
 def advance(
@@ -55,10 +55,12 @@ def state_inside(
 
 def interval_energy(u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float) -> np.ndarray:
     """``integral_0^T |u|^2 ds = T (|u0|^2 + u0.u1 + |u1|^2) / 3``, summed over components: ``(...)``."""
-    per_component = (u0 * u0 + u0 * u1 + u1 * u1) / 3.0
-    return np.sum(per_component * T, axis=-1)
+    per_component = u0 * (u0 + u1) + u1 * u1
+    total = per_component[..., 0] if per_component.shape[-1] == 1 else per_component.sum(axis=-1)
+    return (T / 3.0) * total
 
 
 def interval_peak(u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
     """Peak ``|u|`` on the interval: the largest absolute component, reached at an end, ``(...)``."""
-    return np.maximum(np.max(np.abs(u0), axis=-1), np.max(np.abs(u1), axis=-1))
+    largest = np.maximum(np.abs(u0), np.abs(u1))
+    return largest[..., 0] if largest.shape[-1] == 1 else largest.max(axis=-1)
