@@ -110,6 +110,23 @@ class EnvConfig:
         return 2 * self.dim
 
 
+RENDER_MODES = ("human", "rgb_array")
+
+
+def check_render_mode(render_mode: Any) -> None:
+    """Raise ``ValueError`` naming ``render_mode`` unless it is None or one of :data:`RENDER_MODES`."""
+    if render_mode is not None and render_mode not in RENDER_MODES:
+        raise ValueError(f"render_mode: expected None or one of {RENDER_MODES}, got {render_mode!r}")
+
+
+def check_max_cycles(max_cycles: Any) -> None:
+    """Raise ``ValueError`` naming ``max_cycles`` unless it is None or an integer >= 1."""
+    if max_cycles is not None and (
+        isinstance(max_cycles, bool) or not isinstance(max_cycles, int | np.integer) or max_cycles < 1
+    ):
+        raise ValueError(f"max_cycles: expected None or an integer >= 1, got {max_cycles!r}")
+
+
 def _positive_int(name: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
         raise ValueError(f"{name}: expected an integer >= 1, got {value!r}")

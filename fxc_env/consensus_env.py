@@ -10,10 +10,9 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from fxc_env.config import EnvConfig, make_config
+from fxc_env.config import RENDER_MODES, EnvConfig, check_max_cycles, check_render_mode, make_config
 from fxc_env.engine import ConsensusEngine
-
-RENDER_MODES = ("human", "rgb_array")
+from fxc_env.spaces import action_space, observation_space, state_space
 
 
 class ConsensusParallelEnv(ParallelEnv):
@@ -112,12 +111,8 @@ class ConsensusParallelEnv(ParallelEnv):
     }
 
     def __init__(self, render_mode: str | None = None, max_cycles: int | None = None, **kwargs: Any) -> None:
-        if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(f"render_mode: expected None or one of {RENDER_MODES}, got {render_mode!r}")
-        if max_cycles is not None and (
-            isinstance(max_cycles, bool) or not isinstance(max_cycles, int | np.integer) or max_cycles < 1
-        ):
-            raise ValueError(f"max_cycles: expected None or an integer >= 1, got {max_cycles!r}")
+        check_render_mode(render_mode)
+        check_max_cycles(max_cycles)
         self.config: EnvConfig = make_config(**kwargs)
         self.render_mode = render_mode
         self.max_cycles = max_cycles
@@ -127,26 +122,12 @@ class ConsensusParallelEnv(ParallelEnv):
         self.agents: list[str] = []
         self._agent_index = {agent: i for i, agent in enumerate(self.possible_agents)}
         self._rng = np.random.default_rng()
-        obs_space = self._make_observation_space()
-        bound = self.config.action_bound
-        act_space = spaces.Box(-bound, bound, shape=(self.config.action_size,), dtype=np.float64)
-        self.observation_spaces = {agent: obs_space for agent in self.possible_agents}
-        self.action_spaces = {agent: act_space for agent in self.possible_agents}
-        self.state_space = spaces.Box(-np.inf, np.inf, shape=(n, 2 * self.config.dim), dtype=np.float64)
+        obs_space, act_space = observation_space(self.config), action_space(self.config)
+        self.observation_spaces = dict.fromkeys(self.possible_agents, obs_space)
+        self.action_spaces = dict.fromkeys(self.possible_agents, act_space)
+        self.state_space = state_space(self.config)
         self._renderer: Any = None
         self._history: list[tuple[float, np.ndarray, np.ndarray]] = []
-
-    def _make_observation_space(self) -> spaces.Space:
-        layout, c = self.config.layout, self.config
-        row_bound = 1.0 if c.obs_mode == "normalized" else np.inf
-        rows = spaces.Box(-row_bound, row_bound, shape=(layout.max_in_degree, layout.row_size), dtype=np.float64)
-        mask = spaces.Box(0.0, 1.0, shape=(layout.max_in_degree,), dtype=np.float64)
-        clock = spaces.Box(0.0, 1.0, shape=(3,), dtype=np.float64)
-        if c.obs_format == "dict":
-            return spaces.Dict({"neighbours": rows, "mask": mask, "clock": clock})
-        low = np.concatenate([rows.low.ravel(), mask.low, clock.low])
-        high = np.concatenate([rows.high.ravel(), mask.high, clock.high])
-        return spaces.Box(low, high, dtype=np.float64)
 
     def observation_space(self, agent: str) -> spaces.Space:
         return self.observation_spaces[agent]

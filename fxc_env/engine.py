@@ -246,29 +246,34 @@ class ConsensusEngine:
         return disagreement(self.x, self.v, self.config.settling_time)
 
     # ---------------------------------------------------------------- metrics
-    def episode_metrics(self, episode: int = 0) -> EpisodeMetrics:
-        """SPEC 5 metrics of one episode so far (final values are those at ``t_k``)."""
+    def batch_metrics(self) -> dict[str, np.ndarray]:
+        """SPEC 5 metrics of every episode so far, one ``(B,)`` array per :class:`EpisodeMetrics` field.
+
+        Final values are those at the current instant ``t_k``.
+        """
         c = self.config
         times = np.concatenate([c.schedule.times, [np.inf]])
-        t_eps = [float(times[last + 1]) for last in self.last_above[:, episode]]
+        t_eps = times[self.last_above + 1]  # (thresholds, B)
         if self._xi is not None:
-            predicted_x = float(
-                self._xi @ self.x0[episode, :, 0] + c.settling_time * (self._xi @ self.v0[episode, :, 0])
-            )
-            predicted_v = float(self._xi @ self.v0[episode, :, 0])
+            predicted_v = self.v0[:, :, 0] @ self._xi
+            predicted_x = self.x0[:, :, 0] @ self._xi + c.settling_time * predicted_v
         else:
-            predicted_x = predicted_v = float("nan")
-        return EpisodeMetrics(
-            final_position_spread=float(spread(self.x[episode])),
-            final_velocity_spread=float(spread(self.v[episode])),
-            relative_deadline_error=float(self.current_disagreement[episode] * self._inverse_d0[episode]),
-            t_eps_1e_2=t_eps[0],
-            t_eps_1e_6=t_eps[1],
-            energy=float(self.energy_total[episode].sum()),
-            peak_input=float(self.peak_total[episode].max(initial=0.0)),
-            sampling_instants=int(self.k),
-            predicted_final_position=predicted_x,
-            achieved_final_position=float(self.x[episode, :, 0].mean()),
-            predicted_final_velocity=predicted_v,
-            achieved_final_velocity=float(self.v[episode, :, 0].mean()),
-        )
+            predicted_x = predicted_v = np.full(self.n_episodes, np.nan)
+        return {
+            "final_position_spread": spread(self.x),
+            "final_velocity_spread": spread(self.v),
+            "relative_deadline_error": self.current_disagreement * self._inverse_d0,
+            "t_eps_1e_2": t_eps[0],
+            "t_eps_1e_6": t_eps[1],
+            "energy": self.energy_total.sum(axis=1),
+            "peak_input": self.peak_total.max(axis=1, initial=0.0),
+            "sampling_instants": np.full(self.n_episodes, self.k),
+            "predicted_final_position": predicted_x,
+            "achieved_final_position": self.x[:, :, 0].mean(axis=1),
+            "predicted_final_velocity": predicted_v,
+            "achieved_final_velocity": self.v[:, :, 0].mean(axis=1),
+        }
+
+    def episode_metrics(self, episode: int = 0) -> EpisodeMetrics:
+        """SPEC 5 metrics of one episode so far (see :meth:`batch_metrics`)."""
+        return EpisodeMetrics(**{name: column[episode].item() for name, column in self.batch_metrics().items()})

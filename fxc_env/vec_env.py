@@ -11,19 +11,17 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import fields
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
-from fxc_env.config import EnvConfig, make_config
-from fxc_env.consensus_env import RENDER_MODES, ConsensusParallelEnv
-from fxc_env.core.graphs import DENSE_LIMIT
-from fxc_env.core.metrics import EpisodeMetrics, spread
+from fxc_env.config import EnvConfig, check_max_cycles, check_render_mode, make_config
+from fxc_env.consensus_env import ConsensusParallelEnv
+from fxc_env.core.metrics import metrics_rows
 from fxc_env.engine import ConsensusEngine, StepOutcome
+from fxc_env.spaces import action_space, observation_space
 
 
 class ConsensusVecEnv(VecEnv):
@@ -74,9 +72,8 @@ class ConsensusVecEnv(VecEnv):
     ) -> None:
         if isinstance(n_envs, bool) or not isinstance(n_envs, int | np.integer) or n_envs < 1:
             raise ValueError(f"n_envs: expected an integer >= 1, got {n_envs!r}")
-        if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(f"render_mode: expected None or one of {RENDER_MODES}, got {render_mode!r}")
-        _check_max_cycles(max_cycles)
+        check_render_mode(render_mode)
+        check_max_cycles(max_cycles)
         config = make_config(**env_kwargs)
         if config.obs_format != "flat":
             raise ValueError(
@@ -91,14 +88,13 @@ class ConsensusVecEnv(VecEnv):
         self.engine = ConsensusEngine(config, n_episodes=self.n_envs)
         #: What the last step did per episode and agent (``None`` before the first step).
         self.last_outcome: StepOutcome | None = None
-        self._xi = config.topology.consensus_weights() if self.n_agents <= DENSE_LIMIT else None
         self._rngs = [np.random.default_rng(s) for s in np.random.SeedSequence().spawn(self.n_envs)]
         self._actions: np.ndarray | None = None
         self._needs_reset = True
         self._steps = 0
         self._history: list[tuple[float, np.ndarray, np.ndarray]] = []
         self._renderer: Any = None
-        super().__init__(self.n_envs * self.n_agents, agent_observation_space(config), agent_action_space(config))
+        super().__init__(self.n_envs * self.n_agents, observation_space(config), action_space(config))
         self.metadata = dict(ConsensusParallelEnv.metadata)
 
     # ------------------------------------------------------------ reset/seed
@@ -185,42 +181,13 @@ class ConsensusVecEnv(VecEnv):
             self._history.append((self.engine.time, self.engine.x[0].copy(), self.engine.v[0].copy()))
         if not (terminated or truncated):
             return obs, rewards, np.zeros(self.num_envs, dtype=bool), [{} for _ in range(self.num_envs)]
-        per_agent = [episode for episode in self._batch_metrics() for _ in range(self.n_agents)]
+        per_agent = [episode for episode in metrics_rows(self.engine.batch_metrics()) for _ in range(self.n_agents)]
         infos = [
             {"terminal_observation": row, "TimeLimit.truncated": truncated, "episode_metrics": episode}
             for row, episode in zip(obs, per_agent, strict=True)
         ]
         self._start(*self._draw_initial_states())
         return self._observe(), rewards, np.ones(self.num_envs, dtype=bool), infos
-
-    def _batch_metrics(self) -> list[dict[str, Any]]:
-        """``engine.episode_metrics(b).as_dict()`` for every episode b, vectorised over b."""
-        e, c = self.engine, self.config
-        times = np.concatenate([c.schedule.times, [np.inf]])
-        t_eps = times[e.last_above + 1]  # (thresholds, B)
-        d0 = e.initial_disagreement
-        if self._xi is not None:
-            predicted_x = e.x0[:, :, 0] @ self._xi + c.settling_time * (e.v0[:, :, 0] @ self._xi)
-            predicted_v = e.v0[:, :, 0] @ self._xi
-        else:
-            predicted_x = predicted_v = np.full(self.n_envs, np.nan)
-        columns = {
-            "final_position_spread": spread(e.x),
-            "final_velocity_spread": spread(e.v),
-            "relative_deadline_error": np.divide(e.current_disagreement, d0, out=np.zeros_like(d0), where=d0 > 0),
-            "t_eps_1e_2": t_eps[0],
-            "t_eps_1e_6": t_eps[1],
-            "energy": e.energy_total.sum(axis=1),
-            "peak_input": e.peak_total.max(axis=1, initial=0.0),
-            "sampling_instants": np.full(self.n_envs, e.k),
-            "predicted_final_position": predicted_x,
-            "achieved_final_position": e.x[:, :, 0].mean(axis=1),
-            "predicted_final_velocity": predicted_v,
-            "achieved_final_velocity": e.v[:, :, 0].mean(axis=1),
-        }
-        keys = [f.name for f in fields(EpisodeMetrics)]
-        values = [_json_column(columns[key]) for key in keys]
-        return [dict(zip(keys, row, strict=True)) for row in zip(*values, strict=True)]
 
     # ------------------------------------------------------------ attributes
     def _resolve(self, name: str) -> Any:
@@ -249,7 +216,7 @@ class ConsensusVecEnv(VecEnv):
                 "pass indices=None"
             )
         if attr_name == "max_cycles":
-            _check_max_cycles(value)
+            check_max_cycles(value)
         if not hasattr(self, attr_name) and hasattr(self.config, attr_name):
             raise AttributeError(
                 f"attr_name: {attr_name!r} belongs to the immutable EnvConfig; build a new ConsensusVecEnv instead"
@@ -291,32 +258,3 @@ class ConsensusVecEnv(VecEnv):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
-
-
-def agent_observation_space(config: EnvConfig) -> spaces.Box:
-    """One agent's flat observation ``Box`` (as :class:`ConsensusParallelEnv` builds it)."""
-    layout = config.layout
-    row_bound = 1.0 if config.obs_mode == "normalized" else np.inf
-    low = np.concatenate([np.full(layout.rows_end, -row_bound), np.zeros(layout.max_in_degree), np.zeros(3)])
-    high = np.concatenate([np.full(layout.rows_end, row_bound), np.ones(layout.max_in_degree), np.ones(3)])
-    return spaces.Box(low, high, dtype=np.float64)
-
-
-def agent_action_space(config: EnvConfig) -> spaces.Box:
-    """One agent's action ``Box(-b, b, (2 dim,))`` (as :class:`ConsensusParallelEnv` builds it)."""
-    bound = config.action_bound
-    return spaces.Box(-bound, bound, shape=(config.action_size,), dtype=np.float64)
-
-
-def _check_max_cycles(value: Any) -> None:
-    if value is not None and (isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1):
-        raise ValueError(f"max_cycles: expected None or an integer >= 1, got {value!r}")
-
-
-def _json_column(values: np.ndarray) -> list[Any]:
-    """Python numbers, with non-finite floats as None (as ``EpisodeMetrics.as_dict``)."""
-    if values.dtype.kind != "f":
-        return values.tolist()
-    column = values.astype(object)
-    column[~np.isfinite(values)] = None
-    return column.tolist()
