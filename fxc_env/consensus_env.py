@@ -37,15 +37,16 @@ class ConsensusParallelEnv(ParallelEnv):
     | plan        | normalized | ``(alpha_x, alpha_v)``          | ``a_x = s alpha_x``, ``a_v = s alpha_v / T`` | 2 |
     | plan        | raw        | ``(a_x, a_v)`` metres, m/s      | as given                           | 1e3  |
     | accel       | normalized | ``(alpha_0, alpha_1)``          | ``u = s alpha / T^2`` at both ends | 10   |
-    | accel       | raw        | ``(u(t_k+), u(t_{k+1}-))`` m/s^2 | as given                          | 1e6  |
+    | accel       | raw        | ``(u(t_k+), u(t_{k+1}-))`` m/s^2 | as given                          | 1e9  |
 
     A plan ``(a_x, a_v)`` is the terminal change relative to coasting
     (``x(t_{k+1}) = x + T v + a_x``, ``v(t_{k+1}) = v + a_v``), realised by the minimum-energy
     affine input. In ``accel`` mode the input is the straight line between the two ends
     (equal ends: zero-order hold). ``s = s_i`` is the agent's local scale below and ``T`` the
     coming interval. Actions outside the Box are applied as given (never clipped); the
-    bounds hold the reference in normalised mode for every state and suit the documented
-    initial ranges in raw mode (``action_bound`` overrides them).
+    bounds hold the reference in normalised mode for every state. Raw bounds are nominal:
+    they hold it from the documented initial ranges on the built-in topologies up to
+    N = 100 (``action_bound`` overrides them).
 
     ## Observation Space
     Flat ``Box(float64)`` of size ``d_max * 2 dim + d_max + 3`` per agent, measured at ``t_k``:
@@ -188,9 +189,10 @@ class ConsensusParallelEnv(ParallelEnv):
             raise ValueError(f"actions: missing an action for agent(s) {missing}")
         size = self.config.action_size
         try:
-            array = np.array([actions[agent] for agent in self.possible_agents], dtype=np.float64)
+            stacked = np.array([actions[agent] for agent in self.possible_agents])
         except (TypeError, ValueError):
-            array = None  # ragged, non-numeric or complex: the loop below names the agent
+            stacked = None  # ragged: the loop below names the agent
+        array = stacked.astype(np.float64) if stacked is not None and stacked.dtype.kind in "biuf" else None
         if array is None or array.shape != (len(self.possible_agents), size) or not np.isfinite(array).all():
             for agent in self.possible_agents:
                 action = np.asarray(actions[agent])

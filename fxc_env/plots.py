@@ -27,6 +27,12 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
+def _legend(ax) -> None:
+    """A legend only where something is labelled (agents are labelled up to LEGEND_LIMIT)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, ncol=2)
+
+
 def _component_note(trajectory: Trajectory) -> str:
     return " (first component)" if trajectory.config.dim > 1 else ""
 
@@ -78,7 +84,7 @@ def _draw_state(ax, trajectory: Trajectory, which: str) -> None:
         fontsize=9,
     )
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    _legend(ax)
 
 
 def _state_figure(trajectory: Trajectory, path: Path, which: str) -> Path:
@@ -120,7 +126,7 @@ def inputs_figure(trajectory: Trajectory, path: Path) -> Path:
     ax.set_ylabel(f"input u_i(t) (m/s²){_component_note(trajectory)}")
     ax.set_title(f"inputs (symmetric log axis); peak |u| = {trajectory.metrics.peak_input:.3g} m/s²", fontsize=9)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    _legend(ax)
     return _save(fig, path)
 
 

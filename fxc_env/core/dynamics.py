@@ -55,9 +55,8 @@ def state_inside(
 
 def interval_energy(u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float) -> np.ndarray:
     """``integral_0^T |u|^2 ds = T (|u0|^2 + u0.u1 + |u1|^2) / 3``, summed over components: ``(...)``."""
-    per_component = u0 * (u0 + u1) + u1 * u1
-    total = per_component[..., 0] if per_component.shape[-1] == 1 else per_component.sum(axis=-1)
-    return (T / 3.0) * total
+    per_component = (u0 * (u0 + u1) + u1 * u1) * (np.divide(T, 3.0))
+    return per_component[..., 0] if per_component.shape[-1] == 1 else per_component.sum(axis=-1)
 
 
 def interval_peak(u0: np.ndarray, u1: np.ndarray) -> np.ndarray:

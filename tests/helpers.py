@@ -1,0 +1,91 @@
+"""Independent ground truth for the tests: the paper's numbers and hand-built matrices.
+
+Nothing here calls the package's own linear algebra; expected values are built from
+SPEC 2's definitions with plain numpy so the tests can catch the package being wrong.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+# The paper's example (Section 5, SPEC 2).
+PAPER_X0 = np.array([1.0, -1.0, 2.0, 4.0, -4.0, -2.0])
+PAPER_V0 = np.array([1.0, 2.0, 3.0, -3.0, -2.0, 0.0])
+PAPER_SETTLING_TIME = 20.0
+PAPER_XI = np.array([1 / 4, 1 / 8, 1 / 8, 1 / 4, 1 / 8, 1 / 8])
+PAPER_X_STAR = -1.875
+PAPER_V_STAR = -0.125
+#: The assumed Fig. 1 (SPEC 2), as written there: 1-based pairs (j, i), "i receives from j".
+PAPER_GRAPHS_ONE_BASED = [[(1, 2), (4, 5)], [(2, 3), (5, 6)], [(3, 4), (6, 1)]]
+PAPER_GRAPHS = [[(j - 1, i - 1) for j, i in graph] for graph in PAPER_GRAPHS_ONE_BASED]
+
+ACTION_MODES = ("plan", "accel")
+OBS_MODES = ("normalized", "raw")
+MODES = list(itertools.product(ACTION_MODES, OBS_MODES))
+
+
+def adjacency_by_hand(n: int, edges) -> np.ndarray:
+    """Dense A with ``a_ij = 1`` iff i receives from j, i.e. edge ``(j, i)``."""
+    a = np.zeros((n, n))
+    for j, i in edges:
+        a[int(i), int(j)] = 1.0
+    return a
+
+
+def averaging_matrix_by_hand(n: int, edges) -> np.ndarray:
+    """``W = I - (D + I)^{-1} L`` with ``L = D - A`` (SPEC 2), dense."""
+    a = adjacency_by_hand(n, edges)
+    d = np.diag(a.sum(axis=1))
+    laplacian = d - a
+    return np.eye(n) - np.linalg.inv(d + np.eye(n)) @ laplacian
+
+
+def left_perron_vector(matrix: np.ndarray) -> np.ndarray:
+    """Left eigenvector for the eigenvalue closest to 1, scaled to sum 1 (numpy ``eig``)."""
+    values, vectors = np.linalg.eig(matrix.T)
+    which = int(np.argmin(np.abs(values - 1.0)))
+    xi = np.real(vectors[:, which])
+    return xi / xi.sum()
+
+
+def brute_spread(z: np.ndarray) -> float:
+    """``max_ij ||z_i - z_j||_2`` over the rows of ``z`` (N, dim), by a double loop."""
+    z = np.asarray(z, dtype=float)
+    z = z.reshape(len(z), -1)
+    best = 0.0
+    for a in z:
+        for b in z:
+            best = max(best, float(np.sqrt(np.sum((a - b) ** 2))))
+    return best
+
+
+def reachable_from(n: int, edges, root: int) -> set[int]:
+    """Nodes reachable from ``root`` along edges ``j -> i`` (plain graph search)."""
+    out = {k: [] for k in range(n)}
+    for j, i in edges:
+        out[int(j)].append(int(i))
+    seen, stack = {root}, [root]
+    while stack:
+        node = stack.pop()
+        for nxt in out[node]:
+            if nxt not in seen:
+                seen.add(nxt)
+                stack.append(nxt)
+    return seen
+
+
+def has_spanning_tree(n: int, edges) -> bool:
+    """Some node reaches every node (a directed spanning tree exists)."""
+    return any(len(reachable_from(n, edges, r)) == n for r in range(n))
+
+
+def reference_actions(policy, observations: dict) -> dict:
+    """One action per agent from the reference policy on each agent's own observation."""
+    return {agent: policy(obs) for agent, obs in observations.items()}
+
+
+def relative_error(a: np.ndarray, b: np.ndarray) -> float:
+    """``max |a - b| / max |b|`` (the scale of the reference ``b``)."""
+    return float(np.max(np.abs(np.asarray(a) - np.asarray(b))) / np.max(np.abs(b)))

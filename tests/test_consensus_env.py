@@ -1,0 +1,441 @@
+"""The ParallelEnv contract (SPEC 4): spaces, episode end, infos, state, seeding, validation."""
+
+from __future__ import annotations
+
+import json
+import pickle
+import re
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from helpers import MODES, PAPER_V0, PAPER_X0, brute_spread, reference_actions
+
+import fxc_env
+from fxc_env import ReferencePolicy
+
+# ------------------------------------------------------------------ helpers
+
+
+def random_actions(env, rng):
+    bound = env.action_space("agent_0").high
+    return {agent: rng.uniform(-bound, bound) for agent in env.agents}
+
+
+def assert_same(a, b, where=""):
+    """Exact equality of nested dicts / arrays / floats (observations, infos, ...)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for key in a:
+            assert_same(a[key], b[key], f"{where}/{key}")
+    elif isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        assert np.array_equal(a, b), where
+    else:
+        assert a == b or (a is None and b is None), where
+
+
+def started_pair(n_steps=3, **kwargs):
+    """Two identical envs, reset with the same seed and stepped alike (an env and its twin)."""
+    envs = [fxc_env.parallel_env(**kwargs) for _ in range(2)]
+    policy = ReferencePolicy(envs[0])
+    observations = [env.reset(seed=11)[0] for env in envs]
+    for _ in range(n_steps):
+        observations = [
+            env.step(reference_actions(policy, obs))[0] for env, obs in zip(envs, observations, strict=True)
+        ]
+    return envs, observations, policy
+
+
+def assert_untouched_and_in_step(env, twin, obs, policy):
+    """env must still equal its twin and step exactly like it."""
+    np.testing.assert_array_equal(env.state(), twin.state())
+    assert env.agents == twin.agents
+    actions = reference_actions(policy, obs)
+    out_env, out_twin = env.step(actions), twin.step(actions)
+    for a, b in zip(out_env, out_twin, strict=True):
+        assert_same(a, b)
+
+
+# ------------------------------------------------------------ basic contract
+
+
+def test_agents_spaces_and_state_layout():
+    env = fxc_env.parallel_env(scenario="random_20_planar")
+    assert env.possible_agents == [f"agent_{i}" for i in range(20)]
+    obs, infos = env.reset(seed=0)
+    assert env.agents == env.possible_agents
+    layout = env.config.layout
+    for agent in env.agents:
+        space = env.observation_space(agent)
+        assert space is env.observation_space(agent)
+        assert env.action_space(agent) is env.action_space(agent)
+        assert space.shape == (layout.max_in_degree * 4 + layout.max_in_degree + 3,)
+        assert space.contains(obs[agent])
+        act = env.action_space(agent)
+        assert act.shape == (4,) and np.all(np.isfinite(act.low)) and np.all(np.isfinite(act.high))
+        assert infos[agent]["t"] == 0.0 and infos[agent]["interval"] == 0
+    state = env.state()
+    assert state.shape == (20, 4) and env.state_space.shape == (20, 4)
+    assert env.state_space.contains(state)
+
+
+@pytest.mark.parametrize("dim", [1, 2])
+def test_reset_options_set_the_state(dim):
+    env = fxc_env.parallel_env(topology="ring", n_agents=5, dim=dim)
+    rng = np.random.default_rng(0)
+    x0, v0 = rng.normal(size=(5, dim)), rng.normal(size=(5, dim))
+    env.reset(seed=3, options={"x0": x0, "v0": v0})
+    np.testing.assert_array_equal(env.state(), np.concatenate([x0, v0], axis=1))
+    if dim == 1:
+        env.reset(options={"x0": x0[:, 0], "v0": v0[:, 0]})
+        np.testing.assert_array_equal(env.state(), np.concatenate([x0, v0], axis=1))
+
+
+def test_reset_with_only_x0_draws_v0():
+    env = fxc_env.parallel_env(topology="ring", n_agents=5)
+    x0 = np.arange(5.0)
+    env.reset(seed=0, options={"x0": x0})
+    state = env.state()
+    np.testing.assert_array_equal(state[:, 0], x0)
+    assert np.all(np.abs(state[:, 1]) <= 2.0) and np.any(state[:, 1] != 0)
+
+
+def test_random_initial_state_respects_the_documented_ranges():
+    env = fxc_env.parallel_env(topology="complete", n_agents=50, dim=2)
+    seen = []
+    for seed in range(5):
+        env.reset(seed=seed)
+        seen.append(env.state())
+    seen = np.array(seen)
+    assert np.all(np.abs(seen[..., :2]) <= 5.0) and np.all(np.abs(seen[..., 2:]) <= 2.0)
+    assert np.max(np.abs(seen[..., :2])) > 4.0 and np.max(np.abs(seen[..., 2:])) > 1.5  # the whole range is used
+    wide = fxc_env.parallel_env(topology="complete", n_agents=50, position_range=100.0, velocity_range=0.5)
+    wide.reset(seed=0)
+    assert np.max(np.abs(wide.state()[:, 0])) > 50 and np.max(np.abs(wide.state()[:, 1])) <= 0.5
+
+
+def test_scenario_initial_state_is_the_papers():
+    env = fxc_env.parallel_env(scenario="paper_fig1")
+    env.reset(seed=123)
+    np.testing.assert_array_equal(env.state(), np.stack([PAPER_X0, PAPER_V0], axis=1))
+
+
+@pytest.mark.parametrize(("action_mode", "obs_mode"), MODES)
+def test_termination_at_the_deadline_with_infos_and_telescoping_reward(action_mode, obs_mode):
+    env = fxc_env.parallel_env(scenario="paper_fig1", action_mode=action_mode, obs_mode=obs_mode, n_intervals=40)
+    policy = ReferencePolicy(env)
+    obs, _ = env.reset(seed=0)
+    times = env.config.schedule.times
+    d0 = brute_spread(PAPER_X0) + 20.0 * brute_spread(PAPER_V0)
+    total, energy = 0.0, 0.0
+    for k in range(1, 41):
+        assert env.agents == env.possible_agents
+        obs, rewards, terms, truncs, infos = env.step(reference_actions(policy, obs))
+        assert len(set(rewards.values())) == 1  # a team reward
+        total += rewards["agent_0"]
+        assert all(terms.values()) == (k == 40) and any(terms.values()) == (k == 40)
+        assert not any(truncs.values())
+        for info in infos.values():
+            assert info["t"] == times[k] and info["interval"] == k
+            assert info["energy"] >= 0 and info["peak_u"] >= 0
+            energy += info["energy"]
+            assert ("episode" in info) == (k == 40)
+        for agent in obs:
+            assert env.observation_space(agent).contains(obs[agent])
+    assert env.agents == []
+    assert infos["agent_0"]["t"] == 20.0
+    episode = infos["agent_0"]["episode"]
+    state = env.state()
+    d_end = brute_spread(state[:, 0]) + 20.0 * brute_spread(state[:, 1])
+    floor = 1e-12 * d0
+    assert total == pytest.approx(np.log(d0 + floor) - np.log(d_end + floor), rel=1e-9)
+    assert episode["relative_deadline_error"] == pytest.approx(d_end / d0, rel=1e-9)
+    assert episode["energy"] == pytest.approx(energy, rel=1e-12)
+    assert episode["sampling_instants"] == 40
+
+
+def test_truncation_by_max_cycles():
+    env = fxc_env.parallel_env(scenario="paper_fig1", max_cycles=5)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for k in range(1, 6):
+        _, _, terms, truncs, infos = env.step(random_actions(env, rng))
+        assert not any(terms.values())
+        assert all(truncs.values()) == (k == 5) and any(truncs.values()) == (k == 5)
+    assert env.agents == []
+    assert infos["agent_0"]["episode"]["sampling_instants"] == 5
+    with pytest.raises(RuntimeError, match="step"):
+        env.step(random_actions(fxc_env.parallel_env(scenario="paper_fig1"), rng))
+
+
+def test_dict_observation_format_matches_the_flat_one():
+    flat = fxc_env.parallel_env(scenario="random_20_planar")
+    nested = fxc_env.parallel_env(scenario="random_20_planar", obs_format="dict")
+    obs_flat, _ = flat.reset(seed=5)
+    obs_dict, _ = nested.reset(seed=5)
+    layout = flat.config.layout
+    for agent in flat.agents:
+        o = obs_dict[agent]
+        assert set(o) == {"neighbours", "mask", "clock"}
+        assert nested.observation_space(agent).contains(o)
+        np.testing.assert_array_equal(o["neighbours"].ravel(), obs_flat[agent][: layout.rows_end])
+        np.testing.assert_array_equal(o["mask"], obs_flat[agent][layout.rows_end : layout.mask_end])
+        np.testing.assert_array_equal(o["clock"], obs_flat[agent][layout.mask_end :])
+        assert o["neighbours"].shape == (layout.max_in_degree, 4)
+
+
+def test_render_without_a_mode_returns_none():
+    env = fxc_env.parallel_env()
+    env.reset(seed=0)
+    with pytest.warns(UserWarning, match="render"):
+        assert env.render() is None
+
+
+# ------------------------------------------------------------- determinism
+
+
+def play_seeded_episode(env, seed, action_seed):
+    rng = np.random.default_rng(action_seed)
+    record = []
+    obs, infos = env.reset(seed=seed)
+    record.append((obs, infos, env.state()))
+    while env.agents:
+        step = env.step(random_actions(env, rng))
+        record.append((*step, env.state()))
+    return record
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {},
+        {"scenario": "random_20_planar", "action_mode": "accel", "obs_mode": "raw"},
+        {"topology": "random", "n_agents": 9, "obs_format": "dict", "n_intervals": 60},
+    ],
+)
+def test_same_seed_gives_the_same_whole_episode(kwargs):
+    a = play_seeded_episode(fxc_env.parallel_env(**kwargs), seed=42, action_seed=7)
+    b = play_seeded_episode(fxc_env.parallel_env(**kwargs), seed=42, action_seed=7)
+    assert len(a) == len(b) == fxc_env.make_config(**kwargs).n_intervals + 1
+    for k, (step_a, step_b) in enumerate(zip(a, b, strict=True)):
+        for part_a, part_b in zip(step_a, step_b, strict=True):
+            assert_same(part_a, part_b, where=f"step {k}")
+
+
+def test_different_seeds_give_different_episodes():
+    a = play_seeded_episode(fxc_env.parallel_env(), seed=1, action_seed=7)
+    b = play_seeded_episode(fxc_env.parallel_env(), seed=2, action_seed=7)
+    assert not np.array_equal(a[0][2], b[0][2])
+    assert any(not np.array_equal(a[0][0][agent], b[0][0][agent]) for agent in a[0][0])
+    assert not np.array_equal(a[-1][-1], b[-1][-1])
+
+
+def test_unseeded_reset_continues_the_seeded_stream():
+    env_a, env_b = fxc_env.parallel_env(), fxc_env.parallel_env()
+    env_a.reset(seed=9)
+    first = env_a.state()
+    env_a.reset()
+    second = env_a.state()
+    assert not np.array_equal(first, second)
+    env_b.reset(seed=9)
+    env_b.reset()
+    np.testing.assert_array_equal(env_b.state(), second)
+    env_a.reset(seed=9)
+    np.testing.assert_array_equal(env_a.state(), first)
+
+
+def test_same_seed_same_episode_in_another_process():
+    script = textwrap.dedent(
+        """
+        import json, numpy as np, fxc_env
+        env = fxc_env.parallel_env(scenario="random_20_planar", n_intervals=30)
+        env.reset(seed=5)
+        rng = np.random.default_rng(3)
+        rewards = []
+        while env.agents:
+            actions = {a: rng.uniform(-2, 2, size=4) for a in env.agents}
+            rewards.append(env.step(actions)[1]["agent_0"])
+        print(json.dumps({"state": env.state().tolist(), "rewards": rewards}))
+        """
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, check=True, env={"PYTHONHASHSEED": "12345"}
+    )
+    other = json.loads(result.stdout)
+    env = fxc_env.parallel_env(scenario="random_20_planar", n_intervals=30)
+    env.reset(seed=5)
+    rng = np.random.default_rng(3)
+    rewards = []
+    while env.agents:
+        actions = {a: rng.uniform(-2, 2, size=4) for a in env.agents}
+        rewards.append(env.step(actions)[1]["agent_0"])
+    assert other["rewards"] == rewards
+    assert other["state"] == env.state().tolist()
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"scenario": "random_20_planar", "obs_mode": "raw"}])
+def test_pickle_round_trip_mid_episode(kwargs):
+    env = fxc_env.parallel_env(n_intervals=50, **kwargs)
+    rng = np.random.default_rng(0)
+    env.reset(seed=4)
+    for _ in range(20):
+        env.step(random_actions(env, rng))
+    copy = pickle.loads(pickle.dumps(env))
+    np.testing.assert_array_equal(copy.state(), env.state())
+    rng_a, rng_b = np.random.default_rng(1), np.random.default_rng(1)
+    while env.agents:
+        out_a = env.step(random_actions(env, rng_a))
+        out_b = copy.step(random_actions(copy, rng_b))
+        for a, b in zip(out_a, out_b, strict=True):
+            assert_same(a, b)
+        np.testing.assert_array_equal(env.state(), copy.state())
+    assert copy.agents == []
+    # The seeded generator travelled too: the next unseeded resets agree.
+    env.reset()
+    copy.reset()
+    np.testing.assert_array_equal(env.state(), copy.state())
+
+
+# --------------------------------------------------------------- validation
+
+
+def _set(agent, value):
+    def change(actions):
+        actions[agent] = value
+
+    return change
+
+
+def _drop(agent):
+    def change(actions):
+        del actions[agent]
+
+    return change
+
+
+BAD_ACTIONS = [
+    ("nan", _set("agent_2", np.array([np.nan, 0.0])), ValueError, "actions['agent_2']"),
+    ("inf", _set("agent_2", np.array([0.0, np.inf])), ValueError, "actions['agent_2']"),
+    ("-inf", _set("agent_5", np.array([-np.inf, 0.0])), ValueError, "actions['agent_5']"),
+    ("too long", _set("agent_1", np.zeros(3)), ValueError, "actions['agent_1']"),
+    ("2-D", _set("agent_1", np.zeros((1, 2))), ValueError, "actions['agent_1']"),
+    ("scalar", _set("agent_1", 0.5), ValueError, "actions['agent_1']"),
+    ("string", _set("agent_0", "up"), TypeError, "actions['agent_0']"),
+    ("numeric strings", _set("agent_3", np.array(["0.5", "0.1"])), TypeError, "actions['agent_3']"),
+    ("none", _set("agent_0", None), TypeError, "actions['agent_0']"),
+    ("complex", _set("agent_0", np.array([1j, 0])), TypeError, "actions['agent_0']"),
+    ("missing", _drop("agent_4"), ValueError, "agent_4"),
+    ("unknown", _set("agent_6", np.zeros(2)), ValueError, "agent_6"),
+    ("unknown name", _set("leader", np.zeros(2)), ValueError, "leader"),
+]
+
+
+@pytest.mark.parametrize(("label", "change", "error", "name"), BAD_ACTIONS, ids=[b[0] for b in BAD_ACTIONS])
+def test_bad_actions_raise_naming_the_argument_and_leave_the_env_as_it_was(label, change, error, name):
+    (env, twin), (obs, _), policy = started_pair(scenario="paper_fig1")
+    actions = reference_actions(policy, obs)
+    change(actions)
+    with pytest.raises(error, match=re.escape(name)) as info:
+        env.step(actions)
+    assert "actions" in str(info.value)
+    assert_untouched_and_in_step(env, twin, obs, policy)
+
+
+def test_actions_that_are_not_a_dict():
+    (env, twin), (obs, _), policy = started_pair()
+    with pytest.raises(TypeError, match="actions"):
+        env.step([np.zeros(2)] * 6)
+    assert_untouched_and_in_step(env, twin, obs, policy)
+
+
+BAD_OPTIONS = [
+    ({"x0": np.zeros(5)}, ValueError, "x0"),
+    ({"x0": np.zeros((6, 2))}, ValueError, "x0"),
+    ({"x0": np.zeros((6, 1, 1))}, ValueError, "x0"),
+    ({"x0": np.array([0, 0, np.nan, 0, 0, 0])}, ValueError, "x0"),
+    ({"x0": np.array([0, 0, np.inf, 0, 0, 0])}, ValueError, "x0"),
+    ({"x0": ["a"] * 6}, TypeError, "x0"),
+    ({"x0": np.zeros(6), "v0": np.zeros(7)}, ValueError, "v0"),
+    ({"v0": np.array([0, 0, 0, 0, -np.inf, 0])}, ValueError, "v0"),
+    ({"v0": [None] * 6}, TypeError, "v0"),
+]
+
+
+@pytest.mark.parametrize(("options", "error", "name"), BAD_OPTIONS)
+def test_bad_reset_options_raise_naming_the_argument_and_leave_the_env_as_it_was(options, error, name):
+    (env, twin), (obs, _), policy = started_pair(scenario="paper_fig1")
+    with pytest.raises(error, match=name):
+        env.reset(seed=99, options=options)
+    assert_untouched_and_in_step(env, twin, obs, policy)
+
+
+def test_reset_options_must_be_a_mapping():
+    (env, twin), (obs, _), policy = started_pair()
+    with pytest.raises(TypeError, match="options"):
+        env.reset(options=[("x0", np.zeros(6))])
+    assert_untouched_and_in_step(env, twin, obs, policy)
+
+
+def test_bad_x0_shape_in_the_plane():
+    env = fxc_env.parallel_env(topology="ring", n_agents=4, dim=2)
+    with pytest.raises(ValueError, match=re.escape("(4, 2)")):
+        env.reset(options={"x0": np.zeros(4)})
+
+
+def test_step_after_the_episode_ended():
+    env = fxc_env.parallel_env(scenario="paper_fig1", n_intervals=4)
+    policy = ReferencePolicy(env)
+    obs, _ = env.reset(seed=0)
+    while env.agents:
+        obs, *_ = env.step(reference_actions(policy, obs))
+    state = env.state()
+    with pytest.raises(RuntimeError, match="step"):
+        env.step(reference_actions(policy, obs))
+    np.testing.assert_array_equal(env.state(), state)
+    # reset brings it back.
+    obs, _ = env.reset(seed=0)
+    env.step(reference_actions(policy, obs))
+
+
+def test_step_before_reset():
+    env = fxc_env.parallel_env()
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step({f"agent_{i}": np.zeros(2) for i in range(6)})
+
+
+BAD_CONSTRUCTION = [
+    ({"topology": [(0, 1), (1, 2)], "n_agents": 4}, ValueError, r"topology.*agents \[3\]"),
+    ({"topology": [[(0, 1)], [(2, 3)]], "n_agents": 4}, ValueError, r"topology.*union.*agents \[2, 3\]"),
+    ({"topology": [(0, 1), (1, 2), (2, 2)]}, ValueError, r"topology.*self-loop"),
+    ({"topology": [(0, 1), (1, 5)], "n_agents": 4}, ValueError, r"topology.*outside"),
+    ({"topology": [(0, 1), (1, 2), (0, 1)]}, ValueError, r"topology.*more than once"),
+    ({"topology": "hypercube"}, ValueError, "topology"),
+    ({"settling_time": 0.0}, ValueError, "settling_time"),
+    ({"settling_time": -20.0}, ValueError, "settling_time"),
+    ({"settling_time": float("nan")}, ValueError, "settling_time"),
+    ({"settling_time": float("inf")}, ValueError, "settling_time"),
+    ({"n_intervals": 0}, ValueError, "n_intervals"),
+    ({"n_intervals": -5}, ValueError, "n_intervals"),
+    ({"n_agents": 0, "topology": "ring"}, ValueError, "n_agents"),
+    ({"dim": 0}, ValueError, "dim"),
+    ({"action_mode": "torque"}, ValueError, "action_mode"),
+    ({"obs_mode": "absolute"}, ValueError, "obs_mode"),
+    ({"obs_format": "tuple"}, ValueError, "obs_format"),
+    ({"render_mode": "ansi"}, ValueError, "render_mode"),
+    ({"max_cycles": 0}, ValueError, "max_cycles"),
+    ({"initial_state": (np.zeros(5), np.zeros(6))}, ValueError, "x0"),
+    ({"scenario": "paper_fig9"}, ValueError, "scenario"),
+    ({"unknown_option": 1}, TypeError, "unknown_option"),
+]
+
+
+@pytest.mark.parametrize(("kwargs", "error", "pattern"), BAD_CONSTRUCTION)
+def test_bad_construction_names_the_argument_and_leaves_live_envs_alone(kwargs, error, pattern):
+    (env, twin), (obs, _), policy = started_pair(scenario="paper_fig1")
+    with pytest.raises(error, match=pattern):
+        fxc_env.parallel_env(**kwargs)
+    with pytest.raises(error, match=pattern):
+        fxc_env.env(**kwargs)
+    assert_untouched_and_in_step(env, twin, obs, policy)

@@ -1,0 +1,59 @@
+"""fxc_env.spaces: the spaces are shared by both front ends and hold what the env emits."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import MODES
+
+import fxc_env
+from fxc_env.config import make_config
+from fxc_env.engine import ConsensusEngine
+from fxc_env.spaces import action_space, observation_space, state_space
+
+
+@pytest.mark.parametrize(("action_mode", "obs_mode"), MODES)
+def test_reference_actions_fit_the_action_box_in_normalized_mode_for_any_state(action_mode, obs_mode):
+    """SPEC 4.3: the action Box is wide enough for the reference; in normalised units for every state."""
+    config = make_config(
+        topology="random",
+        n_agents=12,
+        topology_period=2,
+        mean_in_degree=3.0,
+        action_mode=action_mode,
+        obs_mode=obs_mode,
+    )
+    engine = ConsensusEngine(config, n_episodes=64)
+    rng = np.random.default_rng(5)
+    # Initial states over many orders of magnitude; raw mode only for the documented ranges.
+    scale = 10.0 ** rng.uniform(-6, 6, size=(64, 1, 1)) if obs_mode == "normalized" else 1.0
+    x0 = scale * rng.uniform(-5, 5, size=(64, 12, 1))
+    v0 = scale * rng.uniform(-2, 2, size=(64, 12, 1))
+    engine.reset(x0, v0)
+    policy = fxc_env.ReferencePolicy(config)
+    box = action_space(config)
+    obs_box = observation_space(config)
+    while not engine.done:
+        obs = engine.observations()
+        assert all(obs_box.contains(row) for row in obs.reshape(-1, obs.shape[-1])[::37])
+        actions = policy(obs)
+        assert np.all(actions >= box.low) and np.all(actions <= box.high)
+        engine.step(actions)
+
+
+def test_parallel_env_and_vec_env_expose_the_same_spaces():
+    env = fxc_env.parallel_env(scenario="random_20_planar", obs_mode="raw")
+    venv = fxc_env.ConsensusVecEnv(2, scenario="random_20_planar", obs_mode="raw")
+    agent = env.possible_agents[0]
+    assert env.observation_space(agent) == venv.observation_space
+    assert env.action_space(agent) == venv.action_space
+    assert env.state_space == state_space(env.config)
+    assert env.state_space.shape == (20, 4)
+
+
+def test_dict_form_holds_rows_mask_and_clock():
+    config = make_config("paper_fig1", obs_format="dict")
+    space = observation_space(config)
+    assert set(space.spaces) == {"neighbours", "mask", "clock"}
+    assert space["neighbours"].shape == (config.layout.max_in_degree, 2 * config.dim)
+    assert space["clock"].shape == (3,)
