@@ -43,12 +43,13 @@ CLOCK_SIZE = 3
 class ObservationLayout:
     """Where things sit in one agent's flat observation vector.
 
-    ``[rows (d_max * 2 * dim) | mask (d_max) | clock (3)]``; row r is
+    ``[rows (slots * 2 * dim) | mask (slots) | clock (3)]``; row r is
     ``[x_j - x_i (dim), v_j - v_i (dim)]`` for the r-th in-neighbour j (ascending), zero
-    padded. In ``normalized`` mode rows are ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i``.
+    padded. ``slots`` is the largest in-degree over the topology set (``d_max``), or more
+    when ``obs_slots`` asks for room (a policy then fits several topologies). In ``normalized`` mode rows are ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i``.
     """
 
-    max_in_degree: int
+    slots: int
     dim: int
 
     @cached_property
@@ -57,11 +58,11 @@ class ObservationLayout:
 
     @cached_property
     def rows_end(self) -> int:
-        return self.max_in_degree * self.row_size
+        return self.slots * self.row_size
 
     @cached_property
     def mask_end(self) -> int:
-        return self.rows_end + self.max_in_degree
+        return self.rows_end + self.slots
 
     @cached_property
     def size(self) -> int:
@@ -69,9 +70,9 @@ class ObservationLayout:
         return self.mask_end + CLOCK_SIZE
 
     def split(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(..., size)`` -> rows ``(..., d_max, 2, dim)``, mask ``(..., d_max)``, clock ``(..., 3)``."""
+        """``(..., size)`` -> rows ``(..., slots, 2, dim)``, mask ``(..., slots)``, clock ``(..., 3)``."""
         lead = obs.shape[:-1]
-        rows = obs[..., : self.rows_end].reshape((*lead, self.max_in_degree, 2, self.dim))
+        rows = obs[..., : self.rows_end].reshape((*lead, self.slots, 2, self.dim))
         return rows, obs[..., self.rows_end : self.mask_end], obs[..., self.mask_end :]
 
 
@@ -82,6 +83,7 @@ class EnvConfig:
     topology: Topology
     schedule: Schedule
     dim: int
+    obs_slots: int
     action_mode: str
     obs_mode: str
     obs_format: str
@@ -106,7 +108,7 @@ class EnvConfig:
 
     @cached_property
     def layout(self) -> ObservationLayout:
-        return ObservationLayout(self.topology.max_in_degree, self.dim)
+        return ObservationLayout(self.obs_slots, self.dim)
 
     @property
     def action_size(self) -> int:
@@ -192,11 +194,14 @@ def make_config(
     topology_seed: int | None = 0,
     mean_in_degree: float | None = None,
     topology_period: int | None = None,
+    obs_slots: int | None = None,
 ) -> EnvConfig:
     """Validate SPEC 4.1's keyword arguments (a scenario's values first, explicit ones win).
 
     A scenario's fixed initial state is dropped (random draws instead) when ``n_agents`` or
-    ``dim`` is overridden, since it has the scenario's shape.
+    ``dim`` is overridden, since it has the scenario's shape, or when
+    ``initial_state="random"``. ``obs_slots`` pads the observation to at least that many
+    neighbour rows (default: the topology's largest in-degree).
     """
     given = {
         "n_agents": n_agents,
@@ -215,6 +220,10 @@ def make_config(
     if resized and initial_state is None:
         merged.pop("initial_state", None)  # the scenario's state has the scenario's shape
     merged.update({k: v for k, v in given.items() if v is not None})
+    if isinstance(initial_state, str):
+        if initial_state != "random":
+            raise ValueError(f"initial_state: expected None, 'random' or a pair (x0, v0), got {initial_state!r}")
+        merged.pop("initial_state")
     merged.setdefault("topology", "paper_fig1")
     merged.setdefault("settling_time", 20.0)
     merged.setdefault("schedule", "paper")
@@ -231,6 +240,13 @@ def make_config(
         period=merged.get("topology_period", 1),
     )
     sched = make_schedule(merged["settling_time"], merged.get("n_intervals"), merged["schedule"])
+    slots = topo.max_in_degree
+    if obs_slots is not None:
+        slots = _positive_int("obs_slots", obs_slots)
+        if slots < topo.max_in_degree:
+            raise ValueError(
+                f"obs_slots: the topology has in-degree up to {topo.max_in_degree}; expected at least that, got {obs_slots!r}"
+            )
     action_mode = _choice("action_mode", action_mode, ACTION_MODES)
     obs_mode = _choice("obs_mode", obs_mode, OBS_MODES)
     obs_format = _choice("obs_format", obs_format, OBS_FORMATS)
@@ -254,6 +270,7 @@ def make_config(
         topology=topo,
         schedule=sched,
         dim=dim_value,
+        obs_slots=slots,
         action_mode=action_mode,
         obs_mode=obs_mode,
         obs_format=obs_format,

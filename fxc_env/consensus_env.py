@@ -57,7 +57,8 @@ class ConsensusParallelEnv(ParallelEnv):
     | mask  | ``d_max``       | 1 for a real row, 0 for padding                                  |
     | clock | 3               | ``t_k / T_s``, ``T_{k+1} / T_s``, ``k / K``                      |
 
-    ``d_max`` is the largest in-degree over the topology set. In ``normalized`` mode (default)
+    ``d_max`` is the largest in-degree over the topology set, or ``obs_slots`` when that is
+    larger (room for other topologies, so one policy fits several). In ``normalized`` mode (default)
     rows are ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i`` with the local scale
     ``s_i = max_j max(|x_j - x_i|, T |v_j - v_i|)`` (components), so they lie in [-1, 1]; an
     agent with ``s_i = 0`` sees zeros and coasts whatever it does. ``obs_mode="raw"``
@@ -72,7 +73,8 @@ class ConsensusParallelEnv(ParallelEnv):
 
     ## Starting State
     ``reset(seed, options={"x0": ..., "v0": ...})`` with arrays ``(N, dim)`` (or ``(N,)`` when
-    ``dim = 1``); otherwise the scenario's initial state; otherwise positions
+    ``dim = 1``); otherwise the scenario's initial state (``initial_state="random"`` drops
+    it); otherwise positions
     ``U(-position_range, position_range)`` (5 m) and velocities ``U(-velocity_range,
     velocity_range)`` (2 m/s) per component from the seeded generator. Other option keys
     are ignored, as in Gymnasium.
@@ -95,7 +97,7 @@ class ConsensusParallelEnv(ParallelEnv):
     [``"paper_fig1"``: the **assumed** Fig. 1], ``settling_time`` [20.0 s], ``n_intervals`` K
     [200], ``schedule`` [``"paper"``], ``dim`` [1], ``action_mode`` [``"plan"``], ``obs_mode``
     [``"normalized"``], ``obs_format`` [``"flat"``], ``initial_state`` [random],
-    ``render_mode`` [None], ``max_cycles`` [None], ``action_bound``, ``reward_floor``
+    ``render_mode`` [None], ``max_cycles`` [None], ``obs_slots`` [d_max], ``action_bound``, ``reward_floor``
     [1e-12], ``position_range`` [5.0], ``velocity_range`` [2.0], ``topology_seed`` [0],
     ``mean_in_degree`` [2.0] and ``topology_period`` [1] for ``random``.
     Every bad argument raises an exception naming it, and leaves a live env unchanged.
@@ -168,7 +170,7 @@ class ConsensusParallelEnv(ParallelEnv):
                 obs[:, layout.rows_end : layout.mask_end],
                 obs[:, layout.mask_end :],
             )
-            rows = rows.reshape(len(obs), layout.max_in_degree, layout.row_size)
+            rows = rows.reshape(len(obs), layout.slots, layout.row_size)
             return {
                 agent: {"neighbours": rows[i], "mask": mask[i], "clock": clock[i]}
                 for agent, i in self._agent_index.items()

@@ -61,7 +61,14 @@ class ConsensusEngine:
         self.v0 = np.zeros(shape)
         self.k = 0
         self._xi = config.topology.consensus_weights() if n <= DENSE_LIMIT else None
-        self._mask_features = config.topology.neighbour_mask.astype(np.float64)
+        # Neighbour slots padded to the layout's width: extra slots point at the agent itself.
+        topology, slot_count = config.topology, self.layout.slots
+        extra = slot_count - topology.max_in_degree
+        own = np.broadcast_to(np.arange(n)[None, :, None], (topology.period, n, extra))
+        self._neighbour_index = np.concatenate([topology.neighbour_index, own], axis=2)
+        self._mask_features = np.concatenate(
+            [topology.neighbour_mask, np.zeros((topology.period, n, extra), dtype=bool)], axis=2
+        ).astype(np.float64)
         schedule = config.schedule
         k_all = np.arange(schedule.n_intervals + 1)
         next_interval = schedule.intervals[np.minimum(k_all, schedule.n_intervals - 1)]
@@ -162,12 +169,12 @@ class ConsensusEngine:
         Division (not multiplication by ``1/s``) keeps every entry within [-1, 1] exactly.
         """
         c, layout = self.config, self.layout
-        b, n, dim, d_max = self.n_episodes, c.n_agents, c.dim, layout.max_in_degree
+        b, n, dim, d_max = self.n_episodes, c.n_agents, c.dim, layout.slots
         T = self.current_interval()
         obs = np.empty((b, n, layout.size)) if out is None else out
         rows = obs[..., : layout.rows_end].reshape(b, n, d_max, 2, dim)
         # Gather [x_j, v_j] together (one random access per edge), then subtract [x_i, v_i].
-        index = c.topology.neighbour_index[self.graph_index()]
+        index = self._neighbour_index[self.graph_index()]
         gathered = np.take(self.state, index, axis=1, mode="clip")  # (B, N, d_max, 2, dim)
         gathered -= self.state[:, :, None]
         dx, dv = gathered[..., 0, :], gathered[..., 1, :]

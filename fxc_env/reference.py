@@ -52,11 +52,11 @@ class ReferencePolicy:
         # single pass over the observations: columns [sum (x_j - x_i) | sum (v_j - v_i) | d_i].
         layout, dim = self.layout, self.config.dim
         summation = np.zeros((layout.mask_end, 2 * dim + 1))
-        slot = np.arange(layout.max_in_degree)[:, None]
+        slot = np.arange(layout.slots)[:, None]
         component = np.arange(dim)[None, :]
-        summation[(slot * layout.row_size + component).ravel(), np.tile(component.ravel(), layout.max_in_degree)] = 1.0
+        summation[(slot * layout.row_size + component).ravel(), np.tile(component.ravel(), layout.slots)] = 1.0
         summation[
-            (slot * layout.row_size + dim + component).ravel(), np.tile(dim + component.ravel(), layout.max_in_degree)
+            (slot * layout.row_size + dim + component).ravel(), np.tile(dim + component.ravel(), layout.slots)
         ] = 1.0
         summation[layout.rows_end : layout.mask_end, 2 * dim] = 1.0
         self._summation = summation

@@ -19,8 +19,8 @@ def observation_space(config: EnvConfig) -> spaces.Space:
     """
     layout = config.layout
     row_bound = 1.0 if config.obs_mode == "normalized" else np.inf
-    rows = spaces.Box(-row_bound, row_bound, shape=(layout.max_in_degree, layout.row_size), dtype=np.float64)
-    mask = spaces.Box(0.0, 1.0, shape=(layout.max_in_degree,), dtype=np.float64)
+    rows = spaces.Box(-row_bound, row_bound, shape=(layout.slots, layout.row_size), dtype=np.float64)
+    mask = spaces.Box(0.0, 1.0, shape=(layout.slots,), dtype=np.float64)
     clock = spaces.Box(0.0, 1.0, shape=(CLOCK_SIZE,), dtype=np.float64)
     if config.obs_format == "dict":
         return spaces.Dict({"neighbours": rows, "mask": mask, "clock": clock})

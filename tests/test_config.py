@@ -71,7 +71,7 @@ def test_custom_schedule_array_sets_k():
 def test_layout_sizes_and_split(dim):
     c = make_config(topology="complete", n_agents=4, dim=dim)
     layout = c.layout
-    assert layout.max_in_degree == 3
+    assert layout.slots == 3
     assert layout.size == 3 * 2 * dim + 3 + 3
     assert c.action_size == 2 * dim
     obs = np.arange(2 * 5 * layout.size, dtype=float).reshape(2, 5, layout.size)
@@ -123,3 +123,17 @@ def test_initial_state_accepts_n_or_n_by_dim():
     c2 = make_config(topology="ring", n_agents=4, initial_state=(x0[:, None], -x0[:, None]))
     np.testing.assert_array_equal(c1.initial_state[0], c2.initial_state[0])
     np.testing.assert_array_equal(c1.initial_state[1], -x0[:, None])
+
+
+def test_obs_slots_pads_rows_and_refuses_fewer_than_the_in_degree():
+    c = make_config("paper_fig1", obs_slots=4)
+    assert c.layout.slots == 4 and c.topology.max_in_degree == 1
+    with pytest.raises(ValueError, match="obs_slots: the topology has in-degree up to 3"):
+        make_config(topology="complete", n_agents=4, obs_slots=2)
+
+
+def test_initial_state_random_drops_the_scenario_state():
+    assert make_config("paper_fig1").initial_state is not None
+    assert make_config("paper_fig1", initial_state="random").initial_state is None
+    with pytest.raises(ValueError, match="initial_state: expected None, 'random'"):
+        make_config("paper_fig1", initial_state="fixed")

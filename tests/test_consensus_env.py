@@ -71,7 +71,7 @@ def test_agents_spaces_and_state_layout():
         space = env.observation_space(agent)
         assert space is env.observation_space(agent)
         assert env.action_space(agent) is env.action_space(agent)
-        assert space.shape == (layout.max_in_degree * 4 + layout.max_in_degree + 3,)
+        assert space.shape == (layout.slots * 4 + layout.slots + 3,)
         assert space.contains(obs[agent])
         act = env.action_space(agent)
         assert act.shape == (4,) and np.all(np.isfinite(act.low)) and np.all(np.isfinite(act.high))
@@ -183,7 +183,7 @@ def test_dict_observation_format_matches_the_flat_one():
         np.testing.assert_array_equal(o["neighbours"].ravel(), obs_flat[agent][: layout.rows_end])
         np.testing.assert_array_equal(o["mask"], obs_flat[agent][layout.rows_end : layout.mask_end])
         np.testing.assert_array_equal(o["clock"], obs_flat[agent][layout.mask_end :])
-        assert o["neighbours"].shape == (layout.max_in_degree, 4)
+        assert o["neighbours"].shape == (layout.slots, 4)
 
 
 def test_render_without_a_mode_returns_none():

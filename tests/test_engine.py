@@ -14,6 +14,7 @@ from helpers import (
     brute_spread,
 )
 
+import fxc_env
 from fxc_env import ConsensusEngine, ReferencePolicy, make_config
 from fxc_env.core.dynamics import interval_energy
 
@@ -92,7 +93,7 @@ def test_raw_observation_rows_mask_and_clock():
         for i in range(20):
             senders = sorted(int(j) for j, r in edges if r == i)
             d = len(senders)
-            np.testing.assert_array_equal(mask[i], [1.0] * d + [0.0] * (layout.max_in_degree - d))
+            np.testing.assert_array_equal(mask[i], [1.0] * d + [0.0] * (layout.slots - d))
             for r, j in enumerate(senders):
                 np.testing.assert_allclose(rows[i, r, 0], engine.x[0, j] - engine.x[0, i], rtol=1e-15)
                 np.testing.assert_allclose(rows[i, r, 1], engine.v[0, j] - engine.v[0, i], rtol=1e-15)
@@ -234,3 +235,11 @@ def test_zero_action_coasts(action_mode, obs_mode):
         assert np.all(out.energy == 0.0)
     np.testing.assert_allclose(engine.x[0, :, 0], PAPER_X0 + 20.0 * PAPER_V0, rtol=1e-14)
     np.testing.assert_array_equal(engine.v[0, :, 0], PAPER_V0)
+
+
+def test_padding_slots_changes_nothing_but_the_observation_width():
+    """obs_slots adds zero rows with mask 0: the reference's trajectory is unchanged."""
+    base = fxc_env.simulate(scenario="random_20_planar")
+    padded = fxc_env.simulate(scenario="random_20_planar", obs_slots=base.config.layout.slots + 3)
+    assert padded.config.layout.size == base.config.layout.size + 3 * (2 * 2 + 1)
+    np.testing.assert_allclose(padded.x, base.x, rtol=0, atol=1e-12 * np.abs(base.x).max())

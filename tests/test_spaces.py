@@ -55,5 +55,5 @@ def test_dict_form_holds_rows_mask_and_clock():
     config = make_config("paper_fig1", obs_format="dict")
     space = observation_space(config)
     assert set(space.spaces) == {"neighbours", "mask", "clock"}
-    assert space["neighbours"].shape == (config.layout.max_in_degree, 2 * config.dim)
+    assert space["neighbours"].shape == (config.layout.slots, 2 * config.dim)
     assert space["clock"].shape == (3,)
