@@ -8,6 +8,7 @@ PettingZoo environment, the SB3 VecEnv and the policies all read the same config
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
@@ -68,6 +69,14 @@ class ObservationLayout:
     def size(self) -> int:
         """Length of the flat observation."""
         return self.mask_end + CLOCK_SIZE
+
+    def flat(self, observation: np.ndarray | Mapping[str, Any]) -> np.ndarray:
+        """A flat float64 ``(..., size)`` observation from a flat or a dict observation."""
+        if isinstance(observation, Mapping):
+            neighbours = np.asarray(observation["neighbours"], dtype=np.float64)
+            parts = (neighbours.reshape((*neighbours.shape[:-2], -1)), observation["mask"], observation["clock"])
+            return np.concatenate([np.asarray(part, dtype=np.float64) for part in parts], axis=-1)
+        return np.asarray(observation, dtype=np.float64)
 
     def split(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(..., size)`` -> rows ``(..., slots, 2, dim)``, mask ``(..., slots)``, clock ``(..., 3)``."""
@@ -130,6 +139,19 @@ def check_max_cycles(max_cycles: Any) -> None:
         isinstance(max_cycles, bool) or not isinstance(max_cycles, int | np.integer) or max_cycles < 1
     ):
         raise ValueError(f"max_cycles: expected None or an integer >= 1, got {max_cycles!r}")
+
+
+def config_of(source: Any, who: str = "policy") -> EnvConfig:
+    """The :class:`EnvConfig` of an environment (parallel, AEC, VecEnv, wrapped) or the config itself."""
+    if isinstance(source, EnvConfig):
+        return source
+    for candidate in (source, getattr(source, "unwrapped", None), getattr(source, "venv", None)):
+        config = getattr(candidate, "config", None)
+        if isinstance(config, EnvConfig):
+            return config
+    raise TypeError(
+        f"{who}: expected an fxc_env environment (parallel, AEC or VecEnv) or an EnvConfig, got {type(source).__name__}"
+    )
 
 
 def _positive_int(name: str, value: Any) -> int:

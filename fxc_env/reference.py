@@ -20,21 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.config import EnvConfig
+from fxc_env.config import config_of
 from fxc_env.core.dynamics import input_from_plan
-
-
-def _config_of(source: Any) -> EnvConfig:
-    if isinstance(source, EnvConfig):
-        return source
-    for candidate in (source, getattr(source, "unwrapped", None)):
-        config = getattr(candidate, "config", None)
-        if isinstance(config, EnvConfig):
-            return config
-    raise TypeError(
-        "ReferencePolicy: expected an fxc_env environment (parallel, AEC or VecEnv) or an EnvConfig, "
-        f"got {type(source).__name__}"
-    )
 
 
 class ReferencePolicy:
@@ -46,7 +33,7 @@ class ReferencePolicy:
     """
 
     def __init__(self, env: Any) -> None:
-        self.config = _config_of(env)
+        self.config = config_of(env, "ReferencePolicy")
         self.layout = self.config.layout
         # One matrix product sums the x rows, the v rows and the mask of every agent in a
         # single pass over the observations: columns [sum (x_j - x_i) | sum (v_j - v_i) | d_i].
@@ -63,12 +50,7 @@ class ReferencePolicy:
 
     def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
         """Action(s) for observation(s); see the class docstring for shapes."""
-        if isinstance(observation, Mapping):
-            neighbours = np.asarray(observation["neighbours"], dtype=np.float64)
-            parts = (neighbours.reshape((*neighbours.shape[:-2], -1)), observation["mask"], observation["clock"])
-            obs = np.concatenate([np.asarray(p, dtype=np.float64) for p in parts], axis=-1)
-        else:
-            obs = np.asarray(observation, dtype=np.float64)
+        obs = self.layout.flat(observation)
         return self.act(obs)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
