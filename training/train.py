@@ -21,7 +21,6 @@ import inspect
 import itertools
 import json
 import platform
-import re
 import sys
 import textwrap
 from dataclasses import dataclass
@@ -33,7 +32,6 @@ import yaml
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGORITHMS = ("ppo", "sac")
-CHECKPOINT_PATTERN = re.compile(r"model_(\d+)_steps\.zip$")
 
 
 @dataclass
@@ -90,22 +88,6 @@ def versions() -> dict[str, str]:
     return found
 
 
-def latest_checkpoint(run_dir: Path) -> Path | None:
-    """The checkpoint with the most steps in ``run_dir/checkpoints`` (None if there is none)."""
-    found = [
-        (int(m.group(1)), p)
-        for p in (run_dir / "checkpoints").glob("model_*_steps.zip")
-        if (m := CHECKPOINT_PATTERN.search(p.name))
-    ]
-    return max(found)[1] if found else None
-
-
-def vecnormalize_path(checkpoint: Path) -> Path:
-    """Where SB3's CheckpointCallback keeps the VecNormalize statistics of ``checkpoint``."""
-    steps = CHECKPOINT_PATTERN.search(checkpoint.name).group(1)  # type: ignore[union-attr]
-    return checkpoint.with_name(f"model_vecnormalize_{steps}_steps.pkl")
-
-
 def build_env(args: TrainArgs, params: dict[str, Any]):
     """The monitored (and optionally normalised) ConsensusVecEnv of this run."""
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
@@ -126,9 +108,10 @@ def train(args: TrainArgs) -> Path:
     """Run (or resume) training; returns the run directory."""
     import torch
     from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.callbacks import CheckpointCallback
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecNormalize
+
+    from training.checkpoints import RolloutCheckpoint, latest_checkpoint, save_checkpoint, vecnormalize_path
 
     if args.algo not in ALGORITHMS:
         raise ValueError(f"algo: expected one of {ALGORITHMS}, got {args.algo!r}")
@@ -158,10 +141,7 @@ def train(args: TrainArgs) -> Path:
         (run_dir / "config.json").write_text(json.dumps(record, indent=2) + "\n")
         (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
-    save_freq = max(args.checkpoint_every // venv.num_envs, 1)
-    checkpoints = CheckpointCallback(
-        save_freq, str(run_dir / "checkpoints"), name_prefix="model", save_vecnormalize=params["normalize"]
-    )
+    checkpoints = RolloutCheckpoint(run_dir / "checkpoints", args.checkpoint_every)
 
     # ------------------------------------------------------------------- loop
     remaining = args.timesteps - model.num_timesteps
@@ -172,15 +152,12 @@ def train(args: TrainArgs) -> Path:
             )
     except KeyboardInterrupt:
         # Ctrl-C loses nothing: a checkpoint at the current step count, then stop.
-        path = run_dir / "checkpoints" / f"model_{model.num_timesteps}_steps.zip"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        model.save(path)
-        if isinstance(venv, VecNormalize):
-            venv.save(str(vecnormalize_path(path)))
+        path = save_checkpoint(model, run_dir / "checkpoints")
         print(f"\nfxc train: interrupted; saved {path} (resume with --resume)", file=sys.stderr)
         raise
 
     # -------------------------------------------------------------- artefacts
+    save_checkpoint(model, run_dir / "checkpoints")  # a later --resume with more --timesteps goes on from here
     model.save(run_dir / "model.zip")
     if isinstance(venv, VecNormalize):
         venv.save(str(run_dir / "vecnormalize.pkl"))
