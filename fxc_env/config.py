@@ -20,6 +20,7 @@ from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.scenarios import scenario_kwargs
 
 ACTION_MODES = ("plan", "accel")
+SWITCHING_MODES = ("periodic", "random")
 OBS_MODES = ("normalized", "raw")
 OBS_FORMATS = ("flat", "dict")
 
@@ -101,6 +102,10 @@ class EnvConfig:
     initial_state: tuple[np.ndarray, np.ndarray] | None
     position_range: float
     velocity_range: float
+    u_max: float | None
+    obs_noise: float
+    link_dropout: float
+    switching: str
     scenario: str | None
 
     @property
@@ -170,6 +175,16 @@ def _positive_float(name: str, value: Any) -> float:
     return number
 
 
+def _non_negative_float(name: str, value: Any) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name}: expected a finite number >= 0, got {value!r}") from exc
+    if isinstance(value, bool) or not math.isfinite(number) or number < 0:
+        raise ValueError(f"{name}: expected a finite number >= 0, got {value!r}")
+    return number
+
+
 def _choice(name: str, value: Any, options: tuple[str, ...]) -> str:
     if value not in options:
         raise ValueError(f"{name}: expected one of {options}, got {value!r}")
@@ -217,6 +232,10 @@ def make_config(
     mean_in_degree: float | None = None,
     topology_period: int | None = None,
     obs_slots: int | None = None,
+    u_max: float | None = None,
+    obs_noise: float = 0.0,
+    link_dropout: float = 0.0,
+    switching: str = "periodic",
 ) -> EnvConfig:
     """Validate SPEC 4.1's keyword arguments (a scenario's values first, explicit ones win).
 
@@ -224,6 +243,12 @@ def make_config(
     ``dim`` is overridden, since it has the scenario's shape, or when
     ``initial_state="random"``. ``obs_slots`` pads the observation to at least that many
     neighbour rows (default: the topology's largest in-degree).
+
+    Realism options (all off by default): ``u_max`` clips every input component to
+    ``[-u_max, u_max]`` m/s^2 (integrated exactly); ``obs_noise`` adds Gaussian noise of
+    that standard deviation (m, m/s) to each relative measurement; ``link_dropout`` loses
+    each edge at each sampling instant with that probability; ``switching="random"`` draws
+    each interval's graph uniformly from the topology set instead of cycling through it.
     """
     given = {
         "n_agents": n_agents,
@@ -285,6 +310,13 @@ def make_config(
             validate_state_array("initial_state[0] (x0)", init[0], topo.n_agents, dim_value),
             validate_state_array("initial_state[1] (v0)", init[1], topo.n_agents, dim_value),
         )
+    if u_max is not None:
+        u_max = _positive_float("u_max", u_max)
+    noise = _non_negative_float("obs_noise", obs_noise)
+    dropout = _non_negative_float("link_dropout", link_dropout)
+    if dropout >= 1:
+        raise ValueError(f"link_dropout: expected a probability in [0, 1), got {link_dropout!r}")
+    switching = _choice("switching", switching, SWITCHING_MODES)
     floor = float(reward_floor)
     if not math.isfinite(floor) or floor <= 0:
         raise ValueError(f"reward_floor: expected a positive finite number, got {reward_floor!r}")
@@ -301,5 +333,9 @@ def make_config(
         initial_state=init,
         position_range=_positive_float("position_range", position_range),
         velocity_range=_positive_float("velocity_range", velocity_range),
+        u_max=u_max,
+        obs_noise=noise,
+        link_dropout=dropout,
+        switching=switching,
         scenario=scenario,
     )

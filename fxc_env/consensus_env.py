@@ -152,7 +152,7 @@ class ConsensusParallelEnv(ParallelEnv):
         drawn_x, drawn_v = self.engine.sample_initial_state(self._rng)
         x0 = drawn_x if x0 is None else x0
         v0 = drawn_v if v0 is None else v0
-        self.engine.reset(x0[None], v0[None])
+        self.engine.reset(x0[None], v0[None], rng=self._rng)
         self.agents = self.possible_agents[:]
         self._steps = 0
         self._history = [(0.0, x0.copy(), v0.copy())] if self.render_mode else []
@@ -221,8 +221,15 @@ class ConsensusParallelEnv(ParallelEnv):
         terminations = dict.fromkeys(self.agents, terminated)
         truncations = dict.fromkeys(self.agents, truncated)
         energy, peak = outcome.energy[0].tolist(), outcome.peak_input[0].tolist()
+        saturated = outcome.saturated_fraction[0].tolist()
         infos = {
-            agent: {"t": t, "interval": engine.k, "energy": energy[i], "peak_u": peak[i]}
+            agent: {
+                "t": t,
+                "interval": engine.k,
+                "energy": energy[i],
+                "peak_u": peak[i],
+                "saturated_fraction": saturated[i],
+            }
             for agent, i in self._agent_index.items()
         }
         if terminated or truncated:
@@ -254,7 +261,7 @@ class ConsensusParallelEnv(ParallelEnv):
 
         if self._renderer is None:
             self._renderer = EpisodeRenderer(self.config, interactive=self.render_mode == "human")
-        frame = self._renderer.draw(self._history, self.engine.graph_index())
+        frame = self._renderer.draw(self._history, int(self.engine.graph_indices()[0]))
         return frame if self.render_mode == "rgb_array" else None
 
     def close(self) -> None:

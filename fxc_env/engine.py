@@ -8,7 +8,9 @@ velocities ``v`` are ``(B, N, dim)``; observations ``(B, N, obs_size)``; actions
 ``(B, N, 2 dim)``.
 
 One step integrates the affine input on ``[t_k, t_{k+1})`` in closed form
-(:mod:`fxc_env.core.dynamics`).
+(:mod:`fxc_env.core.dynamics`), clipped to ``±u_max`` when that is set. Measurement noise,
+link dropout and random switching draw from :attr:`ConsensusEngine.rng`, which the front
+ends seed; each sampling instant's measurements are drawn once and cached.
 """
 
 from __future__ import annotations
@@ -33,7 +35,10 @@ class StepOutcome:
         reward: team reward ``log(D(t_k) + f) - log(D(t_{k+1}) + f)``, ``(B,)``.
         energy: ``integral |u_i|^2 dt`` over the interval, ``(B, N)``.
         peak_input: peak ``|u_i|`` (largest component) over the interval, ``(B, N)``.
-        u_start, u_end: the applied input at ``t_k+`` and ``t_{k+1}-``, ``(B, N, dim)``.
+        u_start, u_end: the commanded input at ``t_k+`` and ``t_{k+1}-``, ``(B, N, dim)``
+            (the applied input is this line clipped to ``±u_max`` when that is set).
+        saturated_fraction: share of the interval spent saturated, mean over components,
+            ``(B, N)`` (zeros without ``u_max``).
         terminated: the deadline ``T_s`` was reached (``k = K``).
     """
 
@@ -42,6 +47,7 @@ class StepOutcome:
     peak_input: np.ndarray
     u_start: np.ndarray
     u_end: np.ndarray
+    saturated_fraction: np.ndarray
     terminated: bool
 
 
@@ -60,7 +66,8 @@ class ConsensusEngine:
         self.x0 = np.zeros(shape)
         self.v0 = np.zeros(shape)
         self.k = 0
-        self._xi = config.topology.consensus_weights() if n <= DENSE_LIMIT else None
+        periodic = config.switching == "periodic"
+        self._xi = config.topology.consensus_weights() if n <= DENSE_LIMIT and periodic else None
         # Neighbour slots padded to the layout's width: extra slots point at the agent itself.
         topology, slot_count = config.topology, self.layout.slots
         extra = slot_count - topology.max_in_degree
@@ -78,6 +85,9 @@ class ConsensusEngine:
         self._next_interval = next_interval.tolist()
         #: Settling thresholds as a column, ``(len(SETTLING_THRESHOLDS), 1)``.
         self._thresholds = np.array(SETTLING_THRESHOLDS)[:, None]
+        #: Generator of measurement noise, link dropout and random switching.
+        self.rng = np.random.default_rng()
+        self._no_saturation = np.zeros((self.n_episodes, n))
         self._reset_trackers()
 
     # ------------------------------------------------------------------ state
@@ -105,18 +115,19 @@ class ConsensusEngine:
         v0 = rng.uniform(-c.velocity_range, c.velocity_range, size=shape)
         return x0, v0
 
-    def reset(self, x0: np.ndarray, v0: np.ndarray, episodes: np.ndarray | slice | None = None) -> None:
-        """Start episodes at ``t_0 = 0`` from ``x0, v0`` of shape ``(b, N, dim)``.
+    def reset(self, x0: np.ndarray, v0: np.ndarray, rng: np.random.Generator | None = None) -> None:
+        """Start every episode at ``t_0 = 0`` from ``x0, v0`` of shape ``(B, N, dim)``.
 
-        ``episodes`` selects which of the B episodes restart (all by default); all episodes
-        must restart together because they share the clock ``k``.
+        ``rng`` (optional) replaces :attr:`rng`, the generator of noise, dropout and random
+        switching; without it the current generator goes on.
         """
-        index = slice(None) if episodes is None else episodes
-        self.x[index] = x0
-        self.v[index] = v0
-        self.x0[index] = x0
-        self.v0[index] = v0
+        self.x[...] = x0
+        self.v[...] = v0
+        self.x0[...] = x0
+        self.v0[...] = v0
         self.k = 0
+        if rng is not None:
+            self.rng = rng
         self._reset_trackers()
 
     def validate_state(self, name: str, value: object) -> np.ndarray:
@@ -135,7 +146,9 @@ class ConsensusEngine:
         self.peak_total = np.zeros((b, n))
         # Index of the last sampling instant whose D(t_k)/D(0) was >= eps, per threshold.
         self.last_above = np.zeros((len(SETTLING_THRESHOLDS), b), dtype=np.int64)
-        self._scale: tuple[int, np.ndarray] | None = None
+        self.saturated_time = np.zeros((b, n))
+        self._measured: tuple | None = None
+        self._draw_graphs()
 
     @property
     def done(self) -> bool:
@@ -152,48 +165,80 @@ class ConsensusEngine:
         return self._next_interval[self.k]
 
     def graph_index(self) -> int:
-        """Index ``k mod m`` of the graph active on the current interval."""
+        """Index ``k mod m`` of the graph active on the current interval (periodic switching)."""
         return self.k % self.config.topology.period
 
+    def graph_indices(self) -> np.ndarray:
+        """Index of each episode's graph on the current interval, ``(B,)``."""
+        if self._graph_ids is None:
+            return np.full(self.n_episodes, self.graph_index())
+        return self._graph_ids
+
+    def _draw_graphs(self) -> None:
+        """Random switching: every episode draws its next graph uniformly from the set."""
+        random = self.config.switching == "random"
+        self._graph_ids = self.rng.integers(0, self.config.topology.period, self.n_episodes) if random else None
+
     # ------------------------------------------------------------ observation
+    def measurements(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What the agents measure at ``t_k``, in metres and m/s, drawn once per instant.
+
+        Returns:
+            rows ``(B, N, slots, 2, dim)``: ``[x_j - x_i, v_j - v_i]`` per in-neighbour slot
+            (padded slots point at i itself and hold exact zeros), with noise and dropout;
+            mask ``(B, N, slots)`` or ``(N, slots)`` (1 for a row received); and the local scale
+            ``s_i = max(|x_j - x_i|, T |v_j - v_i|)`` over the rows, ``(B, N)``.
+        """
+        if self._measured is not None and self._measured[0] == self.k:
+            return self._measured[1:]
+        c = self.config
+        if self._graph_ids is None:
+            # Gather [x_j, v_j] together (one random access per edge).
+            rows = np.take(self.state, self._neighbour_index[self.graph_index()], axis=1, mode="clip")
+            mask = self._mask_features[self.graph_index()]
+        else:
+            index = self._neighbour_index[self._graph_ids]  # (B, N, slots)
+            rows = self.state[np.arange(self.n_episodes)[:, None, None], index]
+            mask = self._mask_features[self._graph_ids]
+        rows -= self.state[:, :, None]
+        if c.link_dropout > 0:
+            mask = mask * (self.rng.random((self.n_episodes, *mask.shape[-2:])) >= c.link_dropout)
+            rows *= mask[..., None, None]
+        if c.obs_noise > 0:
+            rows += (c.obs_noise * mask[..., None, None]) * self.rng.standard_normal(rows.shape)
+        T = self.current_interval()
+        scale = np.maximum(slots.max_abs(rows[..., 0, :]), T * slots.max_abs(rows[..., 1, :]))
+        self._measured = (self.k, rows, mask, scale)
+        return rows, mask, scale
+
     def observations(self, out: np.ndarray | None = None) -> np.ndarray:
         """Every agent's flat observation at ``t_k``, ``(B, N, obs_size)`` (SPEC 4.2).
 
         ``out`` (optional, ``(B, N, obs_size)`` float64) is filled instead of a fresh
         array: for loops that consume observations at once, it saves the page faults of
-        a new large buffer every step.
-
-        One pass: gather ``x_j``, subtract ``x_i`` (padded slots point
-        at i itself and give exact zeros), take the local scale
-        ``s_i = max(|x_j - x_i|, T |v_j - v_i|)`` and, in normalized mode, divide by it.
-        Division (not multiplication by ``1/s``) keeps every entry within [-1, 1] exactly.
+        a new large buffer every step. In normalized mode the rows are divided by the local
+        scale; division (not multiplication by ``1/s``) keeps every entry within [-1, 1].
         """
         c, layout = self.config, self.layout
-        b, n, dim, d_max = self.n_episodes, c.n_agents, c.dim, layout.slots
-        T = self.current_interval()
+        b, n = self.n_episodes, c.n_agents
+        raw, mask, scale = self.measurements()
         obs = np.empty((b, n, layout.size)) if out is None else out
-        rows = obs[..., : layout.rows_end].reshape(b, n, d_max, 2, dim)
-        # Gather [x_j, v_j] together (one random access per edge), then subtract [x_i, v_i].
-        index = self._neighbour_index[self.graph_index()]
-        gathered = np.take(self.state, index, axis=1, mode="clip")  # (B, N, d_max, 2, dim)
-        gathered -= self.state[:, :, None]
-        dx, dv = gathered[..., 0, :], gathered[..., 1, :]
-        scale = np.maximum(slots.max_abs(dx), T * slots.max_abs(dv))
-        self._scale = (self.k, scale)
-        if c.obs_mode == "normalized" and d_max:
-            dv *= T
+        rows = obs[..., : layout.rows_end].reshape(raw.shape)
+        if c.obs_mode == "normalized" and layout.slots:
             # s = 0 only when every row is 0; the floor keeps 0 / s at 0 without a branch.
-            gathered /= np.maximum(scale, TINY)[:, :, None, None, None]
-        rows[...] = gathered
-        obs[..., layout.rows_end : layout.mask_end] = self._mask_features[self.graph_index()]
+            divisor = np.maximum(scale, TINY)[:, :, None, None]
+            np.divide(raw[..., 0, :], divisor, out=rows[..., 0, :])
+            np.multiply(raw[..., 1, :], self.current_interval(), out=rows[..., 1, :])
+            rows[..., 1, :] /= divisor
+        else:
+            rows[...] = raw
+        obs[..., layout.rows_end : layout.mask_end] = mask
         obs[..., layout.mask_end :] = self._clock[self.k]
         return obs
 
     def local_scale(self) -> np.ndarray:
         """Each agent's local scale ``s_i`` at ``t_k`` (metres), ``(B, N)``; 0 if it sees no disagreement."""
-        if self._scale is None or self._scale[0] != self.k:
-            self.observations()
-        return self._scale[1]
+        return self.measurements()[2]
 
     # ----------------------------------------------------------------- action
     def validate_actions(self, actions: object, name: str = "actions") -> np.ndarray:
@@ -229,9 +274,16 @@ class ConsensusEngine:
             raise RuntimeError("step: the episode reached T_s; reset before stepping again")
         T = self.current_interval()
         u0, u1 = self.inputs_from_actions(actions)
-        energy = dynamics.interval_energy(u0, u1, T)
-        peak = dynamics.interval_peak(u0, u1)
-        x_next, v_next = dynamics.advance(self.x, self.v, u0, u1, T)
+        u_max = self.config.u_max
+        if u_max is None:
+            energy = dynamics.interval_energy(u0, u1, T)
+            peak = dynamics.interval_peak(u0, u1)
+            x_next, v_next = dynamics.advance(self.x, self.v, u0, u1, T)
+            saturated = self._no_saturation
+        else:
+            x_next, v_next, energy, peak, saturated_time = dynamics.advance_clipped(self.x, self.v, u0, u1, T, u_max)
+            saturated = saturated_time.mean(axis=-1) / T
+            self.saturated_time += saturated_time.mean(axis=-1)
         self.x[...] = x_next
         self.v[...] = v_next
         self.k += 1
@@ -243,7 +295,8 @@ class ConsensusEngine:
         np.maximum(self.peak_total, peak, out=self.peak_total)
         above = self.current_disagreement * self._inverse_d0 >= self._thresholds
         np.copyto(self.last_above, self.k, where=above)
-        return StepOutcome(reward, energy, peak, u0, u1, self.done)
+        self._draw_graphs()
+        return StepOutcome(reward, energy, peak, u0, u1, saturated, self.done)
 
     def _disagreement(self) -> np.ndarray:
         """``D = e_x + T_s e_v`` per episode; for ``dim = 1`` from one max and one min over agents."""
@@ -279,6 +332,7 @@ class ConsensusEngine:
             "achieved_final_position": self.x[:, :, 0].mean(axis=1),
             "predicted_final_velocity": predicted_v,
             "achieved_final_velocity": self.v[:, :, 0].mean(axis=1),
+            "saturated_fraction": self.saturated_time.mean(axis=1) / max(c.schedule.times[self.k], TINY),
         }
 
     def episode_metrics(self, episode: int = 0) -> EpisodeMetrics:

@@ -111,7 +111,8 @@ class ConsensusVecEnv(VecEnv):
         """
         n = self.n_agents
         overrides = {b: self._initial_state_options(o) for b, o in enumerate(self._options[::n]) if o}
-        x0, v0 = self._draw_initial_states(self._seeds[::n])
+        seeds = self._seeds[::n]
+        x0, v0 = self._draw_initial_states(seeds)
         for b, (given_x, given_v) in overrides.items():
             if given_x is not None:
                 x0[b] = given_x
@@ -119,7 +120,11 @@ class ConsensusVecEnv(VecEnv):
                 v0[b] = given_v
         self._reset_seeds()
         self._reset_options()
-        self._start(x0, v0)
+        # Noise, dropout and random switching draw from one batch generator, seeded with the
+        # first episode's seed (its own stream: (seed, 1)); they make episodes differ from
+        # separate ParallelEnv runs, which the initial states alone do not.
+        rng = None if seeds[0] is None else np.random.default_rng((seeds[0], 1))
+        self._start(x0, v0, rng)
         return self._observe()
 
     def _initial_state_options(self, options: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -140,8 +145,8 @@ class ConsensusVecEnv(VecEnv):
             x0[b], v0[b] = self.engine.sample_initial_state(self._rngs[b])
         return x0, v0
 
-    def _start(self, x0: np.ndarray, v0: np.ndarray) -> None:
-        self.engine.reset(x0, v0)
+    def _start(self, x0: np.ndarray, v0: np.ndarray, rng: np.random.Generator | None = None) -> None:
+        self.engine.reset(x0, v0, rng)
         self._steps = 0
         self._needs_reset = False
         self.reset_infos = [{} for _ in range(self.num_envs)]
@@ -251,7 +256,7 @@ class ConsensusVecEnv(VecEnv):
 
         if self._renderer is None:
             self._renderer = EpisodeRenderer(self.config, interactive=self.render_mode == "human")
-        frame = self._renderer.draw(self._history, self.engine.graph_index())
+        frame = self._renderer.draw(self._history, int(self.engine.graph_indices()[0]))
         return frame if self.render_mode == "rgb_array" else None
 
     def close(self) -> None:

@@ -78,6 +78,7 @@ def test_episode_metrics_as_dict_is_json_safe():
         achieved_final_position=-1.875,
         predicted_final_velocity=-0.125,
         achieved_final_velocity=-0.125,
+        saturated_fraction=0.0,
     )
     d = m.as_dict()
     assert d["t_eps_1e_6"] is None and d["predicted_final_position"] is None

@@ -63,3 +63,61 @@ def interval_peak(u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
     """Peak ``|u|`` on the interval: the largest absolute component, reached at an end, ``(...)``."""
     largest = np.maximum(np.abs(u0), np.abs(u1))
     return largest[..., 0] if largest.shape[-1] == 1 else largest.max(axis=-1)
+
+
+def _clipped_pieces(u0: np.ndarray, u1: np.ndarray, T, u_max: float):
+    """Split ``clip(u0 + (u1 - u0) s / T, -u_max, u_max)`` on ``[0, T]`` into 3 affine pieces.
+
+    Returns the pieces' start ``p`` and length ``L`` (``(3, ...)``, zero-length pieces allowed),
+    their value at the start ``f_p`` and slope ``c`` (0 where saturated).
+    """
+    slope = (u1 - u0) / T
+    flat = slope == 0
+    safe = np.where(flat, 1.0, slope)
+    # Where the line crosses -u_max and +u_max, clipped to [0, T] (both 0 for a flat line).
+    cross_low = np.where(flat, 0.0, np.clip((-u_max - u0) / safe, 0.0, T))
+    cross_high = np.where(flat, 0.0, np.clip((u_max - u0) / safe, 0.0, T))
+    first, second = np.minimum(cross_low, cross_high), np.maximum(cross_low, cross_high)
+    end = np.broadcast_to(T, first.shape)
+    starts = np.stack([np.zeros_like(first), first, second])
+    lengths = np.stack([first, second - first, end - second])
+    middle = u0 + slope * (starts + lengths / 2)
+    saturated = np.abs(middle) > u_max
+    start_value = np.where(saturated, np.sign(middle) * u_max, u0 + slope * starts)
+    piece_slope = np.where(saturated, 0.0, slope)
+    return starts, lengths, start_value, piece_slope, saturated
+
+
+def advance_clipped(
+    x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T, u_max: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Exact motion under the affine input clipped per component to ``[-u_max, u_max]``.
+
+    The clipped input is piecewise affine (at most three pieces, split where the line
+    crosses ``±u_max``); each piece is integrated in closed form:
+    ``v(T) = v + sum int u``, ``x(T) = x + T v + sum int (T - s) u(s) ds``.
+
+    Returns:
+        ``x(T), v(T)`` ``(..., dim)``; energy ``int |u|^2`` and peak ``|u|`` ``(...)``; and the
+        saturated time per component ``(..., dim)`` in seconds.
+    """
+    starts, lengths, f_p, c, saturated = _clipped_pieces(u0, u1, T, u_max)
+    f_q = f_p + c * lengths
+    velocity_gain = np.sum(lengths * (f_p + f_q) / 2, axis=0)
+    # int_0^L (T - p - tau)(f_p + c tau) dtau on each piece.
+    remaining = T - starts
+    position_gain = np.sum(
+        remaining * lengths * (f_p + c * lengths / 2) - lengths**2 * (f_p / 2 + c * lengths / 3), axis=0
+    )
+    energy_per_component = np.sum(lengths * (f_p * f_p + f_p * f_q + f_q * f_q) / 3, axis=0)
+    saturated_time = np.sum(np.where(saturated, lengths, 0.0), axis=0)
+    x_next = x + T * v + position_gain
+    v_next = v + velocity_gain
+    peak = np.minimum(interval_peak(u0, u1), u_max)
+    return x_next, v_next, energy_per_component.sum(axis=-1), peak, saturated_time
+
+
+def clip_inside(u0: np.ndarray, u1: np.ndarray, T, s, u_max: float | None) -> np.ndarray:
+    """The applied input at offset ``s`` (clipped when ``u_max`` is set), broadcast like :func:`state_inside`."""
+    u = u0 + (u1 - u0) / T * s
+    return u if u_max is None else np.clip(u, -u_max, u_max)

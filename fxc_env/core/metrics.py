@@ -52,8 +52,10 @@ class EpisodeMetrics:
 
     ``t_eps_*`` is the first sampling instant from which ``D(t_k) / D(0) < eps`` at every
     later sampling instant (``inf`` if that never happens by ``T_s``).
-    ``predicted_*`` come from Theorems 1-2 (``xi``) and are NaN where ``xi`` is not computed
-    (very large N); ``achieved_*`` are the agents' means at the end.
+    ``predicted_*`` come from Theorems 1-2 (``xi``) and are NaN where they do not apply
+    (random switching) or ``xi`` is not computed (very large N); ``achieved_*`` are the
+    agents' means at the end. ``saturated_fraction`` is the share of agent-time spent at
+    the input limit ``u_max`` (mean over components; 0 without a limit).
     For ``dim > 1`` the predicted and achieved values are the first component.
     """
 
@@ -69,6 +71,7 @@ class EpisodeMetrics:
     achieved_final_position: float
     predicted_final_velocity: float
     achieved_final_velocity: float
+    saturated_fraction: float
 
     def as_dict(self) -> dict[str, float | int | None]:
         """Plain dict for JSON (non-finite values become ``None``)."""
