@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig, make_config
-from fxc_env.core.dynamics import state_inside
+from fxc_env.core.dynamics import advance_clipped, state_inside
 from fxc_env.core.metrics import EpisodeMetrics, disagreement
 from fxc_env.engine import ConsensusEngine
 from fxc_env.reference import ReferencePolicy
@@ -24,10 +24,11 @@ class Trajectory:
     Attributes:
         times: ``(K + 1,)`` sampling instants ``t_0 .. t_K`` (``t_K = T_s``).
         x, v: ``(K + 1, N, dim)`` states at the sampling instants.
-        u_start, u_end: ``(K, N, dim)`` applied input at ``t_k+`` and ``t_{k+1}-``.
+        u_start, u_end: ``(K, N, dim)`` commanded input at ``t_k+`` and ``t_{k+1}-`` (the
+            applied input is this line clipped to ``±u_max`` when the config sets it).
         dense_times: ``(P,)`` time points, ``points_per_interval`` per interval plus ``T_s``.
-        dense_x, dense_v, dense_u: ``(P, N, dim)`` exact state and input there (``dense_u``
-            at ``T_s`` repeats the last interval's end value).
+        dense_x, dense_v, dense_u: ``(P, N, dim)`` exact state and applied input there
+            (``dense_u`` at ``T_s`` repeats the last interval's end value).
         disagreement: ``(K + 1,)`` ``D(t_k)``; ``dense_disagreement`` ``(P,)``.
         metrics: SPEC 5's episode figures.
         config: the settings the episode ran with.
@@ -94,12 +95,19 @@ def simulate(
     offsets = intervals[:, None] * (np.arange(points_per_interval) / points_per_interval)  # (K, P)
     s = offsets[:, :, None, None]
     pick = lambda a: a[:, None]  # noqa: E731  (K, ...) -> (K, 1, ...) against s (K, P, 1, 1)
-    dx, dv, du = state_inside(pick(x[:-1]), pick(v[:-1]), pick(u0), pick(u1), intervals[:, None, None, None], s)
+    T = intervals[:, None, None, None]
+    dx, dv, du = state_inside(pick(x[:-1]), pick(v[:-1]), pick(u0), pick(u1), T, s)
+    if config.u_max is not None:
+        # The clipped input on [0, s] is the line from u0 to u(s), clipped: integrate that.
+        reach = np.maximum(s, np.finfo(float).tiny)
+        dx, dv, *_ = advance_clipped(pick(x[:-1]), pick(v[:-1]), pick(u0), du, reach, config.u_max)
+        du = np.clip(du, -config.u_max, config.u_max)
     flat = (k_total * points_per_interval, *x.shape[1:])
     dense_times = np.concatenate([(times[:-1, None] + offsets).ravel(), times[-1:]])
     dense_x = np.concatenate([dx.reshape(flat), x[-1:]])
     dense_v = np.concatenate([dv.reshape(flat), v[-1:]])
-    dense_u = np.concatenate([du.reshape(flat), u1[-1:]])
+    last_u = u1[-1:] if config.u_max is None else np.clip(u1[-1:], -config.u_max, config.u_max)
+    dense_u = np.concatenate([du.reshape(flat), last_u])
     return Trajectory(
         times=times,
         x=x,

@@ -428,6 +428,16 @@ BAD_CONSTRUCTION = [
     ({"initial_state": (np.zeros(5), np.zeros(6))}, ValueError, "x0"),
     ({"scenario": "paper_fig9"}, ValueError, "scenario"),
     ({"unknown_option": 1}, TypeError, "unknown_option"),
+    ({"u_max": 0.0}, ValueError, "u_max"),
+    ({"u_max": float("nan")}, ValueError, "u_max"),
+    ({"obs_noise": -0.1}, ValueError, "obs_noise"),
+    ({"link_dropout": 1.0}, ValueError, "link_dropout"),
+    ({"link_dropout": -0.5}, ValueError, "link_dropout"),
+    ({"switching": "markov"}, ValueError, "switching"),
+    ({"topology": "complete", "obs_slots": 2}, ValueError, "obs_slots"),
+    ({"initial_state": "zeros"}, ValueError, "initial_state"),
+    ({"schedule": [10.0, 5.0]}, ValueError, "schedule"),
+    ({"schedule": "geometric"}, ValueError, "schedule"),
 ]
 
 
