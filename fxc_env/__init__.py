@@ -17,11 +17,15 @@ from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.engine import ConsensusEngine
 from fxc_env.fxc_consensus_v0 import env, parallel_env, raw_env
 from fxc_env.reference import ReferencePolicy
+from fxc_env.registration import ENV_ID, register_environments
 from fxc_env.scenarios import SCENARIOS
 from fxc_env.simulation import Trajectory, simulate
 from fxc_env.vec_env import ConsensusVecEnv
 
+register_environments()
+
 __all__ = [
+    "ENV_ID",
     "SCENARIOS",
     "ConsensusEngine",
     "ConsensusVecEnv",

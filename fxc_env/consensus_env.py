@@ -85,9 +85,10 @@ class ConsensusParallelEnv(ParallelEnv):
     episode earlier. ``step`` after the end raises ``RuntimeError``.
 
     ## Infos
-    Per agent: ``t`` (seconds after the step), ``interval`` (intervals done), ``energy``
-    (``integral |u_i|^2 dt`` on the interval), ``peak_u`` (largest ``|u_i|`` component on it);
-    at the end also ``episode``: SPEC 5 metrics (``EpisodeMetrics.as_dict()``).
+    Per agent, at reset and after every step: ``t`` (seconds), ``interval`` (intervals done),
+    ``energy`` (``integral |u_i|^2 dt`` on the last interval), ``peak_u`` (largest ``|u_i|``
+    component on it), ``saturated_fraction`` (share of it at the limit ``u_max``); at the
+    end also ``episode``: SPEC 5 metrics (``EpisodeMetrics.as_dict()``).
 
     ## State
     ``state()``: ``(N, 2 dim)`` float64 rows ``[x_i, v_i]``; ``state_space`` matches.
@@ -156,7 +157,11 @@ class ConsensusParallelEnv(ParallelEnv):
         self.agents = self.possible_agents[:]
         self._steps = 0
         self._history = [(0.0, x0.copy(), v0.copy())] if self.render_mode else []
-        infos = {agent: {"t": 0.0, "interval": 0} for agent in self.agents}
+        # The same numeric keys as every step's infos (consumers such as TorchRL read the schema here).
+        infos = {
+            agent: {"t": 0.0, "interval": 0, "energy": 0.0, "peak_u": 0.0, "saturated_fraction": 0.0}
+            for agent in self.agents
+        }
         if self.render_mode == "human":
             self.render()
         return self._observe(), infos

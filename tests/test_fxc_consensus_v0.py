@@ -113,3 +113,17 @@ def test_render(scenario):
 
 def test_render_modes_in_metadata():
     assert set(fxc_env.parallel_env().metadata["render_modes"]) == {"human", "rgb_array"}
+
+
+def test_importing_fxc_env_registers_both_forms_with_pettingzoo():
+    import pettingzoo
+
+    from fxc_env.consensus_env import ConsensusParallelEnv
+
+    parallel = pettingzoo.make("parallel", "fxc_consensus_v0", scenario="paper_fig1")
+    assert isinstance(parallel, ConsensusParallelEnv)
+    assert parallel.metadata["name"] == "fxc_consensus_v0" == fxc_env.ENV_ID
+    aec = pettingzoo.make("aec", "fxc_consensus_v0", n_intervals=5)
+    assert isinstance(aec.unwrapped, ConsensusParallelEnv) and aec.unwrapped.config.n_intervals == 5
+    aec.reset(seed=0)
+    assert aec.agent_selection == "agent_0"
