@@ -1,0 +1,286 @@
+"""``fxc benchmark``: every policy on the same scenarios, scored at the deadline ``T_s`` (SPEC 5).
+
+Each job is one contender on one scenario at one budget K: a :class:`ConsensusEngine` runs
+all seeded initial states of the suite as one batch (B = number of seeds) and returns
+:meth:`ConsensusEngine.batch_metrics`. Jobs are spread over the machine's cores (one
+process per core, one BLAS thread per process) behind a progress bar; the report
+(:mod:`baselines.report`) and the figures (:mod:`baselines.figures`) are built from the
+results. ``--quick`` runs a smaller suite in about a minute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from baselines.suite import (
+    Contender,
+    Scenario,
+    Suite,
+    builtin_contenders,
+    contender_config,
+    full_suite,
+    learned_contender,
+    load_policy,
+    quick_suite,
+)
+
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One contender on one scenario at K intervals, for every seed of the suite."""
+
+    contender: Contender
+    scenario: Scenario
+    n_intervals: int
+    seeds: tuple[int, ...]
+    settling_time: float
+    record_trace: bool
+
+    @property
+    def cost(self) -> float:
+        """Rough relative run time, to start the longest jobs first."""
+        design = 50.0 * self.scenario.n_agents**2 if self.contender.name == "linear_sampled" else 0.0
+        return self.n_intervals * (self.scenario.n_agents + 20.0) * len(self.seeds) + design
+
+
+@dataclass
+class JobResult:
+    """What one job measured.
+
+    Attributes:
+        metrics: SPEC 5 metrics, one ``(B,)`` array per name of
+            :class:`fxc_env.core.metrics.EpisodeMetrics`, plus ``final_value_gap``
+            (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``.
+        trace_times, trace: sampling instants and the median over seeds of ``D(t_k) / D(0)``
+            (only for the suite's trace scenario).
+        description: the policy's law, source, graph class and parameters (as text).
+        parameters: the policy's parameters as numbers.
+        guarantee: whether this run is covered by the policy's theorem.
+        error: why the job could not run (a learned model that does not fit, say), else None.
+    """
+
+    job: Job
+    metrics: dict[str, np.ndarray] = field(default_factory=dict)
+    trace_times: np.ndarray | None = None
+    trace: np.ndarray | None = None
+    description: dict[str, str] = field(default_factory=dict)
+    parameters: dict[str, float] = field(default_factory=dict)
+    guarantee: str = ""
+    error: str | None = None
+    seconds: float = 0.0
+
+
+def make_jobs(suite: Suite, contenders: list[Contender]) -> list[Job]:
+    """Every (contender, scenario, K) of the suite, in table order."""
+    jobs = []
+    for contender in contenders:
+        budgets = suite.budgets if contender.sampled else (suite.fine_intervals,)
+        for scenario in suite.scenarios:
+            for k in budgets:
+                trace = scenario == suite.trace_scenario
+                jobs.append(Job(contender, scenario, k, suite.seeds, suite.settling_time, trace))
+    return jobs
+
+
+def run_job(job: Job) -> JobResult:
+    """Run one job in this process (see :class:`JobResult`)."""
+    from fxc_env.engine import ConsensusEngine
+
+    start = time.perf_counter()
+    result = JobResult(job)
+    try:
+        config = contender_config(job.contender, job.scenario, job.n_intervals, job.settling_time)
+        policy = load_policy(job.contender.spec, config)
+    except (ValueError, TypeError) as exc:
+        result.error = str(exc)
+        return result
+    describe = getattr(policy, "describe", None)
+    result.description = describe() if describe else {}
+    result.parameters = policy.parameters() if hasattr(policy, "parameters") else {}
+    result.guarantee = policy.guarantee() if hasattr(policy, "guarantee") else _reference_guarantee(job)
+
+    engine = ConsensusEngine(config, n_episodes=len(job.seeds))
+    states = [engine.sample_initial_state(np.random.default_rng(seed)) for seed in job.seeds]
+    engine.reset(np.stack([x for x, _ in states]), np.stack([v for _, v in states]))
+    d0 = engine.initial_disagreement.copy()
+    trace = [np.ones(len(job.seeds))] if job.record_trace else None
+    obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
+    with np.errstate(all="ignore"):  # a diverging law overflows; its metrics say so
+        while not engine.done:
+            engine.observations(out=obs)
+            engine.step(np.asarray(policy(obs), dtype=np.float64))
+            if trace is not None:
+                trace.append(engine.current_disagreement / d0)
+        metrics = engine.batch_metrics()
+    relative = metrics["relative_deadline_error"]
+    metrics["relative_deadline_error"] = np.where(np.isfinite(relative), relative, np.inf)
+    metrics["final_value_gap"] = np.abs(metrics["achieved_final_position"] - metrics["predicted_final_position"])
+    metrics["initial_disagreement"] = d0
+    result.metrics = metrics
+    if trace is not None:
+        result.trace_times = config.schedule.times.copy()
+        result.trace = np.median(np.array(trace), axis=1)
+    result.seconds = time.perf_counter() - start
+    return result
+
+
+def _reference_guarantee(job: Job) -> str:
+    if job.contender.name == "reference":
+        return "proven: Theorems 1-2 (limit K -> infinity; finite K leaves a residual)"
+    return "learned: no guarantee"
+
+
+@contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """Children spawned inside inherit one BLAS/OpenMP thread each (no oversubscription)."""
+    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
+    os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def run_suite(
+    suite: Suite, contenders: list[Contender], *, workers: int | None = None, progress: bool = True
+) -> list[JobResult]:
+    """Run every job of the suite over ``workers`` processes (default: all cores); results in table order."""
+    from tqdm import tqdm
+
+    jobs = make_jobs(suite, contenders)
+    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
+    order = {job: i for i, job in enumerate(jobs)}
+    results: list[JobResult] = []
+    with _single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        futures = [pool.submit(run_job, job) for job in sorted(jobs, key=lambda j: -j.cost)]
+        bar = tqdm(total=len(jobs), desc=f"fxc benchmark ({suite.name})", unit="job", disable=not progress)
+        with bar:
+            for future in as_completed(futures):
+                results.append(future.result())
+                bar.update()
+    return sorted(results, key=lambda r: order[r.job])
+
+
+@dataclass(frozen=True)
+class BenchmarkOutput:
+    """The report and the files a benchmark run wrote."""
+
+    markdown: str
+    files: list[Path]
+    results: list[JobResult]
+    seconds: float
+
+
+def run_benchmark(
+    suite: Suite,
+    contenders: list[Contender],
+    out_dir: Path | str = "out/benchmark",
+    *,
+    workers: int | None = None,
+    progress: bool = True,
+    command: str | None = None,
+) -> BenchmarkOutput:
+    """Run the suite, then write ``table.md``, ``results.csv``, ``episodes.csv`` and three PNGs."""
+    from baselines import figures, report
+
+    start = time.perf_counter()
+    results = run_suite(suite, contenders, workers=workers, progress=progress)
+    seconds = time.perf_counter() - start
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = report.aggregate(results)
+    markdown = report.markdown_report(results, suite, contenders, seconds=seconds, command=command)
+    files = [
+        report.write_text(markdown, out / "table.md"),
+        report.write_csv(rows, out / "results.csv"),
+        report.write_csv(report.episode_rows(results), out / "episodes.csv"),
+        *figures.write_figures(results, suite, contenders, out),
+    ]
+    return BenchmarkOutput(markdown, files, results, seconds)
+
+
+# ------------------------------------------------------------------------- CLI
+def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the ``benchmark`` subcommand to the ``fxc`` command line."""
+    parser = subparsers.add_parser(
+        "benchmark",
+        help="score the reference, the baselines and learned policies on the same scenarios at T_s",
+        description="Score the reference, the baselines and learned policies on identical seeded scenarios "
+        "by SPEC 5's deadline metrics; write table.md, results.csv, episodes.csv and three PNGs.",
+    )
+    parser.add_argument("--quick", action="store_true", help="a smaller suite that runs in under a minute")
+    parser.add_argument("--out", default="out/benchmark", help="directory for table.md, CSVs and PNGs")
+    parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per scenario")
+    parser.add_argument("--workers", type=int, help="processes (default: one per core)")
+    parser.add_argument("--fine-intervals", type=int, help="K of continuous laws (default 4000; 1000 with --quick)")
+    parser.add_argument("--policies", help="comma-separated built-in policies (default: reference and every baseline)")
+    parser.add_argument(
+        "--policy",
+        action="append",
+        default=[],
+        metavar="PATH",
+        help="a saved SB3 model (PPO or SAC .zip), or 'pretrained' for the one shipped with fxc_env, "
+        "to score as well; repeatable",
+    )
+    parser.add_argument(
+        "--learned-schedule", default="paper", choices=("paper", "uniform"), help="schedule of learned policies"
+    )
+    parser.add_argument(
+        "--learned-action-mode", default="plan", choices=("plan", "accel"), help="action mode of learned policies"
+    )
+    parser.add_argument(
+        "--learned-obs-mode",
+        default="normalized",
+        choices=("normalized", "raw"),
+        help="observation mode of learned policies",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=benchmark_command)
+    return parser
+
+
+def benchmark_command(args: argparse.Namespace) -> int:
+    """Handler of ``fxc benchmark``: run, print the Markdown report, list the files."""
+    for name in ("seeds", "workers", "fine_intervals"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise ValueError(f"--{name.replace('_', '-')}: expected an integer >= 1, got {value}")
+    make_suite = quick_suite if args.quick else full_suite
+    suite = make_suite(args.seeds, **({"fine_intervals": args.fine_intervals} if args.fine_intervals else {}))
+    names = None if args.policies is None else [n.strip() for n in args.policies.split(",") if n.strip()]
+    contenders = builtin_contenders(names)
+    for spec in args.policy:
+        contenders.append(
+            learned_contender(
+                spec,
+                schedule=args.learned_schedule,
+                action_mode=args.learned_action_mode,
+                obs_mode=args.learned_obs_mode,
+            )
+        )
+    command = "fxc benchmark " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["benchmark"] else None
+    output = run_benchmark(
+        suite, contenders, args.out, workers=args.workers, progress=not args.no_progress, command=command
+    )
+    print(output.markdown)
+    print("wrote " + ", ".join(str(f) for f in output.files))
+    print(f"benchmark wall time: {output.seconds:.1f} s")
+    return 0

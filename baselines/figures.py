@@ -1,0 +1,165 @@
+"""The benchmark's figures, written headless as PNG (matplotlib's Agg canvas, as :mod:`fxc_env.plots`).
+
+1. ``deadline_vs_budget.png``: relative deadline error against the budget K (log-log),
+   all scenarios pooled and on the trace scenario; continuous laws are single points at
+   their fine K.
+2. ``energy_vs_error.png``: energy against deadline error, one point per policy,
+   scenario and K (medians over seeds).
+3. ``disagreement_vs_time.png``: median ``D(t) / D(0)`` over seeds on the trace scenario,
+   every policy on one axis.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from baselines.report import quantiles
+
+if TYPE_CHECKING:
+    from baselines.benchmark import JobResult
+    from baselines.suite import Contender, Suite
+
+#: Values below this (exact agreement, round-off) are drawn at it on log axes.
+DISPLAY_FLOOR = 1e-18
+COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
+
+
+def _figure(width: float = 7.0, height: float = 4.2) -> Figure:
+    fig = Figure(figsize=(width, height), dpi=120)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path)
+    return path
+
+
+def _colour(contenders: list[Contender], name: str) -> str:
+    names = [c.name for c in contenders]
+    return COLOURS[names.index(name) % len(COLOURS)]
+
+
+def _visible(value: float) -> float:
+    """Clamp a positive quantity to :data:`DISPLAY_FLOOR` for a log axis (inf and NaN become NaN)."""
+    return max(value, DISPLAY_FLOOR) if np.isfinite(value) else np.nan
+
+
+def _budget_panel(ax, results: list[JobResult], suite: Suite, contenders: list[Contender], scenario=None) -> None:
+    for contender in contenders:
+        mine = [
+            r
+            for r in results
+            if r.error is None and r.job.contender.name == contender.name and scenario in (None, r.job.scenario)
+        ]
+        budgets = sorted({r.job.n_intervals for r in mine})
+        stats = []
+        for k in budgets:
+            pooled = np.concatenate([r.metrics["relative_deadline_error"] for r in mine if r.job.n_intervals == k])
+            stats.append([_visible(q) for q in quantiles(pooled)])
+        if not stats:
+            continue
+        median, low, high = np.array(stats).T
+        colour = _colour(contenders, contender.name)
+        if contender.sampled:
+            ax.plot(budgets, median, "o-", color=colour, label=contender.name, ms=4)
+            ax.fill_between(budgets, low, high, color=colour, alpha=0.15)
+        else:
+            ax.errorbar(budgets, median, yerr=[median - low, high - median], fmt="s", color=colour, ms=5, capsize=3)
+            ax.plot([], [], "s", color=colour, label=f"{contender.name} (fine K, ZOH)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("communication budget K (sampling instants)")
+    ax.set_ylabel("relative deadline error D(T_s)/D(0)")
+    ax.grid(alpha=0.3, which="both")
+
+
+def deadline_vs_budget_figure(results: list[JobResult], suite: Suite, contenders: list[Contender], path: Path) -> Path:
+    """Deadline error against K: all scenarios pooled (left) and the trace scenario (right)."""
+    fig = _figure(12.0, 4.6)
+    left, right = fig.subplots(1, 2)
+    _budget_panel(left, results, suite, contenders)
+    left.set_title(f"all scenarios pooled: median, band/bars = [q25, q75]; 0 drawn at {DISPLAY_FLOOR:g}", fontsize=9)
+    _budget_panel(right, results, suite, contenders, suite.trace_scenario)
+    assumed = " (assumed Fig. 1)" if suite.trace_scenario.topology == "paper_fig1" else ""
+    right.set_title(f"{suite.trace_scenario.key}{assumed}", fontsize=9)
+    right.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def energy_vs_error_figure(results: list[JobResult], contenders: list[Contender], path: Path) -> Path:
+    """Energy against deadline error, one point per (policy, scenario, K), medians over seeds."""
+    fig = _figure(7.5, 5.0)
+    ax = fig.subplots()
+    for contender in contenders:
+        mine = [r for r in results if r.error is None and r.job.contender.name == contender.name]
+        if not mine:
+            continue
+        error = [_visible(quantiles(r.metrics["relative_deadline_error"])[0]) for r in mine]
+        energy = [_visible(quantiles(r.metrics["energy"])[0]) for r in mine]
+        marker = "o" if contender.sampled else "s"
+        ax.scatter(error, energy, s=14, marker=marker, color=_colour(contenders, contender.name), label=contender.name)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("relative deadline error D(T_s)/D(0) (median over seeds)")
+    ax.set_ylabel("energy Σ_i ∫ u_i² dt (m²/s³, median over seeds)")
+    ax.set_title(
+        f"cost against accuracy: one point per policy, scenario and K; 0 drawn at {DISPLAY_FLOOR:g}", fontsize=9
+    )
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list[Contender], path: Path) -> Path:
+    """Median ``D(t)/D(0)`` against t on the trace scenario, every policy (sampled ones at the headline K)."""
+    fig = _figure(8.0, 4.6)
+    ax = fig.subplots()
+    for contender in contenders:
+        k = suite.headline_budget if contender.sampled else suite.fine_intervals
+        match = [
+            r
+            for r in results
+            if r.error is None
+            and r.trace is not None
+            and r.job.contender.name == contender.name
+            and r.job.n_intervals == k
+            and r.job.scenario == suite.trace_scenario
+        ]
+        if not match:
+            continue
+        trace = np.where(np.isfinite(match[0].trace), np.maximum(match[0].trace, DISPLAY_FLOOR), np.nan)
+        style = "-" if contender.sampled else "--"
+        ax.semilogy(
+            match[0].trace_times,
+            trace,
+            style,
+            lw=1.2,
+            color=_colour(contenders, contender.name),
+            label=f"{contender.name} (K={k})",
+        )
+    ax.axvline(suite.settling_time, color="grey", lw=0.8, ls=":")
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("D(t_k)/D(0), median over seeds")
+    ax.set_title(
+        f"disagreement against time on {suite.trace_scenario.key}, {len(suite.seeds)} seeded initial states", fontsize=9
+    )
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def write_figures(results: list[JobResult], suite: Suite, contenders: list[Contender], out_dir: Path) -> list[Path]:
+    """Write the three PNGs into ``out_dir``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return [
+        deadline_vs_budget_figure(results, suite, contenders, out_dir / "deadline_vs_budget.png"),
+        energy_vs_error_figure(results, contenders, out_dir / "energy_vs_error.png"),
+        disagreement_figure(results, suite, contenders, out_dir / "disagreement_vs_time.png"),
+    ]

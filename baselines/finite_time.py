@@ -1,0 +1,78 @@
+"""Finite-time second-order consensus (Wang & Hong 2008 family).
+
+Law (componentwise, ``sig(z)^a = sign(z) |z|^a``)::
+
+    u_i = -g sum_j a_ij [sig(x_i - x_j)^a1 + sig(v_i - v_j)^a2],   a2 = 2 a1 / (1 + a1)
+
+- Source: X. Wang and Y. Hong, "Finite-time consensus for multi-agent networks with
+  second-order agent dynamics", Proc. 17th IFAC World Congress (2008); the homogeneity
+  argument with ``0 < a1 < 1``, ``a2 = 2 a1 / (1 + a1)``.
+- Proven graph class: **undirected** connected graphs. Every named topology of this project
+  but ``complete`` is directed, so the benchmark runs it there **unproven** (each row says so).
+- Parameters: ``alpha`` = a1 in (0, 1) [0.5, so a2 = 2/3], ``gain`` g [1, SI units: the law
+  is not homogeneous in the physical units, so its speed depends on the scale of the state].
+
+Not homogeneous of degree one, so it needs physical rows: ``obs_mode="raw"`` only. It is a
+continuous-measurement law: in the benchmark it runs on a fine ``uniform`` schedule with a
+zero-order hold, which leaves a chattering floor of the order of the sampling period.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from baselines.policy import HoldPolicy
+
+
+def sig(z: np.ndarray, power: float) -> np.ndarray:
+    """``sign(z) |z|^power`` elementwise."""
+    return np.sign(z) * np.abs(z) ** power
+
+
+def is_undirected(topology: Any) -> bool:
+    """Every graph of the period is symmetric (each edge ``(j, i)`` has its ``(i, j)``)."""
+    for g in range(topology.period):
+        adjacency = topology.adjacency(g)
+        if (adjacency != adjacency.T).nnz:
+            return False
+    return True
+
+
+class FiniteTimePolicy(HoldPolicy):
+    """``u_i = -g sum_j a_ij [sig(x_i - x_j)^a1 + sig(v_i - v_j)^a2]`` held over each interval.
+
+    Args:
+        env: an fxc_env environment or config (``action_mode="accel"``, ``obs_mode="raw"``).
+        alpha: a1 in (0, 1); a2 = 2 a1 / (1 + a1).
+        gain: g > 0.
+    """
+
+    NAME: ClassVar[str] = "finite_time"
+    LAW: ClassVar[str] = "u_i = -g Σ_j a_ij [sig(x_i - x_j)^a1 + sig(v_i - v_j)^a2], a2 = 2a1/(1+a1), ZOH"
+    SOURCE: ClassVar[str] = "Wang & Hong 2008 family"
+    GRAPH_CLASS: ClassVar[str] = "undirected connected graphs (digraphs: unproven)"
+
+    def __init__(self, env: Any, alpha: float = 0.5, gain: float = 1.0) -> None:
+        super().__init__(env)
+        if not 0.0 < alpha < 1.0:
+            raise ValueError(f"alpha: expected a number in (0, 1), got {alpha!r}")
+        if not np.isfinite(gain) or gain <= 0:
+            raise ValueError(f"gain: expected a positive finite number, got {gain!r}")
+        self.alpha = float(alpha)
+        self.alpha_velocity = 2.0 * self.alpha / (1.0 + self.alpha)
+        self.gain = float(gain)
+
+    def input(self, dx: np.ndarray, dv: np.ndarray, mask: np.ndarray, clock: np.ndarray) -> np.ndarray:
+        # Rows hold x_j - x_i; sig is odd, so -sig(x_i - x_j) = sig(x_j - x_i). Padded rows are 0.
+        terms = sig(dx, self.alpha) + sig(dv, self.alpha_velocity)
+        return self.gain * np.sum(mask[..., None] * terms, axis=-2)
+
+    def parameters(self) -> dict[str, float]:
+        return {"gain": self.gain, "a1": self.alpha, "a2": self.alpha_velocity}
+
+    def guarantee(self) -> str:
+        if is_undirected(self.config.topology) and self.config.topology.period == 1:
+            return "proven: undirected connected graph"
+        return "unproven: directed or switching graph"

@@ -1,0 +1,121 @@
+"""What every baseline shares: reading the local observation and holding an input.
+
+A baseline is a policy in the sense of :class:`fxc_env.ReferencePolicy`: it is built from an
+environment (parallel, AEC, VecEnv) or an :class:`~fxc_env.EnvConfig`, and maps observations
+``(..., obs_size)`` to actions ``(..., 2 dim)`` in one vectorised call. It reads only
+
+- the observation: the rows ``[x_j - x_i, v_j - v_i]`` of agent i's in-neighbours at ``t_k``,
+  their 0/1 mask and the clock ``t_k / T_s``, ``T_{k+1} / T_s``, ``k / K`` (SPEC 4.2);
+- the environment's settings (``T_s``, the modes, the layout, ``dim``).
+
+Gains that the papers choose from the graph (a Laplacian eigenvalue bound, say) are chosen
+once, offline, by the designer who knows the topology, as the paper's schedule is; they are
+the same for every agent and carry no run-time information (see :mod:`baselines.design`).
+
+Every baseline acts in ``accel`` mode with a zero-order hold: the input it computes at ``t_k``
+is held until ``t_{k+1}``, so the action is ``(u, u)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+
+from fxc_env.config import config_of
+
+
+class HoldPolicy:
+    """Base class: a feedback law on the local observation, held over each interval (ZOH).
+
+    Subclasses set :attr:`LAW`, :attr:`SOURCE`, :attr:`GRAPH_CLASS` and :attr:`OBS_MODES`,
+    and implement :meth:`input` (the physical input ``u_i`` in m/s^2 from raw rows) or
+    override :meth:`act`.
+    """
+
+    #: Name used by the benchmark and :func:`baselines.load_policy`.
+    NAME: ClassVar[str] = "hold"
+    #: The feedback law, written out.
+    LAW: ClassVar[str] = ""
+    #: The paper (family) the law comes from.
+    SOURCE: ClassVar[str] = ""
+    #: The graphs for which the source proves convergence.
+    GRAPH_CLASS: ClassVar[str] = ""
+    #: Observation modes the law can be computed in.
+    OBS_MODES: ClassVar[tuple[str, ...]] = ("raw",)
+
+    def __init__(self, env: Any) -> None:
+        self.config = config_of(env, type(self).__name__)
+        self.layout = self.config.layout
+        if self.config.action_mode != "accel":
+            raise ValueError(
+                f"action_mode: {type(self).__name__} holds an input (zero-order hold) and needs "
+                f"action_mode='accel', got {self.config.action_mode!r}"
+            )
+        if self.config.obs_mode not in self.OBS_MODES:
+            raise ValueError(f"obs_mode: {type(self).__name__} supports {self.OBS_MODES}, got {self.config.obs_mode!r}")
+
+    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
+        """Action(s) ``(..., 2 dim)`` for observation(s) ``(..., obs_size)`` (flat or dict)."""
+        return self.act(self.layout.flat(observation))
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Zero-order hold of :meth:`input`: the action ``(u, u)``, ``(..., 2 dim)``."""
+        rows, mask, clock = self.layout.split(obs)
+        u = self.input(rows[..., 0, :], rows[..., 1, :], mask, clock)
+        return np.concatenate([u, u], axis=-1)
+
+    def input(self, dx: np.ndarray, dv: np.ndarray, mask: np.ndarray, clock: np.ndarray) -> np.ndarray:
+        """Physical input ``u_i`` ``(..., dim)`` from rows ``x_j - x_i``, ``v_j - v_i`` ``(..., d_max, dim)``."""
+        raise NotImplementedError
+
+    def parameters(self) -> dict[str, float]:
+        """The law's parameters as used (after any offline design)."""
+        return {}
+
+    def describe(self) -> dict[str, str]:
+        """Law, source, proven graph class and parameters, for tables and logs."""
+        params = ", ".join(f"{k} = {v:.4g}" for k, v in self.parameters().items())
+        return {
+            "name": self.NAME,
+            "law": self.LAW,
+            "source": self.SOURCE,
+            "graph_class": self.GRAPH_CLASS,
+            "parameters": params,
+        }
+
+    def time_features(self, clock: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``t_k`` and ``T_{k+1}`` in seconds from the clock, each ``(..., 1)``."""
+        settling_time = self.config.settling_time
+        return clock[..., 0:1] * settling_time, clock[..., 1:2] * settling_time
+
+
+class LinearRowPolicy(HoldPolicy):
+    """A law linear in the rows: ``u_i = sum_j a_ij [p (x_j - x_i) + q (v_j - v_i)]``.
+
+    ``p`` (1/s^2) and ``q`` (1/s) may depend on the clock (:meth:`row_gains`). Being
+    homogeneous of degree one, the law is computable in both observation modes: with
+    normalised rows ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i`` the action is
+    ``alpha = T^2 sum_j [p dx_j + (q / T) dv_j]``, which the environment multiplies by
+    ``s_i / T^2``; the scale ``s_i`` itself is never needed.
+    """
+
+    OBS_MODES: ClassVar[tuple[str, ...]] = ("raw", "normalized")
+
+    def row_gains(self, clock: np.ndarray) -> tuple[np.ndarray | float, np.ndarray | float]:
+        """``(p, q)``: the position gain (1/s^2) and velocity gain (1/s), broadcastable to ``(..., 1)``."""
+        raise NotImplementedError
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        rows, mask, clock = self.layout.split(obs)
+        real = mask[..., None]  # a_ij: 1 on an in-neighbour's row, 0 on padding
+        sum_dx = np.sum(real * rows[..., 0, :], axis=-2)
+        sum_dv = np.sum(real * rows[..., 1, :], axis=-2)
+        p, q = self.row_gains(clock)
+        if self.config.obs_mode == "normalized":
+            _, T = self.time_features(clock)
+            u = (T * T) * (p * sum_dx + (q / T) * sum_dv)
+        else:
+            u = p * sum_dx + q * sum_dv
+        return np.concatenate([u, u], axis=-1)

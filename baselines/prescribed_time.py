@@ -1,0 +1,105 @@
+"""Prescribed-time consensus with a gain that grows as ``1 / (T_s - t)`` (Wang, Song, Hill & Krstic 2019 family).
+
+Law (``sigma = T_s - t``, the time left; the gain ``mu(t) = T_s / sigma`` grows without bound)::
+
+    u_i = -sum_j a_ij [k_x (x_i - x_j) / sigma^2 + k_v (v_i - v_j) / sigma]
+
+- Source: Y. Wang, Y. Song, D. J. Hill and M. Krstic, "Prescribed-time consensus and
+  containment control of networked multiagent systems", IEEE Trans. Cybern. 49 (2019): a
+  scaling ``mu(t) = T_s / (T_s - t)`` turns an asymptotic law into one that settles at ``T_s``.
+  This is the double-integrator member of that family with gains ``mu^2`` on positions and
+  ``mu`` on velocities.
+- Why it works: on a Laplacian mode ``lambda`` the closed loop is an Euler equation in
+  sigma, solved by ``sigma^r`` with ``r^2 - (1 + lambda k_v) r + lambda k_x = 0``. Disagreement
+  then vanishes like ``(T_s - t)^r`` and the input stays bounded when ``Re(r) >= 2``.
+- Proven graph class: undirected connected graphs (then every ``lambda`` is real and positive);
+  on digraphs the complex ``lambda`` must still give ``Re(r) > 1``, which the design checks
+  (:meth:`PrescribedTimePolicy.guarantee`) but the paper does not prove.
+- Parameters, designed **offline** from the graph (average Laplacian of a switching period):
+  the exponent ``p`` [3] places the roots at ``r = p, p + 1`` on the slowest mode
+  ``lambda_min = min Re(lambda)``: ``k_v = 2 p / lambda_min``, ``k_x = p (p + 1) / lambda_min``
+  (dimensionless).
+- **Cut-off**: the gain cannot grow forever under a zero-order hold at a sampling period h.
+  It is frozen at ``sigma = delta`` with ``delta = max(2 h, 5 h k_v max|lambda|)``: the last
+  remaining time at which one sampling period is at most a fifth of the fastest closed-loop
+  time constant ``delta / (k_v max|lambda|)`` (a coarser hold lets the ZOH, the switching or
+  the long Jordan chain of a directed path amplify the disagreement). From ``T_s - delta`` on
+  the law is linear with constant gains. Velocities decay one power slower than positions
+  (``sigma^(p-1)``), so ``D = e_x + T_s e_v`` is down to about ``(delta / T_s)^(p-1)`` at the
+  cut-off, and the constant-gain phase shrinks it further. On a slowly mixing graph (small
+  ``lambda_min``, hence large ``k_v``) ``delta`` may reach ``T_s``: the law is then linear with
+  constant gains throughout, and the row's ``cutoff_s`` says so.
+
+Homogeneous of degree one in the rows: works with ``obs_mode`` ``"raw"`` and ``"normalized"``.
+In the benchmark it runs on a fine ``uniform`` schedule, like the other continuous laws.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from baselines import design
+from baselines.finite_time import is_undirected
+from baselines.policy import LinearRowPolicy
+
+#: Largest ratio of the sampling period to the fastest closed-loop time constant at the cut-off.
+HOLD_RESOLUTION = 0.2
+
+
+class PrescribedTimePolicy(LinearRowPolicy):
+    """``u_i = sum_j [k_x (x_j - x_i) / sigma^2 + k_v (v_j - v_i) / sigma]``, ``sigma = max(T_s - t_k, delta)``.
+
+    Args:
+        env: an fxc_env environment or config (``action_mode="accel"``).
+        exponent: p > 1, the decay exponent ``(T_s - t)^p`` of the slowest mode.
+        cutoff: delta in seconds; None uses ``max(2 h, 5 h k_v max|lambda|)`` with h the
+            schedule's longest interval.
+    """
+
+    NAME: ClassVar[str] = "prescribed_time"
+    LAW: ClassVar[str] = (
+        "u_i = -Σ_j a_ij [k_x (x_i - x_j)/σ² + k_v (v_i - v_j)/σ], σ = max(T_s - t, δ) (gain frozen at δ), ZOH"
+    )
+    SOURCE: ClassVar[str] = "Wang, Song, Hill & Krstic 2019 family (time-varying gain T_s/(T_s - t))"
+    GRAPH_CLASS: ClassVar[str] = "undirected connected graphs (digraphs: unproven; mode exponents checked)"
+
+    def __init__(self, env: Any, exponent: float = 3.0, cutoff: float | None = None) -> None:
+        super().__init__(env)
+        if not np.isfinite(exponent) or exponent <= 1.0:
+            raise ValueError(f"exponent: expected a number > 1, got {exponent!r}")
+        settling_time = self.config.settling_time
+        if cutoff is not None and not 0.0 < cutoff < settling_time:
+            raise ValueError(f"cutoff: expected seconds in (0, T_s = {settling_time:g}), got {cutoff!r}")
+        self.exponent = float(exponent)
+        eigenvalues = design.design_eigenvalues(self.config.topology)
+        slowest = float(np.min(eigenvalues.real))
+        self.velocity_gain = 2.0 * self.exponent / slowest
+        self.position_gain = self.exponent * (self.exponent + 1.0) / slowest
+        h = float(self.config.schedule.intervals.max())
+        automatic = max(2.0 * h, h * self.velocity_gain * float(np.max(np.abs(eigenvalues))) / HOLD_RESOLUTION)
+        self.cutoff = min(automatic, settling_time) if cutoff is None else float(cutoff)
+        # Mode exponents r of every eigenvalue: roots of r^2 - (1 + lambda k_v) r + lambda k_x.
+        b = 1.0 + eigenvalues * self.velocity_gain
+        root = np.sqrt(b * b - 4.0 * eigenvalues * self.position_gain + 0j)
+        self.mode_exponent = float(np.min(np.minimum(((b - root) / 2).real, ((b + root) / 2).real)))
+
+    def row_gains(self, clock: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t, _ = self.time_features(clock)
+        sigma = np.maximum(self.config.settling_time - t, self.cutoff)
+        return self.position_gain / (sigma * sigma), self.velocity_gain / sigma
+
+    def parameters(self) -> dict[str, float]:
+        return {
+            "p": self.exponent,
+            "k_x": self.position_gain,
+            "k_v": self.velocity_gain,
+            "cutoff_s": self.cutoff,
+            "min_mode_exponent": self.mode_exponent,
+        }
+
+    def guarantee(self) -> str:
+        if is_undirected(self.config.topology) and self.config.topology.period == 1:
+            return "proven: undirected connected graph"
+        return f"unproven: directed or switching graph (least mode exponent Re r = {self.mode_exponent:.3g})"

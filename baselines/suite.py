@@ -1,0 +1,255 @@
+"""What the deadline benchmark runs: scenarios, contenders and the settings each contender uses.
+
+A **scenario** is a topology family at a size N (``paper_fig1``, ``ring``, ``path``, ``star``,
+``random`` fixed and switching; N in {6, 20, 100}); every contender meets the same seeded
+initial states on it. A **contender** is a policy together with the environment settings it
+runs with: sampled controllers (the reference, the sampled-data linear law, learned policies)
+are run at every communication budget K of the suite; continuous-measurement laws run once,
+on a fine ``uniform`` schedule with a zero-order hold (``accel`` mode), and their sample
+count is reported with their result.
+
+:func:`load_policy` turns a name or a saved model into a policy for one config; the training
+issue plugs learned policies in there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from baselines.finite_time import FiniteTimePolicy
+from baselines.linear import LinearConsensusPolicy
+from baselines.prescribed_time import PrescribedTimePolicy
+from baselines.sampled import SampledLinearPolicy
+from fxc_env.config import CLOCK_SIZE, EnvConfig, make_config
+from fxc_env.learned import LearnedPolicy, load_model, pretrained_path
+from fxc_env.reference import ReferencePolicy
+
+Policy = Callable[[np.ndarray], np.ndarray]
+
+#: Baseline policy classes by name.
+BASELINES = {
+    cls.NAME: cls for cls in (SampledLinearPolicy, LinearConsensusPolicy, FiniteTimePolicy, PrescribedTimePolicy)
+}
+
+#: Built-in contenders in table order: name -> (sampled at every budget?, schedule, action mode, obs mode).
+BUILTIN_SETTINGS = {
+    "reference": (True, "paper", "plan", "normalized"),
+    "linear_sampled": (True, "uniform", "accel", "raw"),
+    "linear": (False, "uniform", "accel", "raw"),
+    "finite_time": (False, "uniform", "accel", "raw"),
+    "prescribed_time": (False, "uniform", "accel", "raw"),
+}
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One topology at one size; ``key`` names it in tables (e.g. ``ring N=20``).
+
+    Attributes:
+        topology: a name of :data:`fxc_env.core.graphs.TOPOLOGY_NAMES`.
+        n_agents: N.
+        period: graphs per switching period for ``random`` (1: fixed).
+        mean_in_degree: of ``random`` topologies.
+        topology_seed: seed of the ``random`` topology (the designer knows the graph).
+    """
+
+    topology: str
+    n_agents: int
+    period: int = 1
+    mean_in_degree: float = 2.0
+    topology_seed: int = 0
+
+    @property
+    def family(self) -> str:
+        """The topology name, with ``random`` split into fixed and switching."""
+        if self.topology == "random":
+            return "random (switching)" if self.period > 1 else "random (fixed)"
+        return self.topology
+
+    @property
+    def key(self) -> str:
+        return f"{self.family} N={self.n_agents}"
+
+    def config_kwargs(self) -> dict[str, Any]:
+        """``make_config`` arguments of the graph (no initial state: the benchmark draws it)."""
+        kwargs: dict[str, Any] = {"topology": self.topology, "n_agents": self.n_agents}
+        if self.topology == "random":
+            kwargs.update(
+                topology_period=self.period, mean_in_degree=self.mean_in_degree, topology_seed=self.topology_seed
+            )
+        return kwargs
+
+
+@dataclass(frozen=True)
+class Contender:
+    """A policy and the environment settings it runs with.
+
+    Attributes:
+        name: ``reference``, a key of :data:`BASELINES`, or a label for a learned policy.
+        spec: what :func:`load_policy` loads (the name, or ``[algo:]path/to/model.zip``).
+        sampled: True to run at every budget K of the suite, False to run once at the
+            suite's fine K (continuous-measurement laws).
+        schedule, action_mode, obs_mode: environment settings.
+        obs_slots: neighbour rows of the observation (a learned model's input width), or
+            None for the topology's largest in-degree.
+    """
+
+    name: str
+    spec: str
+    sampled: bool
+    schedule: str
+    action_mode: str
+    obs_mode: str
+    obs_slots: int | None = None
+
+    def settings(self) -> str:
+        """The environment settings (but K) as text."""
+        slots = "" if self.obs_slots is None else f", obs_slots = {self.obs_slots}"
+        return f"{self.schedule} schedule, {self.action_mode} actions, {self.obs_mode} observations{slots}"
+
+
+def builtin_contenders(names: list[str] | None = None) -> list[Contender]:
+    """The reference and the four baselines (or those named), with their settings."""
+    chosen = list(BUILTIN_SETTINGS) if names is None else names
+    unknown = [n for n in chosen if n not in BUILTIN_SETTINGS]
+    if unknown:
+        raise ValueError(f"policies: unknown name(s) {unknown}; expected some of {tuple(BUILTIN_SETTINGS)}")
+    return [Contender(n, n, *BUILTIN_SETTINGS[n]) for n in chosen]
+
+
+def learned_contender(
+    spec: str, *, schedule: str = "paper", action_mode: str = "plan", obs_mode: str = "normalized"
+) -> Contender:
+    """A saved model (a path, or ``pretrained``) as a sampled contender, named after its file.
+
+    Its observation width fixes ``obs_slots`` (rows = (obs_size - 3) / (2 dim + 1), dim = 1);
+    scenarios with more in-neighbours than that are reported as not run.
+    """
+    path = model_path(spec)
+    try:
+        model = load_model(path)
+    except FileNotFoundError as exc:
+        raise ValueError(str(exc)) from exc
+    obs_size = int(np.prod(model.observation_space.shape))
+    slots, remainder = divmod(obs_size - CLOCK_SIZE, 3)
+    if remainder or slots < 1:
+        raise ValueError(f"policy: the model at {path} takes observations of size {obs_size}, not a dim-1 layout")
+    return Contender(f"learned:{path.stem}", str(path), True, schedule, action_mode, obs_mode, slots)
+
+
+def model_path(spec: str) -> Path:
+    """The file of a saved model: ``pretrained`` is the policy shipped with fxc_env."""
+    return pretrained_path() if spec == "pretrained" else Path(spec)
+
+
+@dataclass(frozen=True)
+class Suite:
+    """Scenarios x seeded initial states x budgets, and the fine K of continuous laws.
+
+    Attributes:
+        scenarios: every topology at every size.
+        seeds: episode b draws its initial state from ``np.random.default_rng(seeds[b])``
+            (positions U(-5, 5) m, velocities U(-2, 2) m/s per component).
+        budgets: the K of sampled controllers.
+        fine_intervals: the K of continuous-measurement laws (uniform, ZOH).
+        settling_time: T_s in seconds.
+        headline_budget: the K the headline table reports for sampled controllers.
+        trace_scenario: the scenario of the disagreement-versus-time figure.
+        name: ``full`` or ``quick``.
+    """
+
+    scenarios: tuple[Scenario, ...]
+    seeds: tuple[int, ...]
+    budgets: tuple[int, ...]
+    fine_intervals: int
+    settling_time: float = 20.0
+    headline_budget: int = 200
+    trace_scenario: Scenario = field(default_factory=lambda: Scenario("paper_fig1", 6))
+    name: str = "full"
+
+    def describe(self) -> str:
+        sizes = sorted({s.n_agents for s in self.scenarios})
+        families = list(dict.fromkeys(s.family for s in self.scenarios))
+        return (
+            f"{self.name} suite: {len(self.scenarios)} scenarios ({', '.join(families)}; N in {sizes}), "
+            f"{len(self.seeds)} seeded initial states each, T_s = {self.settling_time:g} s, "
+            f"budgets K in {list(self.budgets)} for sampled policies, K = {self.fine_intervals} "
+            "(uniform, zero-order hold) for continuous laws"
+        )
+
+
+def _scenarios(sizes: tuple[int, ...], families: tuple[str, ...]) -> tuple[Scenario, ...]:
+    scenarios = [Scenario("paper_fig1", 6)] if "paper_fig1" in families else []
+    for n in sizes:
+        for family in families:
+            if family == "paper_fig1":
+                continue
+            if family == "random_switching":
+                scenarios.append(Scenario("random", n, period=3))
+            else:
+                scenarios.append(Scenario(family, n))
+    return tuple(scenarios)
+
+
+FAMILIES = ("paper_fig1", "ring", "path", "star", "random", "random_switching")
+
+
+def full_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
+    """The issue's suite: every family at N in {6, 20, 100}, K in {25, 50, 100, 200, 400}."""
+    return Suite(
+        scenarios=_scenarios((6, 20, 100), FAMILIES),
+        seeds=tuple(range(n_seeds)),
+        budgets=(25, 50, 100, 200, 400),
+        fine_intervals=fine_intervals,
+    )
+
+
+def quick_suite(n_seeds: int = 20, fine_intervals: int = 1000) -> Suite:
+    """A one-minute run: every family at N in {6, 20}, K in {25, 100, 200}, a coarser fine K."""
+    return replace(
+        full_suite(n_seeds, fine_intervals),
+        scenarios=_scenarios((6, 20), FAMILIES),
+        budgets=(25, 100, 200),
+        name="quick",
+    )
+
+
+def contender_config(contender: Contender, scenario: Scenario, n_intervals: int, settling_time: float) -> EnvConfig:
+    """The environment a contender meets on a scenario at K intervals."""
+    return make_config(
+        **scenario.config_kwargs(),
+        settling_time=settling_time,
+        n_intervals=n_intervals,
+        schedule=contender.schedule,
+        action_mode=contender.action_mode,
+        obs_mode=contender.obs_mode,
+        obs_slots=contender.obs_slots,
+    )
+
+
+def load_policy(spec: str, config: EnvConfig) -> Policy:
+    """A policy for ``config``: ``reference``, a baseline name, ``pretrained`` or a saved SB3 model's path.
+
+    Learned models load through :class:`fxc_env.learned.LearnedPolicy` (PPO or SAC ``.zip``),
+    which checks that the model's observation and action sizes fit ``config``. Raises
+    ``ValueError`` naming ``policy`` when the spec is unknown or the model does not fit.
+    """
+    if spec == "reference":
+        return ReferencePolicy(config)
+    if spec in BASELINES:
+        return BASELINES[spec](config)
+    path = model_path(spec)
+    if spec == "pretrained" or path.suffix == ".zip" or path.is_file():
+        try:
+            return LearnedPolicy(path, config)
+        except FileNotFoundError as exc:
+            raise ValueError(str(exc)) from exc
+    raise ValueError(
+        f"policy: unknown {spec!r}; expected 'reference', one of {tuple(BASELINES)}, 'pretrained' "
+        "or the path of a saved SB3 model (.zip)"
+    )

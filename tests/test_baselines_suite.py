@@ -1,0 +1,70 @@
+"""The benchmark suite: scenarios, contenders and their settings, and loading policies by name or file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baselines.finite_time import FiniteTimePolicy
+from baselines.suite import (
+    BUILTIN_SETTINGS,
+    builtin_contenders,
+    contender_config,
+    full_suite,
+    learned_contender,
+    load_policy,
+    quick_suite,
+)
+from fxc_env import ReferencePolicy, make_config
+from fxc_env.learned import LearnedPolicy
+
+
+def test_full_suite_is_the_issue_suite():
+    suite = full_suite()
+    families = {s.family for s in suite.scenarios}
+    assert families == {"paper_fig1", "ring", "path", "star", "random (fixed)", "random (switching)"}
+    assert {s.n_agents for s in suite.scenarios} == {6, 20, 100}
+    assert len(suite.scenarios) == 1 + 5 * 3
+    assert len(suite.seeds) >= 20
+    assert suite.budgets == (25, 50, 100, 200, 400)
+    assert len({s.key for s in suite.scenarios}) == len(suite.scenarios)
+
+
+def test_quick_suite_keeps_every_family_and_the_headline_budget():
+    quick, full = quick_suite(), full_suite()
+    assert {s.family for s in quick.scenarios} == {s.family for s in full.scenarios}
+    assert quick.headline_budget in quick.budgets
+    assert quick.trace_scenario in quick.scenarios
+
+
+def test_contender_settings_reach_the_environment():
+    scenario = full_suite().scenarios[0]
+    for contender in builtin_contenders():
+        config = contender_config(contender, scenario, 50, 20.0)
+        assert (config.schedule.name, config.action_mode, config.obs_mode) == BUILTIN_SETTINGS[contender.name][1:]
+        assert config.n_intervals == 50
+    sampled = {c.name for c in builtin_contenders() if c.sampled}
+    assert sampled == {"reference", "linear_sampled"}  # the communication-budget sweep
+
+
+def test_load_policy_by_name():
+    assert isinstance(load_policy("reference", make_config()), ReferencePolicy)
+    assert isinstance(load_policy("finite_time", make_config(action_mode="accel", obs_mode="raw")), FiniteTimePolicy)
+    with pytest.raises(ValueError, match="policy"):
+        load_policy("pid", make_config())
+    with pytest.raises(ValueError, match="policy"):
+        load_policy("missing/model.zip", make_config())
+    with pytest.raises(ValueError, match="policies"):
+        builtin_contenders(["reference", "pid"])
+
+
+def test_learned_policy_plugs_in_with_its_observation_width():
+    contender = learned_contender("pretrained")
+    assert contender.sampled and contender.obs_slots == 4
+    config = contender_config(contender, full_suite().scenarios[0], 200, 20.0)
+    policy = load_policy(contender.spec, config)
+    assert isinstance(policy, LearnedPolicy)
+    obs = np.zeros((3, config.n_agents, config.layout.size))
+    assert policy(obs).shape == (3, config.n_agents, 2)
+    with pytest.raises(ValueError, match="observations of size"):
+        load_policy(contender.spec, make_config())  # paper_fig1 without padding: one slot, not four
