@@ -143,9 +143,11 @@ def build_parser() -> argparse.ArgumentParser:
     fast.add_argument("--largest", type=int, default=1_000_000, help="largest N of the scaling table")
     fast.add_argument("--skip-contenders", action="store_true", help="only the scaling table (no MPE2/VMAS)")
     fast.set_defaults(handler=speed_command, argv=None)
+    from training.evaluate import add_evaluate_parser
     from training.train import add_train_parser
 
     add_train_parser(commands)
+    add_evaluate_parser(commands)
     from baselines.benchmark import add_benchmark_parser
 
     add_benchmark_parser(commands)
