@@ -34,6 +34,7 @@ from baselines.suite import (
     learned_contender,
     load_policy,
     quick_suite,
+    realism_suite,
 )
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
@@ -227,6 +228,12 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         "by SPEC 5's deadline metrics; write table.md, results.csv, episodes.csv and three PNGs.",
     )
     parser.add_argument("--quick", action="store_true", help="a smaller suite that runs in under a minute")
+    parser.add_argument(
+        "--suite",
+        choices=("full", "realism"),
+        default="full",
+        help="'full': topologies x sizes x budgets; 'realism': input limits, noise and dropout",
+    )
     parser.add_argument("--out", default="out/benchmark", help="directory for table.md, CSVs and PNGs")
     parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per scenario")
     parser.add_argument("--workers", type=int, help="processes (default: one per core)")
@@ -263,7 +270,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and value < 1:
             raise ValueError(f"--{name.replace('_', '-')}: expected an integer >= 1, got {value}")
-    make_suite = quick_suite if args.quick else full_suite
+    make_suite = quick_suite if args.quick else realism_suite if args.suite == "realism" else full_suite
     suite = make_suite(args.seeds, **({"fine_intervals": args.fine_intervals} if args.fine_intervals else {}))
     names = None if args.policies is None else [n.strip() for n in args.policies.split(",") if n.strip()]
     contenders = builtin_contenders(names)

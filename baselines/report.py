@@ -183,6 +183,27 @@ def scenario_table(results: list[JobResult], suite: Suite, contenders: list[Cont
     return _table(header, rows)
 
 
+def realism_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
+    """Per scenario and condition, each policy's median deadline error, saturated time share and energy."""
+    names = [c.name for c in contenders]
+    header = ["scenario", "condition", *names]
+    rows = []
+    for scenario in suite.scenarios:
+        row = [f"{scenario.family} N={scenario.n_agents}", scenario.condition]
+        for name in names:
+            match = [r for r in _headline_results(results, suite, name) if r.job.scenario == scenario]
+            if not match:
+                row.append("—")
+                continue
+            metrics = match[0].metrics
+            error, saturated, energy = (
+                quantiles(metrics[m])[0] for m in ("relative_deadline_error", "saturated_fraction", "energy")
+            )
+            row.append(f"{_number(error)} · sat {saturated:.0%} · E {_number(energy)}")
+        rows.append(row)
+    return _table(header, rows)
+
+
 def budget_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
     """Deadline error against the budget K, all scenarios pooled (continuous laws at their fine K)."""
     header = ["policy", *(f"K = {k}" for k in suite.budgets), f"K = {suite.fine_intervals} (fine)"]
@@ -277,6 +298,15 @@ def markdown_report(
         "",
         scenario_table(results, suite, contenders),
         "",
+    ]
+    if any(scenario.conditions for scenario in suite.scenarios):
+        parts += [
+            "### Realism: median deadline error D(T_s)/D(0) · share of agent-time at the input limit · energy (m²/s³)",
+            "",
+            realism_table(results, suite, contenders),
+            "",
+        ]
+    parts += [
         "### Relative deadline error against the communication budget K (all scenarios pooled)",
         "",
         budget_table(results, suite, contenders),

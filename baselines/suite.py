@@ -56,6 +56,8 @@ class Scenario:
         period: graphs per switching period for ``random`` (1: fixed).
         mean_in_degree: of ``random`` topologies.
         topology_seed: seed of the ``random`` topology (the designer knows the graph).
+        conditions: realism options of :func:`fxc_env.make_config` (``u_max``, ``obs_noise``,
+            ``link_dropout``) as ``(name, value)`` pairs; empty for ideal agents.
     """
 
     topology: str
@@ -63,6 +65,7 @@ class Scenario:
     period: int = 1
     mean_in_degree: float = 2.0
     topology_seed: int = 0
+    conditions: tuple[tuple[str, float], ...] = ()
 
     @property
     def family(self) -> str:
@@ -73,7 +76,12 @@ class Scenario:
 
     @property
     def key(self) -> str:
-        return f"{self.family} N={self.n_agents}"
+        return f"{self.family} N={self.n_agents}" + "".join(f", {name}={value:g}" for name, value in self.conditions)
+
+    @property
+    def condition(self) -> str:
+        """The realism conditions as text (``ideal`` when there are none)."""
+        return ", ".join(f"{name} = {value:g}" for name, value in self.conditions) or "ideal"
 
     def config_kwargs(self) -> dict[str, Any]:
         """``make_config`` arguments of the graph (no initial state: the benchmark draws it)."""
@@ -82,7 +90,7 @@ class Scenario:
             kwargs.update(
                 topology_period=self.period, mean_in_degree=self.mean_in_degree, topology_seed=self.topology_seed
             )
-        return kwargs
+        return {**kwargs, **dict(self.conditions)}
 
 
 @dataclass(frozen=True)
@@ -216,6 +224,31 @@ def quick_suite(n_seeds: int = 20, fine_intervals: int = 1000) -> Suite:
         scenarios=_scenarios((6, 20), FAMILIES),
         budgets=(25, 100, 200),
         name="quick",
+    )
+
+
+#: Realism conditions of :func:`realism_suite`: input limits, measurement noise, link losses.
+REALISM_CONDITIONS: tuple[tuple[tuple[str, float], ...], ...] = (
+    (),
+    (("u_max", 1000.0),),
+    (("u_max", 100.0),),
+    (("u_max", 10.0),),
+    (("obs_noise", 1e-3),),
+    (("obs_noise", 1e-1),),
+    (("link_dropout", 0.1),),
+    (("link_dropout", 0.3),),
+)
+
+
+def realism_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
+    """Every policy under input limits, noise and dropout on ``paper_fig1`` and a random N = 20 digraph, K = 200."""
+    bases = (Scenario("paper_fig1", 6), Scenario("random", 20))
+    return Suite(
+        scenarios=tuple(replace(base, conditions=c) for base in bases for c in REALISM_CONDITIONS),
+        seeds=tuple(range(n_seeds)),
+        budgets=(200,),
+        fine_intervals=fine_intervals,
+        name="realism",
     )
 
 

@@ -74,3 +74,21 @@ def test_a_learned_policy_runs_as_a_contender_or_says_why_not():
     assert np.all(np.isfinite(ran.metrics["relative_deadline_error"]))
     skipped = run_job(Job(contender, Scenario("complete", 6), 50, (0, 1), 20.0, False))
     assert "obs_slots" in skipped.error  # in-degree 5 does not fit the model's 4 rows
+
+
+def test_realism_suite_reports_saturation_for_the_reference_under_an_input_limit(tmp_path):
+    from dataclasses import replace
+
+    from baselines.benchmark import run_benchmark
+    from baselines.suite import realism_suite
+
+    full = realism_suite(n_seeds=3, fine_intervals=200)
+    assert {s.condition for s in full.scenarios} >= {"ideal", "u_max = 10", "obs_noise = 0.1", "link_dropout = 0.3"}
+    suite = replace(full, scenarios=tuple(s for s in full.scenarios if s.condition in ("ideal", "u_max = 10")))
+    output = run_benchmark(suite, builtin_contenders(["reference"]), tmp_path, workers=1, progress=False)
+    rows = {r["scenario"]: r for r in csv.DictReader((tmp_path / "results.csv").open())}
+    limited, ideal = rows["paper_fig1 N=6, u_max=10"], rows["paper_fig1 N=6"]
+    assert float(limited["saturated_fraction_median"]) > 0 and float(ideal["saturated_fraction_median"]) == 0
+    assert float(limited["peak_input_median"]) <= 10
+    assert float(limited["relative_deadline_error_median"]) > float(ideal["relative_deadline_error_median"])
+    assert "### Realism" in output.markdown and "| paper_fig1 N=6 | u_max = 10 |" in output.markdown
