@@ -15,10 +15,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 
 from baselines.report import quantiles
+from fxc_env.plots import new_figure, save_figure
 
 if TYPE_CHECKING:
     from baselines.benchmark import JobResult
@@ -27,18 +26,6 @@ if TYPE_CHECKING:
 #: Values below this (exact agreement, round-off) are drawn at it on log axes.
 DISPLAY_FLOOR = 1e-18
 COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
-
-
-def _figure(width: float = 7.0, height: float = 4.2) -> Figure:
-    fig = Figure(figsize=(width, height), dpi=120)
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _save(fig: Figure, path: Path) -> Path:
-    fig.tight_layout()
-    fig.savefig(path)
-    return path
 
 
 def _colour(contenders: list[Contender], name: str) -> str:
@@ -82,7 +69,7 @@ def _budget_panel(ax, results: list[JobResult], suite: Suite, contenders: list[C
 
 def deadline_vs_budget_figure(results: list[JobResult], suite: Suite, contenders: list[Contender], path: Path) -> Path:
     """Deadline error against K: all scenarios pooled (left) and the trace scenario (right)."""
-    fig = _figure(12.0, 4.6)
+    fig = new_figure(12.0, 4.6)
     left, right = fig.subplots(1, 2)
     _budget_panel(left, results, suite, contenders)
     left.set_title(f"all scenarios pooled: median, band/bars = [q25, q75]; 0 drawn at {DISPLAY_FLOOR:g}", fontsize=9)
@@ -90,12 +77,12 @@ def deadline_vs_budget_figure(results: list[JobResult], suite: Suite, contenders
     assumed = " (assumed Fig. 1)" if suite.trace_scenario.topology == "paper_fig1" else ""
     right.set_title(f"{suite.trace_scenario.key}{assumed}", fontsize=9)
     right.legend(fontsize=7)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def energy_vs_error_figure(results: list[JobResult], contenders: list[Contender], path: Path) -> Path:
     """Energy against deadline error, one point per (policy, scenario, K), medians over seeds."""
-    fig = _figure(7.5, 5.0)
+    fig = new_figure(7.5, 5.0)
     ax = fig.subplots()
     for contender in contenders:
         mine = [r for r in results if r.error is None and r.job.contender.name == contender.name]
@@ -114,12 +101,12 @@ def energy_vs_error_figure(results: list[JobResult], contenders: list[Contender]
     )
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list[Contender], path: Path) -> Path:
     """Median ``D(t)/D(0)`` against t on the trace scenario, every policy (sampled ones at the headline K)."""
-    fig = _figure(8.0, 4.6)
+    fig = new_figure(8.0, 4.6)
     ax = fig.subplots()
     for contender in contenders:
         k = suite.headline_budget if contender.sampled else suite.fine_intervals
@@ -152,7 +139,7 @@ def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list
     )
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def write_figures(results: list[JobResult], suite: Suite, contenders: list[Contender], out_dir: Path) -> list[Path]:

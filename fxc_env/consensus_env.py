@@ -12,6 +12,7 @@ from pettingzoo import ParallelEnv
 
 from fxc_env.config import RENDER_MODES, EnvConfig, check_max_cycles, check_render_mode, make_config
 from fxc_env.engine import ConsensusEngine
+from fxc_env.rendering import EpisodeView
 from fxc_env.spaces import action_space, observation_space, state_space
 
 
@@ -130,8 +131,7 @@ class ConsensusParallelEnv(ParallelEnv):
         self.observation_spaces = dict.fromkeys(self.possible_agents, obs_space)
         self.action_spaces = dict.fromkeys(self.possible_agents, act_space)
         self.state_space = state_space(self.config)
-        self._renderer: Any = None
-        self._history: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self._view = EpisodeView(self.config, render_mode)
 
     def observation_space(self, agent: str) -> spaces.Space:
         return self.observation_spaces[agent]
@@ -156,7 +156,7 @@ class ConsensusParallelEnv(ParallelEnv):
         self.engine.reset(x0[None], v0[None], rng=self._rng)
         self.agents = self.possible_agents[:]
         self._steps = 0
-        self._history = [(0.0, x0.copy(), v0.copy())] if self.render_mode else []
+        self._view.start(x0, v0)
         # The same numeric keys as every step's infos (consumers such as TorchRL read the schema here).
         infos = {
             agent: {"t": 0.0, "interval": 0, "energy": 0.0, "peak_u": 0.0, "saturated_fraction": 0.0}
@@ -242,10 +242,9 @@ class ConsensusParallelEnv(ParallelEnv):
             for info in infos.values():
                 info["episode"] = episode
         observations = self._observe()
-        if self.render_mode:
-            self._history.append((t, engine.x[0].copy(), engine.v[0].copy()))
-            if self.render_mode == "human":
-                self.render()
+        self._view.record(t, engine.x[0], engine.v[0])
+        if self.render_mode == "human":
+            self.render()
         if terminated or truncated:
             self.agents = []
         return observations, rewards, terminations, truncations, infos
@@ -262,23 +261,7 @@ class ConsensusParallelEnv(ParallelEnv):
                 "render: called with render_mode=None; build the env with render_mode='rgb_array' or 'human'"
             )
             return None
-        from fxc_env.rendering import EpisodeRenderer
-
-        if self._renderer is None:
-            self._renderer = EpisodeRenderer(self.config, interactive=self.render_mode == "human")
-        frame = self._renderer.draw(self._history, int(self.engine.graph_indices()[0]))
-        return frame if self.render_mode == "rgb_array" else None
+        return self._view.frame(int(self.engine.graph_indices()[0]))
 
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-
-    def __getstate__(self) -> dict[str, Any]:
-        # Keep the whole state (mid-episode included); the figure is rebuilt on demand.
-        state = self.__dict__.copy()
-        state["_renderer"] = None
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
+        self._view.close()

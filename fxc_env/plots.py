@@ -15,13 +15,15 @@ from fxc_env.simulation import Trajectory
 LEGEND_LIMIT = 12
 
 
-def _figure(width: float = 7.0, height: float = 4.2) -> Figure:
+def new_figure(width: float = 7.0, height: float = 4.2) -> Figure:
+    """A headless (Agg) figure at 120 dpi."""
     fig = Figure(figsize=(width, height), dpi=120)
     FigureCanvasAgg(fig)
     return fig
 
 
-def _save(fig: Figure, path: Path) -> Path:
+def save_figure(fig: Figure, path: Path) -> Path:
+    """Lay out and write ``fig`` as PNG to ``path``."""
     fig.tight_layout()
     fig.savefig(path)
     return path
@@ -42,7 +44,7 @@ def topology_figure(trajectory: Trajectory, path: Path) -> Path:
     topology = trajectory.config.topology
     m = topology.period
     panels = m + 1 if m > 1 else 1
-    fig = _figure(2.6 * panels, 3.0)
+    fig = new_figure(2.6 * panels, 3.0)
     axes = np.atleast_1d(fig.subplots(1, panels))
     for g in range(m):
         title = f"G_{g}" if m > 1 else "G"
@@ -54,7 +56,7 @@ def topology_figure(trajectory: Trajectory, path: Path) -> Path:
         draw_graph(axes[m], union, 0, title="union of the period")
     heading = topology.name + (f": {topology.note}" if topology.note else "")
     fig.suptitle(heading + "\narrow j -> i: agent i receives from agent j (0-based)", fontsize=9)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _draw_state(ax, trajectory: Trajectory, which: str) -> None:
@@ -88,18 +90,18 @@ def _draw_state(ax, trajectory: Trajectory, which: str) -> None:
 
 
 def _state_figure(trajectory: Trajectory, path: Path, which: str) -> Path:
-    fig = _figure()
+    fig = new_figure()
     _draw_state(fig.subplots(), trajectory, which)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def overview_figure(trajectory: Trajectory, path: Path) -> Path:
     """Positions and velocities side by side (the README's picture)."""
-    fig = _figure(12.0, 4.2)
+    fig = new_figure(12.0, 4.2)
     left, right = fig.subplots(1, 2)
     _draw_state(left, trajectory, "x")
     _draw_state(right, trajectory, "v")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def positions_figure(trajectory: Trajectory, path: Path) -> Path:
@@ -115,7 +117,7 @@ def velocities_figure(trajectory: Trajectory, path: Path) -> Path:
 def inputs_figure(trajectory: Trajectory, path: Path) -> Path:
     """Inputs ``u_i(t)`` (affine on each interval) on a symmetric-log axis."""
     c = trajectory.config
-    fig = _figure()
+    fig = new_figure()
     ax = fig.subplots()
     colours = agent_colours(c.n_agents)
     for i in range(c.n_agents):
@@ -127,7 +129,7 @@ def inputs_figure(trajectory: Trajectory, path: Path) -> Path:
     ax.set_title(f"inputs (symmetric log axis); peak |u| = {trajectory.metrics.peak_input:.3g} m/s²", fontsize=9)
     ax.grid(alpha=0.3)
     _legend(ax)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def disagreement_figure(trajectory: Trajectory, path: Path) -> Path:
@@ -135,7 +137,7 @@ def disagreement_figure(trajectory: Trajectory, path: Path) -> Path:
     c = trajectory.config
     d0 = trajectory.disagreement[0] if trajectory.disagreement[0] > 0 else 1.0
     tiny = np.finfo(float).tiny
-    fig = _figure(9.0, 3.8)
+    fig = new_figure(9.0, 3.8)
     left, right = fig.subplots(1, 2)
     left.semilogy(
         trajectory.dense_times, np.maximum(trajectory.dense_disagreement / d0, tiny), lw=1.0, label="D(t)/D(0)"
@@ -156,7 +158,7 @@ def disagreement_figure(trajectory: Trajectory, path: Path) -> Path:
         f"with K = {c.n_intervals}",
         fontsize=9,
     )
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def write_figures(trajectory: Trajectory, out_dir: Path) -> list[Path]:

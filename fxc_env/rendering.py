@@ -7,15 +7,15 @@ without a display; ``human`` mode opens a pyplot window when the backend is inte
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import FancyArrowPatch
 
 from fxc_env.config import EnvConfig
 from fxc_env.core.graphs import Topology
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 #: Graphs with more agents than this are summarised in text instead of drawn.
 DRAW_GRAPH_LIMIT = 60
@@ -29,6 +29,8 @@ def circle_layout(n_agents: int) -> np.ndarray:
 
 def draw_graph(ax: Axes, topology: Topology, graph: int, *, title: str | None = None, one_based: bool = False) -> None:
     """Draw graph ``graph`` of the period: nodes on a circle, arrows ``j -> i`` (i receives from j)."""
+    from matplotlib.patches import FancyArrowPatch
+
     n = topology.n_agents
     ax.set_aspect("equal")
     ax.set_axis_off()
@@ -80,6 +82,9 @@ class EpisodeRenderer:
             self._plt = plt
             self.figure = plt.figure(figsize=(9, 3.2), dpi=80)
         else:
+            from matplotlib.backends.backend_agg import FigureCanvasAgg
+            from matplotlib.figure import Figure
+
             self.figure = Figure(figsize=(9, 3.2), dpi=80)
             FigureCanvasAgg(self.figure)
 
@@ -113,3 +118,40 @@ class EpisodeRenderer:
     def close(self) -> None:
         if self.interactive:
             self._plt.close(self.figure)
+
+
+class EpisodeView:
+    """What a front end needs for ``render_mode``: the sampled history of episode 0 and a lazy figure.
+
+    Records nothing when ``render_mode`` is None. Pickles without its figure (rebuilt on demand).
+    """
+
+    def __init__(self, config: EnvConfig, render_mode: str | None) -> None:
+        self.config = config
+        self.render_mode = render_mode
+        self.history: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self._renderer: Any = None
+
+    def start(self, x0: np.ndarray, v0: np.ndarray) -> None:
+        """A new episode from ``(N, dim)`` states at ``t = 0``."""
+        self.history = [(0.0, x0.copy(), v0.copy())] if self.render_mode else []
+
+    def record(self, t: float, x: np.ndarray, v: np.ndarray) -> None:
+        """The ``(N, dim)`` states at sampling instant ``t``; draws at once in ``human`` mode."""
+        if self.render_mode:
+            self.history.append((t, x.copy(), v.copy()))
+
+    def frame(self, graph: int) -> np.ndarray | None:
+        """The frame (``rgb_array``: ``(H, W, 3)`` uint8; ``human``: shown, None) with graph ``graph`` drawn."""
+        if self._renderer is None:
+            self._renderer = EpisodeRenderer(self.config, interactive=self.render_mode == "human")
+        frame = self._renderer.draw(self.history, graph)
+        return frame if self.render_mode == "rgb_array" else None
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {**self.__dict__, "_renderer": None}

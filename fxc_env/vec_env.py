@@ -21,6 +21,7 @@ from fxc_env.config import EnvConfig, check_max_cycles, check_render_mode, make_
 from fxc_env.consensus_env import ConsensusParallelEnv
 from fxc_env.core.metrics import metrics_rows
 from fxc_env.engine import ConsensusEngine, StepOutcome
+from fxc_env.rendering import EpisodeView
 from fxc_env.spaces import action_space, observation_space
 
 
@@ -92,8 +93,7 @@ class ConsensusVecEnv(VecEnv):
         self._actions: np.ndarray | None = None
         self._needs_reset = True
         self._steps = 0
-        self._history: list[tuple[float, np.ndarray, np.ndarray]] = []
-        self._renderer: Any = None
+        self._view = EpisodeView(config, render_mode)
         super().__init__(self.n_envs * self.n_agents, observation_space(config), action_space(config))
         self.metadata = dict(ConsensusParallelEnv.metadata)
 
@@ -150,7 +150,7 @@ class ConsensusVecEnv(VecEnv):
         self._steps = 0
         self._needs_reset = False
         self.reset_infos = [{} for _ in range(self.num_envs)]
-        self._history = [(0.0, x0[0].copy(), v0[0].copy())] if self.render_mode else []
+        self._view.start(x0[0], v0[0])
 
     def _observe(self) -> np.ndarray:
         return self.engine.observations().reshape(self.num_envs, -1)
@@ -182,8 +182,7 @@ class ConsensusVecEnv(VecEnv):
         truncated = not terminated and self.max_cycles is not None and self._steps >= self.max_cycles
         rewards = np.repeat(outcome.reward.astype(np.float32), self.n_agents)
         obs = self._observe()
-        if self.render_mode:
-            self._history.append((self.engine.time, self.engine.x[0].copy(), self.engine.v[0].copy()))
+        self._view.record(self.engine.time, self.engine.x[0], self.engine.v[0])
         if not (terminated or truncated):
             return obs, rewards, np.zeros(self.num_envs, dtype=bool), [{} for _ in range(self.num_envs)]
         per_agent = [episode for episode in metrics_rows(self.engine.batch_metrics()) for _ in range(self.n_agents)]
@@ -252,14 +251,7 @@ class ConsensusVecEnv(VecEnv):
         if self.render_mode is None:
             warnings.warn("render: build the ConsensusVecEnv with render_mode='rgb_array' or 'human'", stacklevel=2)
             return None
-        from fxc_env.rendering import EpisodeRenderer
-
-        if self._renderer is None:
-            self._renderer = EpisodeRenderer(self.config, interactive=self.render_mode == "human")
-        frame = self._renderer.draw(self._history, int(self.engine.graph_indices()[0]))
-        return frame if self.render_mode == "rgb_array" else None
+        return self._view.frame(int(self.engine.graph_indices()[0]))
 
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        self._view.close()

@@ -363,5 +363,5 @@ def test_rgb_array_render_draws_episode_zero() -> None:
         obs, *_ = venv.step(ReferencePolicy(venv)(obs))
     frame = venv.render()
     assert frame is not None and frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
-    assert len(venv._history) == 4  # t_0 and three sampling instants of episode 0
+    assert len(venv._view.history) == 4  # t_0 and three sampling instants of episode 0
     venv.close()
