@@ -126,6 +126,7 @@ class ConsensusParallelEnv(ParallelEnv):
         self.possible_agents = [f"agent_{i}" for i in range(n)]
         self.agents: list[str] = []
         self._agent_index = {agent: i for i, agent in enumerate(self.possible_agents)}
+        self._agent_set = set(self.possible_agents)
         self._rng = np.random.default_rng()
         obs_space, act_space = observation_space(self.config), action_space(self.config)
         self.observation_spaces = dict.fromkeys(self.possible_agents, obs_space)
@@ -186,13 +187,13 @@ class ConsensusParallelEnv(ParallelEnv):
     def _action_array(self, actions: Any) -> np.ndarray:
         if type(actions) is not dict and not isinstance(actions, Mapping):
             raise TypeError(f"actions: expected a dict from agent name to action, got {type(actions).__name__}")
-        unknown = sorted(set(actions) - set(self.possible_agents), key=str)
-        if unknown:
-            raise ValueError(
-                f"actions: unknown agent(s) {unknown}; expected keys agent_0 .. agent_{len(self.possible_agents) - 1}"
-            )
-        missing = [agent for agent in self.agents if agent not in actions]
-        if missing:
+        if actions.keys() != self._agent_set:  # every agent is live while the episode runs
+            unknown = sorted(set(actions) - self._agent_set, key=str)
+            if unknown:
+                raise ValueError(
+                    f"actions: unknown agent(s) {unknown}; expected keys agent_0 .. agent_{len(self.possible_agents) - 1}"
+                )
+            missing = [agent for agent in self.agents if agent not in actions]
             raise ValueError(f"actions: missing an action for agent(s) {missing}")
         size = self.config.action_size
         try:
