@@ -26,7 +26,7 @@ from baselines.linear import LinearConsensusPolicy
 from baselines.prescribed_time import PrescribedTimePolicy
 from baselines.sampled import SampledLinearPolicy
 from fxc_env.config import CLOCK_SIZE, EnvConfig, make_config
-from fxc_env.learned import LearnedPolicy, load_model, pretrained_path
+from fxc_env.learned import load_learned_policy, pretrained_path
 from fxc_env.reference import ReferencePolicy
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -133,21 +133,22 @@ def builtin_contenders(names: list[str] | None = None) -> list[Contender]:
 def learned_contender(
     spec: str, *, schedule: str = "paper", action_mode: str = "plan", obs_mode: str = "normalized"
 ) -> Contender:
-    """A saved model (a path, or ``pretrained``) as a sampled contender, named after its file.
+    """A saved policy (``pretrained``, an SB3 ``.zip``, an RLlib checkpoint or run directory) as a
+    sampled contender, named after its file or directory.
 
     Its observation width fixes ``obs_slots`` (rows = (obs_size - 3) / (2 dim + 1), dim = 1);
     scenarios with more in-neighbours than that are reported as not run.
     """
     path = model_path(spec)
     try:
-        model = load_model(path)
+        obs_size = load_learned_policy(path).obs_size
     except FileNotFoundError as exc:
         raise ValueError(str(exc)) from exc
-    obs_size = int(np.prod(model.observation_space.shape))
     slots, remainder = divmod(obs_size - CLOCK_SIZE, 3)
     if remainder or slots < 1:
         raise ValueError(f"policy: the model at {path} takes observations of size {obs_size}, not a dim-1 layout")
-    return Contender(f"learned:{path.stem}", str(path), True, schedule, action_mode, obs_mode, slots)
+    name = path.name if path.is_dir() else path.stem
+    return Contender(f"learned:{name}", str(path), True, schedule, action_mode, obs_mode, slots)
 
 
 def model_path(spec: str) -> Path:
@@ -266,10 +267,11 @@ def contender_config(contender: Contender, scenario: Scenario, n_intervals: int,
 
 
 def load_policy(spec: str, config: EnvConfig) -> Policy:
-    """A policy for ``config``: ``reference``, a baseline name, ``pretrained`` or a saved SB3 model's path.
+    """A policy for ``config``: ``reference``, a baseline name, ``pretrained`` or a saved policy's path.
 
-    Learned models load through :class:`fxc_env.learned.LearnedPolicy` (PPO or SAC ``.zip``),
-    which checks that the model's observation and action sizes fit ``config``. Raises
+    Saved policies (an SB3 PPO or SAC ``.zip``, an RLlib checkpoint or run directory) load
+    through :func:`fxc_env.learned.load_learned_policy`, which checks that the model's
+    observation and action sizes fit ``config``. Raises
     ``ValueError`` naming ``policy`` when the spec is unknown or the model does not fit.
     """
     if spec == "reference":
@@ -277,12 +279,12 @@ def load_policy(spec: str, config: EnvConfig) -> Policy:
     if spec in BASELINES:
         return BASELINES[spec](config)
     path = model_path(spec)
-    if spec == "pretrained" or path.suffix == ".zip" or path.is_file():
+    if spec == "pretrained" or path.suffix == ".zip" or path.exists():
         try:
-            return LearnedPolicy(path, config)
+            return load_learned_policy(path, config)
         except FileNotFoundError as exc:
             raise ValueError(str(exc)) from exc
     raise ValueError(
         f"policy: unknown {spec!r}; expected 'reference', one of {tuple(BASELINES)}, 'pretrained' "
-        "or the path of a saved SB3 model (.zip)"
+        "or the path of a saved SB3 model (.zip) or RLlib checkpoint (directory)"
     )

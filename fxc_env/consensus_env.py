@@ -102,6 +102,11 @@ class ConsensusParallelEnv(ParallelEnv):
     ``render_mode`` [None], ``max_cycles`` [None], ``obs_slots`` [d_max], ``action_bound``, ``reward_floor``
     [1e-12], ``position_range`` [5.0], ``velocity_range`` [2.0], ``topology_seed`` [0],
     ``mean_in_degree`` [2.0] and ``topology_period`` [1] for ``random``.
+    Realism (all off by default, seeded with the env): ``u_max`` [None] clips each input
+    component to ±u_max m/s^2, integrated exactly (infos report the saturated share);
+    ``obs_noise`` [0] Gaussian noise (m, m/s) on each relative measurement; ``link_dropout``
+    [0] probability that an edge is lost at a sampling instant (the mask shows it);
+    ``switching`` [``"periodic"``] or ``"random"`` (each interval's graph drawn from the set).
     Every bad argument raises an exception naming it, and leaves a live env unchanged.
 
     ## Version History

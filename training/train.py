@@ -1,5 +1,8 @@
 """``fxc train``: PPO or SAC (stable-baselines3) on :class:`fxc_env.ConsensusVecEnv`.
 
+``--backend rllib`` trains PPO in Ray RLlib instead, locally or on a Ray cluster
+(:mod:`training.rllib_train`); the rest of this page is the stable-baselines3 backend.
+
 One policy is shared by every agent (parameter sharing): each agent of each parallel
 episode is one SB3 sub-environment. Read top to bottom: arguments, set-up, the training
 loop (with checkpoints and Ctrl-C handling), then the artefacts of the run directory:
@@ -32,6 +35,7 @@ import yaml
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGORITHMS = ("ppo", "sac")
+BACKENDS = ("sb3", "rllib")
 
 
 @dataclass
@@ -60,6 +64,14 @@ class TrainArgs:
     """Show SB3's progress bar."""
     torch_threads: int = 1
     """Threads torch may use."""
+    backend: str = "sb3"
+    """``sb3`` (stable-baselines3 on this machine) or ``rllib`` (Ray RLlib PPO on a local Ray or a cluster)."""
+    num_env_runners: int = 2
+    """RLlib: env runner actors that sample in parallel (0: sample in this process)."""
+    envs_per_runner: int = 1
+    """RLlib: environments each env runner steps (``n_envs`` is the SB3 setting)."""
+    address: str | None = None
+    """RLlib: the Ray cluster to join (``auto`` or ``HOST:6379``); default: start a local Ray."""
 
 
 def load_hyperparams(path: str | Path, scenario: str, algo: str) -> dict[str, Any]:
@@ -80,7 +92,7 @@ def load_hyperparams(path: str | Path, scenario: str, algo: str) -> dict[str, An
 def versions() -> dict[str, str]:
     """Python and the versions of the libraries a run depends on."""
     found = {"python": platform.python_version()}
-    for name in ("fxc-env", "numpy", "gymnasium", "pettingzoo", "stable-baselines3", "torch"):
+    for name in ("fxc-env", "numpy", "gymnasium", "pettingzoo", "stable-baselines3", "torch", "ray"):
         try:
             found[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
@@ -106,6 +118,17 @@ def build_env(args: TrainArgs, params: dict[str, Any]):
 
 def train(args: TrainArgs) -> Path:
     """Run (or resume) training; returns the run directory."""
+    if args.backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {args.backend!r}")
+    if args.timesteps < 1:
+        raise ValueError(f"timesteps: expected an integer >= 1, got {args.timesteps!r}")
+    if args.backend == "rllib":
+        from fxc_env.cluster import import_ray
+
+        import_ray("--backend rllib")
+        from training.rllib_train import train_rllib
+
+        return train_rllib(args)
     import torch
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.logger import configure
@@ -115,8 +138,6 @@ def train(args: TrainArgs) -> Path:
 
     if args.algo not in ALGORITHMS:
         raise ValueError(f"algo: expected one of {ALGORITHMS}, got {args.algo!r}")
-    if args.timesteps < 1:
-        raise ValueError(f"timesteps: expected an integer >= 1, got {args.timesteps!r}")
     torch.set_num_threads(args.torch_threads)
     run_dir = Path(args.run_dir or f"runs/{args.scenario}-{args.algo}-seed{args.seed}")
     params = load_hyperparams(args.hyperparams, args.scenario, args.algo)
@@ -218,7 +239,9 @@ def field_docs(cls: type) -> dict[str, str]:
 
 def add_train_parser(commands: argparse._SubParsersAction) -> None:
     """Register ``fxc train``: one option per :class:`TrainArgs` field."""
-    parser = commands.add_parser("train", help="train a shared policy with PPO or SAC (stable-baselines3)")
+    parser = commands.add_parser(
+        "train", help="train a shared policy with PPO or SAC (stable-baselines3), or PPO in Ray RLlib (--backend rllib)"
+    )
     defaults = TrainArgs()
     docs = field_docs(TrainArgs)
     for field in dataclasses.fields(TrainArgs):
