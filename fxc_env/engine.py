@@ -66,8 +66,6 @@ class ConsensusEngine:
         self.x0 = np.zeros(shape)
         self.v0 = np.zeros(shape)
         self.k = 0
-        periodic = config.switching == "periodic"
-        self._xi = config.topology.consensus_weights() if n <= DENSE_LIMIT and periodic else None
         # Neighbour slots padded to the layout's width: extra slots point at the agent itself.
         topology, slot_count = config.topology, self.layout.slots
         extra = slot_count - topology.max_in_degree
@@ -314,9 +312,11 @@ class ConsensusEngine:
         c = self.config
         times = np.concatenate([c.schedule.times, [np.inf]])
         t_eps = times[self.last_above + 1]  # (thresholds, B)
-        if self._xi is not None:
-            predicted_v = self.v0[:, :, 0] @ self._xi
-            predicted_x = self.x0[:, :, 0] @ self._xi + c.settling_time * predicted_v
+        # xi (dense, so only for moderate N) is computed on first use, never on the stepping path.
+        if c.n_agents <= DENSE_LIMIT and c.switching == "periodic":
+            xi = c.topology.consensus_weights()
+            predicted_v = self.v0[:, :, 0] @ xi
+            predicted_x = self.x0[:, :, 0] @ xi + c.settling_time * predicted_v
         else:
             predicted_x = predicted_v = np.full(self.n_episodes, np.nan)
         return {
