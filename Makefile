@@ -1,24 +1,45 @@
 # Two entry points: `make demo` and `make test`. Both build .venv from nothing, pinned by
 # constraints.txt (torch 2.13.0 CPU lies on this machine's disk; nothing is fetched at run time).
+# `make test` also builds .venv-rllib for the Ray RLlib tests: Ray 2.60 pins gymnasium 1.2.2
+# where .venv has 1.4.0, so it gets its own environment, pinned by constraints-rllib.txt.
 PYTHON ?= python3
+PIP_FLAGS := --quiet --disable-pip-version-check
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+TORCHRL_STAMP := $(VENV)/.installed-torchrl
+RLLIB_VENV := .venv-rllib
+RLLIB_BIN := $(RLLIB_VENV)/bin
+RLLIB_STAMP := $(RLLIB_VENV)/.installed
+# Each environment runs exactly the tests it has the dependencies for: .venv everything but
+# tests/rllib/ (TorchRL included); .venv-rllib tests/rllib/ and, on its gymnasium 1.2.2, the
+# environment's own tests.
+RLLIB_TESTS := tests/rllib tests/test_fxc_consensus_v0.py tests/test_consensus_env.py tests/test_vec_env.py
 
 .PHONY: demo test lint format clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet --disable-pip-version-check -c constraints.txt -e ".[test]"
+	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test]"
 	touch $(STAMP)
+
+$(TORCHRL_STAMP): $(STAMP)
+	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test,torchrl]"
+	touch $(TORCHRL_STAMP)
+
+$(RLLIB_STAMP): pyproject.toml constraints-rllib.txt
+	test -x $(RLLIB_BIN)/python || $(PYTHON) -m venv $(RLLIB_VENV)
+	$(RLLIB_BIN)/pip install $(PIP_FLAGS) -c constraints-rllib.txt -e ".[rllib,test]"
+	touch $(RLLIB_STAMP)
 
 demo: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/fxc simulate --scenario paper_fig1 --out out
 
-test: $(STAMP)
+test: $(TORCHRL_STAMP) $(RLLIB_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	MPLBACKEND=Agg $(BIN)/python -m pytest
+	MPLBACKEND=Agg $(BIN)/python -m pytest --ignore=tests/rllib
+	MPLBACKEND=Agg $(RLLIB_BIN)/python -m pytest $(RLLIB_TESTS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
@@ -29,4 +50,4 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) out .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(RLLIB_VENV) out .pytest_cache .ruff_cache

@@ -3,7 +3,8 @@
 Each job is one contender on one scenario at one budget K: a :class:`ConsensusEngine` runs
 all seeded initial states of the suite as one batch (B = number of seeds) and returns
 :meth:`ConsensusEngine.batch_metrics`. Jobs are spread over the machine's cores (one
-process per core, one BLAS thread per process) behind a progress bar; the report
+process per core, one BLAS thread per process), or with ``--ray`` over a Ray cluster
+(:mod:`baselines.ray_jobs`), behind a progress bar; the report
 (:mod:`baselines.report`) and the figures (:mod:`baselines.figures`) are built from the
 results. ``--quick`` runs a smaller suite in about a minute.
 """
@@ -161,22 +162,38 @@ def _single_threaded_children() -> Iterator[None]:
 
 
 def run_suite(
-    suite: Suite, contenders: list[Contender], *, workers: int | None = None, progress: bool = True
+    suite: Suite,
+    contenders: list[Contender],
+    *,
+    workers: int | None = None,
+    progress: bool = True,
+    ray: bool = False,
+    address: str | None = None,
 ) -> list[JobResult]:
-    """Run every job of the suite over ``workers`` processes (default: all cores); results in table order."""
+    """Run every job of the suite; results in table order.
+
+    On this machine over ``workers`` processes (default: all cores), or with ``ray`` as Ray
+    tasks on a local Ray (``workers`` cores, default all) or on the cluster at ``address``
+    (:mod:`baselines.ray_jobs`). Every job is seeded, so both give the same results.
+    """
     from tqdm import tqdm
 
     jobs = make_jobs(suite, contenders)
-    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
     order = {job: i for i, job in enumerate(jobs)}
-    results: list[JobResult] = []
-    with _single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-        futures = [pool.submit(run_job, job) for job in sorted(jobs, key=lambda j: -j.cost)]
-        bar = tqdm(total=len(jobs), desc=f"fxc benchmark ({suite.name})", unit="job", disable=not progress)
-        with bar:
-            for future in as_completed(futures):
-                results.append(future.result())
-                bar.update()
+    longest_first = sorted(jobs, key=lambda j: -j.cost)
+    bar = tqdm(total=len(jobs), desc=f"fxc benchmark ({suite.name})", unit="job", disable=not progress)
+    with bar:
+        if ray:
+            from baselines.ray_jobs import run_jobs_on_ray
+
+            results = run_jobs_on_ray(longest_first, address=address, num_cpus=workers, on_done=bar.update)
+        else:
+            workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
+            results = []
+            with _single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+                for future in as_completed([pool.submit(run_job, job) for job in longest_first]):
+                    results.append(future.result())
+                    bar.update()
     return sorted(results, key=lambda r: order[r.job])
 
 
@@ -198,12 +215,14 @@ def run_benchmark(
     workers: int | None = None,
     progress: bool = True,
     command: str | None = None,
+    ray: bool = False,
+    address: str | None = None,
 ) -> BenchmarkOutput:
-    """Run the suite, then write ``table.md``, ``results.csv``, ``episodes.csv`` and three PNGs."""
+    """Run the suite (see :func:`run_suite`), then write ``table.md``, ``results.csv``, ``episodes.csv`` and three PNGs."""
     from baselines import figures, report
 
     start = time.perf_counter()
-    results = run_suite(suite, contenders, workers=workers, progress=progress)
+    results = run_suite(suite, contenders, workers=workers, progress=progress, ray=ray, address=address)
     seconds = time.perf_counter() - start
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -236,7 +255,17 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     parser.add_argument("--out", default="out/benchmark", help="directory for table.md, CSVs and PNGs")
     parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per scenario")
-    parser.add_argument("--workers", type=int, help="processes (default: one per core)")
+    parser.add_argument("--workers", type=int, help="processes, or a local Ray's cores with --ray (default: all cores)")
+    parser.add_argument(
+        "--ray",
+        action="store_true",
+        help="run the jobs as Ray tasks: on a local Ray, or on the cluster at --address (needs fxc-env[rllib])",
+    )
+    parser.add_argument(
+        "--address",
+        help="with --ray: the Ray cluster to join (auto, or HOST:6379); every node needs fxc-env, and "
+        "learned policies at the same path",
+    )
     parser.add_argument("--fine-intervals", type=int, help="K of continuous laws (default 4000; 1000 with --quick)")
     parser.add_argument("--policies", help="comma-separated built-in policies (default: reference and every baseline)")
     parser.add_argument(
@@ -244,8 +273,8 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="PATH",
-        help="a saved SB3 model (PPO or SAC .zip), or 'pretrained' for the one shipped with fxc_env, "
-        "to score as well; repeatable",
+        help="a saved SB3 model (PPO or SAC .zip), an RLlib checkpoint or run directory, or 'pretrained' "
+        "for the one shipped with fxc_env, to score as well; repeatable",
     )
     parser.add_argument(
         "--learned-schedule", default="paper", choices=("paper", "uniform"), help="schedule of learned policies"
@@ -270,6 +299,10 @@ def benchmark_command(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and value < 1:
             raise ValueError(f"--{name.replace('_', '-')}: expected an integer >= 1, got {value}")
+    if args.address is not None and not args.ray:
+        raise ValueError("--address: joins a Ray cluster for --ray; add --ray")
+    if args.address is not None and args.workers is not None:
+        raise ValueError("--workers: sets the cores of a local Ray; the cluster at --address has its own")
     make_suite = quick_suite if args.quick else realism_suite if args.suite == "realism" else full_suite
     suite = make_suite(args.seeds, **({"fine_intervals": args.fine_intervals} if args.fine_intervals else {}))
     names = None if args.policies is None else [n.strip() for n in args.policies.split(",") if n.strip()]
@@ -285,7 +318,14 @@ def benchmark_command(args: argparse.Namespace) -> int:
         )
     command = "fxc benchmark " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["benchmark"] else None
     output = run_benchmark(
-        suite, contenders, args.out, workers=args.workers, progress=not args.no_progress, command=command
+        suite,
+        contenders,
+        args.out,
+        workers=args.workers,
+        progress=not args.no_progress,
+        command=command,
+        ray=args.ray,
+        address=args.address,
     )
     print(output.markdown)
     print("wrote " + ", ".join(str(f) for f in output.files))

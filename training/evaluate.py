@@ -43,7 +43,8 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--policy",
         required=True,
-        help="'reference', 'pretrained' (shipped with fxc_env) or the path of a saved SB3 model (.zip)",
+        help="'reference', 'pretrained' (shipped with fxc_env), the path of a saved SB3 model (.zip), "
+        "or an RLlib checkpoint or run directory (fxc train --backend rllib)",
     )
     parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per scenario")
     parser.add_argument("--budgets", default="200", help="comma-separated K values (default 200)")

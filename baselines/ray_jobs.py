@@ -1,0 +1,37 @@
+"""The benchmark's jobs as Ray tasks: ``fxc benchmark --ray [--address ADDR]``.
+
+Each :class:`~baselines.benchmark.Job` runs :func:`~baselines.benchmark.run_job` as one Ray
+task (one CPU, one BLAS thread), on a local Ray or on every node of a cluster. Jobs are
+seeded, so the results, and the table built from them, are those of the single-machine run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from baselines.benchmark import THREAD_VARIABLES, Job, JobResult, run_job
+from fxc_env.cluster import ray_session
+
+
+def run_jobs_on_ray(
+    jobs: list[Job],
+    *,
+    address: str | None = None,
+    num_cpus: int | None = None,
+    on_done: Callable[[int], object] | None = None,
+) -> list[JobResult]:
+    """Run ``jobs`` as Ray tasks (submitted in the given order); results in order of completion.
+
+    ``address`` joins a running cluster; without it a local Ray with ``num_cpus`` cores
+    (default: all) is started and stopped. ``on_done(n)`` is called as ``n`` jobs finish.
+    """
+    with ray_session("--ray", address, num_cpus) as ray:
+        task = ray.remote(num_cpus=1, runtime_env={"env_vars": dict.fromkeys(THREAD_VARIABLES, "1")})(run_job)
+        pending = [task.remote(job) for job in jobs]
+        results: list[JobResult] = []
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            results.extend(ray.get(done))
+            if on_done is not None:
+                on_done(len(done))
+    return results

@@ -1,0 +1,81 @@
+"""fxc_env inside other RL libraries' PettingZoo wrappers: TorchRL.
+
+TorchRL's :class:`~torchrl.envs.libs.pettingzoo.PettingZooWrapper` stores every info entry
+as a tensor and builds its info spec from the infos of ``reset``. The environment's infos
+share the numeric keys ``t``, ``interval``, ``energy``, ``peak_u`` and ``saturated_fraction``
+at reset and at every step, but at the episode end each agent's info also carries
+``episode``, a dict of SPEC 5 metrics that no tensor can hold. :class:`FlatEpisodeInfos`
+gives every info one flat schema: the step keys plus ``episode_<metric>`` for each metric,
+NaN until the step that ends the episode. It is a wrapper here, not an environment option,
+because the nested ``episode`` dict is the PettingZoo contract (SPEC 4.4) that other
+consumers read; only the tensor world needs the flat form.
+
+RLlib's PettingZoo wrapper lives with the RLlib trainer (``training.rllib_train``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+from typing import Any
+
+import numpy as np
+from pettingzoo import ParallelEnv
+from pettingzoo.utils.wrappers import BaseParallelWrapper
+
+from fxc_env.core.metrics import EpisodeMetrics
+
+#: Prefix of the flat episode-metric keys (``episode_relative_deadline_error``, ...).
+EPISODE_PREFIX = "episode_"
+#: The flat keys, one per field of :class:`fxc_env.core.metrics.EpisodeMetrics`.
+EPISODE_KEYS = tuple(EPISODE_PREFIX + f.name for f in fields(EpisodeMetrics))
+
+
+def flat_info(info: dict[str, Any]) -> dict[str, Any]:
+    """``info`` with its ``episode`` dict spread into float64 ``episode_<metric>`` keys (NaN if absent)."""
+    flat = {key: value for key, value in info.items() if key != "episode"}
+    episode = info.get("episode") or {}
+    for key in EPISODE_KEYS:
+        value = episode.get(key.removeprefix(EPISODE_PREFIX))
+        flat[key] = np.float64(math.nan if value is None else value)
+    return flat
+
+
+class FlatEpisodeInfos(BaseParallelWrapper):
+    """A parallel fxc_env whose infos have the same flat numeric keys at reset and at every step."""
+
+    def __init__(self, env: ParallelEnv) -> None:
+        super().__init__(env)
+        self.metadata = env.metadata
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None):
+        observations, infos = self.env.reset(seed=seed, options=options)
+        return observations, {agent: flat_info(info) for agent, info in infos.items()}
+
+    def step(self, actions: dict[str, Any]):
+        observations, rewards, terminations, truncations, infos = self.env.step(actions)
+        return observations, rewards, terminations, truncations, {a: flat_info(i) for a, i in infos.items()}
+
+
+def torchrl_env(group: str = "agents", **kwargs: Any) -> Any:
+    """A TorchRL env of ``fxc_env.parallel_env(**kwargs)``: every agent in one group, infos flat.
+
+    Needs ``pip install "fxc-env[torchrl]"``. Continuous actions, no agent mask (agents
+    never leave before the episode end), the global state ``(N, 2 dim)`` under ``"state"``.
+    Data of the group lie under ``(group, "observation" | "action" | "reward" | "info")``
+    with a leading agent dimension N.
+    """
+    try:
+        from torchrl.envs.libs.pettingzoo import PettingZooWrapper
+    except ModuleNotFoundError as exc:
+        raise ValueError('torchrl_env: TorchRL is not installed; pip install "fxc-env[torchrl]"') from exc
+    from fxc_env.fxc_consensus_v0 import parallel_env
+
+    env = FlatEpisodeInfos(parallel_env(**kwargs))
+    return PettingZooWrapper(
+        env,
+        group_map={group: list(env.possible_agents)},
+        categorical_actions=False,
+        use_mask=False,
+        return_state=True,
+    )

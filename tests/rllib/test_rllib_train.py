@@ -1,0 +1,132 @@
+"""training.rllib_train: RLlib PPO on paper_fig1 with 2 env runners on a local Ray, restored and evaluated."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
+
+from fxc_env import cli, make_config
+from fxc_env.learned import RLlibPolicy, load_learned_policy
+from training.evaluate import EVALUATION_SCENARIOS
+from training.rllib_train import ConsensusRLlibEnv
+from training.train import HYPERPARAMS, TrainArgs, train
+
+#: Environment steps per iteration in these tests: two episodes of K = 200 (one per env runner).
+BATCH = 400
+PER_ITERATION = BATCH * 6  # agent-steps (timesteps) of paper_fig1's six agents
+
+
+def small_hyperparams(path):
+    """The shipped hyperparameters with a small batch, so an iteration takes about a second."""
+    table = yaml.safe_load(HYPERPARAMS.read_text())
+    entry = table["paper_fig1"]
+    entry["rllib_ppo"].update(train_batch_size_per_learner=BATCH, minibatch_size=BATCH, num_epochs=2)
+    path.write_text(yaml.safe_dump({"paper_fig1": entry}))
+    return str(path)
+
+
+def rllib_args(tmp_path, **changes) -> TrainArgs:
+    return TrainArgs(
+        **{
+            "backend": "rllib",
+            "scenario": "paper_fig1",
+            "timesteps": 2 * PER_ITERATION,
+            "num_env_runners": 2,
+            "run_dir": str(tmp_path / "run"),
+            "hyperparams": small_hyperparams(tmp_path / "hyperparams.yml"),
+            **changes,
+        }
+    )
+
+
+def progress(run_dir):
+    with (run_dir / "progress.csv").open(newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory, local_ray):
+    """A two-iteration run: the run directory of ``fxc train --backend rllib``."""
+    return train(rllib_args(tmp_path_factory.mktemp("rllib")))
+
+
+def test_two_iterations_with_two_env_runners_write_the_run_directory(trained):
+    rows = progress(trained)
+    assert [int(r["time/iterations"]) for r in rows] == [1, 2]
+    assert [int(r["time/env_steps"]) for r in rows] == [BATCH, 2 * BATCH]
+    assert [int(r["time/total_timesteps"]) for r in rows] == [PER_ITERATION, 2 * PER_ITERATION]
+    assert all(int(r["rollout/episodes"]) == 2 for r in rows)  # each runner finished one K = 200 episode
+    assert all(np.isfinite(float(r["rollout/ep_rew_mean"])) for r in rows)
+    record = json.loads((trained / "config.json").read_text())
+    assert record["args"]["backend"] == "rllib" and record["args"]["num_env_runners"] == 2
+    assert record["timesteps_per_iteration"] == PER_ITERATION
+    assert json.loads((trained / "versions.json").read_text())["ray"].startswith("2.60")
+    assert (trained / "checkpoints" / f"rllib_{2 * PER_ITERATION}_steps" / "rllib_checkpoint.json").is_file()
+    assert (trained / "training_curve.png").stat().st_size > 0
+
+
+def test_resume_restores_the_checkpoint_and_continues_its_count(trained, tmp_path, capsys):
+    run_dir = shutil.copytree(trained, tmp_path / "run")
+    before = RLlibPolicy(run_dir)
+    train(rllib_args(tmp_path, timesteps=3 * PER_ITERATION, resume=True))
+    out = capsys.readouterr().out
+    assert f"resuming {run_dir} from rllib_{2 * PER_ITERATION}_steps at iteration 2" in out
+    assert [int(r["time/env_steps"]) for r in progress(run_dir)] == [BATCH, 2 * BATCH, 3 * BATCH]
+    after = RLlibPolicy(run_dir)
+    assert after.checkpoint.name == f"rllib_{3 * PER_ITERATION}_steps"
+    obs = np.random.default_rng(0).uniform(-1, 1, size=(8, before.obs_size))
+    assert not np.array_equal(before(obs), after(obs))  # the third iteration updated the restored module
+
+
+def test_the_checkpoint_acts_like_a_learned_policy(trained):
+    config = make_config("paper_fig1", obs_slots=4)
+    policy = load_learned_policy(trained, config)
+    assert isinstance(policy, RLlibPolicy) and policy.obs_size == config.layout.size and policy.action_size == 2
+    obs = np.random.default_rng(1).uniform(-1, 1, size=(3, 6, config.layout.size))
+    actions = policy(obs)
+    assert actions.shape == (3, 6, 2) and np.all(np.abs(actions) <= 2.0)
+    np.testing.assert_allclose(actions[2, 5], policy(obs[2, 5]), rtol=1e-5, atol=1e-6)  # float32 network
+    np.testing.assert_array_equal(actions, policy(obs))  # deterministic: the Gaussian's mean
+    with pytest.raises(ValueError, match=r"observations of size 15 .* this environment has 6"):
+        load_learned_policy(trained, make_config("paper_fig1"))
+
+
+def test_fxc_evaluate_scores_the_rllib_run_next_to_the_reference(trained, tmp_path, capsys):
+    out = tmp_path / "evaluate"
+    code = cli.main(["evaluate", "--policy", str(trained), "--seeds", "2", "--out", str(out), "--no-progress"])
+    printed = capsys.readouterr().out
+    assert code == 0
+    name = f"learned:{trained.name}"
+    assert f"| {name} | 200 |" in printed and "RLlib checkpoint" in printed
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert {(r["policy"], r["scenario"]) for r in rows} == {
+        (policy, s.key) for policy in ("reference", name) for s in EVALUATION_SCENARIOS
+    }
+    assert all(r["error"] == "" and int(r["n_episodes"]) == 2 for r in rows)
+
+
+def test_rllib_env_renders_with_the_pettingzoo_signature_and_keeps_agent_order():
+    env = ConsensusRLlibEnv({"scenario": "paper_fig1", "render_mode": "rgb_array", "n_intervals": 5})
+    assert env.agents == env.possible_agents == [f"agent_{i}" for i in range(6)]
+    observations, _ = env.reset(seed=0)
+    observations, rewards, terminateds, _, _ = env.step({a: np.zeros(2) for a in observations})
+    assert set(rewards) == set(env.agents) and terminateds["__all__"] is False
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+    with pytest.raises(TypeError):  # why the subclass: RLlib's wrapper passes the render mode
+        ParallelPettingZooEnv.render(env)
+
+
+def test_sac_and_bad_runner_counts_are_refused_before_ray_starts(tmp_path):
+    with pytest.raises(ValueError, match="algo: the rllib backend trains 'ppo'"):
+        train(rllib_args(tmp_path, algo="sac"))
+    with pytest.raises(ValueError, match="num_env_runners: expected an integer >= 0"):
+        train(rllib_args(tmp_path, num_env_runners=-1))
+    with pytest.raises(ValueError, match="envs_per_runner: expected an integer >= 1"):
+        train(rllib_args(tmp_path, envs_per_runner=0))

@@ -1,0 +1,225 @@
+"""``fxc train --backend rllib``: PPO in Ray RLlib, one module shared by every agent.
+
+The environment reaches RLlib through its own PettingZoo wrapper
+(:class:`ray.rllib.env.wrappers.pettingzoo_env.ParallelPettingZooEnv`), subclassed by
+:class:`ConsensusRLlibEnv` where it does not fit: its ``render()`` passes the render mode as
+an argument, which PettingZoo's ``render()`` does not take. Env runners sample on a local
+Ray (default) or on a cluster joined with ``--address``; the learner runs in this process.
+Hyperparameters come from the ``rllib_<algo>`` entry of the hyperparameter file.
+
+An iteration samples ``train_batch_size_per_learner`` environment steps (times N agent-steps)
+and updates the module; ``--timesteps`` (agent-steps, as for SB3) is rounded up to whole
+iterations. The run directory:
+
+    runs/<name>/config.json                          the exact arguments and resolved hyperparameters
+    runs/<name>/versions.json                        Python and library versions (Ray included)
+    runs/<name>/progress.csv                         one row per iteration (SB3's column names)
+    runs/<name>/checkpoints/rllib_<timesteps>_steps/ RLlib algorithm checkpoints (the newest is the policy)
+    runs/<name>/training_curve.png                   mean episode return against timesteps
+
+``fxc evaluate --policy runs/<name>`` (or a checkpoint directory) scores the trained module.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import signal
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
+
+import fxc_env
+from fxc_env.cluster import ray_session
+from fxc_env.learned import RLLIB_MODULE, rllib_checkpoint
+from training.train import TrainArgs, load_hyperparams, versions, write_training_curve
+
+#: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves both).
+PROGRESS_COLUMNS = (
+    "time/iterations",
+    "time/total_timesteps",
+    "time/env_steps",
+    "rollout/ep_rew_mean",
+    "rollout/episodes",
+    "time/iteration_seconds",
+)
+
+
+class ConsensusRLlibEnv(ParallelPettingZooEnv):
+    """``fxc_env.parallel_env(**config)`` as an RLlib ``MultiAgentEnv``.
+
+    RLlib's wrapper with two fixes: ``render()`` without an argument (PettingZoo's
+    signature), and agents in the environment's order ``agent_0 .. agent_{N-1}`` (the
+    wrapper takes them from a set, whose order changes from process to process).
+    """
+
+    def __init__(self, config: dict[str, Any] | None = None) -> None:
+        super().__init__(fxc_env.parallel_env(**dict(config or {})))
+        self.agents = list(self.par_env.possible_agents)
+        self.possible_agents = list(self.par_env.possible_agents)
+
+    def render(self) -> Any:
+        return self.par_env.render()
+
+
+def env_config(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:
+    """Keyword arguments of the environment each env runner builds."""
+    kwargs = {key: value for key, value in params["env"].items() if key != "n_envs"}
+    return {"scenario": args.scenario, **kwargs}
+
+
+def algorithm_config(args: TrainArgs, params: dict[str, Any]) -> Any:
+    """The RLlib ``PPOConfig`` of this run: one module for all agents, actions clipped to the Box."""
+    from ray.rllib.algorithms.ppo import PPOConfig
+    from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
+
+    training = dict(params["algo"])
+    model = training.pop("model", {})
+    return (
+        PPOConfig()
+        .environment(ConsensusRLlibEnv, env_config=env_config(args, params), clip_actions=True, normalize_actions=False)
+        .env_runners(num_env_runners=args.num_env_runners, num_envs_per_env_runner=args.envs_per_runner)
+        .multi_agent(policies={RLLIB_MODULE}, policy_mapping_fn=_shared_module)
+        .training(**training)
+        .rl_module(model_config=DefaultModelConfig(**model))
+        .debugging(seed=args.seed)
+    )
+
+
+def _shared_module(agent_id: str, episode: Any, **kwargs: Any) -> str:
+    return RLLIB_MODULE
+
+
+def latest_rllib_checkpoint(run_dir: Path) -> Path | None:
+    """The RLlib checkpoint with the most timesteps in ``run_dir/checkpoints`` (None if there is none)."""
+    found = rllib_checkpoint(run_dir)
+    return found if found is not None and found != run_dir else None
+
+
+def save(algo: Any, run_dir: Path, timesteps: int) -> Path:
+    """Save the whole algorithm (module, optimiser, connectors, counters) as ``rllib_<timesteps>_steps``."""
+    path = run_dir / "checkpoints" / f"rllib_{timesteps}_steps"
+    algo.save_to_path(str(path.resolve()))
+    return path
+
+
+@contextmanager
+def deferred_interrupt() -> Iterator[list[bool]]:
+    """Ctrl-C sets a flag (checked between iterations) instead of breaking an iteration; twice stops at once."""
+    pressed: list[bool] = []
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum: int, frame: Any) -> None:
+        if pressed:
+            raise KeyboardInterrupt
+        pressed.append(True)
+        print("\nfxc train: Ctrl-C; finishing this iteration, then saving a checkpoint", file=sys.stderr)
+
+    try:
+        signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main thread: leave Ctrl-C alone
+        yield pressed
+        return
+    try:
+        yield pressed
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def train_rllib(args: TrainArgs) -> Path:
+    """Run (or resume) RLlib PPO training; returns the run directory."""
+    import torch
+
+    if args.algo != "ppo":
+        raise ValueError(f"algo: the rllib backend trains 'ppo', got {args.algo!r}")
+    if args.num_env_runners < 0:
+        raise ValueError(f"num_env_runners: expected an integer >= 0, got {args.num_env_runners!r}")
+    if args.envs_per_runner < 1:
+        raise ValueError(f"envs_per_runner: expected an integer >= 1, got {args.envs_per_runner!r}")
+    torch.set_num_threads(args.torch_threads)
+    run_dir = Path(args.run_dir or f"runs/{args.scenario}-rllib-{args.algo}-seed{args.seed}")
+    params = load_hyperparams(args.hyperparams, args.scenario, f"rllib_{args.algo}")
+    n_agents = fxc_env.make_config(**env_config(args, params)).n_agents
+    per_iteration = int(params["algo"]["train_batch_size_per_learner"]) * n_agents
+    iterations = math.ceil(args.timesteps / per_iteration)
+    save_every = max(1, math.ceil(args.checkpoint_every / per_iteration))
+    checkpoint = latest_rllib_checkpoint(run_dir) if args.resume else None
+    if args.resume and checkpoint is None:
+        raise ValueError(f"resume: no RLlib checkpoint in {run_dir / 'checkpoints'}")
+
+    with ray_session("--backend rllib", args.address) as ray:
+        # ------------------------------------------------------------------ set-up
+        algo = algorithm_config(args, params).build_algo()
+        if checkpoint is not None:
+            algo.restore_from_path(str(checkpoint.resolve()))
+            print(f"fxc train: resuming {run_dir} from {checkpoint.name} at iteration {algo.iteration}")
+        else:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            record = {
+                "args": dataclasses.asdict(args),
+                "hyperparams": params,
+                "n_agents": n_agents,
+                "timesteps_per_iteration": per_iteration,
+                "ray_cluster_cpus": ray.cluster_resources().get("CPU"),
+            }
+            (run_dir / "config.json").write_text(json.dumps(record, indent=2) + "\n")
+            (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
+            (run_dir / "progress.csv").write_text(",".join(PROGRESS_COLUMNS) + "\n")
+        print(
+            f"fxc train: RLlib PPO on {args.scenario} (N = {n_agents}, one shared module), "
+            f"{args.num_env_runners} env runner(s) x {args.envs_per_runner} env(s), "
+            f"{ray.cluster_resources().get('CPU', 0):g} CPUs in the Ray cluster; "
+            f"{iterations} iteration(s) of {per_iteration} timesteps"
+        )
+
+        # ------------------------------------------------------------------- loop
+        try:
+            with deferred_interrupt() as interrupted:
+                while algo.iteration < iterations and not interrupted:
+                    result = algo.train()
+                    row = progress_row(result, n_agents)
+                    with (run_dir / "progress.csv").open("a", newline="") as handle:
+                        csv.writer(handle).writerow(row[c] for c in PROGRESS_COLUMNS)
+                    print(
+                        f"  iteration {algo.iteration}/{iterations}: {row['time/total_timesteps']} timesteps, "
+                        f"mean episode return {row['rollout/ep_rew_mean']:.4g} "
+                        f"over {row['rollout/episodes']} episodes, {row['time/iteration_seconds']:.1f} s"
+                    )
+                    if algo.iteration % save_every == 0 or algo.iteration == iterations:
+                        save(algo, run_dir, algo.iteration * per_iteration)
+            if interrupted:
+                path = save(algo, run_dir, algo.iteration * per_iteration)
+                print(f"fxc train: interrupted; saved {path} (resume with --resume)", file=sys.stderr)
+                raise KeyboardInterrupt
+        finally:
+            logdir = Path(algo.logdir)
+            algo.stop()
+            if logdir.is_dir() and not any(logdir.iterdir()):
+                logdir.rmdir()  # RLlib's empty ~/ray_results/<date> directory; our logs are in run_dir
+
+    # -------------------------------------------------------------- artefacts
+    final = latest_rllib_checkpoint(run_dir)
+    curve = write_training_curve(run_dir)
+    print(f"fxc train: {algo.iteration * per_iteration} timesteps; wrote {final}" + (f" and {curve}" if curve else ""))
+    return run_dir
+
+
+def progress_row(result: dict[str, Any], n_agents: int) -> dict[str, Any]:
+    """One ``progress.csv`` row from an RLlib result; the return is per agent (= the team's)."""
+    runners = result.get("env_runners", {})
+    env_steps = int(runners.get("num_env_steps_sampled_lifetime", result.get("num_env_steps_sampled_lifetime", 0)))
+    team_return = float(runners.get("episode_return_mean", math.nan))
+    return {
+        "time/iterations": int(result["training_iteration"]),
+        "time/total_timesteps": env_steps * n_agents,
+        "time/env_steps": env_steps,
+        "rollout/ep_rew_mean": team_return / n_agents,
+        "rollout/episodes": int(runners.get("num_episodes", 0)),
+        "time/iteration_seconds": float(result.get("time_this_iter_s", math.nan)),
+    }
