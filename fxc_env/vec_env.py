@@ -94,6 +94,7 @@ class ConsensusVecEnv(VecEnv):
         self._needs_reset = True
         self._steps = 0
         self._view = EpisodeView(config, render_mode)
+        self._infos_pool: tuple[dict[str, Any], ...] | None = None
         super().__init__(self.n_envs * self.n_agents, observation_space(config), action_space(config))
         self.metadata = dict(ConsensusParallelEnv.metadata)
 
@@ -152,6 +153,16 @@ class ConsensusVecEnv(VecEnv):
         self.reset_infos = [{} for _ in range(self.num_envs)]
         self._view.start(x0[0], v0[0])
 
+    def _empty_infos(self) -> list[dict[str, Any]]:
+        """One empty dict per sub-environment, reused across steps while they stay empty.
+
+        Building 1e5 fresh dicts every step cost as much as the physics; a consumer that
+        writes into one gets fresh dicts from the next step on.
+        """
+        if self._infos_pool is None or any(self._infos_pool):
+            self._infos_pool = tuple({} for _ in range(self.num_envs))
+        return list(self._infos_pool)
+
     def _observe(self) -> np.ndarray:
         return self.engine.observations().reshape(self.num_envs, -1)
 
@@ -184,7 +195,7 @@ class ConsensusVecEnv(VecEnv):
         obs = self._observe()
         self._view.record(self.engine.time, self.engine.x[0], self.engine.v[0])
         if not (terminated or truncated):
-            return obs, rewards, np.zeros(self.num_envs, dtype=bool), [{} for _ in range(self.num_envs)]
+            return obs, rewards, np.zeros(self.num_envs, dtype=bool), self._empty_infos()
         per_agent = [episode for episode in metrics_rows(self.engine.batch_metrics()) for _ in range(self.n_agents)]
         infos = [
             {"terminal_observation": row, "TimeLimit.truncated": truncated, "episode_metrics": episode}

@@ -1,10 +1,10 @@
 """The largest absolute value over the padded in-neighbour slots.
 
-Neighbour measurements are stored as ``(..., d_max, dim)`` blocks, zero in unused slots.
-``d_max`` is small (a few) while the leading size is huge (up to 10^6 agents), where
-numpy's generic reduction over a short trailing axis pays a per-row overhead; a loop over
-the ``d_max * dim`` columns, each a vectorised operation over all agents, is about three
-times faster. The loop runs over slots, never over agents or episodes.
+Neighbour measurements are stored as ``(..., slots, 2, dim)`` blocks (``[x_j - x_i, v_j - v_i]``
+per slot), zero in unused slots. ``slots`` is small (a few) while the leading size is huge
+(up to 10^6 agents), where numpy's generic reduction over short inner axes pays a per-row
+overhead; a loop over the ``slots * dim`` columns, each a vectorised operation over all
+agents, is about three times faster. The loop runs over slots, never over agents or episodes.
 """
 
 from __future__ import annotations
@@ -15,12 +15,18 @@ import numpy as np
 SMALL = 4096
 
 
-def max_abs(block: np.ndarray) -> np.ndarray:
-    """``max |block|`` over the last two axes ``(d_max, dim)``; ``(...)``, 0 when there are no slots."""
-    columns = block.reshape((*block.shape[:-2], -1))
-    if columns.size <= SMALL or columns.shape[-1] == 0:
-        return np.abs(columns).max(axis=-1, initial=0.0)
-    result = np.zeros(columns.shape[:-1])
-    for j in range(columns.shape[-1]):
-        np.maximum(result, np.abs(columns[..., j]), out=result)
+def max_abs_rows(rows: np.ndarray) -> np.ndarray:
+    """``max |rows|`` over slots and components, separately for the x and v columns.
+
+    Args:
+        rows: ``(..., slots, 2, dim)``.
+    Returns:
+        ``(..., 2)``: the largest ``|x_j - x_i|`` and the largest ``|v_j - v_i|`` (0 without slots).
+    """
+    if rows.size <= SMALL or rows.shape[-3] == 0:
+        return np.abs(rows).max(axis=(-3, -1), initial=0.0)
+    result = np.zeros((*rows.shape[:-3], 2))
+    for slot in range(rows.shape[-3]):
+        for component in range(rows.shape[-1]):
+            np.maximum(result, np.abs(rows[..., slot, :, component]), out=result)
     return result
