@@ -87,11 +87,19 @@ def parallel_env_stepper(n_agents: int, seed: int = 0) -> Callable[[], None]:
     kwargs: dict[str, Any] = (
         {"scenario": "paper_fig1"} if n_agents == 6 else {"topology": "random", "n_agents": n_agents}
     )
-    env = fxc_env.parallel_env(**kwargs)
+    return random_action_stepper(fxc_env.parallel_env(**kwargs), seed)
+
+
+def random_action_stepper(env: Any, seed: int) -> Callable[[], None]:
+    """One step of a PettingZoo parallel env with 64 pre-drawn random joint actions, reset at the end.
+
+    The same harness for every contender, so the comparison times the environments alone.
+    """
     env.reset(seed=seed)
-    space = env.action_space(env.possible_agents[0])
+    agents = list(env.possible_agents)
+    space = env.action_space(agents[0])
     space.seed(seed)
-    actions = [{agent: space.sample() for agent in env.possible_agents} for _ in range(64)]
+    actions = [{agent: space.sample() for agent in agents} for _ in range(64)]
     counter = iter(range(10**12))
 
     def step() -> None:
@@ -107,19 +115,7 @@ def mpe2_stepper(n_agents: int, seed: int = 0) -> Callable[[], None]:
     from mpe2 import simple_spread_v3
 
     env = simple_spread_v3.parallel_env(N=n_agents, continuous_actions=True, max_cycles=200)
-    env.reset(seed=seed)
-    agents = list(env.possible_agents)
-    space = env.action_space(agents[0])
-    space.seed(seed)
-    actions = [{agent: space.sample() for agent in agents} for _ in range(64)]
-    counter = iter(range(10**12))
-
-    def step() -> None:
-        env.step(actions[next(counter) % 64])
-        if not env.agents:
-            env.reset()
-
-    return step
+    return random_action_stepper(env, seed)
 
 
 def parallel_table(rounds: int) -> list[str]:
