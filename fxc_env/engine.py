@@ -276,16 +276,14 @@ class ConsensusEngine:
         u0, u1 = self.inputs_from_actions(actions)
         u_max = self.config.u_max
         if u_max is None:
-            energy = dynamics.interval_energy(u0, u1, T)
-            peak = dynamics.interval_peak(u0, u1)
-            x_next, v_next = dynamics.advance(self.x, self.v, u0, u1, T)
+            energy, peak = dynamics.advance_in_place(self.x, self.v, u0, u1, T)
             saturated = self._no_saturation
         else:
             x_next, v_next, energy, peak, saturated_time = dynamics.advance_clipped(self.x, self.v, u0, u1, T, u_max)
+            self.x[...] = x_next
+            self.v[...] = v_next
             saturated = saturated_time.mean(axis=-1) / T
             self.saturated_time += saturated_time.mean(axis=-1)
-        self.x[...] = x_next
-        self.v[...] = v_next
         self.k += 1
         self.current_disagreement = self._disagreement()
         log_previous = self._log_disagreement
