@@ -20,7 +20,6 @@ from fxc_env.reference import ReferencePolicy
 from fxc_env.registration import ENV_ID, register_environments
 from fxc_env.scenarios import SCENARIOS
 from fxc_env.simulation import Trajectory, simulate
-from fxc_env.vec_env import ConsensusVecEnv
 
 register_environments()
 
@@ -42,3 +41,12 @@ __all__ = [
     "raw_env",
     "simulate",
 ]
+
+
+def __getattr__(name: str) -> object:
+    # ConsensusVecEnv pulls in stable-baselines3 and torch (about 2 s): import it on first use.
+    if name == "ConsensusVecEnv":
+        from fxc_env.vec_env import ConsensusVecEnv
+
+        return ConsensusVecEnv
+    raise AttributeError(f"module 'fxc_env' has no attribute {name!r}")
