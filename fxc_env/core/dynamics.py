@@ -133,9 +133,3 @@ def advance_clipped(
     v_next = v + velocity_gain
     peak = np.minimum(interval_peak(u0, u1), u_max)
     return x_next, v_next, energy_per_component.sum(axis=-1), peak, saturated_time
-
-
-def clip_inside(u0: np.ndarray, u1: np.ndarray, T, s, u_max: float | None) -> np.ndarray:
-    """The applied input at offset ``s`` (clipped when ``u_max`` is set), broadcast like :func:`state_inside`."""
-    u = u0 + (u1 - u0) / T * s
-    return u if u_max is None else np.clip(u, -u_max, u_max)
