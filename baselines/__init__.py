@@ -4,29 +4,30 @@ Each baseline is a policy on the local observation, like :class:`fxc_env.Referen
 acting in ``accel`` mode with a zero-order hold; its module docstring gives the law, its
 source paper, the graph class it is proven for, and its parameters:
 
-- :class:`LinearConsensusPolicy` (:mod:`baselines.linear`): Ren & Atkins 2007, gamma by Yu,
+- :class:`LinearConsensusPolicy` (:mod:`fxc_env.baselines.linear`): Ren & Atkins 2007, gamma by Yu,
   Chen & Cao's exact gain test;
-- :class:`SampledLinearPolicy` (:mod:`baselines.sampled`): the same law sampled at
+- :class:`SampledLinearPolicy` (:mod:`fxc_env.baselines.sampled`): the same law sampled at
   ``h = T_s / K`` (Cao & Ren 2010), with the reference's budget K;
-- :class:`FiniteTimePolicy` (:mod:`baselines.finite_time`): Wang & Hong 2008 family;
-- :class:`PrescribedTimePolicy` (:mod:`baselines.prescribed_time`): Wang, Song, Hill &
+- :class:`FiniteTimePolicy` (:mod:`fxc_env.baselines.finite_time`): Wang & Hong 2008 family;
+- :class:`PrescribedTimePolicy` (:mod:`fxc_env.baselines.prescribed_time`): Wang, Song, Hill &
   Krstic 2019 family, gain frozen shortly before ``T_s``.
 
-``fxc benchmark`` (:mod:`baselines.benchmark`) scores them, the reference and learned
-policies (:func:`load_policy`) on one suite (:mod:`baselines.suite`).
+``fxc benchmark`` (:mod:`fxc_env.baselines.benchmark`) scores them, the reference and learned
+policies (:func:`load_policy`) on one suite (:mod:`fxc_env.baselines.suite`).
 
-    >>> import fxc_env, baselines
+    >>> import fxc_env
+    >>> from fxc_env import baselines
     >>> env = fxc_env.parallel_env(action_mode="accel", obs_mode="raw", schedule="uniform", n_intervals=4000)
     >>> policy = baselines.LinearConsensusPolicy(env)
 """
 
 from __future__ import annotations
 
-from baselines.finite_time import FiniteTimePolicy
-from baselines.linear import LinearConsensusPolicy
-from baselines.prescribed_time import PrescribedTimePolicy
-from baselines.sampled import SampledLinearPolicy
-from baselines.suite import load_policy
+from fxc_env.baselines.finite_time import FiniteTimePolicy
+from fxc_env.baselines.linear import LinearConsensusPolicy
+from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
+from fxc_env.baselines.sampled import SampledLinearPolicy
+from fxc_env.baselines.suite import load_policy
 
 __all__ = [
     "FiniteTimePolicy",

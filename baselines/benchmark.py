@@ -4,8 +4,8 @@ Each job is one contender on one scenario at one budget K: a :class:`ConsensusEn
 all seeded initial states of the suite as one batch (B = number of seeds) and returns
 :meth:`ConsensusEngine.batch_metrics`. Jobs are spread over the machine's cores (one
 process per core, one BLAS thread per process), or with ``--ray`` over a Ray cluster
-(:mod:`baselines.ray_jobs`), behind a progress bar; the report
-(:mod:`baselines.report`) and the figures (:mod:`baselines.figures`) are built from the
+(:mod:`fxc_env.baselines.ray_jobs`), behind a progress bar; the report
+(:mod:`fxc_env.baselines.report`) and the figures (:mod:`fxc_env.baselines.figures`) are built from the
 results. ``--quick`` runs a smaller suite in about a minute.
 """
 
@@ -15,150 +15,24 @@ import argparse
 import os
 import sys
 import time
-from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from baselines.suite import (
+from fxc_env.baselines import figures, report
+from fxc_env.baselines.jobs import JobResult, make_jobs, run_job
+from fxc_env.baselines.suite import (
     Contender,
-    Scenario,
     Suite,
     builtin_contenders,
-    contender_config,
     full_suite,
     learned_contender,
-    load_policy,
     quick_suite,
     realism_suite,
 )
-
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
-
-
-@dataclass(frozen=True)
-class Job:
-    """One contender on one scenario at K intervals, for every seed of the suite."""
-
-    contender: Contender
-    scenario: Scenario
-    n_intervals: int
-    seeds: tuple[int, ...]
-    settling_time: float
-    record_trace: bool
-
-    @property
-    def cost(self) -> float:
-        """Rough relative run time, to start the longest jobs first."""
-        design = 50.0 * self.scenario.n_agents**2 if self.contender.name == "linear_sampled" else 0.0
-        return self.n_intervals * (self.scenario.n_agents + 20.0) * len(self.seeds) + design
-
-
-@dataclass
-class JobResult:
-    """What one job measured.
-
-    Attributes:
-        metrics: SPEC 5 metrics, one ``(B,)`` array per name of
-            :class:`fxc_env.core.metrics.EpisodeMetrics`, plus ``final_value_gap``
-            (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``.
-        trace_times, trace: sampling instants and the median over seeds of ``D(t_k) / D(0)``
-            (only for the suite's trace scenario).
-        description: the policy's law, source, graph class and parameters (as text).
-        parameters: the policy's parameters as numbers.
-        guarantee: whether this run is covered by the policy's theorem.
-        error: why the job could not run (a learned model that does not fit, say), else None.
-    """
-
-    job: Job
-    metrics: dict[str, np.ndarray] = field(default_factory=dict)
-    trace_times: np.ndarray | None = None
-    trace: np.ndarray | None = None
-    description: dict[str, str] = field(default_factory=dict)
-    parameters: dict[str, float] = field(default_factory=dict)
-    guarantee: str = ""
-    error: str | None = None
-    seconds: float = 0.0
-
-
-def make_jobs(suite: Suite, contenders: list[Contender]) -> list[Job]:
-    """Every (contender, scenario, K) of the suite, in table order."""
-    jobs = []
-    for contender in contenders:
-        budgets = suite.budgets if contender.sampled else (suite.fine_intervals,)
-        for scenario in suite.scenarios:
-            for k in budgets:
-                trace = scenario == suite.trace_scenario
-                jobs.append(Job(contender, scenario, k, suite.seeds, suite.settling_time, trace))
-    return jobs
-
-
-def run_job(job: Job) -> JobResult:
-    """Run one job in this process (see :class:`JobResult`)."""
-    from fxc_env.engine import ConsensusEngine
-
-    start = time.perf_counter()
-    result = JobResult(job)
-    try:
-        config = contender_config(job.contender, job.scenario, job.n_intervals, job.settling_time)
-        policy = load_policy(job.contender.spec, config)
-    except (ValueError, TypeError) as exc:
-        result.error = str(exc)
-        return result
-    describe = getattr(policy, "describe", None)
-    result.description = describe() if describe else {}
-    result.parameters = policy.parameters() if hasattr(policy, "parameters") else {}
-    result.guarantee = policy.guarantee() if hasattr(policy, "guarantee") else _reference_guarantee(job)
-
-    engine = ConsensusEngine(config, n_episodes=len(job.seeds))
-    states = [engine.sample_initial_state(np.random.default_rng(seed)) for seed in job.seeds]
-    engine.reset(np.stack([x for x, _ in states]), np.stack([v for _, v in states]))
-    d0 = engine.initial_disagreement.copy()
-    trace = [np.ones(len(job.seeds))] if job.record_trace else None
-    obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
-    with np.errstate(all="ignore"):  # a diverging law overflows; its metrics say so
-        while not engine.done:
-            engine.observations(out=obs)
-            engine.step(np.asarray(policy(obs), dtype=np.float64))
-            if trace is not None:
-                trace.append(engine.current_disagreement / d0)
-        metrics = engine.batch_metrics()
-    relative = metrics["relative_deadline_error"]
-    metrics["relative_deadline_error"] = np.where(np.isfinite(relative), relative, np.inf)
-    metrics["final_value_gap"] = np.abs(metrics["achieved_final_position"] - metrics["predicted_final_position"])
-    metrics["initial_disagreement"] = d0
-    result.metrics = metrics
-    if trace is not None:
-        result.trace_times = config.schedule.times.copy()
-        result.trace = np.median(np.array(trace), axis=1)
-    result.seconds = time.perf_counter() - start
-    return result
-
-
-def _reference_guarantee(job: Job) -> str:
-    if job.contender.name == "reference":
-        return "proven: Theorems 1-2 (limit K -> infinity; finite K leaves a residual)"
-    return "learned: no guarantee"
-
-
-@contextmanager
-def _single_threaded_children() -> Iterator[None]:
-    """Children spawned inside inherit one BLAS/OpenMP thread each (no oversubscription)."""
-    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
-    os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
+from fxc_env.threads import single_threaded_children
 
 
 def run_suite(
@@ -174,7 +48,7 @@ def run_suite(
 
     On this machine over ``workers`` processes (default: all cores), or with ``ray`` as Ray
     tasks on a local Ray (``workers`` cores, default all) or on the cluster at ``address``
-    (:mod:`baselines.ray_jobs`). Every job is seeded, so both give the same results.
+    (:mod:`fxc_env.baselines.ray_jobs`). Every job is seeded, so both give the same results.
     """
     from tqdm import tqdm
 
@@ -184,13 +58,13 @@ def run_suite(
     bar = tqdm(total=len(jobs), desc=f"fxc benchmark ({suite.name})", unit="job", disable=not progress)
     with bar:
         if ray:
-            from baselines.ray_jobs import run_jobs_on_ray
+            from fxc_env.baselines.ray_jobs import run_jobs_on_ray
 
             results = run_jobs_on_ray(longest_first, address=address, num_cpus=workers, on_done=bar.update)
         else:
             workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
             results = []
-            with _single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            with single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
                 for future in as_completed([pool.submit(run_job, job) for job in longest_first]):
                     results.append(future.result())
                     bar.update()
@@ -219,8 +93,6 @@ def run_benchmark(
     address: str | None = None,
 ) -> BenchmarkOutput:
     """Run the suite (see :func:`run_suite`), then write ``table.md``, ``results.csv``, ``episodes.csv`` and three PNGs."""
-    from baselines import figures, report
-
     start = time.perf_counter()
     results = run_suite(suite, contenders, workers=workers, progress=progress, ray=ray, address=address)
     seconds = time.perf_counter() - start

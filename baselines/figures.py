@@ -16,12 +16,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from baselines.report import quantiles
+from fxc_env.baselines.report import quantiles
 from fxc_env.plots import new_figure, save_figure
 
 if TYPE_CHECKING:
-    from baselines.benchmark import JobResult
-    from baselines.suite import Contender, Suite
+    from fxc_env.baselines.jobs import JobResult
+    from fxc_env.baselines.suite import Contender, Suite
 
 #: Values below this (exact agreement, round-off) are drawn at it on log axes.
 DISPLAY_FLOOR = 1e-18

@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from baselines.policy import HoldPolicy
+from fxc_env.baselines.policy import HoldPolicy
 
 
 def sig(z: np.ndarray, power: float) -> np.ndarray:

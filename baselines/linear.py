@@ -14,7 +14,7 @@ Law (agent i, in-neighbours j, ``a_ij = 1``)::
   graph any ``gamma > 0`` passes.
 - Parameters: ``gain`` ``g`` [1, 1/s^2], ``gamma`` [s]. By default gamma is **designed offline**
   from the graph: the value on a log grid with the fastest continuous-time decay (which passes
-  the test; :func:`baselines.design.design_gamma`). A switching period is designed on its
+  the test; :func:`fxc_env.baselines.design.design_gamma`). A switching period is designed on its
   average Laplacian, the graph a fast-sampled law sees; that case is not covered by the
   theorem. An explicit ``gamma`` is used as given (check it with :attr:`passes_gain_test`).
 
@@ -29,8 +29,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from baselines import design
-from baselines.policy import LinearRowPolicy
+from fxc_env.baselines import design
+from fxc_env.baselines.policy import LinearRowPolicy
 
 
 class LinearConsensusPolicy(LinearRowPolicy):

@@ -10,7 +10,7 @@ environment (parallel, AEC, VecEnv) or an :class:`~fxc_env.EnvConfig`, and maps 
 
 Gains that the papers choose from the graph (a Laplacian eigenvalue bound, say) are chosen
 once, offline, by the designer who knows the topology, as the paper's schedule is; they are
-the same for every agent and carry no run-time information (see :mod:`baselines.design`).
+the same for every agent and carry no run-time information (see :mod:`fxc_env.baselines.design`).
 
 Every baseline acts in ``accel`` mode with a zero-order hold: the input it computes at ``t_k``
 is held until ``t_{k+1}``, so the action is ``(u, u)``.

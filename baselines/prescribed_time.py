@@ -40,9 +40,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from baselines import design
-from baselines.finite_time import is_undirected
-from baselines.policy import LinearRowPolicy
+from fxc_env.baselines import design
+from fxc_env.baselines.finite_time import is_undirected
+from fxc_env.baselines.policy import LinearRowPolicy
 
 #: Largest ratio of the sampling period to the fastest closed-loop time constant at the cut-off.
 HOLD_RESOLUTION = 0.2

@@ -1,6 +1,6 @@
 """The benchmark's jobs as Ray tasks: ``fxc benchmark --ray [--address ADDR]``.
 
-Each :class:`~baselines.benchmark.Job` runs :func:`~baselines.benchmark.run_job` as one Ray
+Each :class:`~fxc_env.baselines.jobs.Job` runs :func:`~fxc_env.baselines.jobs.run_job` as one Ray
 task (one CPU, one BLAS thread), on a local Ray or on every node of a cluster. Jobs are
 seeded, so the results, and the table built from them, are those of the single-machine run.
 """
@@ -9,8 +9,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from baselines.benchmark import THREAD_VARIABLES, Job, JobResult, run_job
+from fxc_env.baselines.jobs import Job, JobResult, run_job
 from fxc_env.cluster import ray_session
+from fxc_env.threads import single_thread_environment
 
 
 def run_jobs_on_ray(
@@ -26,7 +27,7 @@ def run_jobs_on_ray(
     (default: all) is started and stopped. ``on_done(n)`` is called as ``n`` jobs finish.
     """
     with ray_session("--ray", address, num_cpus) as ray:
-        task = ray.remote(num_cpus=1, runtime_env={"env_vars": dict.fromkeys(THREAD_VARIABLES, "1")})(run_job)
+        task = ray.remote(num_cpus=1, runtime_env={"env_vars": single_thread_environment()})(run_job)
         pending = [task.remote(job) for job in jobs]
         results: list[JobResult] = []
         while pending:

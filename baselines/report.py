@@ -19,8 +19,8 @@ import numpy as np
 from fxc_env.core.metrics import EpisodeMetrics
 
 if TYPE_CHECKING:
-    from baselines.benchmark import JobResult
-    from baselines.suite import Contender, Suite
+    from fxc_env.baselines.jobs import JobResult
+    from fxc_env.baselines.suite import Contender, Suite
 
 #: Deadline error below which an episode counts as having met the deadline.
 MET_THRESHOLD = 1e-6

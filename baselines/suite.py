@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from baselines.finite_time import FiniteTimePolicy
-from baselines.linear import LinearConsensusPolicy
-from baselines.prescribed_time import PrescribedTimePolicy
-from baselines.sampled import SampledLinearPolicy
+from fxc_env.baselines.finite_time import FiniteTimePolicy
+from fxc_env.baselines.linear import LinearConsensusPolicy
+from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
+from fxc_env.baselines.sampled import SampledLinearPolicy
 from fxc_env.config import CLOCK_SIZE, EnvConfig, make_config
 from fxc_env.learned import load_learned_policy, pretrained_path
 from fxc_env.reference import ReferencePolicy

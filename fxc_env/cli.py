@@ -12,7 +12,10 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.baselines.benchmark import add_benchmark_parser
 from fxc_env.scenarios import SCENARIOS
+from fxc_env.training.args import add_train_parser
+from fxc_env.training.evaluate import add_evaluate_parser
 
 
 def _env_arguments(parser: argparse.ArgumentParser) -> None:
@@ -124,9 +127,22 @@ def simulate_command(args: argparse.Namespace) -> int:
 
 def speed_command(args: argparse.Namespace) -> int:
     from fxc_env import speed
+    from fxc_env.threads import pin_threads_or_reexec
 
-    speed.pin_threads_or_reexec(sys.argv[1:] if args.argv is None else args.argv)
+    pin_threads_or_reexec("fxc_env.cli", sys.argv[1:] if args.argv is None else args.argv)
     return speed.run(args)
+
+
+def train_command(args: argparse.Namespace) -> int:
+    """``fxc train``: the back end named by ``--backend`` trains (see :mod:`fxc_env.training.backends`)."""
+    from fxc_env.training.args import args_from_namespace
+    from fxc_env.training.backends import train
+
+    try:
+        train(args_from_namespace(args))
+    except KeyboardInterrupt:
+        return 130
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -143,13 +159,8 @@ def build_parser() -> argparse.ArgumentParser:
     fast.add_argument("--largest", type=int, default=1_000_000, help="largest N of the scaling table")
     fast.add_argument("--skip-contenders", action="store_true", help="only the scaling table (no MPE2/VMAS)")
     fast.set_defaults(handler=speed_command, argv=None)
-    from training.evaluate import add_evaluate_parser
-    from training.train import add_train_parser
-
-    add_train_parser(commands)
+    add_train_parser(commands).set_defaults(handler=train_command)
     add_evaluate_parser(commands)
-    from baselines.benchmark import add_benchmark_parser
-
     add_benchmark_parser(commands)
     return parser
 

@@ -10,7 +10,7 @@ NaN until the step that ends the episode. It is a wrapper here, not an environme
 because the nested ``episode`` dict is the PettingZoo contract (SPEC 4.4) that other
 consumers read; only the tensor world needs the flat form.
 
-RLlib's PettingZoo wrapper lives with the RLlib trainer (``training.rllib_train``).
+RLlib's PettingZoo wrapper lives with the RLlib trainer (``fxc_env.training.rllib_train``).
 """
 
 from __future__ import annotations

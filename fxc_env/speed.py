@@ -30,17 +30,9 @@ from typing import Any
 
 import numpy as np
 
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+from fxc_env.threads import THREAD_VARIABLES
+
 BENCH_HINT = 'install the optional extra: .venv/bin/pip install -c constraints.txt -e ".[bench]"'
-
-
-def pin_threads_or_reexec(argv: list[str]) -> None:
-    """Re-run this command with one thread per library unless that is already so."""
-    if all(os.environ.get(name) == "1" for name in THREAD_VARIABLES):
-        return
-    env = dict(os.environ, **dict.fromkeys(THREAD_VARIABLES, "1"))
-    sys.stdout.flush()
-    os.execve(sys.executable, [sys.executable, "-m", "fxc_env.cli", *argv], env)
 
 
 def machine_description() -> str:

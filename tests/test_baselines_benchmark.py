@@ -7,8 +7,8 @@ import csv
 import numpy as np
 from PIL import Image
 
-from baselines.benchmark import Job, make_jobs, run_job
-from baselines.suite import Scenario, builtin_contenders, learned_contender, quick_suite
+from fxc_env.baselines.jobs import Job, make_jobs, run_job
+from fxc_env.baselines.suite import Scenario, builtin_contenders, learned_contender, quick_suite
 from fxc_env.cli import main
 
 FIGURES = ("deadline_vs_budget.png", "energy_vs_error.png", "disagreement_vs_time.png")
@@ -79,8 +79,8 @@ def test_a_learned_policy_runs_as_a_contender_or_says_why_not():
 def test_realism_suite_reports_saturation_for_the_reference_under_an_input_limit(tmp_path):
     from dataclasses import replace
 
-    from baselines.benchmark import run_benchmark
-    from baselines.suite import realism_suite
+    from fxc_env.baselines.benchmark import run_benchmark
+    from fxc_env.baselines.suite import realism_suite
 
     full = realism_suite(n_seeds=3, fine_intervals=200)
     assert {s.condition for s in full.scenarios} >= {"ideal", "u_max = 10", "obs_noise = 0.1", "link_dropout = 0.3"}

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from helpers import PAPER_GRAPHS, adjacency_by_hand
 
-from baselines import design
 from fxc_env import make_topology
+from fxc_env.baselines import design
 
 
 def laplacian_by_hand(n, edges):

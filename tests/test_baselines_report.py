@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 
-from baselines.benchmark import Job, JobResult
-from baselines.report import CSV_METRICS, aggregate, quantiles, spread_cell
-from baselines.suite import Scenario, builtin_contenders
+from fxc_env.baselines.jobs import Job, JobResult
+from fxc_env.baselines.report import CSV_METRICS, aggregate, quantiles, spread_cell
+from fxc_env.baselines.suite import Scenario, builtin_contenders
 
 
 def test_quantiles_ignore_nan_and_rank_inf_last():

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from baselines.finite_time import FiniteTimePolicy
-from baselines.suite import (
+from fxc_env import ReferencePolicy, make_config
+from fxc_env.baselines.finite_time import FiniteTimePolicy
+from fxc_env.baselines.suite import (
     BUILTIN_SETTINGS,
     builtin_contenders,
     contender_config,
@@ -15,7 +16,6 @@ from baselines.suite import (
     load_policy,
     quick_suite,
 )
-from fxc_env import ReferencePolicy, make_config
 from fxc_env.learned import LearnedPolicy
 
 

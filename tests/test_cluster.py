@@ -8,7 +8,7 @@ import pytest
 
 from fxc_env import cli
 from fxc_env.cluster import import_ray
-from training.train import TrainArgs, train
+from fxc_env.training import TrainArgs, train
 
 
 @pytest.fixture

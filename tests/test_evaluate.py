@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 
 from fxc_env import cli
-from training.evaluate import EVALUATION_SCENARIOS
+from fxc_env.training.evaluate import EVALUATION_SCENARIOS
 
 
 def test_evaluate_pretrained_prints_and_writes_the_comparison(tmp_path, capsys):

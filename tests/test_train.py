@@ -1,4 +1,4 @@
-"""training.train: a short real PPO run, checkpoints, resume, Ctrl-C, reproducibility."""
+"""fxc_env.training.train: a short real PPO run, checkpoints, resume, Ctrl-C, reproducibility."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ import pytest
 from fxc_env import ReferencePolicy, make_config
 from fxc_env.engine import ConsensusEngine
 from fxc_env.learned import LearnedPolicy, load_model
-from training.checkpoints import RolloutCheckpoint, latest_checkpoint
-from training.train import TrainArgs, load_hyperparams, train
+from fxc_env.training import TrainArgs, train
+from fxc_env.training.args import load_hyperparams
+from fxc_env.training.checkpoints import RolloutCheckpoint, latest_checkpoint
 
 # 4 episodes x 6 agents = 24 sub-environments; one PPO rollout is 200 x 24 = 4800 timesteps.
 SHORT = {"scenario": "paper_fig1", "n_envs": 4, "progress_bar": False}

@@ -3,7 +3,7 @@
 The suite is the paper's example plus the generalisation graphs of issue 5 (directed
 ``ring``, ``path`` and ``random`` at N = 20), 20 seeded initial states each, at the
 reference's budget K = 200; the table, CSVs and plots are the benchmark's
-(:mod:`baselines.benchmark`), written to ``out/evaluate`` by default.
+(:mod:`fxc_env.baselines.benchmark`), written to ``out/evaluate`` by default.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from baselines.benchmark import run_benchmark
-from baselines.suite import Scenario, Suite, builtin_contenders, learned_contender
+from fxc_env.baselines.benchmark import run_benchmark
+from fxc_env.baselines.suite import Scenario, Suite, builtin_contenders, learned_contender
 
 EVALUATION_SCENARIOS = (
     Scenario("paper_fig1", 6),

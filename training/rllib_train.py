@@ -38,7 +38,8 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 import fxc_env
 from fxc_env.cluster import ray_session
 from fxc_env.learned import RLLIB_MODULE, rllib_checkpoint
-from training.train import TrainArgs, load_hyperparams, versions, write_training_curve
+from fxc_env.training.args import TrainArgs, load_hyperparams
+from fxc_env.training.artefacts import versions, write_training_curve
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves both).
 PROGRESS_COLUMNS = (

@@ -1,4 +1,4 @@
-"""training.rllib_train: RLlib PPO on paper_fig1 with 2 env runners on a local Ray, restored and evaluated."""
+"""fxc_env.training.rllib_train: RLlib PPO on paper_fig1 with 2 env runners on a local Ray, restored and evaluated."""
 
 from __future__ import annotations
 
@@ -13,9 +13,10 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 from fxc_env import cli, make_config
 from fxc_env.learned import RLlibPolicy, load_learned_policy
-from training.evaluate import EVALUATION_SCENARIOS
-from training.rllib_train import ConsensusRLlibEnv
-from training.train import HYPERPARAMS, TrainArgs, train
+from fxc_env.training import TrainArgs, train
+from fxc_env.training.args import HYPERPARAMS
+from fxc_env.training.evaluate import EVALUATION_SCENARIOS
+from fxc_env.training.rllib_train import ConsensusRLlibEnv
 
 #: Environment steps per iteration in these tests: two episodes of K = 200 (one per env runner).
 BATCH = 400

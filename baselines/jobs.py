@@ -1,0 +1,128 @@
+"""The benchmark's unit of work: one contender on one scenario at one budget K, and what it measured.
+
+:func:`run_job` runs a :class:`Job` in this process; :mod:`fxc_env.baselines.benchmark` spreads
+jobs over processes, :mod:`fxc_env.baselines.ray_jobs` over a Ray cluster, and
+:mod:`fxc_env.baselines.report` and :mod:`fxc_env.baselines.figures` read the :class:`JobResult`.
+Every job is seeded: its initial states come from the suite's seeds, and measurement
+noise, link dropout and random switching from a generator seeded by the same seeds, so a
+job gives the same numbers wherever and whenever it runs.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fxc_env.baselines.suite import Contender, Scenario, Suite, contender_config, load_policy
+from fxc_env.engine import ConsensusEngine
+
+
+@dataclass(frozen=True)
+class Job:
+    """One contender on one scenario at K intervals, for every seed of the suite."""
+
+    contender: Contender
+    scenario: Scenario
+    n_intervals: int
+    seeds: tuple[int, ...]
+    settling_time: float
+    record_trace: bool
+
+    @property
+    def cost(self) -> float:
+        """Rough relative run time, to start the longest jobs first."""
+        design = 50.0 * self.scenario.n_agents**2 if self.contender.name == "linear_sampled" else 0.0
+        return self.n_intervals * (self.scenario.n_agents + 20.0) * len(self.seeds) + design
+
+
+@dataclass
+class JobResult:
+    """What one job measured.
+
+    Attributes:
+        metrics: SPEC 5 metrics, one ``(B,)`` array per name of
+            :class:`fxc_env.core.metrics.EpisodeMetrics`, plus ``final_value_gap``
+            (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``.
+        trace_times, trace: sampling instants and the median over seeds of ``D(t_k) / D(0)``
+            (only for the suite's trace scenario).
+        description: the policy's law, source, graph class and parameters (as text).
+        parameters: the policy's parameters as numbers.
+        guarantee: whether this run is covered by the policy's theorem.
+        error: why the job could not run (a learned model that does not fit, say), else None.
+    """
+
+    job: Job
+    metrics: dict[str, np.ndarray] = field(default_factory=dict)
+    trace_times: np.ndarray | None = None
+    trace: np.ndarray | None = None
+    description: dict[str, str] = field(default_factory=dict)
+    parameters: dict[str, float] = field(default_factory=dict)
+    guarantee: str = ""
+    error: str | None = None
+    seconds: float = 0.0
+
+
+def make_jobs(suite: Suite, contenders: list[Contender]) -> list[Job]:
+    """Every (contender, scenario, K) of the suite, in table order."""
+    jobs = []
+    for contender in contenders:
+        budgets = suite.budgets if contender.sampled else (suite.fine_intervals,)
+        for scenario in suite.scenarios:
+            for k in budgets:
+                trace = scenario == suite.trace_scenario
+                jobs.append(Job(contender, scenario, k, suite.seeds, suite.settling_time, trace))
+    return jobs
+
+
+def run_job(job: Job) -> JobResult:
+    """Run one job in this process (see :class:`JobResult`)."""
+    start = time.perf_counter()
+    result = JobResult(job)
+    try:
+        config = contender_config(job.contender, job.scenario, job.n_intervals, job.settling_time)
+        policy = load_policy(job.contender.spec, config)
+    except (ValueError, TypeError) as exc:
+        result.error = str(exc)
+        return result
+    describe = getattr(policy, "describe", None)
+    result.description = describe() if describe else {}
+    result.parameters = policy.parameters() if hasattr(policy, "parameters") else {}
+    result.guarantee = policy.guarantee() if hasattr(policy, "guarantee") else _reference_guarantee(job)
+
+    engine = ConsensusEngine(config, n_episodes=len(job.seeds))
+    states = [engine.sample_initial_state(np.random.default_rng(seed)) for seed in job.seeds]
+    # Noise, dropout and random switching draw from the job's own seeded stream.
+    engine.reset(np.stack([x for x, _ in states]), np.stack([v for _, v in states]), rng=job_generator(job))
+    d0 = engine.initial_disagreement.copy()
+    trace = [np.ones(len(job.seeds))] if job.record_trace else None
+    obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
+    with np.errstate(all="ignore"):  # a diverging law overflows; its metrics say so
+        while not engine.done:
+            engine.observations(out=obs)
+            engine.step(np.asarray(policy(obs), dtype=np.float64))
+            if trace is not None:
+                trace.append(engine.current_disagreement / d0)
+        metrics = engine.batch_metrics()
+    relative = metrics["relative_deadline_error"]
+    metrics["relative_deadline_error"] = np.where(np.isfinite(relative), relative, np.inf)
+    metrics["final_value_gap"] = np.abs(metrics["achieved_final_position"] - metrics["predicted_final_position"])
+    metrics["initial_disagreement"] = d0
+    result.metrics = metrics
+    if trace is not None:
+        result.trace_times = config.schedule.times.copy()
+        result.trace = np.median(np.array(trace), axis=1)
+    result.seconds = time.perf_counter() - start
+    return result
+
+
+def _reference_guarantee(job: Job) -> str:
+    if job.contender.name == "reference":
+        return "proven: Theorems 1-2 (limit K -> infinity; finite K leaves a residual)"
+    return "learned: no guarantee"
+
+
+def job_generator(job: Job) -> np.random.Generator:
+    """The generator of a job's noise, dropout and random switching, seeded by its seeds and budget."""
+    return np.random.default_rng([*job.seeds, job.n_intervals])

@@ -1,0 +1,115 @@
+"""The arguments of ``fxc train``, shared by every back end, and the hyperparameter file.
+
+:class:`TrainArgs` is the one description of a training run: ``fxc train --help`` is built
+from its fields and their docstrings (:func:`add_train_parser`), and each back end
+(:mod:`fxc_env.training.train` for stable-baselines3, :mod:`fxc_env.training.rllib_train`
+for Ray RLlib) reads it. Hyperparameters live in a YAML file keyed by scenario, then
+algorithm (``hyperparams.yml`` beside this module).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import itertools
+import textwrap
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
+ALGORITHMS = ("ppo", "sac")
+BACKENDS = ("sb3", "rllib")
+
+
+@dataclass
+class TrainArgs:
+    """Arguments of one training run (``fxc train --help`` lists them too)."""
+
+    scenario: str = "paper_fig1"
+    """Named scenario of :data:`fxc_env.SCENARIOS`; also the key into the hyperparameter file."""
+    algo: str = "ppo"
+    """``ppo`` or ``sac``."""
+    timesteps: int = 2_000_000
+    """Total agent-steps (SB3 timesteps: one per agent per environment step)."""
+    seed: int = 0
+    """Seeds the policy, SB3 and the episodes' initial states."""
+    run_dir: str | None = None
+    """Run directory; default ``runs/<scenario>-<algo>-seed<seed>``."""
+    checkpoint_every: int = 100_000
+    """Save a checkpoint every this many timesteps (rounded to whole environment steps)."""
+    resume: bool = False
+    """Continue from the newest checkpoint in ``run_dir`` (same step count, optimiser state, statistics)."""
+    hyperparams: str = str(HYPERPARAMS)
+    """YAML file of hyperparameters keyed by scenario then algorithm."""
+    n_envs: int | None = None
+    """Parallel episodes; overrides the hyperparameter file."""
+    progress_bar: bool = True
+    """Show SB3's progress bar."""
+    torch_threads: int = 1
+    """Threads torch may use."""
+    backend: str = "sb3"
+    """``sb3`` (stable-baselines3 on this machine) or ``rllib`` (Ray RLlib PPO on a local Ray or a cluster)."""
+    num_env_runners: int = 2
+    """RLlib: env runner actors that sample in parallel (0: sample in this process)."""
+    envs_per_runner: int = 1
+    """RLlib: environments each env runner steps (``n_envs`` is the SB3 setting)."""
+    address: str | None = None
+    """RLlib: the Ray cluster to join (``auto`` or ``HOST:6379``); default: start a local Ray."""
+
+
+def load_hyperparams(path: str | Path, scenario: str, algo: str) -> dict[str, Any]:
+    """The ``env``, ``normalize`` and algorithm entries for ``scenario`` (or ``default``)."""
+    table = yaml.safe_load(Path(path).read_text())
+    entry = table.get(scenario, table.get("default"))
+    if entry is None:
+        raise ValueError(f"hyperparams: {path} has neither {scenario!r} nor 'default'")
+    if algo not in entry:
+        raise ValueError(f"algo: {path} has no {algo!r} entry for {scenario!r}")
+    return {
+        "env": dict(entry.get("env", {})),
+        "normalize": bool(entry.get("normalize", False)),
+        "algo": dict(entry[algo]),
+    }
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """The docstring under each field of a dataclass (the text ``--help`` shows)."""
+    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body  # type: ignore[attr-defined]
+    docs = {}
+    for node, following in itertools.pairwise(body):
+        if (
+            isinstance(node, ast.AnnAssign)
+            and isinstance(following, ast.Expr)
+            and isinstance(following.value, ast.Constant)
+        ):
+            docs[node.target.id] = str(following.value.value)  # type: ignore[union-attr]
+    return docs
+
+
+def add_train_parser(commands: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register ``fxc train``: one option per :class:`TrainArgs` field."""
+    parser = commands.add_parser(
+        "train", help="train a shared policy with PPO or SAC (stable-baselines3), or PPO in Ray RLlib (--backend rllib)"
+    )
+    defaults = TrainArgs()
+    docs = field_docs(TrainArgs)
+    for field in dataclasses.fields(TrainArgs):
+        flag = "--" + field.name.replace("_", "-")
+        default = getattr(defaults, field.name)
+        if isinstance(default, bool):
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=default, help=docs.get(field.name))
+        else:
+            kind = int if field.type in ("int", "int | None") else str
+            parser.add_argument(flag, type=kind, default=default, help=docs.get(field.name))
+    return parser
+
+
+def args_from_namespace(namespace: argparse.Namespace) -> TrainArgs:
+    """The :class:`TrainArgs` an ``fxc train`` command line asks for."""
+    names = {field.name for field in dataclasses.fields(TrainArgs)}
+    return TrainArgs(**{k: v for k, v in vars(namespace).items() if k in names})

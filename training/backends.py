@@ -1,0 +1,29 @@
+"""Which back end trains: ``fxc train --backend sb3|rllib`` lands in :func:`train`.
+
+The back ends share :class:`fxc_env.training.args.TrainArgs` and the run-directory layout;
+each is imported only when chosen (Ray is an optional extra).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fxc_env.training.args import BACKENDS, TrainArgs
+
+
+def train(args: TrainArgs) -> Path:
+    """Run (or resume) training on ``args.backend``; returns the run directory."""
+    if args.backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {args.backend!r}")
+    if args.timesteps < 1:
+        raise ValueError(f"timesteps: expected an integer >= 1, got {args.timesteps!r}")
+    if args.backend == "rllib":
+        from fxc_env.cluster import import_ray
+
+        import_ray("--backend rllib")
+        from fxc_env.training.rllib_train import train_rllib
+
+        return train_rllib(args)
+    from fxc_env.training.train import train_sb3
+
+    return train_sb3(args)
