@@ -32,6 +32,7 @@ from fxc_env.baselines.suite import (
     quick_suite,
     realism_suite,
 )
+from fxc_env.core.validation import ArgumentError
 from fxc_env.threads import single_threaded_children
 
 
@@ -170,11 +171,11 @@ def benchmark_command(args: argparse.Namespace) -> int:
     for name in ("seeds", "workers", "fine_intervals"):
         value = getattr(args, name)
         if value is not None and value < 1:
-            raise ValueError(f"--{name.replace('_', '-')}: expected an integer >= 1, got {value}")
+            raise ArgumentError(f"--{name.replace('_', '-')}: expected an integer >= 1, got {value}")
     if args.address is not None and not args.ray:
-        raise ValueError("--address: joins a Ray cluster for --ray; add --ray")
+        raise ArgumentError("--address: joins a Ray cluster for --ray; add --ray")
     if args.address is not None and args.workers is not None:
-        raise ValueError("--workers: sets the cores of a local Ray; the cluster at --address has its own")
+        raise ArgumentError("--workers: sets the cores of a local Ray; the cluster at --address has its own")
     make_suite = quick_suite if args.quick else realism_suite if args.suite == "realism" else full_suite
     suite = make_suite(args.seeds, **({"fine_intervals": args.fine_intervals} if args.fine_intervals else {}))
     names = None if args.policies is None else [n.strip() for n in args.policies.split(",") if n.strip()]

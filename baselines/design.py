@@ -30,6 +30,7 @@ import numpy as np
 from scipy.sparse import csgraph
 
 from fxc_env.core.graphs import Topology
+from fxc_env.core.validation import ArgumentError
 
 #: Largest N for which the design builds dense matrices.
 DESIGN_LIMIT = 2000
@@ -40,7 +41,9 @@ GAMMA_GRID = np.geomspace(1e-2, 1e3, 241)
 def laplacians(topology: Topology) -> list[np.ndarray]:
     """Dense Laplacians ``L_g = D_g - A_g`` of the period's graphs, each ``(N, N)``."""
     if topology.n_agents > DESIGN_LIMIT:
-        raise ValueError(f"topology: gain design is dense and limited to N <= {DESIGN_LIMIT}, got {topology.n_agents}")
+        raise ArgumentError(
+            f"topology: gain design is dense and limited to N <= {DESIGN_LIMIT}, got {topology.n_agents}"
+        )
     return [topology.laplacian(g).toarray() for g in range(topology.period)]
 
 

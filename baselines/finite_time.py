@@ -24,6 +24,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from fxc_env.baselines.policy import HoldPolicy
+from fxc_env.core.validation import ArgumentError
 
 
 def sig(z: np.ndarray, power: float) -> np.ndarray:
@@ -57,9 +58,9 @@ class FiniteTimePolicy(HoldPolicy):
     def __init__(self, env: Any, alpha: float = 0.5, gain: float = 1.0) -> None:
         super().__init__(env)
         if not 0.0 < alpha < 1.0:
-            raise ValueError(f"alpha: expected a number in (0, 1), got {alpha!r}")
+            raise ArgumentError(f"alpha: expected a number in (0, 1), got {alpha!r}")
         if not np.isfinite(gain) or gain <= 0:
-            raise ValueError(f"gain: expected a positive finite number, got {gain!r}")
+            raise ArgumentError(f"gain: expected a positive finite number, got {gain!r}")
         self.alpha = float(alpha)
         self.alpha_velocity = 2.0 * self.alpha / (1.0 + self.alpha)
         self.gain = float(gain)

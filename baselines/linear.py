@@ -31,6 +31,7 @@ import numpy as np
 
 from fxc_env.baselines import design
 from fxc_env.baselines.policy import LinearRowPolicy
+from fxc_env.core.validation import ArgumentError
 
 
 class LinearConsensusPolicy(LinearRowPolicy):
@@ -53,9 +54,9 @@ class LinearConsensusPolicy(LinearRowPolicy):
     def __init__(self, env: Any, gamma: float | None = None, gain: float = 1.0) -> None:
         super().__init__(env)
         if not np.isfinite(gain) or gain <= 0:
-            raise ValueError(f"gain: expected a positive finite number, got {gain!r}")
+            raise ArgumentError(f"gain: expected a positive finite number, got {gain!r}")
         if gamma is not None and (not np.isfinite(gamma) or gamma <= 0):
-            raise ValueError(f"gamma: expected a positive finite number of seconds, got {gamma!r}")
+            raise ArgumentError(f"gamma: expected a positive finite number of seconds, got {gamma!r}")
         self.gain = float(gain)
         self._gamma = None if gamma is None else float(gamma)
         self._eigenvalues: np.ndarray | None = None

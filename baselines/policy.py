@@ -24,6 +24,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from fxc_env.config import config_of
+from fxc_env.core.validation import ArgumentError
 
 
 class HoldPolicy:
@@ -49,12 +50,14 @@ class HoldPolicy:
         self.config = config_of(env, type(self).__name__)
         self.layout = self.config.layout
         if self.config.action_mode != "accel":
-            raise ValueError(
+            raise ArgumentError(
                 f"action_mode: {type(self).__name__} holds an input (zero-order hold) and needs "
                 f"action_mode='accel', got {self.config.action_mode!r}"
             )
         if self.config.obs_mode not in self.OBS_MODES:
-            raise ValueError(f"obs_mode: {type(self).__name__} supports {self.OBS_MODES}, got {self.config.obs_mode!r}")
+            raise ArgumentError(
+                f"obs_mode: {type(self).__name__} supports {self.OBS_MODES}, got {self.config.obs_mode!r}"
+            )
 
     def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
         """Action(s) ``(..., 2 dim)`` for observation(s) ``(..., obs_size)`` (flat or dict)."""

@@ -43,6 +43,7 @@ import numpy as np
 from fxc_env.baselines import design
 from fxc_env.baselines.finite_time import is_undirected
 from fxc_env.baselines.policy import LinearRowPolicy
+from fxc_env.core.validation import ArgumentError
 
 #: Largest ratio of the sampling period to the fastest closed-loop time constant at the cut-off.
 HOLD_RESOLUTION = 0.2
@@ -68,10 +69,10 @@ class PrescribedTimePolicy(LinearRowPolicy):
     def __init__(self, env: Any, exponent: float = 3.0, cutoff: float | None = None) -> None:
         super().__init__(env)
         if not np.isfinite(exponent) or exponent <= 1.0:
-            raise ValueError(f"exponent: expected a number > 1, got {exponent!r}")
+            raise ArgumentError(f"exponent: expected a number > 1, got {exponent!r}")
         settling_time = self.config.settling_time
         if cutoff is not None and not 0.0 < cutoff < settling_time:
-            raise ValueError(f"cutoff: expected seconds in (0, T_s = {settling_time:g}), got {cutoff!r}")
+            raise ArgumentError(f"cutoff: expected seconds in (0, T_s = {settling_time:g}), got {cutoff!r}")
         self.exponent = float(exponent)
         eigenvalues = design.design_eigenvalues(self.config.topology)
         slowest = float(np.min(eigenvalues.real))

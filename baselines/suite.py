@@ -25,7 +25,9 @@ from fxc_env.baselines.finite_time import FiniteTimePolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
 from fxc_env.baselines.sampled import SampledLinearPolicy
-from fxc_env.config import CLOCK_SIZE, EnvConfig, make_config
+from fxc_env.config import EnvConfig, make_config
+from fxc_env.core.validation import ArgumentError
+from fxc_env.layout import CLOCK_SIZE
 from fxc_env.learned import load_learned_policy, pretrained_path
 from fxc_env.reference import ReferencePolicy
 
@@ -126,7 +128,7 @@ def builtin_contenders(names: list[str] | None = None) -> list[Contender]:
     chosen = list(BUILTIN_SETTINGS) if names is None else names
     unknown = [n for n in chosen if n not in BUILTIN_SETTINGS]
     if unknown:
-        raise ValueError(f"policies: unknown name(s) {unknown}; expected some of {tuple(BUILTIN_SETTINGS)}")
+        raise ArgumentError(f"policies: unknown name(s) {unknown}; expected some of {tuple(BUILTIN_SETTINGS)}")
     return [Contender(n, n, *BUILTIN_SETTINGS[n]) for n in chosen]
 
 
@@ -143,10 +145,10 @@ def learned_contender(
     try:
         obs_size = load_learned_policy(path).obs_size
     except FileNotFoundError as exc:
-        raise ValueError(str(exc)) from exc
+        raise ArgumentError(str(exc)) from exc
     slots, remainder = divmod(obs_size - CLOCK_SIZE, 3)
     if remainder or slots < 1:
-        raise ValueError(f"policy: the model at {path} takes observations of size {obs_size}, not a dim-1 layout")
+        raise ArgumentError(f"policy: the model at {path} takes observations of size {obs_size}, not a dim-1 layout")
     name = path.name if path.is_dir() else path.stem
     return Contender(f"learned:{name}", str(path), True, schedule, action_mode, obs_mode, slots)
 
@@ -283,8 +285,8 @@ def load_policy(spec: str, config: EnvConfig) -> Policy:
         try:
             return load_learned_policy(path, config)
         except FileNotFoundError as exc:
-            raise ValueError(str(exc)) from exc
-    raise ValueError(
+            raise ArgumentError(str(exc)) from exc
+    raise ArgumentError(
         f"policy: unknown {spec!r}; expected 'reference', one of {tuple(BASELINES)}, 'pretrained' "
         "or the path of a saved SB3 model (.zip) or RLlib checkpoint (directory)"
     )

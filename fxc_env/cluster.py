@@ -12,6 +12,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from fxc_env.core.validation import ArgumentError
+
 INSTALL_HINT = 'pip install "fxc-env[rllib]" (Ray 2.60, which needs gymnasium 1.2.2)'
 
 
@@ -20,7 +22,7 @@ def import_ray(option: str) -> Any:
     try:
         import ray
     except ModuleNotFoundError as exc:
-        raise ValueError(f"{option}: Ray is not installed in this environment; {INSTALL_HINT}") from exc
+        raise ArgumentError(f"{option}: Ray is not installed in this environment; {INSTALL_HINT}") from exc
     return ray
 
 
@@ -36,7 +38,7 @@ def ray_session(option: str, address: str | None = None, num_cpus: int | None = 
         yield ray
         return
     if address is not None and num_cpus is not None:
-        raise ValueError(f"{option}: a CPU count applies to a local Ray only, not to the cluster at {address!r}")
+        raise ArgumentError(f"{option}: a CPU count applies to a local Ray only, not to the cluster at {address!r}")
     local = {"num_cpus": num_cpus, "include_dashboard": False} if address is None else {}
     ray.init(address=address or "local", logging_level="WARNING", **local)
     try:

@@ -11,6 +11,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from fxc_env.config import RENDER_MODES, EnvConfig, check_max_cycles, check_render_mode, make_config
+from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine
 from fxc_env.rendering import EpisodeView
 from fxc_env.spaces import action_space, observation_space, state_space
@@ -150,7 +151,7 @@ class ConsensusParallelEnv(ParallelEnv):
         self, seed: int | None = None, options: Mapping[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
         if options is not None and not isinstance(options, Mapping):
-            raise TypeError(f"options: expected a dict or None, got {type(options).__name__}")
+            raise ArgumentTypeError(f"options: expected a dict or None, got {type(options).__name__}")
         options = options or {}
         x0 = self.engine.validate_state("options['x0']", options["x0"]) if "x0" in options else None
         v0 = self.engine.validate_state("options['v0']", options["v0"]) if "v0" in options else None
@@ -191,15 +192,15 @@ class ConsensusParallelEnv(ParallelEnv):
     # ------------------------------------------------------------------- step
     def _action_array(self, actions: Any) -> np.ndarray:
         if type(actions) is not dict and not isinstance(actions, Mapping):
-            raise TypeError(f"actions: expected a dict from agent name to action, got {type(actions).__name__}")
+            raise ArgumentTypeError(f"actions: expected a dict from agent name to action, got {type(actions).__name__}")
         if actions.keys() != self._agent_set:  # every agent is live while the episode runs
             unknown = sorted(set(actions) - self._agent_set, key=str)
             if unknown:
-                raise ValueError(
+                raise ArgumentError(
                     f"actions: unknown agent(s) {unknown}; expected keys agent_0 .. agent_{len(self.possible_agents) - 1}"
                 )
             missing = [agent for agent in self.agents if agent not in actions]
-            raise ValueError(f"actions: missing an action for agent(s) {missing}")
+            raise ArgumentError(f"actions: missing an action for agent(s) {missing}")
         size = self.config.action_size
         try:
             stacked = np.array([actions[agent] for agent in self.possible_agents])
@@ -210,11 +211,11 @@ class ConsensusParallelEnv(ParallelEnv):
             for agent in self.possible_agents:
                 action = np.asarray(actions[agent])
                 if action.dtype.kind not in "biuf":
-                    raise TypeError(f"actions[{agent!r}]: expected real numbers, got {action!r}")
+                    raise ArgumentTypeError(f"actions[{agent!r}]: expected real numbers, got {action!r}")
                 if action.shape != (size,):
-                    raise ValueError(f"actions[{agent!r}]: expected shape ({size},), got {action.shape}")
+                    raise ArgumentError(f"actions[{agent!r}]: expected shape ({size},), got {action.shape}")
                 if not np.all(np.isfinite(action)):
-                    raise ValueError(f"actions[{agent!r}]: every entry must be finite (no NaN or inf), got {action}")
+                    raise ArgumentError(f"actions[{agent!r}]: every entry must be finite (no NaN or inf), got {action}")
         return array[None]
 
     def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:

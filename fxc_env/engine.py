@@ -19,10 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fxc_env.config import EnvConfig, validate_state_array
-from fxc_env.core import dynamics, slots
+from fxc_env.config import EnvConfig
+from fxc_env.core import dynamics, slots, validation
 from fxc_env.core.graphs import DENSE_LIMIT
 from fxc_env.core.metrics import SETTLING_THRESHOLDS, EpisodeMetrics, disagreement, reward_floor, spread
+from fxc_env.core.validation import ArgumentError
 
 TINY = np.finfo(np.float64).tiny
 
@@ -63,6 +64,7 @@ class ConsensusEngine:
         #: ``(B, N, 2, dim)``: ``state[:, :, 0]`` positions, ``state[:, :, 1]`` velocities,
         #: side by side so one gather fetches both of a neighbour's values.
         self.state = np.zeros((self.n_episodes, n, 2, dim))
+        self._spare = np.zeros_like(self.state)
         self.x0 = np.zeros(shape)
         self.v0 = np.zeros(shape)
         self.k = 0
@@ -130,8 +132,8 @@ class ConsensusEngine:
         self._reset_trackers()
 
     def validate_state(self, name: str, value: object) -> np.ndarray:
-        """A user-given ``(N, dim)`` state array, checked (see :func:`validate_state_array`)."""
-        return validate_state_array(name, value, self.config.n_agents, self.config.dim)
+        """A user-given ``(N, dim)`` state array, checked (see :func:`fxc_env.core.validation.state_array`)."""
+        return validation.state_array(name, value, self.config.n_agents, self.config.dim)
 
     def _reset_trackers(self) -> None:
         b, n = self.n_episodes, self.config.n_agents
@@ -242,16 +244,9 @@ class ConsensusEngine:
 
     # ----------------------------------------------------------------- action
     def validate_actions(self, actions: object, name: str = "actions") -> np.ndarray:
-        """Check a ``(B, N, 2 dim)`` real, finite action array; raise naming ``name``."""
-        array = np.asarray(actions)
+        """A ``(B, N, 2 dim)`` real, finite action array as float64; raise naming ``name`` otherwise."""
         expected = (self.n_episodes, self.config.n_agents, self.config.action_size)
-        if array.dtype.kind not in "biuf":
-            raise TypeError(f"{name}: expected real numbers, got dtype {array.dtype}")
-        if array.shape != expected:
-            raise ValueError(f"{name}: expected shape {expected}, got {array.shape}")
-        if not np.all(np.isfinite(array)):
-            raise ValueError(f"{name}: every entry must be finite (no NaN or inf)")
-        return array.astype(np.float64, copy=False)
+        return validation.action_array(name, actions, expected)
 
     def inputs_from_actions(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Map actions to the affine input's end values ``(u(t_k+), u(t_{k+1}-))`` (SPEC 4.3)."""
@@ -273,19 +268,33 @@ class ConsensusEngine:
         if self.done:
             raise RuntimeError("step: the episode reached T_s; reset before stepping again")
         T = self.current_interval()
-        u0, u1 = self.inputs_from_actions(actions)
         u_max = self.config.u_max
-        if u_max is None:
-            energy, peak = dynamics.advance_in_place(self.x, self.v, u0, u1, T)
+        # Double buffering: the interval is played into the spare buffer, which becomes the
+        # state only once the result is known to be finite (a refused step changes nothing).
+        previous, following = self.state, self._spare
+        with np.errstate(over="ignore", invalid="ignore"):
+            u0, u1 = self.inputs_from_actions(actions)
+            if u_max is None:
+                energy, peak = dynamics.advance_into(self.x, self.v, u0, u1, T, following[:, :, 0], following[:, :, 1])
+                saturated_time = None
+            else:
+                x_next, v_next, energy, peak, saturated_time = dynamics.advance_clipped(
+                    self.x, self.v, u0, u1, T, u_max
+                )
+                following[:, :, 0] = x_next
+                following[:, :, 1] = v_next
+            self.state, self._spare = following, previous
+            disagreement_next = self._disagreement()
+        if not (np.isfinite(disagreement_next).all() and np.isfinite(energy).all()):
+            self.state, self._spare = previous, following
+            raise self._overflow_error(actions, energy, disagreement_next)
+        if saturated_time is None:
             saturated = self._no_saturation
         else:
-            x_next, v_next, energy, peak, saturated_time = dynamics.advance_clipped(self.x, self.v, u0, u1, T, u_max)
-            self.x[...] = x_next
-            self.v[...] = v_next
             saturated = saturated_time.mean(axis=-1) / T
             self.saturated_time += saturated_time.mean(axis=-1)
         self.k += 1
-        self.current_disagreement = self._disagreement()
+        self.current_disagreement = disagreement_next
         log_previous = self._log_disagreement
         self._log_disagreement = np.log(self.current_disagreement + self.floor)
         reward = log_previous - self._log_disagreement
@@ -295,6 +304,21 @@ class ConsensusEngine:
         np.copyto(self.last_above, self.k, where=above)
         self._draw_graphs()
         return StepOutcome(reward, energy, peak, u0, u1, saturated, self.done)
+
+    def _overflow_error(self, actions: np.ndarray, energy: np.ndarray, disagreement_next: np.ndarray) -> ArgumentError:
+        """The error of a step whose result would not be finite in float64, naming what caused it."""
+        bad_episodes = np.flatnonzero(~np.isfinite(disagreement_next) | ~np.isfinite(energy).all(axis=-1))
+        b = int(bad_episodes[0])
+        agents = np.flatnonzero(~np.isfinite(energy[b]) | ~np.isfinite(self._spare[b]).all(axis=(-2, -1)))
+        shown = [int(a) for a in agents[:10]]
+        episode = f" in episode {b}" if self.n_episodes > 1 else ""
+        largest = float(np.max(np.abs(actions[b])))
+        return ArgumentError(
+            f"actions: the interval k = {self.k} (T = {self.current_interval():g} s) would overflow float64{episode} "
+            f"(agents {shown}: a non-finite state, energy or disagreement); the largest action entry is {largest:g}. "
+            "The step was refused and the state is unchanged; smaller actions (or a smaller obs_noise / state "
+            "scale) keep it finite"
+        )
 
     def _disagreement(self) -> np.ndarray:
         """``D = e_x + T_s e_v`` per episode; for ``dim = 1`` from one max and one min over agents."""

@@ -24,6 +24,7 @@ from pettingzoo import ParallelEnv
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
 from fxc_env.core.metrics import EpisodeMetrics
+from fxc_env.core.validation import ArgumentError
 
 #: Prefix of the flat episode-metric keys (``episode_relative_deadline_error``, ...).
 EPISODE_PREFIX = "episode_"
@@ -68,7 +69,7 @@ def torchrl_env(group: str = "agents", **kwargs: Any) -> Any:
     try:
         from torchrl.envs.libs.pettingzoo import PettingZooWrapper
     except ModuleNotFoundError as exc:
-        raise ValueError('torchrl_env: TorchRL is not installed; pip install "fxc-env[torchrl]"') from exc
+        raise ArgumentError('torchrl_env: TorchRL is not installed; pip install "fxc-env[torchrl]"') from exc
     from fxc_env.fxc_consensus_v0 import parallel_env
 
     env = FlatEpisodeInfos(parallel_env(**kwargs))

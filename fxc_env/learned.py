@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.core.validation import ArgumentError
+
 #: The policy trained on ``paper_fig1`` that ships with the package (see ``training/README``).
 PRETRAINED = "paper_fig1_ppo.zip"
 #: The RLModule that ``fxc train --backend rllib`` shares between all agents.
@@ -43,7 +45,7 @@ def load_model(path: str | Path) -> Any:
             return algo.load(path, device="cpu")
         except (ValueError, KeyError, TypeError, RuntimeError) as exc:  # wrong algorithm for this file
             errors.append(f"{algo.__name__}: {exc}")
-    raise ValueError(f"policy: {path} is neither a PPO nor a SAC model ({'; '.join(errors)})")
+    raise ArgumentError(f"policy: {path} is neither a PPO nor a SAC model ({'; '.join(errors)})")
 
 
 class LearnedPolicy:
@@ -87,7 +89,7 @@ def check_sizes(env: Any, obs_size: int, action_size: int, who: str) -> None:
 
     config = config_of(env, who)
     if (config.layout.size, config.action_size) != (obs_size, action_size):
-        raise ValueError(
+        raise ArgumentError(
             f"policy: the model takes observations of size {obs_size} and gives actions of size "
             f"{action_size}; this environment has {config.layout.size} and {config.action_size} "
             "(train with the same obs_slots, dim and modes, or pass obs_slots)"
@@ -132,11 +134,11 @@ class RLlibPolicy:
             )
         module_dir = found / "learner_group" / "learner" / "rl_module" / module_id
         if not module_dir.is_dir():
-            raise ValueError(f"policy: the RLlib checkpoint {found} has no module {module_id!r}")
+            raise ArgumentError(f"policy: the RLlib checkpoint {found} has no module {module_id!r}")
         try:
             from ray.rllib.core.rl_module.rl_module import RLModule
         except ModuleNotFoundError as exc:
-            raise ValueError(
+            raise ArgumentError(
                 f"policy: {found} is an RLlib checkpoint, and Ray RLlib is not installed here; "
                 'pip install "fxc-env[rllib]"'
             ) from exc

@@ -7,12 +7,16 @@ SPEC 2 gives our reconstruction). Keyword arguments given next to ``scenario`` o
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import Any
+
+from fxc_env.core.validation import ArgumentError
 
 PAPER_X0 = (1.0, -1.0, 2.0, 4.0, -4.0, -2.0)
 PAPER_V0 = (1.0, 2.0, 3.0, -3.0, -2.0, 0.0)
 
-SCENARIOS: dict[str, dict[str, Any]] = {
+_PRESETS: dict[str, dict[str, Any]] = {
     # The paper's example with the assumed Fig. 1 (periodic switching, Theorem 2).
     "paper_fig1": {
         "n_agents": 6,
@@ -39,8 +43,16 @@ SCENARIOS: dict[str, dict[str, Any]] = {
 }
 
 
-def scenario_kwargs(name: str) -> dict[str, Any]:
-    """A copy of the keyword arguments of scenario ``name``."""
-    if name not in SCENARIOS:
-        raise ValueError(f"scenario: unknown name {name!r}; expected one of {tuple(SCENARIOS)}")
+#: The named presets, read-only: ``make_config`` copies one and lets explicit arguments override it.
+SCENARIOS: Mapping[str, Mapping[str, Any]] = MappingProxyType(
+    {name: MappingProxyType(preset) for name, preset in _PRESETS.items()}
+)
+
+
+def scenario_preset(name: str | None) -> dict[str, Any]:
+    """A fresh dict of scenario ``name``'s keyword arguments (empty for ``None``)."""
+    if name is None:
+        return {}
+    if not isinstance(name, str) or name not in SCENARIOS:
+        raise ArgumentError(f"scenario: expected None or one of {tuple(SCENARIOS)}, got {name!r}")
     return dict(SCENARIOS[name])

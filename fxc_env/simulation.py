@@ -11,6 +11,7 @@ import numpy as np
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.dynamics import advance_clipped, state_inside
 from fxc_env.core.metrics import EpisodeMetrics, disagreement
+from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 from fxc_env.reference import ReferencePolicy
 
@@ -77,7 +78,7 @@ def simulate(
     v_start = drawn_v if v0 is None else engine.validate_state("v0", v0)
     act = ReferencePolicy(config) if isinstance(policy, str) and policy == "reference" else policy
     if isinstance(act, str):
-        raise ValueError(f"policy: expected 'reference' or a callable, got {policy!r}")
+        raise ArgumentError(f"policy: expected 'reference' or a callable, got {policy!r}")
     engine.reset(x_start[None], v_start[None])
     k_total = config.n_intervals
     xs, vs = [engine.x[0].copy()], [engine.v[0].copy()]

@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 
-from fxc_env.config import CLOCK_SIZE, EnvConfig
+from fxc_env.config import EnvConfig
+from fxc_env.layout import CLOCK_SIZE
 
 
 def observation_space(config: EnvConfig) -> spaces.Space:

@@ -20,6 +20,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 from fxc_env.config import EnvConfig, check_max_cycles, check_render_mode, make_config
 from fxc_env.consensus_env import ConsensusParallelEnv
 from fxc_env.core.metrics import metrics_rows
+from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, StepOutcome
 from fxc_env.rendering import EpisodeView
 from fxc_env.spaces import action_space, observation_space
@@ -72,12 +73,12 @@ class ConsensusVecEnv(VecEnv):
         self, n_envs: int, *, render_mode: str | None = None, max_cycles: int | None = None, **env_kwargs: Any
     ) -> None:
         if isinstance(n_envs, bool) or not isinstance(n_envs, int | np.integer) or n_envs < 1:
-            raise ValueError(f"n_envs: expected an integer >= 1, got {n_envs!r}")
+            raise ArgumentError(f"n_envs: expected an integer >= 1, got {n_envs!r}")
         check_render_mode(render_mode)
         check_max_cycles(max_cycles)
         config = make_config(**env_kwargs)
         if config.obs_format != "flat":
-            raise ValueError(
+            raise ArgumentError(
                 f"obs_format: ConsensusVecEnv supports only obs_format='flat' (a Box per agent), "
                 f"got {config.obs_format!r}"
             )
@@ -102,7 +103,7 @@ class ConsensusVecEnv(VecEnv):
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
         """Seed sub-environment i with ``seed + i`` at the next :meth:`reset` (random if None)."""
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0):
-            raise ValueError(f"seed: expected None or an integer >= 0, got {seed!r}")
+            raise ArgumentError(f"seed: expected None or an integer >= 0, got {seed!r}")
         return super().seed(None if seed is None else int(seed))
 
     def reset(self) -> np.ndarray:
@@ -130,7 +131,7 @@ class ConsensusVecEnv(VecEnv):
 
     def _initial_state_options(self, options: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
         if not isinstance(options, Mapping):
-            raise TypeError(f"options: expected a dict or None, got {type(options).__name__}")
+            raise ArgumentTypeError(f"options: expected a dict or None, got {type(options).__name__}")
         validate = self.engine.validate_state
         x0 = validate("options['x0']", options["x0"]) if "x0" in options else None
         v0 = validate("options['v0']", options["v0"]) if "v0" in options else None
@@ -174,11 +175,11 @@ class ConsensusVecEnv(VecEnv):
         array = np.asarray(actions)
         expected = (self.num_envs, self.config.action_size)
         if array.dtype.kind not in "biuf":
-            raise TypeError(f"actions: expected real numbers, got dtype {array.dtype}")
+            raise ArgumentTypeError(f"actions: expected real numbers, got dtype {array.dtype}")
         if array.shape != expected:
-            raise ValueError(f"actions: expected shape {expected} (num_envs, 2 dim), got {array.shape}")
+            raise ArgumentError(f"actions: expected shape {expected} (num_envs, 2 dim), got {array.shape}")
         if not np.all(np.isfinite(array)):
-            raise ValueError("actions: every entry must be finite (no NaN or inf)")
+            raise ArgumentError("actions: every entry must be finite (no NaN or inf)")
         self._actions = array.astype(np.float64).reshape(self.n_envs, self.n_agents, -1)
 
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
@@ -226,7 +227,7 @@ class ConsensusVecEnv(VecEnv):
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         """Set ``attr_name`` on the shared environment; ``indices`` must cover every sub-env."""
         if {i % self.num_envs for i in self._index_list(indices)} != set(range(self.num_envs)):
-            raise ValueError(
+            raise ArgumentError(
                 "indices: all sub-environments share one environment, so set_attr applies to all of them; "
                 "pass indices=None"
             )

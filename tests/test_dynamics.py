@@ -165,14 +165,14 @@ def test_functions_broadcast_over_leading_dimensions():
 
 
 def test_advance_in_place_equals_the_separate_closed_forms():
-    from fxc_env.core.dynamics import advance, advance_in_place, interval_energy, interval_peak
+    from fxc_env.core.dynamics import advance, advance_into, interval_energy, interval_peak
 
     rng = np.random.default_rng(8)
     for dim in (1, 3):
         x, v, u0, u1 = (rng.normal(size=(4, 5, dim)) for _ in range(4))
         T = 0.37
         expected_x, expected_v = advance(x, v, u0, u1, T)
-        energy, peak = advance_in_place(x, v, u0, u1, T)
+        energy, peak = advance_into(x, v, u0, u1, T, x, v)
         np.testing.assert_allclose(x, expected_x, rtol=1e-15, atol=1e-15)
         np.testing.assert_allclose(v, expected_v, rtol=1e-15, atol=1e-15)
         np.testing.assert_allclose(energy, interval_energy(u0, u1, T), rtol=1e-14)

@@ -21,6 +21,8 @@ from typing import Any
 
 import yaml
 
+from fxc_env.core.validation import ArgumentError
+
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGORITHMS = ("ppo", "sac")
 BACKENDS = ("sb3", "rllib")
@@ -67,9 +69,9 @@ def load_hyperparams(path: str | Path, scenario: str, algo: str) -> dict[str, An
     table = yaml.safe_load(Path(path).read_text())
     entry = table.get(scenario, table.get("default"))
     if entry is None:
-        raise ValueError(f"hyperparams: {path} has neither {scenario!r} nor 'default'")
+        raise ArgumentError(f"hyperparams: {path} has neither {scenario!r} nor 'default'")
     if algo not in entry:
-        raise ValueError(f"algo: {path} has no {algo!r} entry for {scenario!r}")
+        raise ArgumentError(f"algo: {path} has no {algo!r} entry for {scenario!r}")
     return {
         "env": dict(entry.get("env", {})),
         "normalize": bool(entry.get("normalize", False)),

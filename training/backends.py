@@ -8,15 +8,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from fxc_env.core.validation import ArgumentError
 from fxc_env.training.args import BACKENDS, TrainArgs
 
 
 def train(args: TrainArgs) -> Path:
     """Run (or resume) training on ``args.backend``; returns the run directory."""
     if args.backend not in BACKENDS:
-        raise ValueError(f"backend: expected one of {BACKENDS}, got {args.backend!r}")
+        raise ArgumentError(f"backend: expected one of {BACKENDS}, got {args.backend!r}")
     if args.timesteps < 1:
-        raise ValueError(f"timesteps: expected an integer >= 1, got {args.timesteps!r}")
+        raise ArgumentError(f"timesteps: expected an integer >= 1, got {args.timesteps!r}")
     if args.backend == "rllib":
         from fxc_env.cluster import import_ray
 

@@ -13,6 +13,7 @@ import sys
 
 from fxc_env.baselines.benchmark import run_benchmark
 from fxc_env.baselines.suite import Scenario, Suite, builtin_contenders, learned_contender
+from fxc_env.core.validation import ArgumentError
 
 EVALUATION_SCENARIOS = (
     Scenario("paper_fig1", 6),
@@ -56,11 +57,11 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
 
 def evaluate_command(args: argparse.Namespace) -> int:
     if args.seeds < 1:
-        raise ValueError(f"--seeds: expected an integer >= 1, got {args.seeds}")
+        raise ArgumentError(f"--seeds: expected an integer >= 1, got {args.seeds}")
     try:
         budgets = tuple(int(k) for k in args.budgets.split(","))
     except ValueError as exc:
-        raise ValueError(f"--budgets: expected comma-separated integers, got {args.budgets!r}") from exc
+        raise ArgumentError(f"--budgets: expected comma-separated integers, got {args.budgets!r}") from exc
     contenders = builtin_contenders(["reference"])
     if args.policy != "reference":
         contenders.append(learned_contender(args.policy))

@@ -37,6 +37,7 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 import fxc_env
 from fxc_env.cluster import ray_session
+from fxc_env.core.validation import ArgumentError
 from fxc_env.learned import RLLIB_MODULE, rllib_checkpoint
 from fxc_env.training.args import TrainArgs, load_hyperparams
 from fxc_env.training.artefacts import versions, write_training_curve
@@ -138,11 +139,11 @@ def train_rllib(args: TrainArgs) -> Path:
     import torch
 
     if args.algo != "ppo":
-        raise ValueError(f"algo: the rllib backend trains 'ppo', got {args.algo!r}")
+        raise ArgumentError(f"algo: the rllib backend trains 'ppo', got {args.algo!r}")
     if args.num_env_runners < 0:
-        raise ValueError(f"num_env_runners: expected an integer >= 0, got {args.num_env_runners!r}")
+        raise ArgumentError(f"num_env_runners: expected an integer >= 0, got {args.num_env_runners!r}")
     if args.envs_per_runner < 1:
-        raise ValueError(f"envs_per_runner: expected an integer >= 1, got {args.envs_per_runner!r}")
+        raise ArgumentError(f"envs_per_runner: expected an integer >= 1, got {args.envs_per_runner!r}")
     torch.set_num_threads(args.torch_threads)
     run_dir = Path(args.run_dir or f"runs/{args.scenario}-rllib-{args.algo}-seed{args.seed}")
     params = load_hyperparams(args.hyperparams, args.scenario, f"rllib_{args.algo}")
@@ -152,7 +153,7 @@ def train_rllib(args: TrainArgs) -> Path:
     save_every = max(1, math.ceil(args.checkpoint_every / per_iteration))
     checkpoint = latest_rllib_checkpoint(run_dir) if args.resume else None
     if args.resume and checkpoint is None:
-        raise ValueError(f"resume: no RLlib checkpoint in {run_dir / 'checkpoints'}")
+        raise ArgumentError(f"resume: no RLlib checkpoint in {run_dir / 'checkpoints'}")
 
     with ray_session("--backend rllib", args.address) as ray:
         # ------------------------------------------------------------------ set-up

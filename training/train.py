@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from fxc_env.core.validation import ArgumentError
 from fxc_env.training.args import ALGORITHMS, TrainArgs, load_hyperparams
 from fxc_env.training.artefacts import versions, write_training_curve
 
@@ -53,7 +54,7 @@ def train_sb3(args: TrainArgs) -> Path:
     from fxc_env.training.checkpoints import RolloutCheckpoint, latest_checkpoint, save_checkpoint, vecnormalize_path
 
     if args.algo not in ALGORITHMS:
-        raise ValueError(f"algo: expected one of {ALGORITHMS}, got {args.algo!r}")
+        raise ArgumentError(f"algo: expected one of {ALGORITHMS}, got {args.algo!r}")
     torch.set_num_threads(args.torch_threads)
     run_dir = Path(args.run_dir or f"runs/{args.scenario}-{args.algo}-seed{args.seed}")
     params = load_hyperparams(args.hyperparams, args.scenario, args.algo)
@@ -63,7 +64,7 @@ def train_sb3(args: TrainArgs) -> Path:
     algo_class = {"ppo": PPO, "sac": SAC}[args.algo]
     checkpoint = latest_checkpoint(run_dir) if args.resume else None
     if args.resume and checkpoint is None:
-        raise ValueError(f"resume: no checkpoint in {run_dir / 'checkpoints'}")
+        raise ArgumentError(f"resume: no checkpoint in {run_dir / 'checkpoints'}")
     if checkpoint is not None:
         if isinstance(venv, VecNormalize):
             venv = VecNormalize.load(str(vecnormalize_path(checkpoint)), venv.venv)

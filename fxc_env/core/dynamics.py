@@ -53,17 +53,24 @@ def state_inside(
     return x_s, v_s, u
 
 
-def advance_in_place(
-    x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T: float
+def advance_into(
+    x: np.ndarray,
+    v: np.ndarray,
+    u0: np.ndarray,
+    u1: np.ndarray,
+    T: float,
+    x_out: np.ndarray,
+    v_out: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`advance` written into ``x`` and ``v``, returning :func:`interval_energy` and :func:`interval_peak`.
+    """:func:`advance` written into ``x_out`` and ``v_out``, returning :func:`interval_energy` and :func:`interval_peak`.
 
     The same closed forms with ``u0 + u1`` formed once: the stepping path of the engine,
-    where a handful of small arrays make numpy's per-call cost dominate.
+    where a handful of small arrays make numpy's per-call cost dominate. ``x_out`` may be
+    ``x`` (and ``v_out`` ``v``) to advance in place.
     """
     total = u0 + u1
-    x += T * v + (T * T / 6.0) * (u0 + total)
-    v += (0.5 * T) * total
+    np.add(x, T * v + (T * T / 6.0) * (u0 + total), out=x_out)
+    np.add(v, (0.5 * T) * total, out=v_out)
     per_component = (u0 * total + u1 * u1) * (T / 3.0)
     largest = np.maximum(np.abs(u0), np.abs(u1))
     if per_component.shape[-1] == 1:

@@ -20,6 +20,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
+from fxc_env.core import validation
+from fxc_env.core.validation import ArgumentError, ArgumentTypeError
+
 TOPOLOGY_NAMES = ("paper_fig1", "ring", "path", "star", "complete", "random")
 
 #: Largest N for which :meth:`Topology.consensus_weights` builds dense matrices.
@@ -146,7 +149,7 @@ class Topology:
 
     def _require_dense(self, what: str) -> None:
         if self.n_agents > DENSE_LIMIT:
-            raise ValueError(
+            raise ArgumentError(
                 f"{what}: builds dense (N, N) matrices and is limited to N <= {DENSE_LIMIT}; "
                 f"this topology has N = {self.n_agents}"
             )
@@ -202,50 +205,84 @@ def check_spanning_tree(topology: Topology, argument: str = "topology") -> None:
         shown = ", ".join(str(int(a)) for a in unreached[:20])
         more = f" and {len(unreached) - 20} more" if len(unreached) > 20 else ""
         joint = "the union of the graphs of the period" if topology.period > 1 else "the graph"
-        raise ValueError(
+        raise ArgumentError(
             f"{argument}: {joint} has no directed spanning tree, so consensus is impossible: "
             f"the best root candidate, agent {root}, cannot reach agents [{shown}{more}] "
             "(edges (j, i) mean i receives from j)"
         )
 
 
-def _normalise_edges(edges: Any, n_agents: int, argument: str, position: str) -> np.ndarray:
-    """Validate one edge list and return it as a sorted ``(E, 2)`` int64 array."""
+def _edge_array(edges: Any, argument: str, position: str) -> np.ndarray:
+    """One edge list as an ``(E, 2)`` int64 array of integer node indices of magnitude below ``MAX_AGENTS``."""
+    expected = "a sequence of (j, i) pairs of integer node indices"
+    if isinstance(edges, str | bytes) or edges is None:
+        raise ArgumentTypeError(f"{argument}: {position} must be {expected}, got {edges!r}")
     try:
-        array = np.asarray(edges, dtype=float)
+        array = np.asarray(edges)
     except (TypeError, ValueError) as exc:
-        raise TypeError(f"{argument}: {position} must be a sequence of (j, i) pairs of ints") from exc
+        raise ArgumentTypeError(f"{argument}: {position} must be {expected}") from exc
     if array.size == 0:
         return np.zeros((0, 2), dtype=np.int64)
+    if array.dtype.kind not in "biuf":
+        raise ArgumentTypeError(f"{argument}: {position} must be {expected}, got entries of dtype {array.dtype}")
     if array.ndim != 2 or array.shape[1] != 2:
-        raise ValueError(
-            f"{argument}: {position} must be a sequence of (j, i) pairs, got an array of shape {array.shape}"
-        )
+        raise ArgumentError(f"{argument}: {position} must be {expected}, got an array of shape {array.shape}")
+    array = array.astype(np.float64)
     if not np.all(np.isfinite(array)) or not np.all(array == np.round(array)):
-        raise ValueError(f"{argument}: {position} must contain integer node indices")
-    array = array.astype(np.int64)
+        raise ArgumentError(f"{argument}: {position} must contain integer node indices, got {_first_bad(array)!r}")
+    huge = np.abs(array) >= validation.MAX_AGENTS
+    if huge.any():
+        raise ArgumentError(
+            f"{argument}: {position} has node {array[huge][0]:g} outside 0..{validation.MAX_AGENTS - 1} "
+            "(the most agents an episode takes)"
+        )
+    return array.astype(np.int64)
+
+
+def _first_bad(array: np.ndarray) -> float:
+    bad = ~np.isfinite(array) | (array != np.round(np.nan_to_num(array)))
+    return float(array[bad][0])
+
+
+def _normalise_edges(edges: Any, n_agents: int, argument: str, position: str) -> np.ndarray:
+    """Validate one edge list and return it as a sorted ``(E, 2)`` int64 array."""
+    array = _edge_array(edges, argument, position)
+    if array.size == 0:
+        return array
     bad = (array < 0) | (array >= n_agents)
     if bad.any():
         row = int(np.flatnonzero(bad.any(axis=1))[0])
-        raise ValueError(
+        raise ArgumentError(
             f"{argument}: {position} has edge {tuple(int(a) for a in array[row])} with a node "
             f"outside 0..{n_agents - 1} (n_agents = {n_agents})"
         )
     loops = array[:, 0] == array[:, 1]
     if loops.any():
         node = int(array[loops][0, 0])
-        raise ValueError(f"{argument}: {position} has a self-loop ({node}, {node}); self-loops are not allowed")
+        raise ArgumentError(f"{argument}: {position} has a self-loop ({node}, {node}); self-loops are not allowed")
     keys = array[:, 1] * n_agents + array[:, 0]
     order = np.argsort(keys, kind="stable")
     keys = keys[order]
     duplicate = np.flatnonzero(keys[1:] == keys[:-1])
     if len(duplicate):
         row = array[order][duplicate[0]]
-        raise ValueError(f"{argument}: {position} lists edge ({int(row[0])}, {int(row[1])}) more than once")
+        raise ArgumentError(f"{argument}: {position} lists edge ({int(row[0])}, {int(row[1])}) more than once")
     return np.ascontiguousarray(array[order])
 
 
-def _digraph_edges(graph: Any) -> list[tuple[int, int]]:
+def _digraph_nodes(graph: Any, argument: str, position: str) -> list[int]:
+    """The node labels of a networkx DiGraph, which must be integers ``0..N-1``."""
+    nodes = list(graph.nodes())
+    for node in nodes:
+        if isinstance(node, bool | np.bool_) or not isinstance(node, int | np.integer):
+            raise ArgumentTypeError(
+                f"{argument}: {position} is a networkx graph whose node labels must be the integers 0..N-1, got {node!r}"
+            )
+    return [int(node) for node in nodes]
+
+
+def _digraph_edges(graph: Any, argument: str, position: str) -> list[tuple[int, int]]:
+    _digraph_nodes(graph, argument, position)
     return [(int(u), int(v)) for u, v in graph.edges()]
 
 
@@ -263,17 +300,17 @@ def _is_edge_list_period(spec: Sequence[Any]) -> bool:
     return isinstance(first, Sequence) and (len(first) == 0 or isinstance(first[0], Sequence | np.ndarray))
 
 
-def _infer_n_agents(graphs: Iterable[Any]) -> int:
+def _infer_n_agents(graphs: Iterable[Any], positions: Iterable[str]) -> int:
     largest = -1
-    for graph in graphs:
+    for graph, position in zip(graphs, positions, strict=True):
         if _is_digraph(graph):
-            nodes = [int(v) for v in graph.nodes()]
+            nodes = _digraph_nodes(graph, "topology", position)
             largest = max(largest, max(nodes, default=-1))
         else:
-            array = np.asarray(graph, dtype=float).reshape(-1)
+            array = _edge_array(graph, "topology", position)
             largest = max(largest, int(array.max()) if array.size else -1)
     if largest < 0:
-        raise ValueError("n_agents: cannot be inferred from a topology without edges; pass n_agents")
+        raise ArgumentError("n_agents: cannot be inferred from a topology without edges; pass n_agents")
     return largest + 1
 
 
@@ -302,12 +339,11 @@ def make_topology(
         ValueError / TypeError naming ``topology`` or ``n_agents`` for malformed input.
     """
     if n_agents is not None:
-        if isinstance(n_agents, bool) or not isinstance(n_agents, int | np.integer) or n_agents < 1:
-            raise ValueError(f"n_agents: expected an integer >= 1, got {n_agents!r}")
-        n_agents = int(n_agents)
+        n_agents = validation.integer("n_agents", n_agents, 1, validation.MAX_AGENTS)
+    seed = validation.optional_seed("topology_seed", seed)
     if isinstance(topology, Topology):
         if n_agents is not None and n_agents != topology.n_agents:
-            raise ValueError(f"n_agents: {n_agents} disagrees with the given Topology's {topology.n_agents} agents")
+            raise ArgumentError(f"n_agents: {n_agents} disagrees with the given Topology's {topology.n_agents} agents")
         result = topology
     elif isinstance(topology, str):
         result = named_topology(
@@ -321,18 +357,18 @@ def make_topology(
         elif isinstance(topology, Sequence | np.ndarray):
             graphs = [topology]
         else:
-            raise TypeError(
+            raise ArgumentTypeError(
                 f"topology: expected a name {TOPOLOGY_NAMES}, an edge list, a list of edge lists, "
                 f"or networkx DiGraph(s); got {type(topology).__name__}"
             )
         for graph in graphs:
             if _is_digraph(graph) and not graph.is_directed():
-                raise ValueError("topology: networkx graphs must be directed (DiGraph); got an undirected Graph")
-        n = _infer_n_agents(graphs) if n_agents is None else n_agents
+                raise ArgumentError("topology: networkx graphs must be directed (DiGraph); got an undirected Graph")
+        positions = [f"graph {g}" if len(graphs) > 1 else "the edge list" for g in range(len(graphs))]
+        n = _infer_n_agents(graphs, positions) if n_agents is None else n_agents
         edges = []
-        for g, graph in enumerate(graphs):
-            position = f"graph {g}" if len(graphs) > 1 else "the edge list"
-            raw = _digraph_edges(graph) if _is_digraph(graph) else graph
+        for graph, position in zip(graphs, positions, strict=True):
+            raw = _digraph_edges(graph, "topology", position) if _is_digraph(graph) else graph
             edges.append(_normalise_edges(raw, n, "topology", position))
         result = Topology(n_agents=n, edges=tuple(edges))
     if check:
@@ -357,13 +393,13 @@ def named_topology(
       ``G_2 = {3->4, 6->1}`` (1-based). No graph alone spans; the union does.
     """
     if name not in TOPOLOGY_NAMES:
-        raise ValueError(f"topology: unknown name {name!r}; expected one of {TOPOLOGY_NAMES}")
+        raise ArgumentError(f"topology: unknown name {name!r}; expected one of {TOPOLOGY_NAMES}")
     n = n_agents
     nodes = np.arange(n)
     note = ""
     if name == "paper_fig1":
         if n != 6:
-            raise ValueError(f"n_agents: topology 'paper_fig1' has 6 agents, got n_agents = {n}")
+            raise ArgumentError(f"n_agents: topology 'paper_fig1' has 6 agents, got n_agents = {n}")
         period_edges = [[(0, 1), (3, 4)], [(1, 2), (4, 5)], [(2, 3), (5, 0)]]
         note = "assumed Fig. 1 (reconstruction; the paper's image is lost)"
         edges = tuple(_normalise_edges(e, n, "topology", f"graph {g}") for g, e in enumerate(period_edges))
@@ -395,10 +431,8 @@ def random_topology(n_agents: int, *, seed: int | None = 0, mean_in_degree: floa
     (its width is the largest in-degree) small at any N. With ``period = m > 1`` every edge
     goes to one of the m graphs at random, so only their union is sure to span.
     """
-    if not np.isfinite(mean_in_degree) or mean_in_degree < 0:
-        raise ValueError(f"mean_in_degree: expected a finite number >= 0, got {mean_in_degree!r}")
-    if isinstance(period, bool) or not isinstance(period, int | np.integer) or period < 1:
-        raise ValueError(f"period: expected an integer >= 1, got {period!r}")
+    mean_in_degree = validation.real("mean_in_degree", mean_in_degree, 0.0)
+    period = validation.integer("topology_period", period, 1, validation.MAX_PERIOD)
     rng = np.random.default_rng(seed)
     n = n_agents
     order = rng.permutation(n)

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.core import validation
+
 SCHEDULE_NAMES = ("paper", "uniform")
 
 
@@ -46,24 +48,8 @@ class Schedule:
         return len(self.intervals)
 
 
-def _validated_settling_time(settling_time: Any) -> float:
-    if isinstance(settling_time, bool):
-        raise TypeError(f"settling_time: expected a positive finite number of seconds, got {settling_time!r}")
-    try:
-        value = float(settling_time)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"settling_time: expected a positive finite number of seconds, got {settling_time!r}") from exc
-    if not math.isfinite(value) or value <= 0:
-        raise ValueError(f"settling_time: expected a positive finite number of seconds, got {settling_time!r}")
-    return value
-
-
 def _validated_n_intervals(n_intervals: Any) -> int:
-    if isinstance(n_intervals, bool) or not isinstance(n_intervals, int | np.integer):
-        raise TypeError(f"n_intervals: expected an integer >= 1, got {n_intervals!r}")
-    if n_intervals < 1:
-        raise ValueError(f"n_intervals: expected an integer >= 1, got {n_intervals!r}")
-    return int(n_intervals)
+    return validation.integer("n_intervals", n_intervals, 1, validation.MAX_INTERVALS)
 
 
 def paper_interval(k: np.ndarray | int, settling_time: float) -> np.ndarray:
@@ -76,19 +62,24 @@ def make_schedule(settling_time: Any = 20.0, n_intervals: Any = 200, schedule: A
     """Build the K sampling intervals ending exactly at ``settling_time``.
 
     Args:
-        settling_time: ``T_s`` in seconds, positive and finite.
+        settling_time: ``T_s`` in seconds, in ``(0, 1e30]``.
         n_intervals: K >= 1. Ignored (may be ``None``) when ``schedule`` is an array.
         schedule: ``"paper"`` (``6 T_s / (pi k)^2``, last interval closes at ``T_s``),
             ``"uniform"`` (``T_s / K``), or an array of K positive interval lengths in
             seconds that sum to ``T_s`` (relative tolerance 1e-9).
 
+    Every interval must be at least 1e-30 s long (the float64 range of
+    :mod:`fxc_env.core.validation`).
+
     Raises:
-        ValueError / TypeError naming the argument.
+        ArgumentError / ArgumentTypeError naming the argument.
     """
-    t_s = _validated_settling_time(settling_time)
+    t_s = validation.real("settling_time", settling_time, maximum=validation.MAX_SETTLING_TIME, positive=True)
     if isinstance(schedule, str):
         if schedule not in SCHEDULE_NAMES:
-            raise ValueError(f"schedule: unknown name {schedule!r}; expected one of {SCHEDULE_NAMES} or an array")
+            raise validation.ArgumentError(
+                f"schedule: unknown name {schedule!r}; expected one of {SCHEDULE_NAMES} or an array"
+            )
         k_total = _validated_n_intervals(n_intervals)
         if schedule == "paper":
             # t_k = T_s (6/pi^2) sum_{j<=k} 1/j^2 < T_s for k <= K-1; t_K = T_s exactly.
@@ -99,24 +90,26 @@ def make_schedule(settling_time: Any = 20.0, n_intervals: Any = 200, schedule: A
         times = np.concatenate(([0.0], inner, [t_s]))
         name = schedule
     else:
-        try:
-            lengths = np.asarray(schedule, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise TypeError("schedule: expected 'paper', 'uniform' or an array of interval lengths") from exc
-        if lengths.ndim != 1 or lengths.size < 1:
-            raise ValueError(f"schedule: expected a 1-D array of K >= 1 interval lengths, got shape {lengths.shape}")
+        lengths = validation.interval_lengths("schedule", schedule)
+        if lengths.size > validation.MAX_INTERVALS:
+            raise validation.ArgumentError(
+                f"schedule: expected at most {validation.MAX_INTERVALS} intervals, got {lengths.size}"
+            )
         if n_intervals is not None and _validated_n_intervals(n_intervals) != lengths.size:
-            raise ValueError(f"schedule: has {lengths.size} intervals but n_intervals = {n_intervals}")
-        if not np.all(np.isfinite(lengths)) or np.any(lengths <= 0):
-            raise ValueError("schedule: every interval length must be positive and finite")
+            raise validation.ArgumentError(f"schedule: has {lengths.size} intervals but n_intervals = {n_intervals}")
         total = math.fsum(lengths)
         if abs(total - t_s) > 1e-9 * t_s:
-            raise ValueError(f"schedule: interval lengths sum to {total!r} s, expected settling_time = {t_s!r} s")
+            raise validation.ArgumentError(
+                f"schedule: interval lengths sum to {total!r} s, expected settling_time = {t_s!r} s"
+            )
         times = np.concatenate(([0.0], np.cumsum(lengths[:-1]), [t_s]))
         name = "custom"
     intervals = np.diff(times)
-    if np.any(intervals <= 0):
-        raise ValueError(f"n_intervals: {n_intervals} intervals leave a non-positive last interval in float64")
+    if np.any(intervals < validation.MIN_INTERVAL):
+        raise validation.ArgumentError(
+            f"n_intervals: {len(intervals)} intervals over settling_time = {t_s!r} s leave an interval of "
+            f"{intervals.min():g} s; expected every interval >= {validation.MIN_INTERVAL:g} s (float64 range)"
+        )
     times.setflags(write=False)
     intervals.setflags(write=False)
     return Schedule(times=times, intervals=intervals, name=name)

@@ -1,0 +1,186 @@
+"""Argument checks, written once: every front end (config, engine, envs, VecEnv, ``simulate``, CLI) calls these.
+
+Each check returns the value in canonical form (``int``, ``float``, float64 array) or raises
+:class:`ArgumentError` (a ``ValueError``) or :class:`ArgumentTypeError` (also a
+``TypeError``) whose message starts with the argument's name and says what was expected.
+The ``fxc`` command line prints exactly these as one-line usage errors (exit 2); any other
+exception is a bug and shows its traceback.
+
+Float64 ranges. The limits below keep every quantity of one step finite in float64 for any
+state the limits admit; they are derived from the largest term the exact step forms, the
+interval energy ``12 e_x^2 / T^3`` (README, "Exact dynamics"): with positions and velocities
+up to :data:`STATE_LIMIT` = 1e100 (so ``e_x <= 2e100``) and intervals no shorter than
+:data:`MIN_INTERVAL` = 1e-30 s, it is at most ``12 * 4e200 * 1e90 ~ 5e291``, which leaves
+a factor 1e16 below float64's 1.8e308 for growth within an episode and sums over agents.
+Times up to :data:`MAX_SETTLING_TIME` = 1e30 s keep ``T_s e_v`` and ``T v`` below 1e131.
+What an action can still do (a raw input of 1e300, say) is caught by the step itself,
+which refuses a non-finite result and leaves the state as it was.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+#: Largest accepted magnitude of a position, velocity, noise level or input limit (m, m/s, m/s^2).
+STATE_LIMIT = 1e100
+#: Shortest accepted sampling interval (s).
+MIN_INTERVAL = 1e-30
+#: Longest accepted deadline ``T_s`` (s).
+MAX_SETTLING_TIME = 1e30
+#: Most sampling intervals K (the engine keeps per-instant arrays of K + 1 rows).
+MAX_INTERVALS = 10**6
+#: Most agents in one episode (node indices of a topology lie in ``[0, MAX_AGENTS)``).
+MAX_AGENTS = 10**8
+#: Most graphs in one switching period.
+MAX_PERIOD = 10**4
+#: Largest accepted space dimension.
+MAX_DIM = 1024
+#: Seeds numpy's generators accept: integers in ``[0, 2**128)``.
+MAX_SEED = 2**128
+
+
+class ArgumentError(ValueError):
+    """A bad argument. The message names it and says what was expected."""
+
+
+class ArgumentTypeError(ArgumentError, TypeError):
+    """An argument of the wrong type (also a ``TypeError``)."""
+
+
+def _is_integer(value: Any) -> bool:
+    return not isinstance(value, bool | np.bool_) and isinstance(value, int | np.integer)
+
+
+def integer(name: str, value: Any, minimum: int | None = None, maximum: int | None = None) -> int:
+    """``value`` as an ``int`` in ``[minimum, maximum]`` (bools and floats refused)."""
+    if not _is_integer(value):
+        raise ArgumentTypeError(f"{name}: expected an integer{_range_text(minimum, maximum)}, got {value!r}")
+    number = operator.index(value)
+    if (minimum is not None and number < minimum) or (maximum is not None and number > maximum):
+        raise ArgumentError(f"{name}: expected an integer{_range_text(minimum, maximum)}, got {value!r}")
+    return number
+
+
+def real(
+    name: str,
+    value: Any,
+    minimum: float | None = None,
+    maximum: float | None = None,
+    *,
+    positive: bool = False,
+) -> float:
+    """``value`` as a finite ``float`` in ``[minimum, maximum]`` (``> 0`` with ``positive``)."""
+    expected = "a positive finite number" if positive else "a finite number"
+    expected += _range_text(minimum, maximum)
+    if isinstance(value, bool | np.bool_ | str | bytes):
+        raise ArgumentTypeError(f"{name}: expected {expected}, got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise ArgumentTypeError(f"{name}: expected {expected}, got {value!r}") from None
+    if (
+        not math.isfinite(number)
+        or (positive and number <= 0)
+        or (minimum is not None and number < minimum)
+        or (maximum is not None and number > maximum)
+    ):
+        raise ArgumentError(f"{name}: expected {expected}, got {value!r}")
+    return number
+
+
+def probability(name: str, value: Any) -> float:
+    """``value`` as a probability in ``[0, 1)``."""
+    number = real(name, value)
+    if not 0 <= number < 1:
+        raise ArgumentError(f"{name}: expected a probability in [0, 1), got {value!r}")
+    return number
+
+
+def choice(name: str, value: Any, options: Sequence[str]) -> str:
+    """``value`` if it is one of ``options``."""
+    if not isinstance(value, str) or value not in options:
+        raise ArgumentError(f"{name}: expected one of {tuple(options)}, got {value!r}")
+    return value
+
+
+def optional_seed(name: str, value: Any) -> int | None:
+    """``None`` or a seed numpy's generators accept: an integer in ``[0, 2**128)``."""
+    if value is None:
+        return None
+    return integer(name, value, 0, MAX_SEED - 1)
+
+
+def state_array(name: str, value: Any, n_agents: int, dim: int) -> np.ndarray:
+    """``value`` as a float64 ``(N, dim)`` array (``(N,)`` accepted when ``dim = 1``), entries within ±STATE_LIMIT."""
+    accepted = f"({n_agents}, {dim})" + (f" or ({n_agents},)" if dim == 1 else "")
+    array = _real_array(name, value, f"an array of shape {accepted}")
+    if dim == 1 and array.shape == (n_agents,):
+        array = array[:, None]
+    if array.shape != (n_agents, dim):
+        raise ArgumentError(f"{name}: expected shape {accepted}, got {array.shape}")
+    _check_entries(name, array, STATE_LIMIT)
+    return array
+
+
+def action_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` as a float64 array of ``shape`` with finite entries."""
+    array = _real_array(name, value, f"an array of shape {shape}")
+    if array.shape != shape:
+        raise ArgumentError(f"{name}: expected shape {shape}, got {array.shape}")
+    _check_entries(name, array, None)
+    return array
+
+
+def interval_lengths(name: str, value: Any) -> np.ndarray:
+    """``value`` as a 1-D float64 array of K >= 1 interval lengths, each at least :data:`MIN_INTERVAL` seconds."""
+    if isinstance(value, str | bytes):
+        raise ArgumentTypeError(f"{name}: expected 'paper', 'uniform' or an array of interval lengths, got {value!r}")
+    lengths = _real_array(name, value, "an array of interval lengths")
+    if lengths.ndim != 1 or lengths.size < 1:
+        raise ArgumentError(f"{name}: expected a 1-D array of K >= 1 interval lengths, got shape {lengths.shape}")
+    if not np.all(np.isfinite(lengths)) or np.any(lengths < MIN_INTERVAL):
+        raise ArgumentError(
+            f"{name}: every interval length must be finite and at least {MIN_INTERVAL:g} s (float64 range), "
+            f"got a smallest of {np.min(lengths)!r}"
+        )
+    return lengths
+
+
+def _real_array(name: str, value: Any, expected: str) -> np.ndarray:
+    """``value`` as a float64 array; a ragged or non-numeric value raises naming ``name``."""
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError, OverflowError):
+        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {_short(value)}") from None
+    if array.dtype.kind not in "biuf":
+        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {_short(value)}")
+    return array.astype(np.float64, copy=False)
+
+
+def _check_entries(name: str, array: np.ndarray, limit: float | None) -> None:
+    if not np.all(np.isfinite(array)):
+        raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
+    if limit is not None and array.size and np.max(np.abs(array)) > limit:
+        raise ArgumentError(
+            f"{name}: entries must lie within ±{limit:g} (float64 headroom), got {np.max(np.abs(array)):g}"
+        )
+
+
+def _range_text(minimum: float | None, maximum: float | None) -> str:
+    if minimum is not None and maximum is not None:
+        return f" in [{minimum:g}, {maximum:g}]"
+    if minimum is not None:
+        return f" >= {minimum:g}"
+    if maximum is not None:
+        return f" <= {maximum:g}"
+    return ""
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
