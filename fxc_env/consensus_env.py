@@ -2,22 +2,71 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import dataclasses
+import inspect
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium
 import numpy as np
 from gymnasium import spaces
+from gymnasium.utils import EzPickle
 from pettingzoo import ParallelEnv
 
 from fxc_env.config import RENDER_MODES, EnvConfig, check_max_cycles, check_render_mode, make_config
+from fxc_env.core import validation
+from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-from fxc_env.engine import ConsensusEngine
+from fxc_env.engine import TINY, ConsensusEngine
 from fxc_env.rendering import EpisodeView
 from fxc_env.spaces import action_space, observation_space, state_space
 
+#: The keyword arguments of :func:`fxc_env.make_config`, which every front end passes through.
+CONFIG_ARGUMENTS = tuple(inspect.signature(make_config).parameters)
 
-class ConsensusParallelEnv(ParallelEnv):
+
+def episode_metrics_rows(engine: ConsensusEngine) -> list[dict[str, float | int]]:
+    """Each episode's metrics as a plain dict of numbers, ``(B,)`` dicts.
+
+    The keys are the fields of :class:`fxc_env.core.metrics.EpisodeMetrics`. Unlike
+    ``EpisodeMetrics.as_dict()`` (made for JSON), nothing is ``None``: a threshold never
+    reached stays ``inf`` and a prediction that does not apply stays ``nan``, so replay
+    buffers that stack infos into arrays (Tianshou, TorchRL) accept them.
+    ``sampling_instants`` is an ``int``, every other value a ``float``.
+    """
+    columns = engine.batch_metrics()
+    names = [field.name for field in dataclasses.fields(EpisodeMetrics)]
+    return [dict(zip(names, row, strict=True)) for row in zip(*(columns[n].tolist() for n in names), strict=True)]
+
+
+def normalized_state(engine: ConsensusEngine) -> np.ndarray:
+    """The scale-free global state of every episode, ``(B, N * 2 dim + 3)``, in ``config.obs_dtype``.
+
+    Per agent the row ``[x_i - mean_j x_j, T_s (v_i - mean_j v_j)] / max(D, tiny)`` (agent
+    major, positions then velocities), then the clock ``t_k / T_s, T_{k+1} / T_s, k / K``.
+    ``D = e_x + T_s e_v`` is the current disagreement (README, "Using the environment"); every
+    row entry is at most ``e_x`` or ``T_s e_v`` in magnitude, so the rows lie in [-1, 1] by
+    construction (clipped there only against rounding) and are all zero when ``D = 0``.
+    Relative to the mean, the state does not change under a common shift of positions or
+    velocities, and dividing by ``D`` removes the scale, as the normalized observations do.
+    """
+    c = engine.config
+    x, v = engine.x, engine.v
+    rows = np.concatenate(
+        [x - x.mean(axis=1, keepdims=True), c.settling_time * (v - v.mean(axis=1, keepdims=True))], axis=-1
+    )
+    rows /= np.maximum(engine.current_disagreement, TINY)[:, None, None]
+    np.clip(rows, -1.0, 1.0, out=rows)
+    k = engine.k
+    clock = np.array([c.schedule.times[k], engine.current_interval(), 0.0]) / c.settling_time
+    clock[2] = k / c.n_intervals
+    out = np.empty((engine.n_episodes, rows[0].size + clock.size), dtype=c.observation_dtype)
+    out[:, : rows[0].size] = rows.reshape(engine.n_episodes, -1)
+    out[:, rows[0].size :] = clock
+    return out
+
+
+class ConsensusParallelEnv(ParallelEnv, EzPickle):
     """Fixed-time consensus of double integrators on directed graphs, sampled.
 
     ## Description
@@ -25,11 +74,12 @@ class ConsensusParallelEnv(ParallelEnv):
     position and velocity by the deadline ``T_s`` (Liu, Zhao, Ren & Chen, "Fixed-time
     consensus of multiple double-integrator systems under directed topologies: a
     motion-planning approach"). Agents measure their in-neighbours only at the sampling
-    instants ``t_k`` (paper schedule ``T_k = 6 T_s / (pi k)^2``, last interval closing exactly
-    at ``T_s``) and commit to an input that is affine in time until ``t_{k+1}``. Between
+    instants ``t_k`` (paper schedule ``T_k = 6 T_s / (pi k)^2``, Section 3, last interval closing
+    exactly at ``T_s``) and commit to an input that is affine in time until ``t_{k+1}``. Between
     instants the motion is integrated exactly (cubic x, quadratic v): no ODE solver, no
     time step. The graph switches periodically by sample index (``G_{k mod m}``).
-    ``fxc_env.ReferencePolicy`` is the paper's controller, eq. (11).
+    ``fxc_env.ReferencePolicy`` is the paper's controller, eq. (11); the README ("Using the
+    environment") walks through an episode.
 
     ## Action Space
     ``Box(-b, b, (2 dim,), float64)`` per agent:
@@ -48,16 +98,18 @@ class ConsensusParallelEnv(ParallelEnv):
     coming interval. Actions outside the Box are applied as given (never clipped); the
     bounds hold the reference in normalised mode for every state. Raw bounds are nominal:
     they hold it from the documented initial ranges on the built-in topologies up to
-    N = 100 (``action_bound`` overrides them).
+    N = 100 (``action_bound`` overrides them). Any real dtype is accepted.
 
     ## Observation Space
-    Flat ``Box(float64)`` of size ``d_max * 2 dim + d_max + 3`` per agent, measured at ``t_k``:
+    Flat ``Box`` of size ``d_max * 2 dim + d_max + 3`` (``+ 1`` with ``u_max``) per agent,
+    measured at ``t_k``, in ``obs_dtype`` (float64 by default):
 
     | part  | size            | content                                                          |
     |-------|-----------------|------------------------------------------------------------------|
     | rows  | ``d_max * 2 dim`` | per in-neighbour j of ``G_k`` (ascending): ``[x_j - x_i, v_j - v_i]``, zero padded |
     | mask  | ``d_max``       | 1 for a real row, 0 for padding                                  |
     | clock | 3               | ``t_k / T_s``, ``T_{k+1} / T_s``, ``k / K``                      |
+    | limit | 1, with ``u_max`` | how far the input limit binds on the coming interval, in [-1, 1] (``fxc_env.engine.limit_feature``) |
 
     ``d_max`` is the largest in-degree over the topology set, or ``obs_slots`` when that is
     larger (room for other topologies, so one policy fits several). In ``normalized`` mode (default)
@@ -65,7 +117,9 @@ class ConsensusParallelEnv(ParallelEnv):
     ``s_i = max_j max(|x_j - x_i|, T |v_j - v_i|)`` (components), so they lie in [-1, 1]; an
     agent with ``s_i = 0`` sees zeros and coasts whatever it does. ``obs_mode="raw"``
     gives physical units. ``obs_format="dict"`` gives ``{"neighbours": (d_max, 2 dim),
-    "mask": (d_max,), "clock": (3,)}`` instead. No absolute position, no global information.
+    "mask": (d_max,), "clock": (3,)}`` (and ``"input_limit": (1,)``) instead. No absolute position, no global information.
+    The engine always computes in float64; ``obs_dtype="float32"`` casts at the output (raw
+    values beyond float32's range, about 3e38, would become ``inf``).
 
     ## Rewards
     Team reward, the same for every agent: ``log(D(t_k) + f) - log(D(t_{k+1}) + f)`` with the
@@ -78,8 +132,11 @@ class ConsensusParallelEnv(ParallelEnv):
     ``dim = 1``); otherwise the scenario's initial state (``initial_state="random"`` drops
     it); otherwise positions
     ``U(-position_range, position_range)`` (5 m) and velocities ``U(-velocity_range,
-    velocity_range)`` (2 m/s) per component from the seeded generator. Other option keys
-    are ignored, as in Gymnasium.
+    velocity_range)`` (2 m/s) per component from the env's generator. Other option keys
+    are ignored, as in Gymnasium. ``seed`` is None or an integer in ``[0, 2**128)``.
+    The generator is made at the first ``reset`` (from ``seed``, else from fresh entropy)
+    and continues through unseeded resets, as in Gymnasium: copies of an env that was never
+    reset draw independent episodes.
 
     ## Episode End
     Termination for every agent at ``t_K = T_s`` (after K steps; the clock is observed, so
@@ -90,25 +147,72 @@ class ConsensusParallelEnv(ParallelEnv):
     Per agent, at reset and after every step: ``t`` (seconds), ``interval`` (intervals done),
     ``energy`` (``integral |u_i|^2 dt`` on the last interval), ``peak_u`` (largest ``|u_i|``
     component on it), ``saturated_fraction`` (share of it at the limit ``u_max``); at the
-    end also ``episode``: SPEC 5 metrics (``EpisodeMetrics.as_dict()``).
+    end also ``episode``: the episode's metrics (the fields of
+    ``fxc_env.core.metrics.EpisodeMetrics``: deadline error ``D(T_s)/D(0)``, spreads,
+    settling times ``t_eps``, energy, peak input, Theorem 2's predicted and the achieved
+    final values; README, "Quick start"). Numbers only, each agent its own dict:
+    ``inf`` for a threshold never reached, ``nan`` where a prediction does not apply.
 
     ## State
-    ``state()``: ``(N, 2 dim)`` float64 rows ``[x_i, v_i]``; ``state_space`` matches.
+    ``state()`` with ``global_state="raw"`` (default): ``(N, 2 dim)`` float64 rows
+    ``[x_i, v_i]`` (absolute, unbounded). With ``global_state="normalized"`` (for centralised
+    critics): the flat vector ``(N * 2 dim + 3,)`` in ``obs_dtype`` of rows
+    ``[x_i - mean x, T_s (v_i - mean v)] / max(D, tiny)`` (agent major) and the clock. Each
+    row entry is at most ``D`` in magnitude, so the rows lie in [-1, 1] by construction
+    (clipped there only against rounding; all zero once ``D = 0``), and the clock in [0, 1]:
+    scale-free and invariant to a common shift of positions or velocities, like the
+    normalized observations. ``state_space`` matches either form.
 
     ## Arguments
-    ``scenario`` (named bundle, e.g. ``"paper_fig1"``), ``n_agents`` [6], ``topology``
-    [``"paper_fig1"``: the **assumed** Fig. 1], ``settling_time`` [20.0 s], ``n_intervals`` K
-    [200], ``schedule`` [``"paper"``], ``dim`` [1], ``action_mode`` [``"plan"``], ``obs_mode``
-    [``"normalized"``], ``obs_format`` [``"flat"``], ``initial_state`` [random],
-    ``render_mode`` [None], ``max_cycles`` [None], ``obs_slots`` [d_max], ``action_bound``, ``reward_floor``
-    [1e-12], ``position_range`` [5.0], ``velocity_range`` [2.0], ``topology_seed`` [0],
-    ``mean_in_degree`` [2.0] and ``topology_period`` [1] for ``random``.
-    Realism (all off by default, seeded with the env): ``u_max`` [None] clips each input
-    component to ±u_max m/s^2, integrated exactly (infos report the saturated share);
-    ``obs_noise`` [0] Gaussian noise (m, m/s) on each relative measurement; ``link_dropout``
-    [0] probability that an edge is lost at a sampling instant (the mask shows it);
-    ``switching`` [``"periodic"``] or ``"random"`` (each interval's graph drawn from the set).
-    Every bad argument raises an exception naming it, and leaves a live env unchanged.
+    Every argument is keyword-only except ``scenario``; defaults in brackets come from the
+    scenario when one is named (explicit arguments override it).
+
+    | parameter | type | default | meaning |
+    |-----------|------|---------|---------|
+    | ``scenario`` | ``str \\| None`` | None | named preset from ``fxc_env.SCENARIOS`` (e.g. ``"paper_fig1"``, the paper's example) |
+    | ``n_agents`` | ``int \\| None`` | [6] | N for a named topology |
+    | ``topology`` | name, edge list, list of edge lists, DiGraph(s), family | [``"paper_fig1"``] | ``"paper_fig1"`` (the **assumed** Fig. 1), ``"ring"``, ``"path"``, ``"star"``, ``"complete"``, ``"random"``; edges ``(j, i)``: i receives from j; a family (``fxc_env.core.families.make_family``) is drawn anew at every reset |
+    | ``settling_time`` | ``float \\| None`` | [20.0] | the deadline ``T_s`` (s) |
+    | ``n_intervals`` | ``int \\| None`` | [200] | K, the number of sampling intervals |
+    | ``schedule`` | ``"paper" \\| "uniform"`` or interval lengths | [``"paper"``] | the sampling instants (``T_k = 6 T_s / (pi k)^2``, last interval ending at ``T_s``) |
+    | ``dim`` | ``int \\| None`` | [1] | space dimension of ``x_i, v_i, u_i`` |
+    | ``action_mode`` | ``"plan" \\| "accel"`` | ``"plan"`` | meaning of an action (Action Space) |
+    | ``obs_mode`` | ``"normalized" \\| "raw"`` | ``"normalized"`` | scale-free or physical observations and actions |
+    | ``obs_format`` | ``"flat" \\| "dict"`` | ``"flat"`` | one Box, or ``{"neighbours", "mask", "clock"}`` |
+    | ``obs_dtype`` | ``"float64" \\| "float32"`` | ``"float64"`` | dtype of observations, their spaces and the normalized global state |
+    | ``global_state`` | ``"raw" \\| "normalized"`` | ``"raw"`` | what ``state()`` returns (State) |
+    | ``action_bound`` | ``float \\| None`` | table above | half-width ``b`` of the action Box |
+    | ``reward_floor`` | ``float`` | 1e-12 | ``f / D(0)`` in the reward |
+    | ``initial_state`` | ``None \\| "random" \\| (x0, v0)`` | [random] | fixed initial state ``(N, dim)`` arrays; ``"random"`` drops the scenario's |
+    | ``position_range`` | ``float \\| (low, high) \\| None`` | [5.0] | initial positions ``U(-r, r)`` (m); a pair draws ``r`` log-uniformly per episode |
+    | ``velocity_range`` | ``float \\| (low, high) \\| None`` | [2.0] | initial velocities ``U(-r, r)`` (m/s); a pair as above |
+    | ``topology_seed`` | ``int \\| None`` | 0 | seed of ``topology="random"`` (of a family: the draw ``config.topology`` shows) |
+    | ``mean_in_degree`` | ``float \\| None`` | [2.0] | mean in-degree of ``"random"`` |
+    | ``topology_period`` | ``int \\| None`` | [1] | number of switching graphs of ``"random"`` |
+    | ``obs_slots`` | ``int \\| None`` | ``d_max`` | neighbour rows in an observation (at least ``d_max``) |
+    | ``u_max`` | ``float \\| set of floats \\| None`` | None | clips each input component to ``±u_max`` m/s^2, integrated exactly (infos report the saturated share); a set draws one limit per episode |
+    | ``obs_noise`` | ``float`` | 0.0 | standard deviation of Gaussian noise (m, m/s) on each relative measurement |
+    | ``link_dropout`` | ``float`` | 0.0 | probability that an edge is lost at a sampling instant (the mask shows it) |
+    | ``switching`` | ``"periodic" \\| "random"`` | ``"periodic"`` | cycle through the graphs, or draw each interval's graph |
+    | ``render_mode`` | ``None \\| "human" \\| "rgb_array"`` | None | frames of episode 0 so far |
+    | ``max_cycles`` | ``int \\| None`` | None | truncate after this many steps |
+
+    The realism options (``u_max`` to ``switching``; README, "Realism options") are off by
+    default and draw from the env's generator. Every bad argument raises
+    :class:`~fxc_env.core.validation.ArgumentError` (a ``ValueError``; a ``TypeError`` too
+    for a wrong type) naming it, and leaves a live env unchanged.
+
+    ## Rendering
+    ``render()`` returns the frame of the episode so far (``rgb_array``: ``(H, W, 3)`` uint8;
+    ``human``: shown, None). Before the first ``reset`` there is no episode: it raises
+    ``RuntimeError`` (as PettingZoo's and Gymnasium's order enforcing do). With
+    ``render_mode=None`` it warns and returns None.
+
+    ## Copies
+    ``pickle`` and ``copy.deepcopy`` keep the whole state: a copy made mid-episode continues
+    bit for bit, generator included. The constructor arguments are recorded the
+    ``gymnasium.utils.EzPickle`` way (``_ezpickle_kwargs``) but not re-applied on unpickling,
+    which would lose the episode and redraw a ``topology_seed=None`` topology.
 
     ## Version History
     * v0: initial release.
@@ -121,10 +225,42 @@ class ConsensusParallelEnv(ParallelEnv):
         "is_parallelizable": True,
     }
 
-    def __init__(self, render_mode: str | None = None, max_cycles: int | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        scenario: str | None = None,
+        *,
+        n_agents: int | None = None,
+        topology: Any = None,
+        settling_time: float | None = None,
+        n_intervals: int | None = None,
+        schedule: Any = None,
+        dim: int | None = None,
+        action_mode: str = "plan",
+        obs_mode: str = "normalized",
+        obs_format: str = "flat",
+        obs_dtype: str = "float64",
+        global_state: str = "raw",
+        action_bound: float | None = None,
+        reward_floor: float = 1e-12,
+        initial_state: Any = None,
+        position_range: float | tuple[float, float] | None = None,
+        velocity_range: float | tuple[float, float] | None = None,
+        topology_seed: int | None = 0,
+        mean_in_degree: float | None = None,
+        topology_period: int | None = None,
+        obs_slots: int | None = None,
+        u_max: float | Sequence[float] | None = None,
+        obs_noise: float = 0.0,
+        link_dropout: float = 0.0,
+        switching: str = "periodic",
+        render_mode: str | None = None,
+        max_cycles: int | None = None,
+    ) -> None:
+        arguments = {name: value for name, value in locals().items() if name in CONFIG_ARGUMENTS}
         check_render_mode(render_mode)
         check_max_cycles(max_cycles)
-        self.config: EnvConfig = make_config(**kwargs)
+        self.config: EnvConfig = make_config(**arguments)
+        EzPickle.__init__(self, **arguments, render_mode=render_mode, max_cycles=max_cycles)
         self.render_mode = render_mode
         self.max_cycles = max_cycles
         self.engine = ConsensusEngine(self.config, n_episodes=1)
@@ -133,7 +269,10 @@ class ConsensusParallelEnv(ParallelEnv):
         self.agents: list[str] = []
         self._agent_index = {agent: i for i, agent in enumerate(self.possible_agents)}
         self._agent_set = set(self.possible_agents)
-        self._rng = np.random.default_rng()
+        #: The episode generator, made at the first reset (so copies of a fresh env differ).
+        self._rng: np.random.Generator | None = None
+        self._has_reset = False
+        self._steps = 0
         obs_space, act_space = observation_space(self.config), action_space(self.config)
         self.observation_spaces = dict.fromkeys(self.possible_agents, obs_space)
         self.action_spaces = dict.fromkeys(self.possible_agents, act_space)
@@ -146,23 +285,34 @@ class ConsensusParallelEnv(ParallelEnv):
     def action_space(self, agent: str) -> spaces.Box:
         return self.action_spaces[agent]
 
+    # ---------------------------------------------------------------- pickle
+    def __getstate__(self) -> dict[str, Any]:
+        return self.__dict__.copy()  # the whole state (EzPickle's default would rebuild a fresh env)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+
     # ------------------------------------------------------------------ reset
     def reset(
         self, seed: int | None = None, options: Mapping[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+        # Every argument is checked before anything changes.
+        seed = validation.optional_seed("seed", seed)
         if options is not None and not isinstance(options, Mapping):
             raise ArgumentTypeError(f"options: expected a dict or None, got {type(options).__name__}")
         options = options or {}
         x0 = self.engine.validate_state("options['x0']", options["x0"]) if "x0" in options else None
         v0 = self.engine.validate_state("options['v0']", options["v0"]) if "v0" in options else None
-        if seed is not None:
+        if seed is not None or self._rng is None:
             self._rng = np.random.default_rng(seed)
-        drawn_x, drawn_v = self.engine.sample_initial_state(self._rng)
-        x0 = drawn_x if x0 is None else x0
-        v0 = drawn_v if v0 is None else v0
-        self.engine.reset(x0[None], v0[None], rng=self._rng)
+        draw = self.engine.draw_episode(self._rng)  # the family's topology and u_max when drawn, x0, v0
+        x0 = draw.x0 if x0 is None else x0
+        v0 = draw.v0 if v0 is None else v0
+        topologies = None if draw.topology is None else [draw.topology]
+        self.engine.reset(x0[None], v0[None], rng=self._rng, topologies=topologies, u_max=[draw.u_max])
         self.agents = self.possible_agents[:]
         self._steps = 0
+        self._has_reset = True
         self._view.start(x0, v0)
         # The same numeric keys as every step's infos (consumers such as TorchRL read the schema here).
         infos = {
@@ -174,15 +324,17 @@ class ConsensusParallelEnv(ParallelEnv):
         return self._observe(), infos
 
     def _observe(self) -> dict[str, Any]:
-        obs = self.engine.observations()[0]
+        obs = self.engine.observations()[0].astype(self.config.observation_dtype, copy=False)
         if self.config.obs_format == "dict":
             layout = self.config.layout
-            rows, mask, clock = (
-                obs[:, : layout.rows_end],
-                obs[:, layout.rows_end : layout.mask_end],
-                obs[:, layout.mask_end :],
-            )
-            rows = rows.reshape(len(obs), layout.slots, layout.row_size)
+            rows = obs[:, : layout.rows_end].reshape(len(obs), layout.slots, layout.row_size)
+            mask, clock = obs[:, layout.rows_end : layout.mask_end], obs[:, layout.mask_end : layout.clock_end]
+            if layout.limit_feature:
+                limit = obs[:, layout.clock_end :]
+                return {
+                    agent: {"neighbours": rows[i], "mask": mask[i], "clock": clock[i], "input_limit": limit[i]}
+                    for agent, i in self._agent_index.items()
+                }
             return {
                 agent: {"neighbours": rows[i], "mask": mask[i], "clock": clock[i]}
                 for agent, i in self._agent_index.items()
@@ -190,6 +342,11 @@ class ConsensusParallelEnv(ParallelEnv):
         return {agent: obs[i] for agent, i in self._agent_index.items()}
 
     # ------------------------------------------------------------------- step
+    def check_action(self, agent: str, action: Any, name: str | None = None) -> np.ndarray:
+        """One agent's action as a float64 ``(2 dim,)`` array; raise naming ``name`` (``actions[agent]``) if bad."""
+        name = f"actions[{agent!r}]" if name is None else name
+        return validation.action_array(name, action, (self.config.action_size,))
+
     def _action_array(self, actions: Any) -> np.ndarray:
         if type(actions) is not dict and not isinstance(actions, Mapping):
             raise ArgumentTypeError(f"actions: expected a dict from agent name to action, got {type(actions).__name__}")
@@ -209,13 +366,7 @@ class ConsensusParallelEnv(ParallelEnv):
         array = stacked.astype(np.float64) if stacked is not None and stacked.dtype.kind in "biuf" else None
         if array is None or array.shape != (len(self.possible_agents), size) or not np.isfinite(array).all():
             for agent in self.possible_agents:
-                action = np.asarray(actions[agent])
-                if action.dtype.kind not in "biuf":
-                    raise ArgumentTypeError(f"actions[{agent!r}]: expected real numbers, got {action!r}")
-                if action.shape != (size,):
-                    raise ArgumentError(f"actions[{agent!r}]: expected shape ({size},), got {action.shape}")
-                if not np.all(np.isfinite(action)):
-                    raise ArgumentError(f"actions[{agent!r}]: every entry must be finite (no NaN or inf), got {action}")
+                self.check_action(agent, actions[agent])
         return array[None]
 
     def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
@@ -245,9 +396,9 @@ class ConsensusParallelEnv(ParallelEnv):
             for agent, i in self._agent_index.items()
         }
         if terminated or truncated:
-            episode = engine.episode_metrics(0).as_dict()
+            episode = episode_metrics_rows(engine)[0]
             for info in infos.values():
-                info["episode"] = episode
+                info["episode"] = dict(episode)  # each agent its own copy
         observations = self._observe()
         self._view.record(t, engine.x[0], engine.v[0])
         if self.render_mode == "human":
@@ -258,17 +409,22 @@ class ConsensusParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ state
     def state(self) -> np.ndarray:
-        """Global state ``(N, 2 dim)``: rows ``[x_i, v_i]``."""
+        """The global state (see State in the class docstring): raw ``(N, 2 dim)`` or normalized ``(N * 2 dim + 3,)``."""
+        if self.config.global_state == "normalized":
+            return normalized_state(self.engine)[0]
         return np.concatenate([self.engine.x[0], self.engine.v[0]], axis=-1)
 
     # ---------------------------------------------------------------- render
     def render(self) -> np.ndarray | None:
+        """The frame of the episode so far (see Rendering in the class docstring)."""
         if self.render_mode is None:
             gymnasium.logger.warn(
                 "render: called with render_mode=None; build the env with render_mode='rgb_array' or 'human'"
             )
             return None
-        return self._view.frame(int(self.engine.graph_indices()[0]))
+        if not self._has_reset:
+            raise RuntimeError("render: there is no episode to draw yet; call reset() first")
+        return self._view.frame(int(self.engine.graph_indices()[0]), self.engine.topologies[0])
 
     def close(self) -> None:
         self._view.close()

@@ -4,11 +4,11 @@ TorchRL's :class:`~torchrl.envs.libs.pettingzoo.PettingZooWrapper` stores every 
 as a tensor and builds its info spec from the infos of ``reset``. The environment's infos
 share the numeric keys ``t``, ``interval``, ``energy``, ``peak_u`` and ``saturated_fraction``
 at reset and at every step, but at the episode end each agent's info also carries
-``episode``, a dict of SPEC 5 metrics that no tensor can hold. :class:`FlatEpisodeInfos`
-gives every info one flat schema: the step keys plus ``episode_<metric>`` for each metric,
-NaN until the step that ends the episode. It is a wrapper here, not an environment option,
-because the nested ``episode`` dict is the PettingZoo contract (SPEC 4.4) that other
-consumers read; only the tensor world needs the flat form.
+``episode``, a nested dict of the episode's metrics (the environment's card, "Infos") that
+no tensor can hold. :class:`FlatEpisodeInfos` gives every info one flat schema: the step keys
+plus ``episode_<metric>`` for each metric, NaN until the step that ends the episode. It is a
+wrapper here, not an environment option, because the nested ``episode`` dict is the
+PettingZoo-side contract that other consumers read; only the tensor world needs the flat form.
 
 RLlib's PettingZoo wrapper lives with the RLlib trainer (``fxc_env.training.rllib_train``).
 """
@@ -35,7 +35,7 @@ EPISODE_KEYS = tuple(EPISODE_PREFIX + f.name for f in fields(EpisodeMetrics))
 def flat_info(info: dict[str, Any]) -> dict[str, Any]:
     """``info`` with its ``episode`` dict spread into float64 ``episode_<metric>`` keys (NaN if absent)."""
     flat = {key: value for key, value in info.items() if key != "episode"}
-    episode = info.get("episode") or {}
+    episode = info.get("episode") or {}  # numbers only; a None (older metric dicts) reads as NaN
     for key in EPISODE_KEYS:
         value = episode.get(key.removeprefix(EPISODE_PREFIX))
         flat[key] = np.float64(math.nan if value is None else value)
@@ -62,9 +62,11 @@ def torchrl_env(group: str = "agents", **kwargs: Any) -> Any:
     """A TorchRL env of ``fxc_env.parallel_env(**kwargs)``: every agent in one group, infos flat.
 
     Needs ``pip install "fxc-env[torchrl]"``. Continuous actions, no agent mask (agents
-    never leave before the episode end), the global state ``(N, 2 dim)`` under ``"state"``.
-    Data of the group lie under ``(group, "observation" | "action" | "reward" | "info")``
-    with a leading agent dimension N.
+    never leave before the episode end), the global state under ``"state"`` (``(N, 2 dim)``
+    float64, or ``(N * 2 dim + 3,)`` with ``global_state="normalized"``). Data of the group
+    lie under ``(group, "observation" | "action" | "reward" | "info")`` with a leading agent
+    dimension N. With ``obs_dtype="float32"`` observations (and the normalized state) are
+    float32 tensors, ready for a float32 policy; actions may be float32 or float64.
     """
     try:
         from torchrl.envs.libs.pettingzoo import PettingZooWrapper

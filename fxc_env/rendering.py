@@ -88,8 +88,13 @@ class EpisodeRenderer:
             self.figure = Figure(figsize=(9, 3.2), dpi=80)
             FigureCanvasAgg(self.figure)
 
-    def draw(self, history: Sequence[tuple[float, np.ndarray, np.ndarray]], graph: int) -> np.ndarray:
-        """Redraw and return the frame as an ``(H, W, 3)`` uint8 array."""
+    def draw(
+        self, history: Sequence[tuple[float, np.ndarray, np.ndarray]], graph: int, topology: Topology | None = None
+    ) -> np.ndarray:
+        """Redraw and return the frame as an ``(H, W, 3)`` uint8 array.
+
+        ``graph`` indexes ``topology`` (the episode's own, e.g. a family's draw; default the config's).
+        """
         c = self.config
         fig = self.figure
         fig.clear()
@@ -107,7 +112,7 @@ class EpisodeRenderer:
             ax.set_ylabel(label + (" (1st component)" if c.dim > 1 else ""))
             ax.grid(alpha=0.3)
         k = len(history) - 1
-        draw_graph(axes[2], c.topology, graph, title=f"k = {k}, graph G_{graph}")
+        draw_graph(axes[2], c.topology if topology is None else topology, graph, title=f"k = {k}, graph G_{graph}")
         fig.tight_layout()
         fig.canvas.draw()
         frame = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
@@ -141,11 +146,17 @@ class EpisodeView:
         if self.render_mode:
             self.history.append((t, x.copy(), v.copy()))
 
-    def frame(self, graph: int) -> np.ndarray | None:
-        """The frame (``rgb_array``: ``(H, W, 3)`` uint8; ``human``: shown, None) with graph ``graph`` drawn."""
+    def frame(self, graph: int, topology: Topology | None = None) -> np.ndarray | None:
+        """The frame (``rgb_array``: ``(H, W, 3)`` uint8; ``human``: shown, None) with graph ``graph`` drawn.
+
+        ``topology``: the episode's own (a family's draw); default the config's. Raises
+        ``RuntimeError`` when no episode has started (nothing recorded).
+        """
+        if not self.history:
+            raise RuntimeError("render: there is no episode to draw yet; call reset() first")
         if self._renderer is None:
             self._renderer = EpisodeRenderer(self.config, interactive=self.render_mode == "human")
-        frame = self._renderer.draw(self.history, graph)
+        frame = self._renderer.draw(self.history, graph, topology)
         return frame if self.render_mode == "rgb_array" else None
 
     def close(self) -> None:

@@ -1,6 +1,6 @@
 """The Gymnasium spaces of one agent and of the global state, built from an :class:`EnvConfig`.
 
-Shared by the PettingZoo environment and the SB3 VecEnv so both expose the same spaces.
+Shared by the PettingZoo environments and the SB3 VecEnv so all expose the same spaces.
 """
 
 from __future__ import annotations
@@ -16,18 +16,24 @@ def observation_space(config: EnvConfig) -> spaces.Space:
     """One agent's observation: a flat ``Box`` (rows, mask, clock) or the ``Dict`` form.
 
     Rows lie in [-1, 1] in ``normalized`` mode and are unbounded in ``raw`` mode; the mask
-    and the clock lie in [0, 1]. All float64.
+    and the clock lie in [0, 1]; with an input limit ``u_max`` a last entry (``"input_limit"``
+    in the dict form, :func:`fxc_env.engine.limit_feature`) lies in [-1, 1]. The dtype is
+    ``config.obs_dtype`` (float64 by default).
     """
     layout = config.layout
+    dtype = config.observation_dtype
     row_bound = 1.0 if config.obs_mode == "normalized" else np.inf
-    rows = spaces.Box(-row_bound, row_bound, shape=(layout.slots, layout.row_size), dtype=np.float64)
-    mask = spaces.Box(0.0, 1.0, shape=(layout.slots,), dtype=np.float64)
-    clock = spaces.Box(0.0, 1.0, shape=(CLOCK_SIZE,), dtype=np.float64)
+    rows = spaces.Box(-row_bound, row_bound, shape=(layout.slots, layout.row_size), dtype=dtype)
+    mask = spaces.Box(0.0, 1.0, shape=(layout.slots,), dtype=dtype)
+    clock = spaces.Box(0.0, 1.0, shape=(CLOCK_SIZE,), dtype=dtype)
+    parts = {"neighbours": rows, "mask": mask, "clock": clock}
+    if layout.limit_feature:
+        parts["input_limit"] = spaces.Box(-1.0, 1.0, shape=(1,), dtype=dtype)
     if config.obs_format == "dict":
-        return spaces.Dict({"neighbours": rows, "mask": mask, "clock": clock})
-    low = np.concatenate([rows.low.ravel(), mask.low, clock.low])
-    high = np.concatenate([rows.high.ravel(), mask.high, clock.high])
-    return spaces.Box(low, high, dtype=np.float64)
+        return spaces.Dict(parts)
+    low = np.concatenate([part.low.ravel() for part in parts.values()])
+    high = np.concatenate([part.high.ravel() for part in parts.values()])
+    return spaces.Box(low.astype(dtype), high.astype(dtype), dtype=dtype)
 
 
 def action_space(config: EnvConfig) -> spaces.Box:
@@ -36,6 +42,22 @@ def action_space(config: EnvConfig) -> spaces.Box:
     return spaces.Box(-bound, bound, shape=(config.action_size,), dtype=np.float64)
 
 
+def state_size(config: EnvConfig) -> int:
+    """Length of the ``global_state="normalized"`` vector: ``N * 2 dim`` rows and the 3 clock features."""
+    return config.n_agents * 2 * config.dim + CLOCK_SIZE
+
+
 def state_space(config: EnvConfig) -> spaces.Box:
-    """The global state ``(N, 2 dim)``: rows ``[x_i, v_i]``, unbounded, float64."""
+    """The global state of one episode.
+
+    ``global_state="raw"`` (default): ``(N, 2 dim)`` rows ``[x_i, v_i]``, unbounded, float64.
+    ``global_state="normalized"``: the flat ``(N * 2 dim + 3,)`` vector of
+    :func:`fxc_env.consensus_env.normalized_state`, rows in [-1, 1] and the clock in [0, 1],
+    in ``config.obs_dtype``.
+    """
+    if config.global_state == "normalized":
+        rows = config.n_agents * 2 * config.dim
+        dtype = config.observation_dtype
+        low = np.concatenate([np.full(rows, -1.0, dtype=dtype), np.zeros(CLOCK_SIZE, dtype=dtype)])
+        return spaces.Box(low, np.ones(state_size(config), dtype=dtype), dtype=dtype)
     return spaces.Box(-np.inf, np.inf, shape=(config.n_agents, 2 * config.dim), dtype=np.float64)

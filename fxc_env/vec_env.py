@@ -3,8 +3,10 @@
 One :class:`ConsensusEngine` runs ``n_envs`` episodes in lock step; each of their N agents
 is one SB3 sub-environment, so a single policy acts for all ``n_envs * N`` agents in one
 vectorised call. Stepping is array code; the only per-step Python work that grows with
-``num_envs`` is the list of info dicts SB3's contract asks for. (SPEC 7: SuperSuit's
-wrappers break seeding and attribute access, and are slower.)
+``num_envs`` is the list of info dicts SB3's contract asks for. SuperSuit's generic route
+(``pettingzoo_env_to_vec_env_v1`` then ``concat_vec_envs_v1``) also trains on the parallel
+environment, but it steps every agent through Python dicts, and SB3's ``seed``,
+``get_attr`` and ``set_attr`` do not reach the environments through it.
 """
 
 from __future__ import annotations
@@ -18,12 +20,30 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 from fxc_env.config import EnvConfig, check_max_cycles, check_render_mode, make_config
-from fxc_env.consensus_env import ConsensusParallelEnv
-from fxc_env.core.metrics import metrics_rows
+from fxc_env.consensus_env import ConsensusParallelEnv, episode_metrics_rows, normalized_state
+from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-from fxc_env.engine import ConsensusEngine, StepOutcome
+from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome
 from fxc_env.rendering import EpisodeView
 from fxc_env.spaces import action_space, observation_space
+
+#: Attributes of a :class:`ConsensusVecEnv` that :meth:`~ConsensusVecEnv.set_attr` refuses
+#: (besides private names, methods and every attribute of its :class:`EnvConfig`).
+FIXED_ATTRIBUTES = frozenset(
+    {
+        "config",
+        "engine",
+        "n_envs",
+        "n_agents",
+        "num_envs",
+        "observation_space",
+        "action_space",
+        "render_mode",
+        "metadata",
+        "last_outcome",
+        "reset_infos",
+    }
+)
 
 
 class ConsensusVecEnv(VecEnv):
@@ -35,7 +55,7 @@ class ConsensusVecEnv(VecEnv):
 
     | quantity           | shape                       | dtype   |
     |--------------------|-----------------------------|---------|
-    | observations       | ``(num_envs, obs_size)``    | float64 |
+    | observations       | ``(num_envs, obs_size)``    | ``obs_dtype`` (float64 by default) |
     | actions (accepted) | ``(num_envs, 2 dim)``       | any real, applied as float64 |
     | rewards            | ``(num_envs,)``             | float32 (team reward repeated per agent) |
     | dones              | ``(num_envs,)``             | bool    |
@@ -45,9 +65,10 @@ class ConsensusVecEnv(VecEnv):
     all episodes restart at once (auto-reset, as :class:`DummyVecEnv`). Infos are empty
     dicts during an episode; at its end each carries ``terminal_observation`` (the last
     observation before the reset), ``TimeLimit.truncated`` (True only for a ``max_cycles``
-    cut; the deadline is a termination) and ``episode_metrics`` (its episode's
-    ``EpisodeMetrics.as_dict()``, one dict shared by the episode's agents). Per-agent energy
-    and peak input of the last step are in :attr:`last_outcome` (arrays ``(n_envs, N)``).
+    cut; the deadline is a termination) and ``episode_metrics`` (its episode's metrics, as
+    the parallel env's ``infos[agent]["episode"]``: numbers only, ``inf``/``nan`` rather than
+    None, each sub-environment its own copy). Per-agent energy and peak input of the last
+    step are in :attr:`last_outcome` (arrays ``(n_envs, N)``).
 
     Seeding follows SB3: :meth:`seed` sets ``seed + i`` for sub-environment i, used at the
     next :meth:`reset` only. Episode b reads the seed (and the :meth:`set_options` options,
@@ -55,12 +76,17 @@ class ConsensusVecEnv(VecEnv):
     ``b * N``, so it draws its initial states from ``np.random.default_rng(seed + b * N)``
     and replays exactly the episodes of a ``ConsensusParallelEnv`` reset with that seed;
     later episodes continue that generator. Unseeded episodes use independent
-    nondeterministic generators.
+    nondeterministic generators, made at the first :meth:`reset`. :meth:`set_options`
+    checks the options it is given at once (the episode-first ones, which are read) and
+    refuses bad ones without storing anything.
 
     All sub-environments share one environment: :meth:`get_attr`, :meth:`set_attr` and
     :meth:`env_method` act on this object (falling back to :attr:`config` for reading), and
-    return one value per requested index. ``render_mode="rgb_array"`` or ``"human"`` draws
-    episode 0 (:meth:`render`).
+    return one value per requested index. :meth:`set_attr` refuses what the config fixes
+    (``n_agents``, ``settling_time``, ... and the structure built from it); ``max_cycles``
+    is checked. :meth:`state` is the global state of every episode (``global_state`` as
+    in :class:`ConsensusParallelEnv`). ``render_mode="rgb_array"`` or ``"human"`` draws
+    episode 0 (:meth:`render`, :meth:`get_images`; only episode 0 is recorded).
 
     Args:
         n_envs: number of parallel episodes.
@@ -72,8 +98,7 @@ class ConsensusVecEnv(VecEnv):
     def __init__(
         self, n_envs: int, *, render_mode: str | None = None, max_cycles: int | None = None, **env_kwargs: Any
     ) -> None:
-        if isinstance(n_envs, bool) or not isinstance(n_envs, int | np.integer) or n_envs < 1:
-            raise ArgumentError(f"n_envs: expected an integer >= 1, got {n_envs!r}")
+        n_envs = validation.integer("n_envs", n_envs, 1)
         check_render_mode(render_mode)
         check_max_cycles(max_cycles)
         config = make_config(**env_kwargs)
@@ -90,7 +115,8 @@ class ConsensusVecEnv(VecEnv):
         self.engine = ConsensusEngine(config, n_episodes=self.n_envs)
         #: What the last step did per episode and agent (``None`` before the first step).
         self.last_outcome: StepOutcome | None = None
-        self._rngs = [np.random.default_rng(s) for s in np.random.SeedSequence().spawn(self.n_envs)]
+        #: One generator per episode, made at the first reset (so copies of a fresh VecEnv differ).
+        self._rngs: list[np.random.Generator] | None = None
         self._actions: np.ndarray | None = None
         self._needs_reset = True
         self._steps = 0
@@ -102,9 +128,34 @@ class ConsensusVecEnv(VecEnv):
     # ------------------------------------------------------------ reset/seed
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
         """Seed sub-environment i with ``seed + i`` at the next :meth:`reset` (random if None)."""
-        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0):
-            raise ArgumentError(f"seed: expected None or an integer >= 0, got {seed!r}")
-        return super().seed(None if seed is None else int(seed))
+        seed = validation.optional_seed("seed", seed)
+        if seed is not None and seed + self.num_envs > validation.MAX_SEED:
+            raise ArgumentError(
+                f"seed: sub-environment seeds seed + i must stay below 2**128; expected at most "
+                f"{validation.MAX_SEED - self.num_envs}, got {seed!r}"
+            )
+        return super().seed(seed)
+
+    def set_options(self, options: list[dict] | dict | None = None) -> None:
+        """Options for the next :meth:`reset` (SB3's form); episode b reads those of sub-env ``b * N``.
+
+        Raises naming ``options`` (or ``options['x0']``, ``options['v0']``) if one that would
+        be read is bad; nothing is stored then, and later resets work as before.
+        """
+        if options is not None and not isinstance(options, dict):
+            if not isinstance(options, Sequence) or isinstance(options, str | bytes):
+                raise ArgumentTypeError(
+                    f"options: expected a dict, a list of dicts or None, got {type(options).__name__}"
+                )
+            if len(options) != self.num_envs:
+                raise ArgumentError(
+                    f"options: expected one entry per sub-environment ({self.num_envs}), got {len(options)}"
+                )
+        chosen = [options] if options is None or isinstance(options, dict) else options[:: self.n_agents]
+        for entry in chosen:
+            if entry:
+                self._initial_state_options(entry)
+        super().set_options(options)
 
     def reset(self) -> np.ndarray:
         """Restart every episode; observations ``(num_envs, obs_size)``.
@@ -112,9 +163,13 @@ class ConsensusVecEnv(VecEnv):
         Consumes the seeds and options set since the last reset (see the class docstring).
         """
         n = self.n_agents
-        overrides = {b: self._initial_state_options(o) for b, o in enumerate(self._options[::n]) if o}
+        try:
+            overrides = {b: self._initial_state_options(o) for b, o in enumerate(self._options[::n]) if o}
+        except ArgumentError:
+            self._reset_options()  # bad options are used (refused) once, so later resets work
+            raise
         seeds = self._seeds[::n]
-        x0, v0 = self._draw_initial_states(seeds)
+        x0, v0, draws = self._draw_episodes(seeds)
         for b, (given_x, given_v) in overrides.items():
             if given_x is not None:
                 x0[b] = given_x
@@ -126,7 +181,7 @@ class ConsensusVecEnv(VecEnv):
         # first episode's seed (its own stream: (seed, 1)); they make episodes differ from
         # separate ParallelEnv runs, which the initial states alone do not.
         rng = None if seeds[0] is None else np.random.default_rng((seeds[0], 1))
-        self._start(x0, v0, rng)
+        self._start(x0, v0, draws, rng)
         return self._observe()
 
     def _initial_state_options(self, options: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -137,18 +192,31 @@ class ConsensusVecEnv(VecEnv):
         v0 = validate("options['v0']", options["v0"]) if "v0" in options else None
         return x0, v0
 
-    def _draw_initial_states(self, seeds: Sequence[int | None] | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Each episode's ``(x0, v0)`` from its own generator, re-seeded where ``seeds[b]`` is given."""
-        shape = (self.n_envs, self.n_agents, self.config.dim)
-        x0, v0 = np.empty(shape), np.empty(shape)
+    def _draw_episodes(
+        self, seeds: Sequence[int | None] | None = None
+    ) -> tuple[np.ndarray, np.ndarray, list[EpisodeDraw]]:
+        """Each episode's draw (``x0``, ``v0`` stacked; topology, input limit) from its own
+        generator, re-seeded where ``seeds[b]`` is given (:meth:`ConsensusEngine.draw_episode`)."""
+        if self._rngs is None:
+            self._rngs = [np.random.default_rng(s) for s in np.random.SeedSequence().spawn(self.n_envs)]
+        draws = []
         for b in range(self.n_envs):  # the one per-episode loop: independent generators
             if seeds is not None and seeds[b] is not None:
                 self._rngs[b] = np.random.default_rng(seeds[b])
-            x0[b], v0[b] = self.engine.sample_initial_state(self._rngs[b])
-        return x0, v0
+            draws.append(self.engine.draw_episode(self._rngs[b]))
+        return np.stack([d.x0 for d in draws]), np.stack([d.v0 for d in draws]), draws
 
-    def _start(self, x0: np.ndarray, v0: np.ndarray, rng: np.random.Generator | None = None) -> None:
-        self.engine.reset(x0, v0, rng)
+    def _start(
+        self, x0: np.ndarray, v0: np.ndarray, draws: Sequence[EpisodeDraw], rng: np.random.Generator | None = None
+    ) -> None:
+        topologies = [d.topology for d in draws]
+        self.engine.reset(
+            x0,
+            v0,
+            rng,
+            topologies=None if all(t is None for t in topologies) else topologies,
+            u_max=[d.u_max for d in draws],
+        )
         self._steps = 0
         self._needs_reset = False
         self.reset_infos = [{} for _ in range(self.num_envs)]
@@ -165,7 +233,8 @@ class ConsensusVecEnv(VecEnv):
         return list(self._infos_pool)
 
     def _observe(self) -> np.ndarray:
-        return self.engine.observations().reshape(self.num_envs, -1)
+        obs = self.engine.observations().reshape(self.num_envs, -1)
+        return obs.astype(self.config.observation_dtype, copy=False)
 
     # ------------------------------------------------------------------ step
     def step_async(self, actions: np.ndarray) -> None:
@@ -197,12 +266,12 @@ class ConsensusVecEnv(VecEnv):
         self._view.record(self.engine.time, self.engine.x[0], self.engine.v[0])
         if not (terminated or truncated):
             return obs, rewards, np.zeros(self.num_envs, dtype=bool), self._empty_infos()
-        per_agent = [episode for episode in metrics_rows(self.engine.batch_metrics()) for _ in range(self.n_agents)]
+        per_agent = [episode for episode in episode_metrics_rows(self.engine) for _ in range(self.n_agents)]
         infos = [
-            {"terminal_observation": row, "TimeLimit.truncated": truncated, "episode_metrics": episode}
+            {"terminal_observation": row, "TimeLimit.truncated": truncated, "episode_metrics": dict(episode)}
             for row, episode in zip(obs, per_agent, strict=True)
         ]
-        self._start(*self._draw_initial_states())
+        self._start(*self._draw_episodes())
         return self._observe(), rewards, np.ones(self.num_envs, dtype=bool), infos
 
     # ------------------------------------------------------------ attributes
@@ -231,12 +300,20 @@ class ConsensusVecEnv(VecEnv):
                 "indices: all sub-environments share one environment, so set_attr applies to all of them; "
                 "pass indices=None"
             )
+        if not isinstance(attr_name, str):
+            raise ArgumentTypeError(f"attr_name: expected a str, got {attr_name!r}")
+        if (
+            attr_name.startswith("_")
+            or attr_name in FIXED_ATTRIBUTES
+            or hasattr(self.config, attr_name)
+            or callable(getattr(type(self), attr_name, None))
+        ):
+            raise ArgumentError(
+                f"{attr_name}: fixed when the ConsensusVecEnv is built (by its config, its structure or its "
+                "methods); build a new ConsensusVecEnv instead"
+            )
         if attr_name == "max_cycles":
             check_max_cycles(value)
-        if not hasattr(self, attr_name) and hasattr(self.config, attr_name):
-            raise AttributeError(
-                f"attr_name: {attr_name!r} belongs to the immutable EnvConfig; build a new ConsensusVecEnv instead"
-            )
         setattr(self, attr_name, value)
 
     def env_method(
@@ -251,7 +328,12 @@ class ConsensusVecEnv(VecEnv):
         return [False] * len(self._index_list(indices))
 
     def state(self) -> np.ndarray:
-        """Global states of all episodes ``(n_envs, N, 2 dim)``: rows ``[x_i, v_i]``."""
+        """Global states of all episodes: raw ``(n_envs, N, 2 dim)`` rows ``[x_i, v_i]``, or normalized ``(n_envs, N * 2 dim + 3)``.
+
+        One row per episode of what :meth:`ConsensusParallelEnv.state` returns for the same ``global_state``.
+        """
+        if self.config.global_state == "normalized":
+            return normalized_state(self.engine)
         return np.concatenate([self.engine.x, self.engine.v], axis=-1)
 
     # ---------------------------------------------------------------- render
@@ -263,7 +345,25 @@ class ConsensusVecEnv(VecEnv):
         if self.render_mode is None:
             warnings.warn("render: build the ConsensusVecEnv with render_mode='rgb_array' or 'human'", stacklevel=2)
             return None
-        return self._view.frame(int(self.engine.graph_indices()[0]))
+        if self._needs_reset:
+            raise RuntimeError("render: there is no episode to draw yet; call reset() first")
+        return self._view.frame(int(self.engine.graph_indices()[0]), self.engine.topologies[0])
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        """One frame per sub-environment: episode 0's frame so far (``rgb_array`` only).
+
+        Only episode 0 is recorded (a history of every episode would grow with ``num_envs``),
+        so every sub-environment gets that one frame, drawn once (the same array). Other
+        render modes warn and give None per sub-environment, as SB3's ``DummyVecEnv`` does.
+        """
+        if self.render_mode != "rgb_array":
+            warnings.warn(
+                f"get_images: needs render_mode='rgb_array', the ConsensusVecEnv has {self.render_mode!r}", stacklevel=2
+            )
+            return [None] * self.num_envs
+        if self._needs_reset:
+            raise RuntimeError("get_images: there is no episode to draw yet; call reset() first")
+        return [self._view.frame(int(self.engine.graph_indices()[0]), self.engine.topologies[0])] * self.num_envs
 
     def close(self) -> None:
         self._view.close()

@@ -1,8 +1,11 @@
-"""The ParallelEnv contract (SPEC 4): spaces, episode end, infos, state, seeding, validation."""
+"""The ParallelEnv contract (the environment's card): spaces, episode end, infos, state, seeding, validation."""
 
 from __future__ import annotations
 
+import copy
+import inspect
 import json
+import math
 import pickle
 import re
 import subprocess
@@ -15,6 +18,8 @@ from helpers import MODES, PAPER_V0, PAPER_X0, brute_spread, reference_actions
 
 import fxc_env
 from fxc_env import ReferencePolicy
+from fxc_env.consensus_env import ConsensusParallelEnv
+from fxc_env.core.validation import ArgumentError
 
 # ------------------------------------------------------------------ helpers
 
@@ -188,9 +193,136 @@ def test_dict_observation_format_matches_the_flat_one():
 
 def test_render_without_a_mode_returns_none():
     env = fxc_env.parallel_env()
+    with pytest.warns(UserWarning, match="render"):
+        assert env.render() is None  # before reset too: nothing to draw in any case
     env.reset(seed=0)
     with pytest.warns(UserWarning, match="render"):
         assert env.render() is None
+
+
+def test_render_before_reset_raises_a_clear_error_and_changes_nothing():
+    env = fxc_env.parallel_env(render_mode="rgb_array", n_intervals=5)
+    with pytest.raises(RuntimeError, match=r"reset\(\)"):
+        env.render()
+    env.reset(seed=0)
+    assert env.render().ndim == 3
+
+
+def test_infos_episode_is_numbers_only_and_one_dict_per_agent():
+    env = fxc_env.parallel_env(n_intervals=5, switching="random")  # no Theorem 2 prediction: nan
+    env.reset(seed=0)
+    while env.agents:
+        _, _, _, _, infos = env.step({a: np.zeros(2) for a in env.agents})
+    episodes = [info["episode"] for info in infos.values()]
+    assert len({id(e) for e in episodes}) == len(episodes)
+    for episode in episodes:
+        assert all(isinstance(v, float | int) and not isinstance(v, bool) for v in episode.values())
+        assert math.isnan(episode["predicted_final_position"]) and episode["t_eps_1e_6"] == math.inf
+        assert isinstance(episode["sampling_instants"], int)
+    episodes[0]["energy"] = -1.0
+    assert episodes[1]["energy"] != -1.0
+
+
+# ------------------------------------------------------ dtypes and global state
+
+
+@pytest.mark.parametrize("obs_format", ["flat", "dict"])
+def test_float32_observations_are_the_float64_ones_cast(obs_format):
+    wide = fxc_env.parallel_env(scenario="random_20_planar", obs_format=obs_format)
+    narrow = fxc_env.parallel_env(scenario="random_20_planar", obs_format=obs_format, obs_dtype="float32")
+    space = narrow.observation_space("agent_0")
+    for part in space.spaces.values() if obs_format == "dict" else [space]:
+        assert part.dtype == np.float32
+    obs_wide, _ = wide.reset(seed=2)
+    obs_narrow, _ = narrow.reset(seed=2)
+    policy = ReferencePolicy(wide)
+    for _ in range(5):
+        for agent in wide.agents:
+            assert space.contains(obs_narrow[agent])
+            parts = obs_narrow[agent].values() if obs_format == "dict" else [obs_narrow[agent]]
+            assert all(part.dtype == np.float32 for part in parts)
+            expected = wide.config.layout.flat(obs_wide[agent]).astype(np.float32)
+            np.testing.assert_array_equal(narrow.config.layout.flat(obs_narrow[agent]), expected)
+        actions = reference_actions(policy, obs_wide)
+        obs_wide = wide.step(actions)[0]
+        obs_narrow = narrow.step(actions)[0]
+    np.testing.assert_array_equal(wide.state(), narrow.state())  # the engine computes in float64 either way
+    assert narrow.state().dtype == np.float64
+
+
+def normalized_by_hand(x, v, settling_time):
+    d = brute_spread(x) + settling_time * brute_spread(v)
+    rows = np.concatenate([x - x.mean(axis=0), settling_time * (v - v.mean(axis=0))], axis=1)
+    return (rows / d).ravel()
+
+
+@pytest.mark.parametrize("dim", [1, 2])
+def test_normalized_global_state_is_scale_free_bounded_and_flat(dim):
+    kwargs = {"topology": "ring", "n_agents": 5, "dim": dim, "n_intervals": 10, "global_state": "normalized"}
+    env = fxc_env.parallel_env(**kwargs)
+    space = env.state_space
+    assert space.shape == (5 * 2 * dim + 3,) and space.dtype == np.float64
+    assert np.all(space.low[:-3] == -1) and np.all(space.high == 1) and np.all(space.low[-3:] == 0)
+    rng = np.random.default_rng(0)
+    x0, v0 = rng.normal(size=(5, dim)), rng.normal(size=(5, dim))
+    obs, _ = env.reset(options={"x0": x0, "v0": v0})
+    state = env.state()
+    assert space.contains(state)
+    np.testing.assert_allclose(state[:-3], normalized_by_hand(x0, v0, 20.0), rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(state[-3:], [0.0, env.config.schedule.intervals[0] / 20.0, 0.0])
+    assert np.max(np.abs(state[:-3])) > 0.2
+    # Scaled by 1e6 and shifted by a common position and velocity: the same state.
+    other = fxc_env.parallel_env(**kwargs)
+    other.reset(options={"x0": 1e6 * x0 + 3.0, "v0": 1e6 * v0 - 7.0})
+    np.testing.assert_allclose(other.state(), state, atol=1e-9)
+    # To the deadline under the reference: inside the Box, clock k / K ends at 1.
+    policy = ReferencePolicy(env)
+    while env.agents:
+        obs = env.step(reference_actions(policy, obs))[0]
+        assert space.contains(env.state())
+    assert env.state()[-1] == 1.0 and env.state()[-3] == 1.0
+
+
+def test_normalized_global_state_when_everyone_agrees_is_zero_rows():
+    env = fxc_env.parallel_env(topology="ring", n_agents=4, global_state="normalized", obs_dtype="float32")
+    env.reset(options={"x0": np.full(4, 2.0), "v0": np.full(4, -1.0)})
+    state = env.state()
+    assert state.dtype == np.float32 and env.state_space.dtype == np.float32
+    assert np.all(state[:-3] == 0) and env.state_space.contains(state)
+
+
+def test_raw_global_state_is_the_default():
+    env = fxc_env.parallel_env(topology="ring", n_agents=4, obs_dtype="float32")
+    env.reset(seed=0)
+    assert env.state().shape == (4, 2) and env.state().dtype == np.float64
+    assert env.state_space.shape == (4, 2)
+
+
+# ------------------------------------------------------------------ signature
+
+
+def test_the_signature_lists_every_argument_of_make_config_with_its_default():
+    config_parameters = inspect.signature(fxc_env.make_config).parameters
+    for factory in (ConsensusParallelEnv, fxc_env.parallel_env, fxc_env.env, fxc_env.raw_env):
+        parameters = inspect.signature(factory).parameters
+        assert list(parameters) == [*config_parameters, "render_mode", "max_cycles"], factory
+        for name, parameter in config_parameters.items():
+            assert parameters[name].default == parameter.default, (factory, name)
+            assert parameters[name].kind == parameter.kind, (factory, name)
+            assert parameters[name].annotation == parameter.annotation, (factory, name)
+        assert parameters["render_mode"].default is None and parameters["max_cycles"].default is None
+        assert all(p.kind is not inspect.Parameter.VAR_KEYWORD for p in parameters.values())
+
+
+def test_the_card_has_a_row_for_every_argument_and_cites_no_internal_documents():
+    card = inspect.getdoc(ConsensusParallelEnv)
+    for name in inspect.signature(ConsensusParallelEnv).parameters:
+        assert f"| ``{name}`` |" in card, name
+    assert "| parameter | type | default | meaning |" in card
+    for text in (card, inspect.getdoc(fxc_env.raw_env)):
+        assert "SPEC" not in text and "issue" not in text.lower() and "training/README" not in text
+    assert "eq. (11)" in card and "README" in card
+    assert "| ``obs_dtype`` |" in inspect.getdoc(fxc_env.raw_env)  # help(raw_env) shows the card too
 
 
 # ------------------------------------------------------------- determinism
@@ -298,6 +430,32 @@ def test_pickle_round_trip_mid_episode(kwargs):
     np.testing.assert_array_equal(env.state(), copy.state())
 
 
+def test_copies_made_before_the_first_reset_draw_independent_episodes():
+    env = fxc_env.parallel_env()
+    copies = [pickle.loads(pickle.dumps(env)), pickle.loads(pickle.dumps(env)), copy.deepcopy(env), env]
+    states = []
+    for each in copies:
+        each.reset()
+        states.append(each.state())
+    assert len({s.tobytes() for s in states}) == len(states)
+    # Seeded, every copy replays the same episode.
+    for each in copies:
+        each.reset(seed=3)
+    assert all(np.array_equal(each.state(), copies[0].state()) for each in copies)
+
+
+def test_ezpickle_records_the_constructor_arguments():
+    from gymnasium.utils import EzPickle
+
+    env = fxc_env.parallel_env("ring_6", n_intervals=7, max_cycles=3)
+    assert isinstance(env, EzPickle)
+    assert env._ezpickle_kwargs["scenario"] == "ring_6" and env._ezpickle_kwargs["n_intervals"] == 7
+    rebuilt = type(env)(*env._ezpickle_args, **env._ezpickle_kwargs)
+    assert (
+        rebuilt.config.n_intervals == 7 and rebuilt.max_cycles == 3 and rebuilt.possible_agents == env.possible_agents
+    )
+
+
 # --------------------------------------------------------------- validation
 
 
@@ -363,12 +521,35 @@ BAD_OPTIONS = [
 ]
 
 
+BAD_OPTIONS += [
+    ({"x0": [[0.0], [1.0, 2.0], [0.0], [0.0], [0.0], [0.0]]}, ArgumentError, re.escape("options['x0']")),
+    ({"v0": [0.0, [1.0, 2.0], 0, 0, 0, 0]}, ArgumentError, re.escape("options['v0']")),
+]
+
+
 @pytest.mark.parametrize(("options", "error", "name"), BAD_OPTIONS)
 def test_bad_reset_options_raise_naming_the_argument_and_leave_the_env_as_it_was(options, error, name):
     (env, twin), (obs, _), policy = started_pair(scenario="paper_fig1")
     with pytest.raises(error, match=name):
         env.reset(seed=99, options=options)
     assert_untouched_and_in_step(env, twin, obs, policy)
+
+
+@pytest.mark.parametrize("seed", ["abc", -1, 1.5, True, 2**128, np.float64(3.0), [1, 2]])
+def test_bad_seeds_raise_naming_seed_and_leave_the_env_as_it_was(seed):
+    (env, twin), (obs, _), policy = started_pair(scenario="random_20_planar")
+    with pytest.raises(ArgumentError, match="seed"):
+        env.reset(seed=seed)
+    with pytest.raises(ArgumentError, match="seed"):
+        env.reset(seed=seed, options={"x0": np.zeros((20, 2))})
+    assert_untouched_and_in_step(env, twin, obs, policy)
+
+
+def test_numpy_integer_seeds_are_accepted():
+    env, twin = fxc_env.parallel_env(), fxc_env.parallel_env()
+    env.reset(seed=np.int64(5))
+    twin.reset(seed=5)
+    np.testing.assert_array_equal(env.state(), twin.state())
 
 
 def test_reset_options_must_be_a_mapping():
@@ -434,6 +615,9 @@ BAD_CONSTRUCTION = [
     ({"link_dropout": 1.0}, ValueError, "link_dropout"),
     ({"link_dropout": -0.5}, ValueError, "link_dropout"),
     ({"switching": "markov"}, ValueError, "switching"),
+    ({"obs_dtype": "float16"}, ValueError, "obs_dtype"),
+    ({"obs_dtype": np.float32}, ValueError, "obs_dtype"),
+    ({"global_state": "flat"}, ValueError, "global_state"),
     ({"topology": "complete", "obs_slots": 2}, ValueError, "obs_slots"),
     ({"initial_state": "zeros"}, ValueError, "initial_state"),
     ({"schedule": [10.0, 5.0]}, ValueError, "schedule"),
@@ -449,3 +633,21 @@ def test_bad_construction_names_the_argument_and_leaves_live_envs_alone(kwargs, 
     with pytest.raises(error, match=pattern):
         fxc_env.env(**kwargs)
     assert_untouched_and_in_step(env, twin, obs, policy)
+
+
+def test_a_topology_family_and_a_set_of_input_limits_are_drawn_at_every_reset():
+    from fxc_env.core.families import edge_lists
+
+    family = {"family": "random", "mean_in_degree": (1.0, 3.0), "period": (1, 3)}
+    env = fxc_env.parallel_env(topology=family, n_agents=8, n_intervals=5, u_max=(10.0, 100.0))
+    topologies, limits = set(), set()
+    for seed in range(8):
+        obs, _ = env.reset(seed=seed)
+        topologies.add(repr(edge_lists(env.engine.topologies[0])))
+        limits.add(float(env.engine.u_max[0]))
+        assert all(env.observation_space(agent).contains(o) for agent, o in obs.items())
+    assert len(topologies) > 1 and limits == {10.0, 100.0}
+    env.reset(seed=3)
+    first = (repr(edge_lists(env.engine.topologies[0])), env.state().copy())
+    env.reset(seed=3)
+    assert first[0] == repr(edge_lists(env.engine.topologies[0])) and np.array_equal(first[1], env.state())

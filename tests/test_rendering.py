@@ -1,4 +1,4 @@
-"""Frames (SPEC 4.6): rgb_array frames are HxWx3 uint8 pictures; human mode returns None."""
+"""Frames: rgb_array frames are HxWx3 uint8 pictures; human mode returns None; nothing before reset."""
 
 from __future__ import annotations
 
@@ -92,3 +92,16 @@ def test_draw_graph_draws_one_arrow_per_edge_or_a_summary(n):
     else:
         assert not ax.patches
         assert f"{n} agents" in ax.texts[0].get_text()
+
+
+def test_render_before_reset_is_a_clear_error_in_every_front_end():
+    for env in (
+        fxc_env.parallel_env(render_mode="rgb_array"),
+        fxc_env.raw_env(render_mode="rgb_array"),
+        fxc_env.ConsensusVecEnv(1, render_mode="rgb_array"),
+    ):
+        with pytest.raises(RuntimeError, match=r"reset\(\)"):
+            env.render()
+    view_env = fxc_env.parallel_env(render_mode="rgb_array")
+    with pytest.raises(RuntimeError, match="reset"):
+        view_env._view.frame(0)

@@ -14,7 +14,7 @@ from fxc_env.spaces import action_space, observation_space, state_space
 
 @pytest.mark.parametrize(("action_mode", "obs_mode"), MODES)
 def test_reference_actions_fit_the_action_box_in_normalized_mode_for_any_state(action_mode, obs_mode):
-    """SPEC 4.3: the action Box is wide enough for the reference; in normalised units for every state."""
+    """The action Box is wide enough for the reference (eq. 11); in normalised units for every state."""
     config = make_config(
         topology="random",
         n_agents=12,
@@ -57,3 +57,38 @@ def test_dict_form_holds_rows_mask_and_clock():
     assert set(space.spaces) == {"neighbours", "mask", "clock"}
     assert space["neighbours"].shape == (config.layout.slots, 2 * config.dim)
     assert space["clock"].shape == (3,)
+
+
+@pytest.mark.parametrize("obs_format", ["flat", "dict"])
+@pytest.mark.parametrize("obs_mode", ["normalized", "raw"])
+def test_float32_spaces_have_the_float64_bounds(obs_format, obs_mode):
+    wide = observation_space(make_config("random_20_planar", obs_format=obs_format, obs_mode=obs_mode))
+    narrow = observation_space(
+        make_config("random_20_planar", obs_format=obs_format, obs_mode=obs_mode, obs_dtype="float32")
+    )
+    pairs = zip(wide.spaces.values(), narrow.spaces.values(), strict=True) if obs_format == "dict" else [(wide, narrow)]
+    for w, n in pairs:
+        assert w.dtype == np.float64 and n.dtype == np.float32
+        np.testing.assert_array_equal(w.low, n.low)
+        np.testing.assert_array_equal(w.high, n.high)
+
+
+def test_state_space_follows_global_state_and_obs_dtype():
+    raw = state_space(make_config("random_20_planar", obs_dtype="float32"))
+    assert raw.shape == (20, 4) and raw.dtype == np.float64  # the raw state is physical, float64
+    normalized = state_space(make_config("random_20_planar", global_state="normalized", obs_dtype="float32"))
+    assert normalized.shape == (20 * 4 + 3,) and normalized.dtype == np.float32
+    assert normalized.is_bounded() and np.all(normalized.low[:-3] == -1) and np.all(normalized.low[-3:] == 0)
+
+
+@pytest.mark.parametrize("obs_format", ["flat", "dict"])
+def test_an_input_limit_adds_one_bounded_entry(obs_format):
+    config = make_config("paper_fig1", u_max=100.0, obs_format=obs_format)
+    env = fxc_env.parallel_env("paper_fig1", u_max=100.0, obs_format=obs_format)
+    space = observation_space(config)
+    obs, _ = env.reset(seed=0)
+    assert space.contains(obs["agent_0"])
+    if obs_format == "dict":
+        assert space["input_limit"].shape == (1,) and set(obs["agent_0"]) == set(space.spaces)
+    else:
+        assert space.shape == (config.layout.size,) and space.low[-1] == -1 and space.high[-1] == 1

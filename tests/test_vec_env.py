@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 from gymnasium import spaces
@@ -12,6 +14,7 @@ from stable_baselines3.common.vec_env import VecCheckNan, VecMonitor, VecNormali
 import fxc_env
 from fxc_env import ConsensusVecEnv, ReferencePolicy
 from fxc_env.consensus_env import ConsensusParallelEnv
+from fxc_env.core.validation import ArgumentError
 
 TOL = 1e-12
 SHORT = {"n_intervals": 12}
@@ -82,9 +85,8 @@ def test_batched_episodes_equal_separate_parallel_envs(case: str, policy: str) -
                     achieved = infos[b * n + a]["episode_metrics"]
                     assert achieved.keys() == expected.keys()
                     for key, value in expected.items():
-                        assert (achieved[key] is None) == (value is None), key
-                        if value is not None:
-                            assert achieved[key] == pytest.approx(value, rel=TOL, abs=0.0), key
+                        assert achieved[key] is not None and type(achieved[key]) is type(value), key
+                        assert achieved[key] == pytest.approx(value, rel=TOL, abs=0.0, nan_ok=True), key
                 env_obs[b] = stacked(env, env.reset()[0])  # unseeded: continues the episode's generator
 
 
@@ -191,6 +193,16 @@ def test_unseeded_episodes_are_independent() -> None:
     assert not np.allclose(other.engine.x0, venv.engine.x0)
 
 
+def test_copies_made_before_the_first_reset_draw_their_own_episodes() -> None:
+    venv = ConsensusVecEnv(2, **SHORT)
+    copies = [pickle.loads(pickle.dumps(venv)) for _ in range(2)]
+    first, second = (copy.reset() for copy in copies)
+    assert not np.allclose(first, second)
+    venv.reset()
+    twin = pickle.loads(pickle.dumps(venv))  # after a reset the copy continues the same generators
+    np.testing.assert_array_equal(venv.reset(), twin.reset())
+
+
 def test_options_set_the_initial_state_of_each_episode() -> None:
     venv = ConsensusVecEnv(2, **SHORT)
     n = venv.n_agents
@@ -205,9 +217,29 @@ def test_options_set_the_initial_state_of_each_episode() -> None:
     assert not np.allclose(venv.engine.x0[0, :, 0], x0)
     venv.reset()  # options are used once
     assert not np.allclose(venv.engine.x0[1, :, 0], x0)
-    venv.set_options({"x0": np.zeros(3)})
+    # A bad option is refused when given, nothing is stored, and later resets work.
+    state = venv.state()
+    with pytest.raises(ValueError, match=r"options\['x0'\]"):
+        venv.set_options({"x0": np.zeros(3)})
+    np.testing.assert_array_equal(venv.state(), state)
+    for _ in range(2):
+        venv.reset()
+    with pytest.raises(ValueError, match=r"options\['x0'\]"):
+        venv.set_options([{"x0": [[0.0], [1.0, 2.0]]}] * venv.num_envs)  # ragged
+    with pytest.raises(ValueError, match="options"):
+        venv.set_options([{}] * (venv.num_envs - 1))
+    with pytest.raises(TypeError, match="options"):
+        venv.set_options([5] + [{}] * (venv.num_envs - 1))
+    venv.reset()
+    assert venv.engine.k == 0
+
+
+def test_bad_options_written_behind_set_options_fail_one_reset_only() -> None:
+    venv = ConsensusVecEnv(2, **SHORT)
+    venv._options = [{"x0": np.zeros(3)}] * venv.num_envs  # bypasses set_options' check
     with pytest.raises(ValueError, match=r"options\['x0'\]"):
         venv.reset()
+    venv.reset()
 
 
 # --------------------------------------------------------------- attributes
@@ -235,9 +267,33 @@ def test_set_attr_applies_to_every_sub_env() -> None:
         venv.set_attr("max_cycles", 5, indices=[0])
     with pytest.raises(ValueError, match="max_cycles"):
         venv.set_attr("max_cycles", 0)
-    with pytest.raises(AttributeError, match="EnvConfig"):
-        venv.set_attr("settling_time", 3.0)
     assert venv.max_cycles == 3 and venv.config.settling_time == 20.0
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("settling_time", 3.0),
+        ("n_agents", 3),
+        ("n_intervals", 5),
+        ("config", None),
+        ("engine", None),
+        ("num_envs", 2),
+        ("n_envs", 1),
+        ("render_mode", "rgb_array"),
+        ("reset", None),
+        ("_steps", 0),
+    ],
+)
+def test_set_attr_refuses_what_the_config_fixes_and_changes_nothing(name: str, value: object) -> None:
+    venv = ConsensusVecEnv(2, **SHORT)
+    obs = venv.reset()
+    before = {key: getattr(venv, key) for key in ("n_agents", "config", "engine", "num_envs", "n_envs", "render_mode")}
+    with pytest.raises(ArgumentError, match=name):
+        venv.set_attr(name, value)
+    assert {key: getattr(venv, key) for key in before} == before
+    venv.step(ReferencePolicy(venv)(obs))
+    assert venv.engine.k == 1
 
 
 def test_env_method_and_env_is_wrapped() -> None:
@@ -261,8 +317,9 @@ def test_bad_arguments_are_named() -> None:
         ConsensusVecEnv(1, max_cycles=0)
     with pytest.raises(ValueError, match="render_mode"):
         ConsensusVecEnv(1, render_mode="ascii")
-    with pytest.raises(ValueError, match="seed"):
-        ConsensusVecEnv(1).seed(-1)
+    for seed in (-1, 1.5, "abc", 2**128):
+        with pytest.raises(ValueError, match="seed"):
+            ConsensusVecEnv(1).seed(seed)
 
 
 def test_bad_actions_are_named_and_leave_the_env_unchanged() -> None:
@@ -364,4 +421,70 @@ def test_rgb_array_render_draws_episode_zero() -> None:
     frame = venv.render()
     assert frame is not None and frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
     assert len(venv._view.history) == 4  # t_0 and three sampling instants of episode 0
+    images = venv.get_images()
+    assert len(images) == venv.num_envs
+    assert all(image is images[0] for image in images)  # episode 0's frame, drawn once
+    np.testing.assert_array_equal(images[0], frame)
     venv.close()
+
+
+def test_get_images_and_render_before_reset_or_without_rgb_array() -> None:
+    venv = ConsensusVecEnv(2, render_mode="rgb_array", **SHORT)
+    with pytest.raises(RuntimeError, match="reset"):
+        venv.render()
+    with pytest.raises(RuntimeError, match="reset"):
+        venv.get_images()
+    plain = ConsensusVecEnv(2, **SHORT)
+    plain.reset()
+    with pytest.warns(UserWarning, match="rgb_array"):
+        assert plain.get_images() == [None] * plain.num_envs
+
+
+# ------------------------------------------------------ dtypes and global state
+def test_float32_observations_are_the_float64_ones_cast() -> None:
+    wide = ConsensusVecEnv(2, **SHORT)
+    narrow = ConsensusVecEnv(2, obs_dtype="float32", **SHORT)
+    assert narrow.observation_space.dtype == np.float32
+    for venv in (wide, narrow):
+        venv.seed(4)
+    obs_wide, obs_narrow = wide.reset(), narrow.reset()
+    assert obs_narrow.dtype == np.float32
+    np.testing.assert_array_equal(obs_narrow, obs_wide.astype(np.float32))
+    actions = ReferencePolicy(wide)(obs_wide)
+    for _ in range(SHORT["n_intervals"]):
+        obs_wide, _, _, infos_wide = wide.step(actions)
+        obs_narrow, _, dones, infos = narrow.step(actions)
+        actions = ReferencePolicy(wide)(obs_wide)
+    assert dones.all() and obs_narrow.dtype == np.float32
+    assert infos[0]["terminal_observation"].dtype == np.float32
+    np.testing.assert_array_equal(
+        infos[0]["terminal_observation"], infos_wide[0]["terminal_observation"].astype(np.float32)
+    )
+    assert all(narrow.observation_space.contains(row) for row in obs_narrow)
+
+
+def test_normalized_state_of_each_episode_is_the_parallel_envs() -> None:
+    venv = ConsensusVecEnv(3, global_state="normalized", obs_dtype="float32", **SHORT)
+    env = ConsensusParallelEnv(global_state="normalized", obs_dtype="float32", **SHORT)
+    venv.seed(7)
+    venv.reset()
+    state = venv.state()
+    assert state.shape == (3, env.state_space.shape[0]) and state.dtype == np.float32
+    env.reset(seed=7 + venv.n_agents)
+    np.testing.assert_array_equal(state[1], env.state())
+    assert all(env.state_space.contains(row) for row in state)
+
+
+def test_episode_metrics_are_numbers_and_one_dict_per_sub_env() -> None:
+    venv = ConsensusVecEnv(2, switching="random", **SHORT)  # Theorem 2's prediction does not apply
+    venv.reset()
+    for _ in range(SHORT["n_intervals"]):
+        _, _, dones, infos = venv.step(np.zeros((venv.num_envs, 2)))
+    assert dones.all()
+    metrics = [info["episode_metrics"] for info in infos]
+    assert len({id(m) for m in metrics}) == venv.num_envs
+    for m in metrics:
+        assert None not in m.values()
+        assert np.isnan(m["predicted_final_position"]) and m["t_eps_1e_6"] == np.inf  # zero input: never settles
+    metrics[0]["energy"] = -1.0
+    assert metrics[1]["energy"] == 0.0
