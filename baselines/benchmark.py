@@ -1,4 +1,4 @@
-"""``fxc benchmark``: every policy on the same scenarios, scored at the deadline ``T_s`` (SPEC 5).
+"""``fxc benchmark``: every policy on the same scenarios, scored at the deadline ``T_s``.
 
 Each job is one contender on one scenario at one budget K: a :class:`ConsensusEngine` runs
 all seeded initial states of the suite as one batch (B = number of seeds) and returns
@@ -24,6 +24,7 @@ from typing import Any
 from fxc_env.baselines import figures, report
 from fxc_env.baselines.jobs import JobResult, make_jobs, run_job
 from fxc_env.baselines.suite import (
+    BUILTIN_SETTINGS,
     Contender,
     Suite,
     builtin_contenders,
@@ -32,7 +33,8 @@ from fxc_env.baselines.suite import (
     quick_suite,
     realism_suite,
 )
-from fxc_env.core.validation import ArgumentError
+from fxc_env.cli_checks import output_directory
+from fxc_env.core.validation import MAX_INTERVALS, ArgumentError, integer
 from fxc_env.threads import single_threaded_children
 
 
@@ -117,7 +119,7 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         "benchmark",
         help="score the reference, the baselines and learned policies on the same scenarios at T_s",
         description="Score the reference, the baselines and learned policies on identical seeded scenarios "
-        "by SPEC 5's deadline metrics; write table.md, results.csv, episodes.csv and three PNGs.",
+        "by the deadline metrics; write table.md, results.csv, episodes.csv and three PNGs.",
     )
     parser.add_argument("--quick", action="store_true", help="a smaller suite that runs in under a minute")
     parser.add_argument(
@@ -168,17 +170,26 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def benchmark_command(args: argparse.Namespace) -> int:
     """Handler of ``fxc benchmark``: run, print the Markdown report, list the files."""
-    for name in ("seeds", "workers", "fine_intervals"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise ArgumentError(f"--{name.replace('_', '-')}: expected an integer >= 1, got {value}")
+    # Every value is checked (and every learned policy loaded) before the first job runs.
+    integer("--seeds", args.seeds, 1)
+    if args.workers is not None:
+        integer("--workers", args.workers, 1)
+    if args.fine_intervals is not None:
+        integer("--fine-intervals", args.fine_intervals, 1, MAX_INTERVALS)
     if args.address is not None and not args.ray:
         raise ArgumentError("--address: joins a Ray cluster for --ray; add --ray")
     if args.address is not None and args.workers is not None:
         raise ArgumentError("--workers: sets the cores of a local Ray; the cluster at --address has its own")
+    out = output_directory("--out", args.out)
+    names = None if args.policies is None else [n.strip() for n in args.policies.split(",") if n.strip()]
+    if names is not None:
+        unknown = [n for n in names if n not in BUILTIN_SETTINGS]
+        if unknown:
+            raise ArgumentError(f"--policies: unknown name(s) {unknown}; expected some of {tuple(BUILTIN_SETTINGS)}")
+        if not names and not args.policy:
+            raise ArgumentError(f"--policies: expected at least one of {tuple(BUILTIN_SETTINGS)} (or a --policy)")
     make_suite = quick_suite if args.quick else realism_suite if args.suite == "realism" else full_suite
     suite = make_suite(args.seeds, **({"fine_intervals": args.fine_intervals} if args.fine_intervals else {}))
-    names = None if args.policies is None else [n.strip() for n in args.policies.split(",") if n.strip()]
     contenders = builtin_contenders(names)
     for spec in args.policy:
         contenders.append(
@@ -187,13 +198,14 @@ def benchmark_command(args: argparse.Namespace) -> int:
                 schedule=args.learned_schedule,
                 action_mode=args.learned_action_mode,
                 obs_mode=args.learned_obs_mode,
+                name="--policy",
             )
         )
     command = "fxc benchmark " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["benchmark"] else None
     output = run_benchmark(
         suite,
         contenders,
-        args.out,
+        out,
         workers=args.workers,
         progress=not args.no_progress,
         command=command,

@@ -1,4 +1,11 @@
-"""The ``fxc`` command line: ``fxc simulate`` runs a scenario and writes its figures."""
+"""The ``fxc`` command line: ``fxc simulate`` runs a scenario and writes its figures.
+
+Every subcommand parses with argparse and checks all of its paths, counts and thresholds
+(:mod:`fxc_env.cli_checks`) before it starts work. A usage error is an
+:class:`~fxc_env.core.validation.ArgumentError` (the only exception :func:`main` turns into
+``fxc <command>: error: <message>`` on stderr, exit status 2); any other exception is a bug
+and keeps its traceback.
+"""
 
 from __future__ import annotations
 
@@ -7,53 +14,20 @@ import json
 import math
 import sys
 from collections.abc import Sequence
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from fxc_env.baselines.benchmark import add_benchmark_parser
-from fxc_env.scenarios import SCENARIOS
+from fxc_env.cli_checks import output_directory
+from fxc_env.core.validation import MAX_AGENTS, ArgumentError, integer, optional_seed
+from fxc_env.env_arguments import add_env_arguments, env_kwargs_from
 from fxc_env.training.args import add_train_parser
 from fxc_env.training.evaluate import add_evaluate_parser
 
-
-def _env_arguments(parser: argparse.ArgumentParser) -> None:
-    """Environment settings shared by the subcommands (None keeps the scenario's value)."""
-    group = parser.add_argument_group("environment")
-    group.add_argument("--scenario", default="paper_fig1", help=f"named scenario {tuple(SCENARIOS)} or 'none'")
-    group.add_argument("--topology", help="ring, path, star, complete, random, paper_fig1")
-    group.add_argument("--n-agents", type=int, help="number of agents N")
-    group.add_argument("--n-intervals", type=int, help="number of sampling intervals K")
-    group.add_argument("--settling-time", type=float, help="deadline T_s in seconds")
-    group.add_argument("--schedule", choices=("paper", "uniform"), help="sampling schedule")
-    group.add_argument("--dim", type=int, help="space dimension n")
-    group.add_argument("--action-mode", default="plan", choices=("plan", "accel"))
-    group.add_argument("--obs-mode", default="normalized", choices=("normalized", "raw"))
-    group.add_argument("--topology-seed", type=int, default=0, help="seed of the random topology")
-    group.add_argument("--mean-in-degree", type=float, help="mean in-degree of the random topology")
-    group.add_argument("--topology-period", type=int, help="graphs per switching period of the random topology")
-    group.add_argument("--seed", type=int, default=0, help="seed of the random initial state")
-
-
-def env_kwargs_from(args: argparse.Namespace) -> dict[str, Any]:
-    """The ``make_config`` keyword arguments an argparse namespace asks for."""
-    names = (
-        "topology",
-        "n_agents",
-        "n_intervals",
-        "settling_time",
-        "schedule",
-        "dim",
-        "action_mode",
-        "obs_mode",
-        "topology_seed",
-        "mean_in_degree",
-        "topology_period",
-    )
-    kwargs = {name: getattr(args, name) for name in names if getattr(args, name) is not None}
-    scenario = None if args.scenario in (None, "none") else args.scenario
-    return {"scenario": scenario, **kwargs}
+#: The usage error: the one exception :func:`main` prints as a one-line message (exit status 2).
+UsageError = ArgumentError
+#: The first N of ``fxc speed``'s scaling table (:func:`fxc_env.speed.scaling_table`); ``--largest`` is at least this.
+SCALING_FIRST_N = 100
 
 
 def _format(value: float) -> str:
@@ -66,18 +40,20 @@ def simulate_command(args: argparse.Namespace) -> int:
     from fxc_env.plots import write_figures
     from fxc_env.simulation import simulate
 
+    out = output_directory("--out", args.out)
+    integer("--points-per-interval", args.points_per_interval, 1)
+    optional_seed("--seed", args.seed)
     kwargs = env_kwargs_from(args)
     scenario = kwargs.pop("scenario")
     trajectory = simulate("reference", scenario, seed=args.seed, points_per_interval=args.points_per_interval, **kwargs)
-    c, m = trajectory.config, trajectory.metrics
-    out = Path(args.out)
+    c, m, topology = trajectory.config, trajectory.metrics, trajectory.topology
     files = write_figures(trajectory, out)
-    xi = c.topology.consensus_weights() if c.n_agents <= 2000 else None
+    xi = topology.consensus_weights() if c.n_agents <= 2000 and c.switching == "periodic" else None
     record = {
         "scenario": scenario,
         "settings": {
-            "topology": c.topology.describe(),
-            "topology_note": c.topology.note,
+            "topology": topology.describe(),
+            "topology_note": topology.note,
             "n_agents": c.n_agents,
             "n_intervals": c.n_intervals,
             "settling_time": c.settling_time,
@@ -86,6 +62,8 @@ def simulate_command(args: argparse.Namespace) -> int:
             "action_mode": c.action_mode,
             "obs_mode": c.obs_mode,
             "seed": args.seed,
+            "u_max": trajectory.u_max,
+            "edges": [edges.tolist() for edges in topology.edges],
         },
         "xi": None if xi is None else xi.tolist(),
         "metrics": m.as_dict(),
@@ -93,9 +71,9 @@ def simulate_command(args: argparse.Namespace) -> int:
     (out / "metrics.json").write_text(json.dumps(record, indent=2) + "\n")
     files.append(out / "metrics.json")
 
-    print(f"fxc simulate: {scenario or 'custom'} — {c.topology.describe()}")
-    if c.topology.note:
-        print(f"  topology: {c.topology.note}")
+    print(f"fxc simulate: {scenario or 'custom'} — {topology.describe()}")
+    if topology.note:
+        print(f"  topology: {topology.note}")
     print(f"  T_s = {c.settling_time:g} s, K = {c.n_intervals} intervals ({c.schedule.name} schedule), dim = {c.dim}")
     if xi is not None:
         print("  xi = [" + ", ".join(f"{w:.6g}" for w in xi) + "]")
@@ -129,17 +107,22 @@ def speed_command(args: argparse.Namespace) -> int:
     from fxc_env import speed
     from fxc_env.threads import pin_threads_or_reexec
 
+    integer("--rounds", args.rounds, 1)
+    integer("--total-agents", args.total_agents, 1, MAX_AGENTS)
+    integer("--largest", args.largest, SCALING_FIRST_N, MAX_AGENTS)
     pin_threads_or_reexec("fxc_env.cli", sys.argv[1:] if args.argv is None else args.argv)
     return speed.run(args)
 
 
 def train_command(args: argparse.Namespace) -> int:
     """``fxc train``: the back end named by ``--backend`` trains (see :mod:`fxc_env.training.backends`)."""
-    from fxc_env.training.args import args_from_namespace
+    from fxc_env.training.args import args_from_namespace, check_train_args
     from fxc_env.training.backends import train
 
+    train_args = args_from_namespace(args)
+    check_train_args(train_args, flags=True)
     try:
-        train(args_from_namespace(args))
+        train(train_args)
     except KeyboardInterrupt:
         return 130
     return 0
@@ -149,7 +132,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fxc", description="Fixed-time consensus of double integrators (fxc_env).")
     commands = parser.add_subparsers(dest="command", required=True)
     sim = commands.add_parser("simulate", help="run the reference policy on a scenario and write figures")
-    _env_arguments(sim)
+    add_env_arguments(sim)
+    sim.add_argument("--seed", type=int, default=0, help="seed of the episode (initial state, family draw, noise)")
     sim.add_argument("--out", default="out", help="directory for PNGs and metrics.json")
     sim.add_argument("--points-per-interval", type=int, default=24, help="dense samples per interval in the figures")
     sim.set_defaults(handler=simulate_command)
@@ -172,8 +156,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.argv = list(argv)
     try:
         return args.handler(args)
-    except (ValueError, TypeError) as exc:
-        print(f"fxc {args.command}: error: {exc}", file=sys.stderr)
+    except UsageError as exc:  # only usage errors: any other exception is a bug and keeps its traceback
+        message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())  # one line
+        print(f"fxc {args.command}: error: {message}", file=sys.stderr)
         return 2
 
 

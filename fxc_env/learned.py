@@ -10,7 +10,10 @@ how a saved policy loads.
 
 from __future__ import annotations
 
+import pickle
 import re
+import zipfile
+import zlib
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -19,12 +22,30 @@ import numpy as np
 
 from fxc_env.core.validation import ArgumentError
 
-#: The policy trained on ``paper_fig1`` that ships with the package (see ``training/README``).
+#: The policy trained on ``paper_fig1`` that ships with the package (README, "Training learned policies").
 PRETRAINED = "paper_fig1_ppo.zip"
 #: The RLModule that ``fxc train --backend rllib`` shares between all agents.
 RLLIB_MODULE = "shared"
 #: RLlib checkpoints of a run: ``<run>/checkpoints/rllib_<timesteps>_steps/``.
 RLLIB_CHECKPOINT_PATTERN = re.compile(r"rllib_(\d+)_steps")
+
+
+#: What loading a damaged or foreign SB3 ``.zip`` raises: zipfile's and zlib's errors for a damaged
+#: archive (SB3 wraps some in ``ValueError``), ``KeyError``/``AssertionError`` ("No data found") for
+#: an archive without SB3's members, JSON and pickle errors for damaged members, ``EOFError`` and
+#: torch's ``RuntimeError`` for truncated weights, ``TypeError``/``ValueError`` for the wrong algorithm.
+MODEL_LOAD_ERRORS = (
+    zipfile.BadZipFile,
+    zlib.error,
+    EOFError,
+    KeyError,
+    AssertionError,
+    pickle.UnpicklingError,
+    ValueError,
+    TypeError,
+    RuntimeError,
+    OSError,
+)
 
 
 def pretrained_path() -> Path:
@@ -39,13 +60,26 @@ def load_model(path: str | Path) -> Any:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"policy: no saved model at {path}")
+    if not path.is_file():
+        raise ArgumentError(f"policy: {path} is not a file (expected a saved SB3 model, .zip)")
+    if path.stat().st_size == 0:
+        raise ArgumentError(f"policy: {path} is an empty file (expected a saved SB3 model, .zip)")
+    if not zipfile.is_zipfile(path):
+        raise ArgumentError(f"policy: {path} is not a zip archive (expected a saved SB3 model, .zip)")
     errors = []
     for algo in (PPO, SAC):
         try:
             return algo.load(path, device="cpu")
-        except (ValueError, KeyError, TypeError, RuntimeError) as exc:  # wrong algorithm for this file
-            errors.append(f"{algo.__name__}: {exc}")
+        except MODEL_LOAD_ERRORS as exc:  # the wrong algorithm for this file, or a damaged file
+            errors.append(f"{algo.__name__}: {_summary(exc)}")
     raise ArgumentError(f"policy: {path} is neither a PPO nor a SAC model ({'; '.join(errors)})")
+
+
+def _summary(exc: BaseException) -> str:
+    """The exception's type and the first line of its message, at most 160 characters."""
+    lines = str(exc).strip().splitlines()
+    text = f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
 
 
 class LearnedPolicy:
@@ -65,8 +99,6 @@ class LearnedPolicy:
         self.action_size = int(np.prod(self.model.action_space.shape))
         self._normalizer = None
         if vecnormalize is not None:
-            import pickle
-
             with open(vecnormalize, "rb") as handle:
                 self._normalizer = pickle.load(handle)
         if env is not None:
@@ -143,7 +175,10 @@ class RLlibPolicy:
                 'pip install "fxc-env[rllib]"'
             ) from exc
         self.checkpoint = found
-        self.module = RLModule.from_checkpoint(module_dir)
+        try:
+            self.module = RLModule.from_checkpoint(module_dir)
+        except MODEL_LOAD_ERRORS as exc:
+            raise ArgumentError(f"policy: cannot load the RLlib module in {module_dir} ({_summary(exc)})") from exc
         self.module.eval()
         self._distribution = self.module.get_inference_action_dist_cls()
         self.obs_size = int(np.prod(self.module.observation_space.shape))
@@ -166,12 +201,68 @@ class RLlibPolicy:
         return actions.reshape((*lead, self.action_size))
 
 
-def load_learned_policy(path: str | Path, env: Any = None) -> LearnedPolicy | RLlibPolicy:
+class PerAxisPolicy:
+    """A policy trained in one dimension acting on each axis of a ``dim``-dimensional environment.
+
+    The paper's controller (eq. 11) acts on every axis alone, and so can a learned policy:
+    for axis c the agent's normalized rows are rescaled by their own largest entry
+    ``sigma_c`` (so the axis looks as it would alone, with local scale ``sigma_c s_i``), the
+    one-dimensional policy acts, and its action, in units of ``sigma_c s_i``, is multiplied by
+    ``sigma_c`` back into the environment's units of ``s_i`` (plan and accel actions are
+    linear in the scale). The input-limit feature is recomputed for the axis's scale. Only
+    for ``obs_mode="normalized"`` (raw observations carry no scale to split).
+    """
+
+    def __init__(self, policy: Any, config: Any) -> None:
+        from fxc_env.layout import ObservationLayout
+
+        self.policy = policy
+        self.config = config
+        self.layout = config.layout
+        self.axis_layout = ObservationLayout(self.layout.slots, 1, limit_feature=self.layout.limit_feature)
+
+    def __call__(self, observation: np.ndarray) -> np.ndarray:
+        obs = self.layout.flat(observation)
+        lead, dim = obs.shape[:-1], self.config.dim
+        rows, mask, clock = self.layout.split(obs)  # rows (..., slots, 2, dim)
+        sigma = np.max(np.abs(rows), axis=(-3, -2))  # (..., dim)
+        scaled = rows / np.where(sigma > 0, sigma, 1.0)[..., None, None, :]
+        axis_obs = np.empty((*lead, dim, self.axis_layout.size))
+        axis_obs[..., : self.axis_layout.rows_end] = np.moveaxis(scaled, -1, -3).reshape((*lead, dim, -1))
+        axis_obs[..., self.axis_layout.rows_end : self.axis_layout.mask_end] = mask[..., None, :]
+        axis_obs[..., self.axis_layout.mask_end : self.axis_layout.clock_end] = clock[..., None, :]
+        if self.layout.limit_feature:
+            feature = obs[..., self.layout.clock_end]
+            decades = feature / np.maximum(1.0 - np.abs(feature), 1e-300)  # invert l / (1 + |l|)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                decades = decades[..., None] - np.log10(sigma)
+                axis_obs[..., -1] = np.where(np.isfinite(decades), decades / (1.0 + np.abs(decades)), 1.0)
+        actions = np.asarray(self.policy(axis_obs), dtype=np.float64)  # (..., dim, 2)
+        actions = actions * sigma[..., None]
+        return np.moveaxis(actions, -2, -1).reshape((*lead, 2 * dim))
+
+
+def load_learned_policy(path: str | Path, env: Any = None) -> LearnedPolicy | RLlibPolicy | PerAxisPolicy:
     """A saved policy: an RLlib checkpoint or run directory, else an SB3 PPO/SAC ``.zip``.
 
-    Raises ``FileNotFoundError`` naming ``policy`` when nothing is saved at ``path``.
+    A model trained in one dimension, loaded for a normalized environment with ``dim > 1``
+    and the same neighbour slots, acts on every axis alone (:class:`PerAxisPolicy`).
+
+    Raises ``FileNotFoundError`` naming ``policy`` when nothing is saved at ``path``, and
+    :class:`~fxc_env.core.validation.ArgumentError` naming ``policy`` when the file is empty,
+    damaged or not a PPO/SAC model, or the model does not fit ``env``.
     """
     path = Path(path)
-    if path.is_dir():
-        return RLlibPolicy(path, env)
-    return LearnedPolicy(path, env)
+    load = RLlibPolicy if path.is_dir() else LearnedPolicy
+    if env is None:
+        return load(path)
+    from fxc_env.config import config_of
+    from fxc_env.layout import ObservationLayout
+
+    config = config_of(env, "policy")
+    policy = load(path)
+    axis_size = ObservationLayout(config.layout.slots, 1, limit_feature=config.layout.limit_feature).size
+    if config.dim > 1 and config.obs_mode == "normalized" and (policy.obs_size, policy.action_size) == (axis_size, 2):
+        return PerAxisPolicy(policy, config)
+    check_sizes(config, policy.obs_size, policy.action_size, "policy")
+    return policy

@@ -40,8 +40,8 @@ def _component_note(trajectory: Trajectory) -> str:
 
 
 def topology_figure(trajectory: Trajectory, path: Path) -> Path:
-    """The graphs of the switching period and their union (SPEC 2's assumed Fig. 1)."""
-    topology = trajectory.config.topology
+    """The graphs of the switching period and their union (the assumed Fig. 1 of the README)."""
+    topology = trajectory.topology
     m = topology.period
     panels = m + 1 if m > 1 else 1
     fig = new_figure(2.6 * panels, 3.0)
@@ -81,7 +81,7 @@ def _draw_state(ax, trajectory: Trajectory, which: str) -> None:
     ax.set_xlabel("t (s)")
     ax.set_ylabel(f"{quantity} ({unit}){_component_note(trajectory)}")
     ax.set_title(
-        f"{quantity}: {c.topology.name}, N={c.n_agents}, K={c.n_intervals}, T_s={c.settling_time:g} s "
+        f"{quantity}: {trajectory.topology.name}, N={c.n_agents}, K={c.n_intervals}, T_s={c.settling_time:g} s "
         "(dots: sampling instants)",
         fontsize=9,
     )

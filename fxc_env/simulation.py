@@ -10,8 +10,9 @@ import numpy as np
 
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.dynamics import advance_clipped, state_inside
+from fxc_env.core.graphs import Topology
 from fxc_env.core.metrics import EpisodeMetrics, disagreement
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.engine import ConsensusEngine
 from fxc_env.reference import ReferencePolicy
 
@@ -31,8 +32,10 @@ class Trajectory:
         dense_x, dense_v, dense_u: ``(P, N, dim)`` exact state and applied input there
             (``dense_u`` at ``T_s`` repeats the last interval's end value).
         disagreement: ``(K + 1,)`` ``D(t_k)``; ``dense_disagreement`` ``(P,)``.
-        metrics: SPEC 5's episode figures.
+        metrics: the episode's figures (README, "Metrics").
         config: the settings the episode ran with.
+        topology: the episode's graphs (the config's, or its family's draw).
+        u_max: the episode's input limit (m/s^2; drawn when the config gives a set), or None.
     """
 
     times: np.ndarray
@@ -48,6 +51,8 @@ class Trajectory:
     dense_disagreement: np.ndarray
     metrics: EpisodeMetrics
     config: EnvConfig
+    topology: Topology
+    u_max: float | None
 
 
 def simulate(
@@ -65,21 +70,30 @@ def simulate(
     Args:
         policy: ``"reference"`` (eq. 11) or a callable mapping observations
             ``(1, N, obs_size)`` to actions ``(1, N, 2 dim)``; it sees nothing else.
-        scenario: a name from :data:`fxc_env.SCENARIOS`, or None for SPEC 4.1's defaults.
-        seed: seeds the random initial state when the scenario has none.
+        scenario: a name from :data:`fxc_env.SCENARIOS`, or None for the environment's defaults.
+        seed: seeds the episode: the random initial state (when the scenario has none), then
+            measurement noise, link dropout and random switching from the same generator, so
+            the episode equals ``ConsensusParallelEnv.reset(seed=seed)`` driven by the same
+            policy. None draws fresh entropy.
         x0, v0: explicit initial state ``(N, dim)`` (``(N,)`` when ``dim = 1``).
         points_per_interval: dense samples per interval for smooth curves.
         env_kwargs: any keyword argument of :func:`fxc_env.make_config`.
     """
     config = make_config(scenario, **env_kwargs)
+    seed = optional_seed("seed", seed)
+    points_per_interval = integer("points_per_interval", points_per_interval, 1)
     engine = ConsensusEngine(config, n_episodes=1)
-    drawn_x, drawn_v = engine.sample_initial_state(np.random.default_rng(seed))
-    x_start = drawn_x if x0 is None else engine.validate_state("x0", x0)
-    v_start = drawn_v if v0 is None else engine.validate_state("v0", v0)
+    # One stream per episode, as ConsensusParallelEnv.reset(seed=seed): the initial state first,
+    # then measurement noise, link dropout and random switching go on from it.
+    rng = np.random.default_rng(seed)
+    draw = engine.draw_episode(rng)
+    x_start = draw.x0 if x0 is None else engine.validate_state("x0", x0)
+    v_start = draw.v0 if v0 is None else engine.validate_state("v0", v0)
     act = ReferencePolicy(config) if isinstance(policy, str) and policy == "reference" else policy
     if isinstance(act, str):
         raise ArgumentError(f"policy: expected 'reference' or a callable, got {policy!r}")
-    engine.reset(x_start[None], v_start[None])
+    engine.reset(x_start[None], v_start[None], rng=rng, topologies=[draw.topology], u_max=[draw.u_max])
+    u_max = None if engine.u_max is None else float(engine.u_max[0])
     k_total = config.n_intervals
     xs, vs = [engine.x[0].copy()], [engine.v[0].copy()]
     u_start, u_end = [], []
@@ -98,16 +112,16 @@ def simulate(
     pick = lambda a: a[:, None]  # noqa: E731  (K, ...) -> (K, 1, ...) against s (K, P, 1, 1)
     T = intervals[:, None, None, None]
     dx, dv, du = state_inside(pick(x[:-1]), pick(v[:-1]), pick(u0), pick(u1), T, s)
-    if config.u_max is not None:
+    if u_max is not None:
         # The clipped input on [0, s] is the line from u0 to u(s), clipped: integrate that.
         reach = np.maximum(s, np.finfo(float).tiny)
-        dx, dv, *_ = advance_clipped(pick(x[:-1]), pick(v[:-1]), pick(u0), du, reach, config.u_max)
-        du = np.clip(du, -config.u_max, config.u_max)
+        dx, dv, *_ = advance_clipped(pick(x[:-1]), pick(v[:-1]), pick(u0), du, reach, u_max)
+        du = np.clip(du, -u_max, u_max)
     flat = (k_total * points_per_interval, *x.shape[1:])
     dense_times = np.concatenate([(times[:-1, None] + offsets).ravel(), times[-1:]])
     dense_x = np.concatenate([dx.reshape(flat), x[-1:]])
     dense_v = np.concatenate([dv.reshape(flat), v[-1:]])
-    last_u = u1[-1:] if config.u_max is None else np.clip(u1[-1:], -config.u_max, config.u_max)
+    last_u = u1[-1:] if u_max is None else np.clip(u1[-1:], -u_max, u_max)
     dense_u = np.concatenate([du.reshape(flat), last_u])
     return Trajectory(
         times=times,
@@ -123,4 +137,6 @@ def simulate(
         dense_disagreement=disagreement(dense_x, dense_v, config.settling_time),
         metrics=engine.episode_metrics(0),
         config=config,
+        topology=engine.topologies[0],
+        u_max=u_max,
     )

@@ -173,3 +173,192 @@ def test_module_entry_point_exits_non_zero_on_a_bad_value(tmp_path):
     )
     assert result.returncode != 0
     assert "n_intervals" in result.stderr
+
+
+# ------------------------------------------------------------------ usage errors of every subcommand
+#
+# Each row: argv (``{tmp}`` is the test's directory, ``{file}`` a regular file in it, ``{...}``
+# the other fixtures of ``placeholders``) and the flag the one-line message must name. Every
+# row runs in ``{tmp}`` and must leave it as it was: nothing is written before the checks pass.
+
+TRAIN = ["train", "--run-dir", "{tmp}/run", "--no-progress-bar", "--timesteps", "100"]
+EVALUATE = ["evaluate", "--policy", "reference", "--no-progress", "--out", "{tmp}/eval"]
+BENCHMARK = ["benchmark", "--quick", "--no-progress", "--policies", "reference", "--out", "{tmp}/bench"]
+USAGE_ERRORS = [
+    # fxc simulate
+    (["simulate", "--out", "{file}"], "--out"),
+    (["simulate", "--out", "{file}/sub"], "--out"),
+    (["simulate", "--out", "{file}/sub/deeper"], "--out"),
+    (["simulate", "--out", ""], "--out"),
+    (["simulate", "--points-per-interval", "0", "--out", "{tmp}/sim"], "--points-per-interval"),
+    (["simulate", "--seed", "-1", "--out", "{tmp}/sim"], "--seed"),
+    (["simulate", "--n-agents", "0", "--topology", "ring", "--scenario", "none", "--out", "{tmp}/sim"], "n_agents"),
+    (["simulate", "--settling-time", "1e300", "--out", "{tmp}/sim"], "settling_time"),
+    # fxc speed (refused before it re-executes itself with pinned threads)
+    (["speed", "--rounds", "0"], "--rounds"),
+    (["speed", "--total-agents", "0"], "--total-agents"),
+    (["speed", "--largest", "0"], "--largest"),
+    # fxc train
+    ([*TRAIN, "--hyperparams", "{tmp}/missing.yml"], "--hyperparams"),
+    ([*TRAIN, "--hyperparams", "{bad_yaml}"], "--hyperparams"),
+    ([*TRAIN, "--hyperparams", "{list_yaml}"], "--hyperparams"),
+    ([*TRAIN, "--hyperparams", "{tmp}"], "--hyperparams"),
+    ([*TRAIN, "--torch-threads", "0"], "--torch-threads"),
+    ([*TRAIN, "--n-envs", "0"], "--n-envs"),
+    ([*TRAIN, "--checkpoint-every", "-1"], "--checkpoint-every"),
+    ([*TRAIN, "--checkpoint-every", "0"], "--checkpoint-every"),
+    ([*TRAIN, "--timesteps", "0"], "--timesteps"),
+    ([*TRAIN, "--seed", "-1"], "--seed"),
+    ([*TRAIN, "--algo", "dqn"], "--algo"),
+    ([*TRAIN, "--backend", "tf"], "--backend"),
+    ([*TRAIN, "--backend", "rllib", "--algo", "sac"], "--algo"),
+    ([*TRAIN, "--backend", "rllib", "--num-env-runners", "-1"], "--num-env-runners"),
+    ([*TRAIN, "--backend", "rllib", "--envs-per-runner", "0"], "--envs-per-runner"),
+    ([*TRAIN, "--scenario", "paper_fig9"], "--scenario"),
+    ([*TRAIN, "--run-dir", "{file}"], "--run-dir"),
+    ([*TRAIN, "--run-dir", "{file}/run"], "--run-dir"),
+    # fxc evaluate
+    ([*EVALUATE, "--budgets", "0"], "--budgets"),
+    ([*EVALUATE, "--budgets", "0,200"], "--budgets"),
+    ([*EVALUATE, "--budgets", "abc"], "--budgets"),
+    ([*EVALUATE, "--budgets", ""], "--budgets"),
+    ([*EVALUATE, "--budgets", "200,200"], "--budgets"),
+    ([*EVALUATE, "--seeds", "0"], "--seeds"),
+    ([*EVALUATE, "--workers", "0"], "--workers"),
+    ([*EVALUATE, "--out", "{file}"], "--out"),
+    ([*EVALUATE, "--out", "{file}/sub"], "--out"),
+    ([*EVALUATE, "--policy", "{tmp}/missing.zip"], "--policy"),
+    ([*EVALUATE, "--policy", "{empty_zip}"], "--policy"),
+    ([*EVALUATE, "--policy", "{text_zip}"], "--policy"),
+    ([*EVALUATE, "--policy", "{foreign_zip}"], "--policy"),
+    ([*EVALUATE, "--policy", "{truncated_zip}"], "--policy"),
+    ([*EVALUATE, "--policy", "{garbage_weights}"], "--policy"),
+    ([*EVALUATE, "--policy", "{half_weights}"], "--policy"),
+    ([*EVALUATE, "--policy", "{no_weights}"], "--policy"),
+    ([*EVALUATE, "--policy", "{bad_data}"], "--policy"),
+    ([*EVALUATE, "--policy", "{tmp}/empty_dir"], "--policy"),
+    # fxc benchmark
+    ([*BENCHMARK, "--seeds", "0"], "--seeds"),
+    ([*BENCHMARK, "--workers", "0"], "--workers"),
+    ([*BENCHMARK, "--fine-intervals", "0"], "--fine-intervals"),
+    ([*BENCHMARK, "--out", "{file}"], "--out"),
+    ([*BENCHMARK, "--out", "{file}/sub"], "--out"),
+    ([*BENCHMARK, "--policies", "oracle"], "--policies"),
+    ([*BENCHMARK, "--policies", ","], "--policies"),
+    ([*BENCHMARK, "--address", "auto"], "--address"),
+    ([*BENCHMARK, "--policy", "{tmp}/missing.zip"], "--policy"),
+    ([*BENCHMARK, "--policy", "{empty_zip}"], "--policy"),
+    ([*BENCHMARK, "--policy", "{text_zip}"], "--policy"),
+    ([*BENCHMARK, "--policy", "{foreign_zip}"], "--policy"),
+]
+
+
+@pytest.fixture
+def placeholders(tmp_path):
+    """Fixture files for the argv templates, keyed by placeholder name."""
+    import zipfile
+
+    from fxc_env.learned import pretrained_path
+
+    (tmp_path / "notes.txt").write_text("not a directory\n")
+    (tmp_path / "bad.yml").write_text("default: [unclosed\n")
+    (tmp_path / "list.yml").write_text("- ppo\n- sac\n")
+    (tmp_path / "empty.zip").write_bytes(b"")
+    (tmp_path / "text.zip").write_text("this is not a zip archive\n")
+    with zipfile.ZipFile(tmp_path / "foreign.zip", "w") as archive:
+        archive.writestr("readme.txt", "a zip, but not a saved model")
+    (tmp_path / "truncated.zip").write_bytes(pretrained_path().read_bytes()[:4000])
+    # Zips whose directory is sound but whose members are damaged: torch's, pickle's and JSON's errors.
+    with zipfile.ZipFile(pretrained_path()) as saved:
+        members = {info.filename: saved.read(info.filename) for info in saved.infolist()}
+    damaged = {
+        "garbage_weights": {"policy.pth": b"garbage" * 10},
+        "half_weights": {"policy.pth": members["policy.pth"][: len(members["policy.pth"]) // 2]},
+        "no_weights": {"policy.pth": b""},
+        "bad_data": {"data": members["data"][:100]},
+    }
+    for name, changes in damaged.items():
+        with zipfile.ZipFile(tmp_path / f"{name}.zip", "w") as archive:
+            for member, content in {**members, **changes}.items():
+                archive.writestr(member, content)
+    (tmp_path / "empty_dir").mkdir()
+    return {
+        "tmp": str(tmp_path),
+        "file": str(tmp_path / "notes.txt"),
+        "bad_yaml": str(tmp_path / "bad.yml"),
+        "list_yaml": str(tmp_path / "list.yml"),
+        "empty_zip": str(tmp_path / "empty.zip"),
+        "text_zip": str(tmp_path / "text.zip"),
+        "foreign_zip": str(tmp_path / "foreign.zip"),
+        "truncated_zip": str(tmp_path / "truncated.zip"),
+        **{name: str(tmp_path / f"{name}.zip") for name in damaged},
+    }
+
+
+def tree(path):
+    """Every path below ``path`` with its size (directories as -1)."""
+    return {p: (-1 if p.is_dir() else p.stat().st_size) for p in path.rglob("*")}
+
+
+@pytest.mark.parametrize(("argv", "flag"), USAGE_ERRORS, ids=[" ".join(a) for a, _ in USAGE_ERRORS])
+def test_usage_errors_are_one_line_naming_the_flag_and_write_nothing(
+    tmp_path, monkeypatch, capsys, placeholders, argv, flag
+):
+    monkeypatch.chdir(tmp_path)  # defaults such as --out out and runs/ would land here too
+    before = tree(tmp_path)
+    status = main([arg.format(**placeholders) for arg in argv])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert err.startswith(f"fxc {argv[0]}: error: ") and flag in err, err
+    assert err.endswith("\n") and err.count("\n") == 1 and "Traceback" not in err, err
+    assert tree(tmp_path) == before
+
+
+def test_out_with_missing_parents_is_created_like_mkdir_p(tmp_path):
+    out = tmp_path / "a" / "b" / "c"
+    assert main(["simulate", "--n-intervals", "5", "--points-per-interval", "2", "--out", str(out)]) == 0
+    assert (out / "metrics.json").is_file()
+
+
+@pytest.mark.parametrize("error", [ValueError("boom"), TypeError("boom"), RuntimeError("boom")])
+def test_a_bug_in_a_handler_is_not_swallowed(tmp_path, monkeypatch, capsys, error):
+    import fxc_env.simulation
+
+    def broken(*args, **kwargs):
+        raise error
+
+    monkeypatch.setattr(fxc_env.simulation, "simulate", broken)
+    with pytest.raises(type(error), match="boom"):
+        main(["simulate", "--n-intervals", "5", "--out", str(tmp_path / "out")])
+    assert capsys.readouterr().err == ""
+
+
+def test_only_the_usage_error_class_is_a_usage_error(tmp_path, monkeypatch, capsys):
+    import fxc_env.simulation
+    from fxc_env.cli import UsageError
+    from fxc_env.core.validation import ArgumentError, ArgumentTypeError
+
+    assert UsageError is ArgumentError and issubclass(ArgumentTypeError, UsageError)
+
+    def refuses(*args, **kwargs):
+        raise ArgumentTypeError("x0: expected an array of real numbers, got 'abc'")
+
+    monkeypatch.setattr(fxc_env.simulation, "simulate", refuses)
+    assert main(["simulate", "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err == "fxc simulate: error: x0: expected an array of real numbers, got 'abc'\n"
+
+
+def test_output_directory_helper(tmp_path):
+    from fxc_env.cli_checks import output_directory
+    from fxc_env.core.validation import ArgumentError
+
+    (tmp_path / "file").write_text("x")
+    assert output_directory("--out", tmp_path) == tmp_path
+    assert output_directory("--out", str(tmp_path / "new" / "deeper")) == tmp_path / "new" / "deeper"
+    assert not (tmp_path / "new").exists()  # checks only: the command creates it when it writes
+    for bad in (tmp_path / "file", tmp_path / "file" / "sub", ""):
+        with pytest.raises(ArgumentError, match=r"^--out: "):
+            output_directory("--out", bad)
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    with pytest.raises(ArgumentError, match="dangling"):
+        output_directory("--out", tmp_path / "dangling" / "sub")

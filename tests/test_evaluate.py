@@ -29,3 +29,30 @@ def test_evaluate_reference_alone_and_bad_budgets(tmp_path, capsys):
     assert "learned" not in capsys.readouterr().out
     assert cli.main(["evaluate", "--policy", "reference", "--budgets", "two hundred", "--out", str(tmp_path)]) == 2
     assert "--budgets" in capsys.readouterr().err
+
+
+def test_budgets_are_comma_separated_distinct_positive_integers():
+    import pytest
+
+    from fxc_env.cli_checks import budgets
+    from fxc_env.core.validation import ArgumentError
+
+    assert budgets("--budgets", "25, 200") == (25, 200)
+    assert budgets("--budgets", "200") == (200,)
+    for bad in ("0", "0,200", "abc", "", "25,", "200,200", "1e3", "-5", "2000000"):
+        with pytest.raises(ArgumentError, match=r"^--budgets: "):
+            budgets("--budgets", bad)
+
+
+def test_evaluate_checks_everything_before_it_runs(tmp_path, capsys, monkeypatch):
+    import fxc_env.training.evaluate as evaluate
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("the benchmark ran before the arguments were checked")
+
+    monkeypatch.setattr(evaluate, "run_benchmark", no_run)
+    (tmp_path / "model.zip").write_text("not a model\n")
+    argv = ["evaluate", "--policy", str(tmp_path / "model.zip"), "--out", str(tmp_path / "out")]
+    assert cli.main(argv) == 2
+    assert capsys.readouterr().err.startswith("fxc evaluate: error: --policy: ")
+    assert not (tmp_path / "out").exists()

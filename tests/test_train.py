@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 from fxc_env import ReferencePolicy, make_config
+from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 from fxc_env.learned import LearnedPolicy, load_model
 from fxc_env.training import TrainArgs, train
-from fxc_env.training.args import load_hyperparams
+from fxc_env.training.args import check_train_args, load_hyperparams
 from fxc_env.training.checkpoints import RolloutCheckpoint, latest_checkpoint
 
 # 4 episodes x 6 agents = 24 sub-environments; one PPO rollout is 200 x 24 = 4800 timesteps.
@@ -108,3 +109,49 @@ def load_model_pretrained():
     from fxc_env.learned import pretrained_path
 
     return load_model(pretrained_path())
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"n_envs": 0}, "n_envs: expected an integer >= 1"),
+        ({"torch_threads": 0}, "torch_threads: expected an integer >= 1"),
+        ({"checkpoint_every": -1}, "checkpoint_every: expected an integer >= 1"),
+        ({"timesteps": 0}, "timesteps: expected an integer >= 1"),
+        ({"seed": -1}, "seed: expected an integer"),
+        ({"num_env_runners": -1}, "num_env_runners: expected an integer >= 0"),
+        ({"envs_per_runner": 0}, "envs_per_runner: expected an integer >= 1"),
+        ({"algo": "dqn"}, "algo: expected one of"),
+        ({"hyperparams": "missing.yml"}, "hyperparams: expected a YAML file"),
+        ({"scenario": "paper_fig9"}, "scenario 'paper_fig9'"),
+    ],
+)
+def test_every_argument_is_checked_before_work_starts(tmp_path, change, message):
+    args = short_args(tmp_path, **change)
+    with pytest.raises(ArgumentError, match=f"^{message}"):
+        check_train_args(args)
+    with pytest.raises(ArgumentError, match=f"^{message}"):
+        train(args)  # the back end checks first too
+    assert not (tmp_path / "run").exists()
+
+
+def test_command_line_checks_name_the_flags(tmp_path):
+    with pytest.raises(ArgumentError, match=r"^--n-envs: "):
+        check_train_args(short_args(tmp_path, n_envs=0), flags=True)
+    with pytest.raises(ArgumentError, match=r"^--num-env-runners: "):
+        check_train_args(short_args(tmp_path, backend="rllib", num_env_runners=-1), flags=True)
+
+
+def test_hyperparameter_files_are_read_with_care(tmp_path):
+    path = tmp_path / "h.yml"
+    for text, message in [
+        ("a: [unclosed\n", "not valid YAML"),
+        ("- ppo\n", "expected a YAML mapping"),
+        ("other: {ppo: {}}\n", "has neither 'paper_fig1' nor 'default'"),
+        ("default: {ppo: 3}\n", "'ppo' of 'paper_fig1'.* is not a mapping"),
+        ("default: [ppo]\n", "is not a mapping"),
+    ]:
+        path.write_text(text)
+        with pytest.raises(ArgumentError, match=message):
+            load_hyperparams(path, "paper_fig1", "ppo")
+    assert load_hyperparams(TrainArgs().hyperparams, "paper_fig1", "ppo")["algo"]["n_steps"] == 200

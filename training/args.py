@@ -19,9 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from fxc_env.core.validation import ArgumentError
+from fxc_env.cli_checks import yaml_mapping_file
+from fxc_env.core.validation import ArgumentError, choice, integer
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGORITHMS = ("ppo", "sac")
@@ -64,19 +63,70 @@ class TrainArgs:
     """RLlib: the Ray cluster to join (``auto`` or ``HOST:6379``); default: start a local Ray."""
 
 
-def load_hyperparams(path: str | Path, scenario: str, algo: str) -> dict[str, Any]:
-    """The ``env``, ``normalize`` and algorithm entries for ``scenario`` (or ``default``)."""
-    table = yaml.safe_load(Path(path).read_text())
+def load_hyperparams(path: str | Path, scenario: str, algo: str, *, name: str = "hyperparams") -> dict[str, Any]:
+    """The ``env``, ``normalize`` and algorithm entries for ``scenario`` (or ``default``).
+
+    A missing or malformed file, or one without the entries, raises
+    :class:`~fxc_env.core.validation.ArgumentError` naming ``name`` (``--hyperparams`` on the command line).
+    """
+    table = yaml_mapping_file(name, path)
     entry = table.get(scenario, table.get("default"))
     if entry is None:
-        raise ArgumentError(f"hyperparams: {path} has neither {scenario!r} nor 'default'")
+        raise ArgumentError(f"{name}: {path} has neither {scenario!r} nor 'default'")
+    if not isinstance(entry, dict):
+        raise ArgumentError(f"{name}: the entry for {scenario!r} in {path} is not a mapping")
     if algo not in entry:
         raise ArgumentError(f"algo: {path} has no {algo!r} entry for {scenario!r}")
+    for key, value in (("env", entry.get("env", {})), (algo, entry[algo])):
+        if not isinstance(value, dict):
+            raise ArgumentError(f"{name}: {key!r} of {scenario!r} in {path} is not a mapping")
     return {
         "env": dict(entry.get("env", {})),
         "normalize": bool(entry.get("normalize", False)),
         "algo": dict(entry[algo]),
     }
+
+
+def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
+    """Check every argument of a run before work starts; returns the run's hyperparameters.
+
+    Raises :class:`~fxc_env.core.validation.ArgumentError` naming the argument: the field
+    name (``n_envs``), or with ``flags`` the command-line flag (``--n-envs``). Checked: the
+    back end and algorithm, the counts and thresholds, the seed, the hyperparameter file
+    (a YAML mapping with an entry for the scenario and algorithm), the environment it
+    describes, and that the run directory can be created. ``--resume`` without a
+    checkpoint is refused by the back end, which knows its checkpoint layout.
+    """
+    from fxc_env.cli_checks import output_directory
+    from fxc_env.config import make_config
+
+    def name(field: str) -> str:
+        return "--" + field.replace("_", "-") if flags else field
+
+    choice(name("backend"), args.backend, BACKENDS)
+    if args.backend == "rllib" and args.algo != "ppo":
+        raise ArgumentError(f"{name('algo')}: the rllib backend trains 'ppo', got {args.algo!r}")
+    choice(name("algo"), args.algo, ALGORITHMS)
+    integer(name("timesteps"), args.timesteps, 1)
+    integer(name("seed"), args.seed, 0, 2**32 - 1)  # numpy's legacy seeding, which SB3 uses, takes 32 bits
+    integer(name("checkpoint_every"), args.checkpoint_every, 1)
+    integer(name("torch_threads"), args.torch_threads, 1)
+    if args.n_envs is not None:
+        integer(name("n_envs"), args.n_envs, 1)
+    integer(name("num_env_runners"), args.num_env_runners, 0)
+    integer(name("envs_per_runner"), args.envs_per_runner, 1)
+    algo_key = f"rllib_{args.algo}" if args.backend == "rllib" else args.algo
+    params = load_hyperparams(args.hyperparams, args.scenario, algo_key, name=name("hyperparams"))
+    if args.backend == "rllib":
+        batch = params["algo"].get("train_batch_size_per_learner")
+        integer(f"{name('hyperparams')}: {algo_key}.train_batch_size_per_learner", batch, 1)
+    try:
+        make_config(args.scenario, **{k: v for k, v in params["env"].items() if k != "n_envs"})
+    except ArgumentError as exc:
+        raise type(exc)(f"{name('scenario')} {args.scenario!r} with the env of {args.hyperparams}: {exc}") from exc
+    default_dir = f"runs/{args.scenario}-{'rllib-' if args.backend == 'rllib' else ''}{args.algo}-seed{args.seed}"
+    output_directory(name("run_dir"), args.run_dir or default_dir)
+    return params
 
 
 def field_docs(cls: type) -> dict[str, str]:

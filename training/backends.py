@@ -8,16 +8,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core import validation
 from fxc_env.training.args import BACKENDS, TrainArgs
 
 
 def train(args: TrainArgs) -> Path:
     """Run (or resume) training on ``args.backend``; returns the run directory."""
-    if args.backend not in BACKENDS:
-        raise ArgumentError(f"backend: expected one of {BACKENDS}, got {args.backend!r}")
-    if args.timesteps < 1:
-        raise ArgumentError(f"timesteps: expected an integer >= 1, got {args.timesteps!r}")
+    validation.choice("backend", args.backend, BACKENDS)  # the back end checks everything else
     if args.backend == "rllib":
         from fxc_env.cluster import import_ray
 

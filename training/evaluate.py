@@ -1,6 +1,6 @@
 """``fxc evaluate``: a learned policy next to the reference on the deadline benchmark.
 
-The suite is the paper's example plus the generalisation graphs of issue 5 (directed
+The suite is the paper's example plus generalisation graphs (directed
 ``ring``, ``path`` and ``random`` at N = 20), 20 seeded initial states each, at the
 reference's budget K = 200; the table, CSVs and plots are the benchmark's
 (:mod:`fxc_env.baselines.benchmark`), written to ``out/evaluate`` by default.
@@ -10,10 +10,23 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
+from typing import Any
 
 from fxc_env.baselines.benchmark import run_benchmark
-from fxc_env.baselines.suite import Scenario, Suite, builtin_contenders, learned_contender
-from fxc_env.core.validation import ArgumentError
+from fxc_env.baselines.suite import (
+    Scenario,
+    Suite,
+    builtin_contenders,
+    generalisation_suite,
+    learned_contender,
+    realism_suite,
+)
+from fxc_env.cli_checks import budgets as parse_budgets
+from fxc_env.cli_checks import output_directory
+from fxc_env.config import make_config
+from fxc_env.core.validation import ArgumentError, integer
+from fxc_env.env_arguments import add_env_arguments, env_kwargs_from
 
 EVALUATION_SCENARIOS = (
     Scenario("paper_fig1", 6),
@@ -35,11 +48,18 @@ def evaluation_suite(n_seeds: int = 20, budgets: tuple[int, ...] = (200,)) -> Su
     )
 
 
+SUITES = ("evaluate", "generalisation", "realism")
+
+
 def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
     """Register ``fxc evaluate``."""
     parser = commands.add_parser(
         "evaluate",
-        help="score a learned policy next to the reference (paper_fig1 and N=20 ring, path, random)",
+        help="score a learned policy next to the reference on a named suite or on any environment setting",
+        description="Score a policy next to the reference (at the same K and seeds) on a named suite "
+        "(default 'evaluate': paper_fig1 and N=20 ring, path, random; 'generalisation': families and sizes "
+        "drawn per episode; 'realism': input limits, noise, dropout), or, when environment flags are given, "
+        "on that one environment.",
     )
     parser.add_argument(
         "--policy",
@@ -47,29 +67,77 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
         help="'reference', 'pretrained' (shipped with fxc_env), the path of a saved SB3 model (.zip), "
         "or an RLlib checkpoint or run directory (fxc train --backend rllib)",
     )
-    parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per scenario")
+    parser.add_argument("--suite", choices=SUITES, help="a named suite (default 'evaluate' without environment flags)")
+    parser.add_argument("--seeds", type=int, default=20, help="seeded episodes per scenario")
     parser.add_argument("--budgets", default="200", help="comma-separated K values (default 200)")
     parser.add_argument("--out", default="out/evaluate", help="directory for table.md, CSVs and PNGs")
     parser.add_argument("--workers", type=int, help="processes (default: one per core)")
+    parser.add_argument("--baselines", action="store_true", help="score the four baseline laws as well")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_env_arguments(parser, scenario_default=None)
     parser.set_defaults(handler=evaluate_command)
 
 
+def custom_scenario(env_kwargs: dict[str, Any]) -> tuple[Scenario, float]:
+    """The one scenario that environment flags describe, and its ``T_s``; validated by building its config."""
+    config = make_config(**env_kwargs)
+    given = {k: v for k, v in env_kwargs.items() if k not in ENV_FIELDS_OF_CONTENDERS and k != "scenario"}
+    conditions = []
+    for name in ("dim", "u_max", "obs_noise", "link_dropout", "switching", "position_range", "velocity_range"):
+        if name in given or (name == "u_max" and config.u_max_choices is not None):
+            value = {
+                "u_max": config.u_max_choices,
+                "position_range": config.position_range,
+                "velocity_range": config.velocity_range,
+            }.get(name, getattr(config, name))
+            if name != "dim":
+                conditions.append((name, value[0] if isinstance(value, tuple) and len(set(value)) == 1 else value))
+    topology = config.family if config.family is not None else config.topology
+    scenario = Scenario(topology, config.n_agents, conditions=tuple(conditions), dim=config.dim)
+    return scenario, config.settling_time
+
+
+#: Settings that belong to each contender (its schedule, K, modes, width), not to the scenario.
+ENV_FIELDS_OF_CONTENDERS = ("n_intervals", "schedule", "action_mode", "obs_mode", "obs_slots")
+
+
 def evaluate_command(args: argparse.Namespace) -> int:
-    if args.seeds < 1:
-        raise ArgumentError(f"--seeds: expected an integer >= 1, got {args.seeds}")
-    try:
-        budgets = tuple(int(k) for k in args.budgets.split(","))
-    except ValueError as exc:
-        raise ArgumentError(f"--budgets: expected comma-separated integers, got {args.budgets!r}") from exc
-    contenders = builtin_contenders(["reference"])
+    """Handler of ``fxc evaluate``: every value is checked (and the policy loaded) before the suite runs."""
+    seeds = integer("--seeds", args.seeds, 1)
+    budgets = parse_budgets("--budgets", args.budgets)
+    if args.workers is not None:
+        integer("--workers", args.workers, 1)
+    out = output_directory("--out", args.out)
+    env_kwargs = env_kwargs_from(args)
+    custom = {k: v for k, v in env_kwargs.items() if v is not None}
+    if custom and args.suite is not None:
+        raise ArgumentError("--suite: give a named suite or environment flags, not both")
+    learned = {k: custom.pop(k) for k in ("action_mode", "obs_mode") if k in custom}
+    if "n_intervals" in custom:
+        raise ArgumentError("--n-intervals: the budgets K come from --budgets")
+    if custom:
+        scenario, settling_time = custom_scenario(custom)
+        suite = replace(
+            evaluation_suite(seeds, budgets),
+            scenarios=(scenario,),
+            trace_scenario=scenario,
+            settling_time=settling_time,
+            name="custom",
+        )
+    elif args.suite == "generalisation":
+        suite = generalisation_suite(seeds, budgets)
+    elif args.suite == "realism":
+        suite = replace(realism_suite(seeds), budgets=budgets, headline_budget=200 if 200 in budgets else max(budgets))
+    else:
+        suite = evaluation_suite(seeds, budgets)
+    contenders = builtin_contenders(None if args.baselines else ["reference"])
     if args.policy != "reference":
-        contenders.append(learned_contender(args.policy))
+        contenders.append(learned_contender(args.policy, name="--policy", **learned))
     command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["evaluate"] else None
     output = run_benchmark(
-        evaluation_suite(args.seeds, budgets),
+        suite,
         contenders,
-        args.out,
+        out,
         workers=args.workers,
         progress=not args.no_progress,
         command=command,

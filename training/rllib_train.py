@@ -39,7 +39,7 @@ import fxc_env
 from fxc_env.cluster import ray_session
 from fxc_env.core.validation import ArgumentError
 from fxc_env.learned import RLLIB_MODULE, rllib_checkpoint
-from fxc_env.training.args import TrainArgs, load_hyperparams
+from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.artefacts import versions, write_training_curve
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves both).
@@ -138,15 +138,9 @@ def train_rllib(args: TrainArgs) -> Path:
     """Run (or resume) RLlib PPO training; returns the run directory."""
     import torch
 
-    if args.algo != "ppo":
-        raise ArgumentError(f"algo: the rllib backend trains 'ppo', got {args.algo!r}")
-    if args.num_env_runners < 0:
-        raise ArgumentError(f"num_env_runners: expected an integer >= 0, got {args.num_env_runners!r}")
-    if args.envs_per_runner < 1:
-        raise ArgumentError(f"envs_per_runner: expected an integer >= 1, got {args.envs_per_runner!r}")
+    params = check_train_args(dataclasses.replace(args, backend="rllib"))  # every argument, before any work
     torch.set_num_threads(args.torch_threads)
     run_dir = Path(args.run_dir or f"runs/{args.scenario}-rllib-{args.algo}-seed{args.seed}")
-    params = load_hyperparams(args.hyperparams, args.scenario, f"rllib_{args.algo}")
     n_agents = fxc_env.make_config(**env_config(args, params)).n_agents
     per_iteration = int(params["algo"]["train_batch_size_per_learner"]) * n_agents
     iterations = math.ceil(args.timesteps / per_iteration)

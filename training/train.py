@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from fxc_env.core.validation import ArgumentError
-from fxc_env.training.args import ALGORITHMS, TrainArgs, load_hyperparams
+from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.artefacts import versions, write_training_curve
 
 
@@ -53,11 +53,9 @@ def train_sb3(args: TrainArgs) -> Path:
 
     from fxc_env.training.checkpoints import RolloutCheckpoint, latest_checkpoint, save_checkpoint, vecnormalize_path
 
-    if args.algo not in ALGORITHMS:
-        raise ArgumentError(f"algo: expected one of {ALGORITHMS}, got {args.algo!r}")
+    params = check_train_args(dataclasses.replace(args, backend="sb3"))  # every argument, before any work
     torch.set_num_threads(args.torch_threads)
     run_dir = Path(args.run_dir or f"runs/{args.scenario}-{args.algo}-seed{args.seed}")
-    params = load_hyperparams(args.hyperparams, args.scenario, args.algo)
 
     # ------------------------------------------------------------------ set-up
     venv = build_env(args, params)
