@@ -1,4 +1,4 @@
-"""Classical consensus controllers (baselines) and the deadline benchmark (issue 4).
+"""Classical consensus controllers (baselines) and the deadline benchmark.
 
 Each baseline is a policy on the local observation, like :class:`fxc_env.ReferencePolicy`,
 acting in ``accel`` mode with a zero-order hold; its module docstring gives the law, its

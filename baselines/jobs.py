@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fxc_env.baselines.suite import Contender, Scenario, Suite, contender_config, load_policy
+from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 
 
@@ -42,7 +43,7 @@ class JobResult:
     """What one job measured.
 
     Attributes:
-        metrics: SPEC 5 metrics, one ``(B,)`` array per name of
+        metrics: the episode metrics, one ``(B,)`` array per name of
             :class:`fxc_env.core.metrics.EpisodeMetrics`, plus ``final_value_gap``
             (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``.
         trace_times, trace: sampling instants and the median over seeds of ``D(t_k) / D(0)``
@@ -83,7 +84,7 @@ def run_job(job: Job) -> JobResult:
     try:
         config = contender_config(job.contender, job.scenario, job.n_intervals, job.settling_time)
         policy = load_policy(job.contender.spec, config)
-    except (ValueError, TypeError) as exc:
+    except ArgumentError as exc:
         result.error = str(exc)
         return result
     describe = getattr(policy, "describe", None)
@@ -92,9 +93,16 @@ def run_job(job: Job) -> JobResult:
     result.guarantee = policy.guarantee() if hasattr(policy, "guarantee") else _reference_guarantee(job)
 
     engine = ConsensusEngine(config, n_episodes=len(job.seeds))
-    states = [engine.sample_initial_state(np.random.default_rng(seed)) for seed in job.seeds]
-    # Noise, dropout and random switching draw from the job's own seeded stream.
-    engine.reset(np.stack([x for x, _ in states]), np.stack([v for _, v in states]), rng=job_generator(job))
+    # Each seed draws its episode (topology of a family, input limit of a set, initial state);
+    # noise, dropout and random switching draw from the job's own seeded stream.
+    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in job.seeds]
+    engine.reset(
+        np.stack([d.x0 for d in draws]),
+        np.stack([d.v0 for d in draws]),
+        rng=job_generator(job),
+        topologies=[d.topology for d in draws],
+        u_max=[d.u_max for d in draws],
+    )
     d0 = engine.initial_disagreement.copy()
     trace = [np.ones(len(job.seeds))] if job.record_trace else None
     obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))

@@ -5,7 +5,7 @@ environment (parallel, AEC, VecEnv) or an :class:`~fxc_env.EnvConfig`, and maps 
 ``(..., obs_size)`` to actions ``(..., 2 dim)`` in one vectorised call. It reads only
 
 - the observation: the rows ``[x_j - x_i, v_j - v_i]`` of agent i's in-neighbours at ``t_k``,
-  their 0/1 mask and the clock ``t_k / T_s``, ``T_{k+1} / T_s``, ``k / K`` (SPEC 4.2);
+  their 0/1 mask and the clock ``t_k / T_s``, ``T_{k+1} / T_s``, ``k / K`` (the env card's Observation Space);
 - the environment's settings (``T_s``, the modes, the layout, ``dim``).
 
 Gains that the papers choose from the graph (a Laplacian eigenvalue bound, say) are chosen

@@ -1,4 +1,4 @@
-"""The benchmark's tables: medians with spread (SPEC 5), as Markdown and CSV.
+"""The benchmark's tables: medians with spread, as Markdown and CSV.
 
 Spread is the interquartile range ``[q25, q75]`` over episodes. The headline table pools
 every scenario's episodes per policy (sampled policies at the headline budget, continuous
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 #: Deadline error below which an episode counts as having met the deadline.
 MET_THRESHOLD = 1e-6
 
-#: (metric, column heading) of the headline table, in SPEC 5's order.
+#: (metric, column heading) of the headline table, in the order of EpisodeMetrics.
 HEADLINE_COLUMNS = (
     ("relative_deadline_error", "D(T_s)/D(0)"),
     ("final_position_spread", "e_x(T_s) (m)"),
@@ -155,7 +155,7 @@ def write_text(text: str, path: Path) -> Path:
 
 
 def headline_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
-    """Per policy, all scenarios pooled: SPEC 5 metrics as ``median [q25, q75]``."""
+    """Per policy, all scenarios pooled: the episode metrics as ``median [q25, q75]``."""
     header = ["policy", "K", *(title for _, title in HEADLINE_COLUMNS), f"met ≤ {MET_THRESHOLD:g}"]
     rows = []
     for contender in contenders:

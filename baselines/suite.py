@@ -26,6 +26,8 @@ from fxc_env.baselines.linear import LinearConsensusPolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
 from fxc_env.baselines.sampled import SampledLinearPolicy
 from fxc_env.config import EnvConfig, make_config
+from fxc_env.core.families import AnyFamily, TopologyFamily
+from fxc_env.core.graphs import Topology
 from fxc_env.core.validation import ArgumentError
 from fxc_env.layout import CLOCK_SIZE
 from fxc_env.learned import load_learned_policy, pretrained_path
@@ -50,49 +52,67 @@ BUILTIN_SETTINGS = {
 
 @dataclass(frozen=True)
 class Scenario:
-    """One topology at one size; ``key`` names it in tables (e.g. ``ring N=20``).
+    """One topology (or topology family) at one size; ``key`` names it in tables (e.g. ``ring N=20``).
 
     Attributes:
-        topology: a name of :data:`fxc_env.core.graphs.TOPOLOGY_NAMES`.
+        topology: a name of :data:`fxc_env.core.graphs.TOPOLOGY_NAMES`, or a family
+            (:class:`~fxc_env.core.families.TopologyFamily`, a mixture), drawn per episode
+            from the episode's seed.
         n_agents: N.
         period: graphs per switching period for ``random`` (1: fixed).
         mean_in_degree: of ``random`` topologies.
         topology_seed: seed of the ``random`` topology (the designer knows the graph).
         conditions: realism options of :func:`fxc_env.make_config` (``u_max``, ``obs_noise``,
             ``link_dropout``) as ``(name, value)`` pairs; empty for ideal agents.
+        dim: the space dimension.
     """
 
-    topology: str
+    topology: str | AnyFamily | Topology
     n_agents: int
     period: int = 1
     mean_in_degree: float = 2.0
     topology_seed: int = 0
     conditions: tuple[tuple[str, float], ...] = ()
+    dim: int = 1
 
     @property
     def family(self) -> str:
-        """The topology name, with ``random`` split into fixed and switching."""
+        """The topology name, with ``random`` split into fixed and switching; a family's name."""
+        plane = f", dim={self.dim}" if self.dim != 1 else ""
+        if isinstance(self.topology, Topology):
+            return self.topology.name + plane
+        if not isinstance(self.topology, str):
+            return f"{self.topology.name} (drawn)" + plane
         if self.topology == "random":
             return "random (switching)" if self.period > 1 else "random (fixed)"
         return self.topology
 
     @property
     def key(self) -> str:
-        return f"{self.family} N={self.n_agents}" + "".join(f", {name}={value:g}" for name, value in self.conditions)
+        return f"{self.family} N={self.n_agents}" + "".join(f", {name}={_text(v)}" for name, v in self.conditions)
 
     @property
     def condition(self) -> str:
         """The realism conditions as text (``ideal`` when there are none)."""
-        return ", ".join(f"{name} = {value:g}" for name, value in self.conditions) or "ideal"
+        return ", ".join(f"{name} = {_text(value)}" for name, value in self.conditions) or "ideal"
 
     def config_kwargs(self) -> dict[str, Any]:
         """``make_config`` arguments of the graph (no initial state: the benchmark draws it)."""
         kwargs: dict[str, Any] = {"topology": self.topology, "n_agents": self.n_agents}
+        if self.dim != 1:
+            kwargs["dim"] = self.dim
         if self.topology == "random":
             kwargs.update(
                 topology_period=self.period, mean_in_degree=self.mean_in_degree, topology_seed=self.topology_seed
             )
         return {**kwargs, **dict(self.conditions)}
+
+
+def _text(value: Any) -> str:
+    """A condition's value for tables: numbers as ``%g``, sets and ranges as ``{a, b}``."""
+    if isinstance(value, tuple):
+        return "{" + ", ".join(_text(v) for v in value) + "}"
+    return f"{value:g}" if isinstance(value, float | int) else str(value)
 
 
 @dataclass(frozen=True)
@@ -133,24 +153,38 @@ def builtin_contenders(names: list[str] | None = None) -> list[Contender]:
 
 
 def learned_contender(
-    spec: str, *, schedule: str = "paper", action_mode: str = "plan", obs_mode: str = "normalized"
+    spec: str,
+    *,
+    schedule: str = "paper",
+    action_mode: str = "plan",
+    obs_mode: str = "normalized",
+    name: str = "policy",
 ) -> Contender:
     """A saved policy (``pretrained``, an SB3 ``.zip``, an RLlib checkpoint or run directory) as a
     sampled contender, named after its file or directory.
 
-    Its observation width fixes ``obs_slots`` (rows = (obs_size - 3) / (2 dim + 1), dim = 1);
-    scenarios with more in-neighbours than that are reported as not run.
+    Its observation width fixes ``obs_slots`` (rows = (obs_size - 3) / (2 dim + 1), dim = 1,
+    one more entry for a policy that sees the input limit); scenarios with more
+    in-neighbours than that, or without an input limit for a policy that expects one, are
+    reported as not run. In ``dim > 1`` it acts per axis (:class:`fxc_env.learned.PerAxisPolicy`). The model is loaded
+    here, so a missing, empty or corrupt file raises :class:`ArgumentError` naming ``name``
+    (``--policy`` on the command line) before any job runs.
     """
     path = model_path(spec)
     try:
         obs_size = load_learned_policy(path).obs_size
-    except FileNotFoundError as exc:
-        raise ArgumentError(str(exc)) from exc
-    slots, remainder = divmod(obs_size - CLOCK_SIZE, 3)
-    if remainder or slots < 1:
-        raise ArgumentError(f"policy: the model at {path} takes observations of size {obs_size}, not a dim-1 layout")
+    except (FileNotFoundError, ArgumentError) as exc:
+        raise ArgumentError(_renamed(str(exc), name)) from exc
+    slots, remainder = divmod(obs_size - CLOCK_SIZE, 3)  # remainder 1: the input-limit feature
+    if remainder == 2 or slots < 1:
+        raise ArgumentError(f"{name}: the model at {path} takes observations of size {obs_size}, not a dim-1 layout")
     name = path.name if path.is_dir() else path.stem
     return Contender(f"learned:{name}", str(path), True, schedule, action_mode, obs_mode, slots)
+
+
+def _renamed(message: str, name: str) -> str:
+    """``message`` (``"policy: ..."`` from :mod:`fxc_env.learned`) naming ``name`` instead."""
+    return f"{name}: {message.removeprefix('policy: ')}"
 
 
 def model_path(spec: str) -> Path:
@@ -255,6 +289,46 @@ def realism_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     )
 
 
+#: Random digraphs of the generalisation suite: mean in-degree 1.5 to 3 (the slots of a 4-slot policy hold every draw).
+GENERALISATION_RANDOM = TopologyFamily("random", mean_in_degree=(1.5, 3.0))
+
+
+def generalisation_scenarios() -> tuple[Scenario, ...]:
+    """Families and sizes a policy must handle to count as general; every graph is drawn per episode.
+
+    ``paper_fig1``; rings and random digraphs at N = 20 and 100; a path and a star (N = 20);
+    switching periods of 2 to 4 graphs dealt from rings and random digraphs (N = 20); random
+    digraphs in the plane (``dim = 2``, N = 20).
+    """
+    ring, path, star = TopologyFamily("ring"), TopologyFamily("path"), TopologyFamily("star")
+    switching_ring = TopologyFamily("ring", period=(2, 4))
+    switching_random = TopologyFamily("random", mean_in_degree=(1.5, 3.0), period=(2, 4))
+    return (
+        Scenario("paper_fig1", 6),
+        Scenario(ring, 20),
+        Scenario(ring, 100),
+        Scenario(GENERALISATION_RANDOM, 20),
+        Scenario(GENERALISATION_RANDOM, 100),
+        Scenario(path, 20),
+        Scenario(star, 20),
+        Scenario(switching_ring, 20),
+        Scenario(switching_random, 20),
+        Scenario(GENERALISATION_RANDOM, 20, dim=2),
+    )
+
+
+def generalisation_suite(n_seeds: int = 20, budgets: tuple[int, ...] = (200,)) -> Suite:
+    """:func:`generalisation_scenarios` at K = 200 (T_s = 20 s), seeds ``0 .. n_seeds - 1``."""
+    return Suite(
+        scenarios=generalisation_scenarios(),
+        seeds=tuple(range(n_seeds)),
+        budgets=budgets,
+        fine_intervals=1000,
+        headline_budget=200 if 200 in budgets else max(budgets),
+        name="generalisation",
+    )
+
+
 def contender_config(contender: Contender, scenario: Scenario, n_intervals: int, settling_time: float) -> EnvConfig:
     """The environment a contender meets on a scenario at K intervals."""
     return make_config(
@@ -273,8 +347,9 @@ def load_policy(spec: str, config: EnvConfig) -> Policy:
 
     Saved policies (an SB3 PPO or SAC ``.zip``, an RLlib checkpoint or run directory) load
     through :func:`fxc_env.learned.load_learned_policy`, which checks that the model's
-    observation and action sizes fit ``config``. Raises
-    ``ValueError`` naming ``policy`` when the spec is unknown or the model does not fit.
+    observation and action sizes fit ``config``. Raises :class:`ArgumentError` (a
+    ``ValueError``) naming ``policy`` when the spec is unknown, nothing is saved at the path,
+    the file is not a readable model, or the model does not fit.
     """
     if spec == "reference":
         return ReferencePolicy(config)

@@ -8,6 +8,7 @@ raises an :class:`~fxc_env.core.validation.ArgumentError` that names it. Named s
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
@@ -15,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.core import validation
+from fxc_env.core.families import AnyFamily, is_family_spec, make_family
 from fxc_env.core.graphs import Topology, make_topology
 from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
@@ -50,6 +52,7 @@ class EnvConfig:
     """Everything that defines an episode family. Build it with :func:`make_config`."""
 
     topology: Topology
+    family: AnyFamily | None
     schedule: Schedule
     dim: int
     obs_slots: int
@@ -61,9 +64,9 @@ class EnvConfig:
     action_bound: float
     reward_floor: float
     initial_state: tuple[np.ndarray, np.ndarray] | None
-    position_range: float
-    velocity_range: float
-    u_max: float | None
+    position_range: tuple[float, float]
+    velocity_range: tuple[float, float]
+    u_max_choices: tuple[float, ...] | None
     obs_noise: float
     link_dropout: float
     switching: str
@@ -83,7 +86,18 @@ class EnvConfig:
 
     @cached_property
     def layout(self) -> ObservationLayout:
-        return ObservationLayout(self.obs_slots, self.dim)
+        return ObservationLayout(self.obs_slots, self.dim, limit_feature=self.u_max_choices is not None)
+
+    @property
+    def u_max(self) -> float | None:
+        """The input limit (m/s^2) when it is one number; None without a limit or when drawn per episode."""
+        choices = self.u_max_choices
+        return choices[0] if choices is not None and len(choices) == 1 else None
+
+    @property
+    def topology_name(self) -> str:
+        """The family's name, or the fixed topology's."""
+        return self.family.name if self.family is not None else self.topology.name
 
     @property
     def action_size(self) -> int:
@@ -138,6 +152,8 @@ def _merged_settings(scenario: str | None, given: dict[str, Any], initial_state:
     merged.setdefault("settling_time", 20.0)
     merged.setdefault("schedule", "paper")
     merged.setdefault("dim", 1)
+    merged.setdefault("position_range", 5.0)
+    merged.setdefault("velocity_range", 2.0)
     if isinstance(merged["schedule"], str):
         merged.setdefault("n_intervals", 200)
     return merged
@@ -154,15 +170,57 @@ def _initial_state(value: Any, n_agents: int, dim: int) -> tuple[np.ndarray, np.
     )
 
 
-def _obs_slots(value: Any, topology: Topology) -> int:
+def _obs_slots(value: Any, topology: Topology, family: AnyFamily | None) -> int:
+    largest = topology.max_in_degree if family is None else family.max_in_degree(topology.n_agents)
     if value is None:
-        return topology.max_in_degree
-    slots = validation.integer("obs_slots", value, 1, topology.n_agents)
-    if slots < topology.max_in_degree:
-        raise ArgumentError(
-            f"obs_slots: the topology has in-degree up to {topology.max_in_degree}; expected at least that, got {value!r}"
-        )
+        return largest
+    slots = validation.integer("obs_slots", value, 1, max(topology.n_agents, 1))
+    if slots < largest:
+        what = "the topology has" if family is None else "the family's draws have"
+        raise ArgumentError(f"obs_slots: {what} in-degree up to {largest}; expected at least that, got {value!r}")
     return slots
+
+
+def _scale_range(name: str, value: Any) -> tuple[float, float]:
+    """A half-width (m or m/s) or a ``(low, high)`` range of half-widths drawn log-uniformly per episode."""
+    if isinstance(value, tuple | list):
+        if len(value) != 2:
+            raise ArgumentError(f"{name}: expected a number or a (low, high) pair, got {value!r}")
+        low, high = (validation.real(name, v, maximum=validation.STATE_LIMIT, positive=True) for v in value)
+        if low > high:
+            raise ArgumentError(f"{name}: expected low <= high, got {value!r}")
+        return low, high
+    number = validation.real(name, value, maximum=validation.STATE_LIMIT, positive=True)
+    return number, number
+
+
+def _input_limits(value: Any) -> tuple[float, ...] | None:
+    """``u_max``: None, one limit, or a set of limits drawn uniformly per episode (m/s^2)."""
+    if value is None:
+        return None
+    if isinstance(value, tuple | list | set | frozenset):
+        if not value:
+            raise ArgumentError("u_max: expected a number or a non-empty set of numbers, got an empty one")
+        return tuple(sorted(validation.real("u_max", v, maximum=validation.STATE_LIMIT, positive=True) for v in value))
+    return (validation.real("u_max", value, maximum=validation.STATE_LIMIT, positive=True),)
+
+
+def _topology(merged: dict[str, Any], topology_seed: Any) -> tuple[Topology, AnyFamily | None]:
+    """The fixed topology, or for a family its draw from ``topology_seed`` (shown in tables) and the family."""
+    spec = merged["topology"]
+    if is_family_spec(spec):
+        family = make_family(spec)
+        n_agents = validation.integer("n_agents", merged.get("n_agents", 6), 1, validation.MAX_AGENTS)
+        seed = validation.optional_seed("topology_seed", topology_seed)
+        return family.draw(n_agents, np.random.default_rng(seed)), family
+    topology = make_topology(
+        spec,
+        merged.get("n_agents"),
+        seed=topology_seed,
+        mean_in_degree=merged.get("mean_in_degree", 2.0),
+        period=merged.get("topology_period", 1),
+    )
+    return topology, None
 
 
 def make_config(
@@ -182,13 +240,13 @@ def make_config(
     action_bound: float | None = None,
     reward_floor: float = 1e-12,
     initial_state: Any = None,
-    position_range: float = 5.0,
-    velocity_range: float = 2.0,
+    position_range: float | tuple[float, float] | None = None,
+    velocity_range: float | tuple[float, float] | None = None,
     topology_seed: int | None = 0,
     mean_in_degree: float | None = None,
     topology_period: int | None = None,
     obs_slots: int | None = None,
-    u_max: float | None = None,
+    u_max: float | Sequence[float] | None = None,
     obs_noise: float = 0.0,
     link_dropout: float = 0.0,
     switching: str = "periodic",
@@ -196,9 +254,13 @@ def make_config(
     """Validate the environment's keyword arguments (a scenario's preset first, explicit ones win).
 
     The arguments are those of :class:`fxc_env.consensus_env.ConsensusParallelEnv` (its card
-    has the table). ``obs_slots`` pads the observation to at least that many neighbour rows
-    (default: the topology's largest in-degree). Realism options are off by default:
-    ``u_max`` clips every input component to ``[-u_max, u_max]`` m/s^2 (integrated exactly);
+    has the table). ``topology`` may be a family (:func:`fxc_env.core.families.make_family`),
+    drawn anew at every reset; ``config.topology`` is then its draw from ``topology_seed``.
+    ``obs_slots`` pads the observation to at least that many neighbour rows (default: the
+    largest in-degree of the topology or of any draw of the family). ``position_range`` and
+    ``velocity_range`` (default 5 m and 2 m/s) are half-widths or ``(low, high)`` ranges
+    drawn log-uniformly per episode. Arguments left at None take the scenario's value. Realism options are off by default: ``u_max`` clips every input component to
+    ``[-u_max, u_max]`` m/s^2 (integrated exactly; a set of numbers is drawn per episode);
     ``obs_noise`` adds Gaussian noise of that standard deviation (m, m/s) to each relative
     measurement; ``link_dropout`` loses each edge at each sampling instant with that
     probability; ``switching="random"`` draws each interval's graph from the topology set.
@@ -213,16 +275,14 @@ def make_config(
         "initial_state": initial_state,
         "mean_in_degree": mean_in_degree,
         "topology_period": topology_period,
+        "obs_slots": obs_slots,
+        "position_range": position_range,
+        "velocity_range": velocity_range,
+        "u_max": u_max,
     }
     merged = _merged_settings(scenario, given, initial_state)
     dim_value = validation.integer("dim", merged["dim"], 1, validation.MAX_DIM)
-    topo = make_topology(
-        merged["topology"],
-        merged.get("n_agents"),
-        seed=topology_seed,
-        mean_in_degree=merged.get("mean_in_degree", 2.0),
-        period=merged.get("topology_period", 1),
-    )
+    topo, family = _topology(merged, topology_seed)
     sched = make_schedule(merged["settling_time"], merged.get("n_intervals"), merged["schedule"])
     action_mode = validation.choice("action_mode", action_mode, ACTION_MODES)
     obs_mode = validation.choice("obs_mode", obs_mode, OBS_MODES)
@@ -233,9 +293,10 @@ def make_config(
     )
     return EnvConfig(
         topology=topo,
+        family=family,
         schedule=sched,
         dim=dim_value,
-        obs_slots=_obs_slots(obs_slots, topo),
+        obs_slots=_obs_slots(merged.get("obs_slots"), topo, family),
         action_mode=action_mode,
         obs_mode=obs_mode,
         obs_format=validation.choice("obs_format", obs_format, OBS_FORMATS),
@@ -244,9 +305,9 @@ def make_config(
         action_bound=bound,
         reward_floor=validation.real("reward_floor", reward_floor, positive=True),
         initial_state=_initial_state(merged.get("initial_state"), topo.n_agents, dim_value),
-        position_range=validation.real("position_range", position_range, maximum=validation.STATE_LIMIT, positive=True),
-        velocity_range=validation.real("velocity_range", velocity_range, maximum=validation.STATE_LIMIT, positive=True),
-        u_max=None if u_max is None else validation.real("u_max", u_max, maximum=validation.STATE_LIMIT, positive=True),
+        position_range=_scale_range("position_range", merged["position_range"]),
+        velocity_range=_scale_range("velocity_range", merged["velocity_range"]),
+        u_max_choices=_input_limits(merged.get("u_max")),
         obs_noise=validation.real("obs_noise", obs_noise, 0.0, validation.STATE_LIMIT),
         link_dropout=validation.probability("link_dropout", link_dropout),
         switching=validation.choice("switching", switching, SWITCHING_MODES),

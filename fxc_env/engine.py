@@ -15,17 +15,29 @@ ends seed; each sampling instant's measurements are drawn once and cached.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from fxc_env.config import EnvConfig
 from fxc_env.core import dynamics, slots, validation
-from fxc_env.core.graphs import DENSE_LIMIT
+from fxc_env.core.graphs import DENSE_LIMIT, Topology
 from fxc_env.core.metrics import SETTLING_THRESHOLDS, EpisodeMetrics, disagreement, reward_floor, spread
 from fxc_env.core.validation import ArgumentError
 
 TINY = np.finfo(np.float64).tiny
+
+
+@dataclass(frozen=True)
+class EpisodeDraw:
+    """What one episode drew at reset: its initial state ``(N, dim)`` each, and, where the
+    config asks for a draw, its topology (a family) and its input limit (a set of ``u_max``)."""
+
+    x0: np.ndarray
+    v0: np.ndarray
+    topology: Topology | None = None
+    u_max: float | None = None
 
 
 @dataclass(slots=True)
@@ -52,6 +64,34 @@ class StepOutcome:
     terminated: bool
 
 
+def limit_feature(u_max: np.ndarray | float, interval: float, scale: np.ndarray) -> np.ndarray:
+    """How far the input limit binds on the coming interval, scale-free, in ``[-1, 1]``.
+
+    ``rho = u_max T^2 / s_i`` compares the limit with the input a plan at agent i's scale
+    needs: the paper's controller starts an interval at about ``6 e / T^2`` (eq. 11), at
+    most ``10 s_i / T^2``, so ``rho`` below about 10 means the limit cuts the planned
+    input and ``rho >> 10`` that it is out of reach. The feature is ``l / (1 + |l|)`` with
+    ``l = log10(rho)``: decades spread evenly (0 at ``rho = 1``, ±0.5 one decade either
+    side, ±0.75 three), bounded without a hard clip; ``s_i = 0`` (nothing to correct) gives
+    1. Scaling the state and ``u_max`` by the same factor leaves it unchanged. Shape of
+    ``scale``, e.g. ``(B, N)``.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        decades = np.log10(u_max * interval * interval) - np.log10(scale)
+        return np.where(np.isfinite(decades), decades / (1.0 + np.abs(decades)), 1.0)
+
+
+def _weighted_sum(values: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """``xi^T values`` per episode: ``values`` ``(B, N)``, ``xi`` ``(N,)`` or ``(B, N)``."""
+    return values @ xi if xi.ndim == 1 else np.einsum("bn,bn->b", values, xi)
+
+
+def _draw_scale(half_widths: tuple[float, float], rng: np.random.Generator) -> float:
+    """``low`` when the range is one number, else a log-uniform draw from ``[low, high]``."""
+    low, high = half_widths
+    return low if low == high else float(np.exp(rng.uniform(np.log(low), np.log(high))))
+
+
 class ConsensusEngine:
     """B episodes advanced as arrays. Call :meth:`reset` before :meth:`step`."""
 
@@ -68,14 +108,13 @@ class ConsensusEngine:
         self.x0 = np.zeros(shape)
         self.v0 = np.zeros(shape)
         self.k = 0
-        # Neighbour slots padded to the layout's width: extra slots point at the agent itself.
-        topology, slot_count = config.topology, self.layout.slots
-        extra = slot_count - topology.max_in_degree
-        own = np.broadcast_to(np.arange(n)[None, :, None], (topology.period, n, extra))
-        self._neighbour_index = np.concatenate([topology.neighbour_index, own], axis=2)
-        self._mask_features = np.concatenate(
-            [topology.neighbour_mask, np.zeros((topology.period, n, extra), dtype=bool)], axis=2
-        ).astype(np.float64)
+        #: Each episode's topology (a family draws new ones at every reset, see :meth:`reset`).
+        self.topologies: list[Topology] = [config.topology] * self.n_episodes
+        self._set_graph_table(self.topologies)
+        #: Each episode's input limit ``u_max`` (m/s^2), ``(B,)``, or None without a limit.
+        self.u_max: np.ndarray | None = (
+            None if config.u_max_choices is None else np.full(self.n_episodes, config.u_max_choices[0])
+        )
         schedule = config.schedule
         k_all = np.arange(schedule.n_intervals + 1)
         next_interval = schedule.intervals[np.minimum(k_all, schedule.n_intervals - 1)]
@@ -105,23 +144,58 @@ class ConsensusEngine:
     def sample_initial_state(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """One episode's ``(x0, v0)``: the config's initial state, else uniform draws.
 
-        Positions are drawn from ``U(-position_range, position_range)`` and velocities from
-        ``U(-velocity_range, velocity_range)`` per component (defaults 5 m and 2 m/s).
+        Positions are drawn from ``U(-a, a)`` and velocities from ``U(-b, b)`` per component,
+        with ``a = position_range`` and ``b = velocity_range`` (defaults 5 m and 2 m/s). A
+        ``(low, high)`` range first draws the half-width log-uniformly, so episodes span
+        decades of scale.
         """
         c = self.config
         if c.initial_state is not None:
             return c.initial_state[0].copy(), c.initial_state[1].copy()
         shape = (c.n_agents, c.dim)
-        x0 = rng.uniform(-c.position_range, c.position_range, size=shape)
-        v0 = rng.uniform(-c.velocity_range, c.velocity_range, size=shape)
+        position_range = _draw_scale(c.position_range, rng)
+        velocity_range = _draw_scale(c.velocity_range, rng)
+        x0 = rng.uniform(-position_range, position_range, size=shape)
+        v0 = rng.uniform(-velocity_range, velocity_range, size=shape)
         return x0, v0
 
-    def reset(self, x0: np.ndarray, v0: np.ndarray, rng: np.random.Generator | None = None) -> None:
+    def draw_episode(self, rng: np.random.Generator) -> EpisodeDraw:
+        """What a new episode draws from its seeded generator, in this order.
+
+        Its topology when the config has a family, its input limit when ``u_max`` is a set,
+        then ``(x0, v0)`` (:meth:`sample_initial_state`). A config with none of these draws
+        exactly what it always did, so seeds keep their episodes.
+        """
+        c = self.config
+        topology = None if c.family is None else c.family.draw(c.n_agents, rng)
+        choices = c.u_max_choices
+        u_max = None if choices is None else choices[0] if len(choices) == 1 else float(rng.choice(choices))
+        x0, v0 = self.sample_initial_state(rng)
+        return EpisodeDraw(x0, v0, topology, u_max)
+
+    def reset(
+        self,
+        x0: np.ndarray,
+        v0: np.ndarray,
+        rng: np.random.Generator | None = None,
+        *,
+        topologies: Sequence[Topology | None] | None = None,
+        u_max: Sequence[float | None] | np.ndarray | None = None,
+    ) -> None:
         """Start every episode at ``t_0 = 0`` from ``x0, v0`` of shape ``(B, N, dim)``.
 
         ``rng`` (optional) replaces :attr:`rng`, the generator of noise, dropout and random
-        switching; without it the current generator goes on.
+        switching; without it the current generator goes on. ``topologies`` (one per
+        episode; None keeps the config's) and ``u_max`` (one per episode) come from
+        :meth:`draw_episode`; without them every episode uses the config's.
         """
+        if topologies is not None:
+            chosen = [self.config.topology if t is None else t for t in topologies]
+            if any(a is not b for a, b in zip(chosen, self.topologies, strict=True)):
+                self.topologies = chosen
+                self._set_graph_table(chosen)
+        if u_max is not None and self.u_max is not None:
+            self.u_max = np.array([self.config.u_max_choices[0] if u is None else u for u in u_max], dtype=np.float64)
         self.x[...] = x0
         self.v[...] = v0
         self.x0[...] = x0
@@ -166,19 +240,55 @@ class ConsensusEngine:
         return self._next_interval[self.k]
 
     def graph_index(self) -> int:
-        """Index ``k mod m`` of the graph active on the current interval (periodic switching)."""
+        """Index ``k mod m`` of the graph active on the current interval (periodic switching, shared topology)."""
         return self.k % self.config.topology.period
 
     def graph_indices(self) -> np.ndarray:
-        """Index of each episode's graph on the current interval, ``(B,)``."""
-        if self._graph_ids is None:
-            return np.full(self.n_episodes, self.graph_index())
-        return self._graph_ids
+        """Index, within its own topology, of each episode's graph on the current interval, ``(B,)``."""
+        return self._graph_ids - self._graph_offset
+
+    def _set_graph_table(self, topologies: Sequence[Topology]) -> None:
+        """Stack every episode's graphs into one table of neighbour slots, padded to the layout's width.
+
+        ``_neighbour_index`` and ``_mask_features`` are ``(G, N, slots)`` over the G distinct
+        graphs; episode b uses rows ``_graph_offset[b] + (0 .. m_b - 1)``. Extra slots point
+        at the agent itself (a gather then gives exact zeros) and are masked out.
+        """
+        n, slot_count = self.config.n_agents, self.layout.slots
+        unique: dict[int, int] = {}
+        index_blocks, mask_blocks, offsets, periods = [], [], [], []
+        start = 0
+        for topology in topologies:
+            if id(topology) not in unique:
+                unique[id(topology)] = start
+                extra = slot_count - topology.max_in_degree
+                own = np.broadcast_to(np.arange(n)[None, :, None], (topology.period, n, extra))
+                index_blocks.append(np.concatenate([topology.neighbour_index, own], axis=2))
+                mask_blocks.append(
+                    np.concatenate([topology.neighbour_mask, np.zeros((topology.period, n, extra), bool)], axis=2)
+                )
+                start += topology.period
+            offsets.append(unique[id(topology)])
+            periods.append(topology.period)
+        self._neighbour_index = np.concatenate(index_blocks)
+        self._mask_features = np.concatenate(mask_blocks).astype(np.float64)
+        self._graph_offset = np.array(offsets)
+        self._graph_period = np.array(periods)
+        #: One topology for all episodes: gathers take the fast path of a single graph.
+        self._shared_topology = len(unique) == 1
 
     def _draw_graphs(self) -> None:
-        """Random switching: every episode draws its next graph uniformly from the set."""
-        random = self.config.switching == "random"
-        self._graph_ids = self.rng.integers(0, self.config.topology.period, self.n_episodes) if random else None
+        """Each episode's graph on the coming interval: ``G_{k mod m}``, or a uniform draw (random switching)."""
+        periods = self._graph_period
+        if self.config.switching == "random":
+            if self._shared_topology:
+                local = self.rng.integers(0, int(periods[0]), self.n_episodes)
+            else:
+                local = (self.rng.random(self.n_episodes) * periods).astype(np.int64)
+        else:
+            local = self.k % periods
+        self._graph_ids = self._graph_offset + local
+        self._same_graph = self._shared_topology and self.config.switching == "periodic"
 
     # ------------------------------------------------------------ observation
     def measurements(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -193,10 +303,11 @@ class ConsensusEngine:
         if self._measured is not None and self._measured[0] == self.k:
             return self._measured[1:]
         c = self.config
-        if self._graph_ids is None:
+        if self._same_graph:
             # Gather [x_j, v_j] together (one random access per edge).
-            rows = np.take(self.state, self._neighbour_index[self.graph_index()], axis=1, mode="clip")
-            mask = self._mask_features[self.graph_index()]
+            graph = int(self._graph_ids[0])
+            rows = np.take(self.state, self._neighbour_index[graph], axis=1, mode="clip")
+            mask = self._mask_features[graph]
         else:
             index = self._neighbour_index[self._graph_ids]  # (B, N, slots)
             rows = self.state[np.arange(self.n_episodes)[:, None, None], index]
@@ -214,7 +325,7 @@ class ConsensusEngine:
         return rows, mask, scale
 
     def observations(self, out: np.ndarray | None = None) -> np.ndarray:
-        """Every agent's flat observation at ``t_k``, ``(B, N, obs_size)`` (SPEC 4.2).
+        """Every agent's flat observation at ``t_k``, ``(B, N, obs_size)`` (the card's Observation Space).
 
         ``out`` (optional, ``(B, N, obs_size)`` float64) is filled instead of a fresh
         array: for loops that consume observations at once, it saves the page faults of
@@ -235,7 +346,9 @@ class ConsensusEngine:
         else:
             rows[...] = raw
         obs[..., layout.rows_end : layout.mask_end] = mask
-        obs[..., layout.mask_end :] = self._clock[self.k]
+        obs[..., layout.mask_end : layout.clock_end] = self._clock[self.k]
+        if layout.limit_feature:
+            obs[..., layout.clock_end] = limit_feature(self.u_max[:, None], self.current_interval(), scale)
         return obs
 
     def local_scale(self) -> np.ndarray:
@@ -249,7 +362,7 @@ class ConsensusEngine:
         return validation.action_array(name, actions, expected)
 
     def inputs_from_actions(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Map actions to the affine input's end values ``(u(t_k+), u(t_{k+1}-))`` (SPEC 4.3)."""
+        """Map actions to the affine input's end values ``(u(t_k+), u(t_{k+1}-))`` (the card's Action Space)."""
         c, dim = self.config, self.config.dim
         T = self.current_interval()
         first, second = actions[..., :dim], actions[..., dim:]
@@ -268,7 +381,7 @@ class ConsensusEngine:
         if self.done:
             raise RuntimeError("step: the episode reached T_s; reset before stepping again")
         T = self.current_interval()
-        u_max = self.config.u_max
+        u_max = self.u_max
         # Double buffering: the interval is played into the spare buffer, which becomes the
         # state only once the result is known to be finite (a refused step changes nothing).
         previous, following = self.state, self._spare
@@ -279,7 +392,7 @@ class ConsensusEngine:
                 saturated_time = None
             else:
                 x_next, v_next, energy, peak, saturated_time = dynamics.advance_clipped(
-                    self.x, self.v, u0, u1, T, u_max
+                    self.x, self.v, u0, u1, T, u_max[:, None, None]
                 )
                 following[:, :, 0] = x_next
                 following[:, :, 1] = v_next
@@ -335,7 +448,7 @@ class ConsensusEngine:
 
     # ---------------------------------------------------------------- metrics
     def batch_metrics(self) -> dict[str, np.ndarray]:
-        """SPEC 5 metrics of every episode so far, one ``(B,)`` array per :class:`EpisodeMetrics` field.
+        """The metrics (README, "Baselines and the deadline benchmark") of every episode so far, one ``(B,)`` array per :class:`EpisodeMetrics` field.
 
         Final values are those at the current instant ``t_k``.
         """
@@ -344,9 +457,14 @@ class ConsensusEngine:
         t_eps = times[self.last_above + 1]  # (thresholds, B)
         # xi (dense, so only for moderate N) is computed on first use, never on the stepping path.
         if c.n_agents <= DENSE_LIMIT and c.switching == "periodic":
-            xi = c.topology.consensus_weights()
-            predicted_v = self.v0[:, :, 0] @ xi
-            predicted_x = self.x0[:, :, 0] @ xi + c.settling_time * predicted_v
+            # xi of the shared topology (N,), or of each episode's own (B, N).
+            xi = (
+                self.topologies[0].consensus_weights()
+                if self._shared_topology
+                else np.stack([topology.consensus_weights() for topology in self.topologies])
+            )
+            predicted_v = _weighted_sum(self.v0[:, :, 0], xi)
+            predicted_x = _weighted_sum(self.x0[:, :, 0], xi) + c.settling_time * predicted_v
         else:
             predicted_x = predicted_v = np.full(self.n_episodes, np.nan)
         return {
@@ -366,5 +484,5 @@ class ConsensusEngine:
         }
 
     def episode_metrics(self, episode: int = 0) -> EpisodeMetrics:
-        """SPEC 5 metrics of one episode so far (see :meth:`batch_metrics`)."""
+        """The metrics of one episode so far (see :meth:`batch_metrics`)."""
         return EpisodeMetrics(**{name: column[episode].item() for name, column in self.batch_metrics().items()})

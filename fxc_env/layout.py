@@ -21,14 +21,18 @@ CLOCK_SIZE = 3
 class ObservationLayout:
     """Where things sit in one agent's flat observation vector.
 
-    ``[rows (slots * 2 * dim) | mask (slots) | clock (3)]``; row r is
-    ``[x_j - x_i (dim), v_j - v_i (dim)]`` for the r-th in-neighbour j (ascending), zero
+    ``[rows (slots * 2 * dim) | mask (slots) | clock (3) | input limit (0 or 1)]``; row r
+    is ``[x_j - x_i (dim), v_j - v_i (dim)]`` for the r-th in-neighbour j (ascending), zero
     padded. ``slots`` is the largest in-degree over the topology set (``d_max``), or more
-    when ``obs_slots`` asks for room (a policy then fits several topologies). In ``normalized`` mode rows are ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i``.
+    when ``obs_slots`` asks for room (a policy then fits several topologies). In
+    ``normalized`` mode rows are ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i``. With an
+    input limit ``u_max`` the last entry tells how far it binds on the coming interval
+    (:func:`fxc_env.engine.limit_feature`).
     """
 
     slots: int
     dim: int
+    limit_feature: bool = False
 
     @cached_property
     def row_size(self) -> int:
@@ -43,15 +47,21 @@ class ObservationLayout:
         return self.rows_end + self.slots
 
     @cached_property
+    def clock_end(self) -> int:
+        return self.mask_end + CLOCK_SIZE
+
+    @cached_property
     def size(self) -> int:
         """Length of the flat observation."""
-        return self.mask_end + CLOCK_SIZE
+        return self.clock_end + int(self.limit_feature)
 
     def flat(self, observation: np.ndarray | Mapping[str, Any]) -> np.ndarray:
         """A flat float64 ``(..., size)`` observation from a flat or a dict observation."""
         if isinstance(observation, Mapping):
             neighbours = np.asarray(observation["neighbours"], dtype=np.float64)
             parts = (neighbours.reshape((*neighbours.shape[:-2], -1)), observation["mask"], observation["clock"])
+            if self.limit_feature:
+                parts = (*parts, observation["input_limit"])
             return np.concatenate([np.asarray(part, dtype=np.float64) for part in parts], axis=-1)
         return np.asarray(observation, dtype=np.float64)
 
@@ -59,4 +69,4 @@ class ObservationLayout:
         """``(..., size)`` -> rows ``(..., slots, 2, dim)``, mask ``(..., slots)``, clock ``(..., 3)``."""
         lead = obs.shape[:-1]
         rows = obs[..., : self.rows_end].reshape((*lead, self.slots, 2, self.dim))
-        return rows, obs[..., self.rows_end : self.mask_end], obs[..., self.mask_end :]
+        return rows, obs[..., self.rows_end : self.mask_end], obs[..., self.mask_end : self.clock_end]

@@ -1,7 +1,7 @@
 """The paper's controller, eq. (11), as a policy on the local observation.
 
 Agent i plans, over the coming interval of length T, to reach the average over itself and
-its in-neighbours of their *coasted* states (paper Remark 1, SPEC 2):
+its in-neighbours of their *coasted* states (paper Remark 1; README, "Exact dynamics"):
 
     a_v = mean_{j in {i} u N_i} (v_j - v_i)
     a_x = mean_{j in {i} u N_i} ((x_j - x_i) + T (v_j - v_i))

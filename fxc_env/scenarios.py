@@ -2,7 +2,7 @@
 
 ``parallel_env(scenario="paper_fig1")`` is the paper's example (Section 5): six agents, its
 initial state, ``T_s = 20`` s and the **assumed** Fig. 1 switching set (the figure is lost;
-SPEC 2 gives our reconstruction). Keyword arguments given next to ``scenario`` override it.
+the README gives our reconstruction). Keyword arguments given next to ``scenario`` override it.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
+from fxc_env.core.families import make_family
 from fxc_env.core.validation import ArgumentError
 
 PAPER_X0 = (1.0, -1.0, 2.0, 4.0, -4.0, -2.0)
@@ -39,6 +40,42 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "mean_in_degree": 2.0,
         "dim": 2,
         "settling_time": 20.0,
+    },
+    # A new graph every episode (training a policy that generalises): rings, paths, stars and
+    # random digraphs on 20 agents, fixed or switching with periods up to 4, initial
+    # states across two decades of scale. 4 observation slots hold every draw.
+    "generalist": {
+        "n_agents": 20,
+        "topology": make_family(
+            {
+                "mixture": [
+                    ({"family": "ring", "period": (1, 4)}, 1.0),
+                    ({"family": "path", "period": (1, 2)}, 0.5),
+                    ({"family": "star", "period": (1, 2)}, 0.5),
+                    ({"family": "random", "mean_in_degree": (1.5, 3.0), "period": (1, 4)}, 2.0),
+                ],
+                "name": "generalist",
+            }
+        ),
+        "obs_slots": 4,
+        "position_range": (0.5, 50.0),
+        "velocity_range": (0.2, 20.0),
+    },
+    # Bounded inputs (training a policy that sees its limit): six agents on switching rings
+    # (the class of the assumed Fig. 1) and random digraphs, u_max drawn from {10, 100, 1000}.
+    "saturated": {
+        "n_agents": 6,
+        "topology": make_family(
+            {
+                "mixture": [
+                    ({"family": "ring", "period": (1, 3)}, 1.0),
+                    ({"family": "random", "mean_in_degree": (1.0, 2.5), "period": (1, 3)}, 1.0),
+                ],
+                "name": "saturated",
+            }
+        ),
+        "obs_slots": 4,
+        "u_max": (10.0, 100.0, 1000.0),
     },
 }
 

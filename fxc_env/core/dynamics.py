@@ -20,7 +20,7 @@ def input_from_plan(plan_x: np.ndarray, plan_v: np.ndarray, T: np.ndarray | floa
 
     The plan asks for ``x(t_k + T) = x + T v + a_x`` and ``v(t_k + T) = v + a_v``. The unique
     minimiser of ``integral |u|^2`` is ``u(t_k + s) = alpha + beta s`` with
-    ``alpha = 6 a_x / T^2 - 2 a_v / T`` and ``beta = (6 a_v T - 12 a_x) / T^3`` (SPEC 2,
+    ``alpha = 6 a_x / T^2 - 2 a_v / T`` and ``beta = (6 a_v T - 12 a_x) / T^3`` (paper eq. 11,
     paper Remark 1). Returns the end values ``(u0, u1) = (alpha, alpha + beta T)``.
     """
     inv_t = 1.0 / T
@@ -114,9 +114,12 @@ def _clipped_pieces(u0: np.ndarray, u1: np.ndarray, T, u_max: float):
 
 
 def advance_clipped(
-    x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T, u_max: float
+    x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T, u_max: float | np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Exact motion under the affine input clipped per component to ``[-u_max, u_max]``.
+
+    ``u_max`` is a number or an array that broadcasts against ``(..., dim)`` with a last
+    axis of 1 (one limit per episode: ``(B, 1, 1)``).
 
     The clipped input is piecewise affine (at most three pieces, split where the line
     crosses ``±u_max``); each piece is integrated in closed form:
@@ -138,5 +141,6 @@ def advance_clipped(
     saturated_time = np.sum(np.where(saturated, lengths, 0.0), axis=0)
     x_next = x + T * v + position_gain
     v_next = v + velocity_gain
-    peak = np.minimum(interval_peak(u0, u1), u_max)
+    limit = np.asarray(u_max)
+    peak = np.minimum(interval_peak(u0, u1), limit[..., 0] if limit.ndim else limit)
     return x_next, v_next, energy_per_component.sum(axis=-1), peak, saturated_time

@@ -1,6 +1,6 @@
 """Communication topologies: fixed or periodically switching directed graphs.
 
-Convention (SPEC 2, paper Section 2): an edge ``(j, i)`` means **agent i receives from
+Convention (paper Section 2): an edge ``(j, i)`` means **agent i receives from
 agent j**, so ``a_ij = 1`` and ``j`` is an in-neighbour of ``i``. Nodes are 0-based.
 A *period* ``G_0, ..., G_{m-1}`` is used by sample index: ``G_{k mod m}`` is active on
 ``[t_k, t_{k+1})``. A fixed topology is a period of length one.

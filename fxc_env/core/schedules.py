@@ -3,11 +3,11 @@
 The paper (Section 3) uses ``T_k = 6 T_s / (pi k)^2``, ``k = 1, 2, ...``, whose infinite sum
 is exactly ``T_s``: infinitely many samples accumulate at the deadline. A simulation has K
 intervals, so we take ``T_1 .. T_{K-1}`` from the schedule and let the last interval end
-**exactly** at ``T_s`` (``T_K = T_s - t_{K-1}``, SPEC 3). The deadline is then reached in K
+**exactly** at ``T_s`` (``T_K = T_s - t_{K-1}``). The deadline is then reached in K
 steps and the disagreement left at ``T_s`` is the honest figure of merit.
 
 Do not replace the paper's schedule by a geometric one (``T_s / 2^k``): the controller's
-gains grow like ``1 / T_k^3`` and its inputs then diverge (SPEC 3).
+gains grow like ``1 / T_k^3`` and its inputs then diverge (1e31 by k = 60 on a ring).
 """
 
 from __future__ import annotations

@@ -172,13 +172,28 @@ def _check_entries(name: str, array: np.ndarray, limit: float | None) -> None:
 
 
 def _range_text(minimum: float | None, maximum: float | None) -> str:
+    low, high = _number_text(minimum), _number_text(maximum)
     if minimum is not None and maximum is not None:
-        return f" in [{minimum:g}, {maximum:g}]"
+        return f" in [{low}, {high}]"
     if minimum is not None:
-        return f" >= {minimum:g}"
+        return f" >= {low}"
     if maximum is not None:
-        return f" <= {maximum:g}"
+        return f" <= {high}"
     return ""
+
+
+def _number_text(value: float | None) -> str:
+    """Integers exactly while they are short (``4294967295``), powers of two as such, else ``%g``."""
+    if value is None:
+        return ""
+    if isinstance(value, int):
+        if value < 10**12:
+            return str(value)
+        if value + 1 == 2 ** (value + 1).bit_length() // 2:
+            return f"2**{(value + 1).bit_length() - 1} - 1"
+        if value == 2 ** (value.bit_length() - 1):
+            return f"2**{value.bit_length() - 1}"
+    return f"{value:g}"
 
 
 def _short(value: Any) -> str:

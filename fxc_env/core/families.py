@@ -1,0 +1,212 @@
+"""Topology families: a distribution over (switching) digraphs, drawn anew for every episode.
+
+A policy trained on one graph learns that graph. To learn consensus itself it must meet a
+new graph every episode: a :class:`TopologyFamily` draws one, a :class:`TopologyMixture`
+first picks a family by weight. Every draw is guaranteed to satisfy the paper's condition
+(Theorem 1 for a fixed graph, Theorem 2 for a period: the union of the period's graphs has a
+directed spanning tree), because each family builds a spanning union graph first and only
+then deals its edges to the ``m`` graphs of the period:
+
+| family     | union graph drawn                                                      | in-degree |
+|------------|------------------------------------------------------------------------|-----------|
+| ``ring``   | a directed cycle through the agents in a random order                  | 1         |
+| ``path``   | a directed path through the agents in a random order                   | 1         |
+| ``star``   | a random leader sends to every other agent                             | 1         |
+| ``complete`` | every agent receives from every other                                | N - 1     |
+| ``random`` | a random spanning tree plus random edges up to a mean in-degree drawn uniformly from ``mean_in_degree`` (:func:`fxc_env.core.graphs.random_topology`) | up to ceil(max mean) |
+
+The switching period ``m`` is drawn uniformly from ``period`` (both ends included); each
+edge of the union goes to one of the ``m`` graphs at random, so for ``m > 1`` usually no
+graph spans on its own and only their union does. Draws use only the generator passed in,
+so an episode's graphs are reproducible from its seed; :func:`edge_lists` turns a drawn
+topology into plain lists that ``make_topology`` accepts back (a replay as a fixed topology).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fxc_env.core import validation
+from fxc_env.core.graphs import Topology, make_topology, random_topology
+from fxc_env.core.validation import ArgumentError
+
+FAMILY_KINDS = ("ring", "path", "star", "complete", "random")
+
+
+def _range(name: str, value: Any, kind: type, minimum: float) -> tuple[Any, Any]:
+    """A number or a ``(low, high)`` pair, as a validated pair with ``low <= high``."""
+    pair = tuple(value) if isinstance(value, Sequence) and not isinstance(value, str) else (value, value)
+    if len(pair) != 2:
+        raise ArgumentError(f"{name}: expected a number or a (low, high) pair, got {value!r}")
+    if kind is int:
+        low, high = (validation.integer(name, v, int(minimum), validation.MAX_PERIOD) for v in pair)
+    else:
+        low, high = (validation.real(name, v, minimum) for v in pair)
+    if low > high:
+        raise ArgumentError(f"{name}: expected low <= high, got {value!r}")
+    return low, high
+
+
+@dataclass(frozen=True)
+class TopologyFamily:
+    """One family of topologies (see the module table).
+
+    Attributes:
+        kind: one of :data:`FAMILY_KINDS`.
+        mean_in_degree: ``(low, high)`` range of the ``random`` family's mean in-degree.
+        period: ``(low, high)`` range of the switching period ``m`` (``(1, 1)``: fixed graphs).
+        relabel: draw a random labelling of the agents (``ring``, ``path``, ``star``), so agent
+            0 is not always the leader or the path's root.
+    """
+
+    kind: str
+    mean_in_degree: tuple[float, float] = (2.0, 2.0)
+    period: tuple[int, int] = (1, 1)
+    relabel: bool = True
+
+    @property
+    def name(self) -> str:
+        parts = [self.kind]
+        if self.kind == "random":
+            low, high = self.mean_in_degree
+            parts.append(f"d{low:g}" if low == high else f"d{low:g}-{high:g}")
+        if self.period != (1, 1):
+            low, high = self.period
+            parts.append(f"m{low}" if low == high else f"m{low}-{high}")
+        return "_".join(parts)
+
+    def max_in_degree(self, n_agents: int) -> int:
+        """The largest in-degree any draw on ``n_agents`` agents can have (the observation's slots)."""
+        if n_agents == 1:
+            return 0
+        if self.kind == "complete":
+            return n_agents - 1
+        if self.kind == "random":
+            return max(1, min(math.ceil(self.mean_in_degree[1]), n_agents - 1))
+        return 1
+
+    def draw(self, n_agents: int, rng: np.random.Generator) -> Topology:
+        """One topology on ``n_agents`` agents whose (joint) graph spans."""
+        period = int(rng.integers(self.period[0], self.period[1] + 1))
+        if self.kind == "random":
+            low, high = self.mean_in_degree
+            mean = low if low == high else float(rng.uniform(low, high))
+            seed = int(rng.integers(0, 2**63))
+            union = random_topology(n_agents, seed=seed, mean_in_degree=mean, period=1).edges[0]
+        else:
+            union = _structured_edges(self.kind, n_agents)
+            if self.relabel and n_agents > 1:
+                union = rng.permutation(n_agents)[union]
+        graph_of_edge = rng.integers(0, period, size=len(union))
+        edges = [union[graph_of_edge == g] for g in range(period)]
+        drawn = make_topology(edges if period > 1 else edges[0], n_agents, check=False)
+        return Topology(n_agents, drawn.edges, name=self.name, note="drawn from a family")
+
+
+def _structured_edges(kind: str, n: int) -> np.ndarray:
+    nodes = np.arange(n)
+    if n == 1:
+        return np.zeros((0, 2), dtype=np.int64)
+    if kind == "ring":
+        return np.stack([nodes, (nodes + 1) % n], axis=1)
+    if kind == "path":
+        return np.stack([nodes[:-1], nodes[1:]], axis=1)
+    if kind == "star":
+        return np.stack([np.zeros(n - 1, np.int64), nodes[1:]], axis=1)
+    senders, receivers = np.meshgrid(nodes, nodes, indexing="ij")
+    off = senders != receivers
+    return np.stack([senders[off], receivers[off]], axis=1)
+
+
+@dataclass(frozen=True)
+class TopologyMixture:
+    """Families drawn with the given weights; then the chosen family draws the topology."""
+
+    families: tuple[TopologyFamily, ...]
+    weights: tuple[float, ...]
+    label: str = "mixture"
+
+    @property
+    def name(self) -> str:
+        return self.label
+
+    def max_in_degree(self, n_agents: int) -> int:
+        return max(family.max_in_degree(n_agents) for family in self.families)
+
+    def draw(self, n_agents: int, rng: np.random.Generator) -> Topology:
+        probabilities = np.asarray(self.weights) / math.fsum(self.weights)
+        chosen = self.families[int(rng.choice(len(self.families), p=probabilities))]
+        return chosen.draw(n_agents, rng)
+
+
+AnyFamily = TopologyFamily | TopologyMixture
+
+
+def make_family(spec: Any, argument: str = "topology") -> AnyFamily:
+    """A family from its description.
+
+    ``spec`` is a :class:`TopologyFamily` or :class:`TopologyMixture`, or a mapping:
+    ``{"family": "random", "mean_in_degree": (1.5, 3.0), "period": (1, 3), "relabel": True}``
+    (every key but ``family`` optional), or ``{"mixture": [(family_spec, weight), ...],
+    "name": "..."}``.
+    """
+    if isinstance(spec, TopologyFamily | TopologyMixture):
+        return spec
+    if not isinstance(spec, Mapping):
+        raise ArgumentError(
+            f"{argument}: expected a family mapping {{'family': ...}} or {{'mixture': ...}}, got {spec!r}"
+        )
+    if "mixture" in spec:
+        unknown = set(spec) - {"mixture", "name"}
+        if unknown:
+            raise ArgumentError(
+                f"{argument}: unknown key(s) {sorted(unknown)} in a mixture; expected 'mixture', 'name'"
+            )
+        members = spec["mixture"]
+        if isinstance(members, str | bytes) or not isinstance(members, Sequence) or not members:
+            raise ArgumentError(f"{argument}: 'mixture' must be a non-empty list of (family, weight) pairs")
+        families, weights = [], []
+        for member in members:
+            if not isinstance(member, Sequence) or isinstance(member, str) or len(member) != 2:
+                raise ArgumentError(f"{argument}: each mixture entry must be a (family, weight) pair, got {member!r}")
+            family = make_family(member[0], argument)
+            if isinstance(family, TopologyMixture):
+                raise ArgumentError(f"{argument}: a mixture's members must be families, not mixtures")
+            families.append(family)
+            weights.append(validation.real(f"{argument} mixture weight", member[1], positive=True))
+        name = spec.get("name", "mixture")
+        if not isinstance(name, str):
+            raise ArgumentError(f"{argument}: a mixture's 'name' must be a string, got {name!r}")
+        return TopologyMixture(tuple(families), tuple(weights), name)
+    unknown = set(spec) - {"family", "mean_in_degree", "period", "relabel"}
+    if unknown:
+        raise ArgumentError(
+            f"{argument}: unknown key(s) {sorted(unknown)}; expected 'family', 'mean_in_degree', 'period', 'relabel'"
+        )
+    kind = validation.choice(f"{argument}['family']", spec.get("family"), FAMILY_KINDS)
+    relabel = spec.get("relabel", True)
+    if not isinstance(relabel, bool):
+        raise ArgumentError(f"{argument}['relabel']: expected True or False, got {relabel!r}")
+    return TopologyFamily(
+        kind=kind,
+        mean_in_degree=_range(f"{argument}['mean_in_degree']", spec.get("mean_in_degree", 2.0), float, 0.0),
+        period=_range(f"{argument}['period']", spec.get("period", 1), int, 1),
+        relabel=relabel,
+    )
+
+
+def is_family_spec(spec: Any) -> bool:
+    """Whether ``spec`` describes a family (drawn per episode) rather than one topology."""
+    return isinstance(spec, TopologyFamily | TopologyMixture) or (
+        isinstance(spec, Mapping) and ("family" in spec or "mixture" in spec)
+    )
+
+
+def edge_lists(topology: Topology) -> list[list[list[int]]]:
+    """The topology's graphs as plain lists of ``[j, i]`` pairs (``make_topology`` takes them back)."""
+    return [edges.tolist() for edges in topology.edges]

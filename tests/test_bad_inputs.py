@@ -1,0 +1,219 @@
+"""Bad input gets a clear error and loses nothing (README, "Bad input").
+
+One table of distinct bad inputs across every front end: the constructor, ``reset`` and
+``step`` of the parallel env, the AEC form, the SB3 VecEnv, ``simulate`` and the command
+line. Each row asserts that the exception is the package's usage error
+(:class:`~fxc_env.core.validation.ArgumentError`), that its message starts with the
+argument's name, and, for a live environment, that nothing changed: the state, the clock,
+the live agents and the generator, and that the environment then steps exactly like an
+untouched twin.
+"""
+
+from __future__ import annotations
+
+import pickle
+
+import networkx as nx
+import numpy as np
+import pytest
+
+import fxc_env
+from fxc_env import ReferencePolicy
+from fxc_env.core.validation import ArgumentError
+
+N = 6
+
+# --------------------------------------------------------------- constructor
+CONSTRUCTOR_CASES = [
+    ({"n_agents": 0, "topology": "ring"}, "n_agents"),
+    ({"n_agents": 2.5, "topology": "ring"}, "n_agents"),
+    ({"n_agents": True, "topology": "ring"}, "n_agents"),
+    ({"n_agents": 10**12, "topology": "ring"}, "n_agents"),
+    ({"settling_time": 0.0}, "settling_time"),
+    ({"settling_time": -3.0}, "settling_time"),
+    ({"settling_time": float("nan")}, "settling_time"),
+    ({"settling_time": "20"}, "settling_time"),
+    ({"settling_time": 1e155}, "settling_time"),
+    ({"settling_time": 1e-200}, "n_intervals"),
+    ({"n_intervals": 0}, "n_intervals"),
+    ({"n_intervals": 2**63}, "n_intervals"),
+    ({"n_intervals": 3.0}, "n_intervals"),
+    ({"schedule": [1e-300, 20.0], "settling_time": 20.0 + 1e-300}, "schedule"),
+    ({"schedule": [5.0, 5.0], "settling_time": 20.0}, "schedule"),
+    ({"schedule": "geometric"}, "schedule"),
+    ({"schedule": [[1.0, 2.0]]}, "schedule"),
+    ({"schedule": ["a", "b"]}, "schedule"),
+    ({"dim": 0}, "dim"),
+    ({"dim": 10**6}, "dim"),
+    ({"action_mode": "force"}, "action_mode"),
+    ({"obs_mode": "scaled"}, "obs_mode"),
+    ({"obs_format": "tuple"}, "obs_format"),
+    ({"obs_dtype": "float16"}, "obs_dtype"),
+    ({"global_state": "pixels"}, "global_state"),
+    ({"action_bound": -1.0}, "action_bound"),
+    ({"reward_floor": 0.0}, "reward_floor"),
+    ({"position_range": float("inf")}, "position_range"),
+    ({"velocity_range": 1e200}, "velocity_range"),
+    ({"u_max": 0.0}, "u_max"),
+    ({"u_max": 1e300}, "u_max"),
+    ({"obs_noise": -0.1}, "obs_noise"),
+    ({"obs_noise": 1e300}, "obs_noise"),
+    ({"link_dropout": 1.0}, "link_dropout"),
+    ({"link_dropout": "often"}, "link_dropout"),
+    ({"switching": "sometimes"}, "switching"),
+    ({"scenario": ["paper_fig1"]}, "scenario"),
+    ({"scenario": "paper_fig2"}, "scenario"),
+    ({"topology": "hypercube"}, "topology"),
+    ({"topology": [(0, 1), (1, 1)], "n_agents": 3}, "topology"),
+    ({"topology": [(0, 1), (0.5, 2)], "n_agents": 3}, "topology"),
+    ({"topology": [(0, 1), (1, float("nan"))], "n_agents": 3}, "topology"),
+    ({"topology": [(0, 1), (1, 1e30)]}, "topology"),
+    ({"topology": [[(0, 1), (1, 2)], None]}, "topology"),
+    ({"topology": [("a", "b")]}, "topology"),
+    ({"topology": nx.DiGraph([(0.5, 1.0), (1.0, 2.0)])}, "topology"),
+    ({"topology": nx.DiGraph([("a", "b"), ("b", "c")])}, "topology"),
+    ({"topology": [(0, 1)], "n_agents": 3}, "topology"),
+    ({"topology": "random", "n_agents": 20, "topology_seed": -1}, "topology_seed"),
+    ({"topology": "random", "n_agents": 20, "topology_seed": 1.5}, "topology_seed"),
+    ({"topology": "random", "n_agents": 20, "mean_in_degree": -1.0}, "mean_in_degree"),
+    ({"topology": "random", "n_agents": 20, "topology_period": 0}, "topology_period"),
+    ({"obs_slots": 0}, "obs_slots"),
+    ({"initial_state": "zeros"}, "initial_state"),
+    ({"initial_state": ([1.0] * N,)}, "initial_state"),
+    ({"initial_state": ([[1.0, 2.0], [3.0]] + [[0.0, 0.0]] * 4, [[0.0, 0.0]] * N), "dim": 2}, "initial_state"),
+    ({"initial_state": ([1e308] * N, [0.0] * N)}, "initial_state"),
+    ({"initial_state": ([float("nan")] * N, [0.0] * N)}, "initial_state"),
+    ({"render_mode": "ansi"}, "render_mode"),
+    ({"max_cycles": 0}, "max_cycles"),
+]
+
+
+@pytest.mark.parametrize(("kwargs", "name"), CONSTRUCTOR_CASES, ids=[str(c[0])[:60] for c in CONSTRUCTOR_CASES])
+def test_constructor_names_the_bad_argument(kwargs, name):
+    with pytest.raises(ArgumentError) as caught:
+        fxc_env.parallel_env(**kwargs)
+    assert str(caught.value).startswith(name), str(caught.value)
+
+
+def test_the_constructor_cases_are_distinct_and_many():
+    assert len({repr(kwargs) for kwargs, _ in CONSTRUCTOR_CASES}) == len(CONSTRUCTOR_CASES) >= 50
+
+
+# ------------------------------------------------------------- live parallel env
+def snapshot(env):
+    """Everything a refused call must leave as it was."""
+    engine = env.unwrapped.engine
+    return (
+        engine.state.copy(),
+        engine.k,
+        list(env.unwrapped.agents),
+        pickle.dumps(engine.rng.bit_generator.state),
+    )
+
+
+def assert_unchanged(before, after):
+    np.testing.assert_array_equal(before[0], after[0])
+    assert before[1:] == after[1:]
+
+
+def started(**kwargs):
+    env = fxc_env.parallel_env(scenario="paper_fig1", **kwargs)
+    obs, _ = env.reset(seed=3)
+    policy = ReferencePolicy(env)
+    for _ in range(2):
+        obs = env.step({a: policy(o) for a, o in obs.items()})[0]
+    return env, obs, policy
+
+
+def good_actions(env, obs, policy):
+    return {agent: policy(o) for agent, o in obs.items()}
+
+
+STEP_CASES = [
+    ("nan action", lambda acts: {**acts, "agent_2": np.array([np.nan, 0.0])}, "actions"),
+    ("inf action", lambda acts: {**acts, "agent_0": np.array([0.0, np.inf])}, "actions"),
+    ("short action", lambda acts: {**acts, "agent_1": np.array([0.0])}, "actions"),
+    ("string action", lambda acts: {**acts, "agent_1": "left"}, "actions"),
+    ("ragged action", lambda acts: {**acts, "agent_1": [0.0, [1.0]]}, "actions"),
+    ("unknown agent", lambda acts: {**acts, "agent_9": np.zeros(2)}, "actions"),
+    ("missing agent", lambda acts: {k: v for k, v in acts.items() if k != "agent_5"}, "actions"),
+    ("not a dict", lambda acts: list(acts.values()), "actions"),
+]
+
+
+@pytest.mark.parametrize(("label", "change", "name"), STEP_CASES, ids=[c[0] for c in STEP_CASES])
+def test_parallel_step_refuses_and_keeps_the_state(label, change, name):
+    env, obs, policy = started()
+    before = snapshot(env)
+    with pytest.raises(ArgumentError) as caught:
+        env.step(change(good_actions(env, obs, policy)))
+    assert str(caught.value).startswith(name), str(caught.value)
+    assert_unchanged(before, snapshot(env))
+    env.step(good_actions(env, obs, policy))  # still usable
+
+
+@pytest.mark.parametrize("action_mode", ["plan", "accel"])
+@pytest.mark.parametrize("size", [1e160, 1e308])
+def test_a_finite_raw_action_that_would_overflow_is_refused(action_mode, size):
+    env = fxc_env.parallel_env(scenario="paper_fig1", obs_mode="raw", action_mode=action_mode)
+    obs, _ = env.reset(seed=0)
+    before = snapshot(env)
+    actions = {agent: np.zeros(2) for agent in env.agents}
+    actions["agent_3"] = np.array([size, size])
+    with pytest.raises(ArgumentError, match=r"^actions: .*overflow.*agents \[3\]") as caught:
+        env.step(actions)
+    assert "unchanged" in str(caught.value)
+    assert_unchanged(before, snapshot(env))
+    twin = fxc_env.parallel_env(scenario="paper_fig1", obs_mode="raw", action_mode=action_mode)
+    twin.reset(seed=0)
+    policy = ReferencePolicy(env)
+    mine, theirs = env.step(good_actions(env, obs, policy)), twin.step(good_actions(twin, obs, policy))
+    np.testing.assert_array_equal(env.state(), twin.state())
+    assert mine[1] == theirs[1]
+
+
+RESET_CASES = [
+    ({"seed": "abc"}, "seed"),
+    ({"seed": -1}, "seed"),
+    ({"seed": 1.5}, "seed"),
+    ({"options": "x0"}, "options"),
+    ({"options": {"x0": [1.0, 2.0]}}, "options['x0']"),
+    ({"options": {"x0": [[1.0], [2.0, 3.0]] + [[0.0]] * 4}}, "options['x0']"),
+    ({"options": {"x0": ["a"] * N}}, "options['x0']"),
+    ({"options": {"v0": [np.nan] * N}}, "options['v0']"),
+    ({"options": {"v0": [1e101] * N}}, "options['v0']"),
+    ({"options": {"x0": [-1e308] * N}}, "options['x0']"),
+]
+
+
+@pytest.mark.parametrize(("kwargs", "name"), RESET_CASES, ids=[str(c[0])[:50] for c in RESET_CASES])
+def test_parallel_reset_refuses_and_keeps_the_state(kwargs, name):
+    env, obs, policy = started()
+    before = snapshot(env)
+    with pytest.raises(ArgumentError) as caught:
+        env.reset(**kwargs)
+    assert str(caught.value).startswith(name), str(caught.value)
+    assert_unchanged(before, snapshot(env))
+    env.step(good_actions(env, obs, policy))
+
+
+# ------------------------------------------------------------------ simulate
+SIMULATE_CASES = [
+    ({"settling_time": 1e300}, "settling_time"),
+    ({"x0": [1.0] * 5}, "x0"),
+    ({"v0": [np.inf] * N}, "v0"),
+    ({"points_per_interval": 0}, "points_per_interval"),
+    ({"seed": -5}, "seed"),
+]
+
+
+@pytest.mark.parametrize(("kwargs", "name"), SIMULATE_CASES, ids=[str(c[0])[:50] for c in SIMULATE_CASES])
+def test_simulate_names_the_bad_argument(kwargs, name):
+    with pytest.raises(ArgumentError) as caught:
+        fxc_env.simulate("reference", "paper_fig1", **kwargs)
+    assert str(caught.value).startswith(name), str(caught.value)
+
+
+def test_simulate_refuses_a_policy_that_is_not_callable():
+    with pytest.raises(ArgumentError, match=r"^policy"):
+        fxc_env.simulate("pid", "paper_fig1")
