@@ -57,19 +57,19 @@ class ReferencePolicy:
         """Eq. (11) from flat observations ``(..., obs_size)``: actions ``(..., 2 dim)``."""
         c, dim = self.config, self.config.dim
         sums = obs[..., : self.layout.mask_end] @ self._summation  # padded rows are zero
-        rel_x, rel_v = sums[..., :dim], sums[..., dim : 2 * dim]
-        weight = 1.0 / (sums[..., 2 * dim :] + 1.0)  # 1 / (d_i + 1)
-        if c.obs_mode == "normalized":
-            # Rows are (x_j - x_i)/s and T (v_j - v_i)/s: the plan is scale-free.
-            plan_x = weight * (rel_x + rel_v)
-            plan_v = weight * rel_v
-            if c.action_mode == "plan":
-                return np.concatenate([plan_x, plan_v], axis=-1)
-            # accel: u = (s / T^2) * alpha, with input_from_plan at T = 1 in these units.
-            return np.concatenate(input_from_plan(plan_x, plan_v, 1.0), axis=-1)
-        T = obs[..., self.layout.mask_end + 1 : self.layout.mask_end + 2] * c.settling_time
-        plan_x = weight * (rel_x + T * rel_v)
-        plan_v = weight * rel_v
+        weight = 1.0 / (sums[..., 2 * dim] + 1.0)  # 1 / (d_i + 1)
+        normalized = c.obs_mode == "normalized"
+        # Rows are (x_j - x_i)/s and T (v_j - v_i)/s when normalized: the plan is scale-free.
+        T = None if normalized else obs[..., self.layout.mask_end + 1] * c.settling_time
+        # One component at a time: each operation runs over all agents (a (..., dim) block
+        # broadcast against (..., 1) would make numpy loop over every agent's few entries).
+        plan = np.empty((*sums.shape[:-1], 2 * dim), dtype=sums.dtype)
+        for component in range(dim):
+            rel_x, rel_v = sums[..., component], sums[..., dim + component]
+            plan[..., component] = weight * (rel_x + (rel_v if normalized else T * rel_v))
+            plan[..., dim + component] = weight * rel_v
         if c.action_mode == "plan":
-            return np.concatenate([plan_x, plan_v], axis=-1)
-        return np.concatenate(input_from_plan(plan_x, plan_v, T), axis=-1)
+            return plan
+        # accel, normalized: u = (s / T^2) * alpha, with input_from_plan at T = 1 in these units.
+        interval = 1.0 if normalized else T[..., None]
+        return np.concatenate(input_from_plan(plan[..., :dim], plan[..., dim:], interval), axis=-1)

@@ -8,9 +8,11 @@ that both see the same machine state; each figure is the median over rounds:
 2. our SB3 ``ConsensusVecEnv`` driven by the reference policy against VMAS on the CPU
    (``navigation`` and ``simple_spread``, random actions) at the same total agent count
    (>= 1e5), in agent-steps per second;
-3. one episode on ``random`` digraphs (mean in-degree 4) from N = 10^2 to 10^6: seconds per
-   sampling interval (observation + reference policy + exact step), per agent-step, and
-   the peak memory traced while building and stepping.
+3. one episode on ``random`` digraphs (mean in-degree 4) from N = 10^2 to 10^6, for
+   ``dim`` = 1, 2 and 3: seconds per sampling interval (observation + reference policy +
+   exact step), per agent-step, and the peak memory traced while building and stepping;
+   then the time per interval at ``dim`` = 2 and 3 over that at ``dim`` = 1, at N = 10^5
+   (the goal: ``dim`` = 2 within 3x).
 
 Threads are pinned to one (``OMP_NUM_THREADS`` and friends are set before numpy or torch
 start, by re-running the command; ``torch.set_num_threads(1)``). MPE2 and VMAS come from
@@ -191,14 +193,21 @@ def vec_table(total_agents: int, rounds: int) -> list[str]:
 
 
 # ----------------------------------------------------------------- scaling table
-def scaling_row(n_agents: int, steps: int) -> tuple[float, float, float]:
-    """(seconds per interval, seconds per agent-step, peak traced MiB) for one episode."""
+#: The scaling table's dimensions: the paper's ``dim = 1``, then the plane and space.
+SCALING_DIMS = (1, 2, 3)
+#: N at which the table compares each ``dim`` with ``dim = 1``, and the goal for ``dim = 2``.
+RATIO_N = 100_000
+RATIO_GOAL = 3.0
+
+
+def scaling_row(n_agents: int, steps: int, dim: int = 1) -> tuple[float, float, float]:
+    """(seconds per interval, seconds per agent-step, peak traced MiB) for one episode in ``dim`` dimensions."""
     from fxc_env.config import make_config
     from fxc_env.engine import ConsensusEngine
     from fxc_env.reference import ReferencePolicy
 
     tracemalloc.start()
-    config = make_config(topology="random", n_agents=n_agents, mean_in_degree=4.0, n_intervals=steps + 1)
+    config = make_config(topology="random", n_agents=n_agents, mean_in_degree=4.0, n_intervals=steps + 1, dim=dim)
     engine = ConsensusEngine(config, n_episodes=1)
     x0, v0 = engine.sample_initial_state(np.random.default_rng(0))
     engine.reset(x0[None], v0[None])
@@ -214,17 +223,41 @@ def scaling_row(n_agents: int, steps: int) -> tuple[float, float, float]:
     return seconds, seconds / n_agents, peak / 2**20
 
 
-def scaling_table(largest: int) -> list[str]:
-    lines = [
-        "| N | seconds / interval | ns / agent-step | peak traced memory (MiB) |",
-        "|---:|---:|---:|---:|",
-    ]
-    n = 100
-    while n <= largest:
-        steps = int(min(200, max(5, 2e6 / n)))
-        seconds, per_agent, peak = scaling_row(n, steps)
-        lines.append(f"| {n:,} | {seconds:.2e} | {per_agent * 1e9:.0f} | {peak:,.1f} |")
-        n *= 10
+def scaling_table(largest: int, dims: tuple[int, ...] = (1,)) -> list[str]:
+    """One table of N = 100, 1000, ... up to ``largest`` per ``dim`` (each headed when ``dims`` has several).
+
+    With ``dim = 1`` among several, closing lines give each other dim's time per interval
+    over ``dim = 1``'s at N = :data:`RATIO_N` (at the largest N measured when ``largest``
+    is smaller, saying so), and ``dim = 2``'s against :data:`RATIO_GOAL`.
+    """
+    lines: list[str] = []
+    seconds_at: dict[tuple[int, int], float] = {}
+    for dim in dims:
+        if len(dims) > 1:
+            lines += ([""] if lines else []) + [f"dim = {dim}:", ""]
+        lines += [
+            "| N | seconds / interval | ns / agent-step | peak traced memory (MiB) |",
+            "|---:|---:|---:|---:|",
+        ]
+        n = 100
+        while n <= largest:
+            steps = int(min(200, max(5, 2e6 / n)))
+            seconds, per_agent, peak = scaling_row(n, steps, dim)
+            seconds_at[dim, n] = seconds
+            lines.append(f"| {n:,} | {seconds:.2e} | {per_agent * 1e9:.0f} | {peak:,.1f} |")
+            n *= 10
+    measured = sorted(n for d, n in seconds_at if d == 1)
+    if len(dims) > 1 and measured:
+        compared = RATIO_N if RATIO_N in measured else measured[-1]
+        lines.append("")
+        for dim in dims:
+            if dim == 1 or (dim, compared) not in seconds_at:
+                continue
+            ratio = seconds_at[dim, compared] / seconds_at[1, compared]
+            goal = f" (goal <= {RATIO_GOAL:g}x)" if dim == 2 else ""
+            lines.append(f"dim={dim} / dim=1 at N={compared:,}: {ratio:.1f}x{goal}")
+        if compared != RATIO_N:
+            lines.append(f"(the goal is stated at N={RATIO_N:,}: pass --largest {RATIO_N} or more)")
     return lines
 
 
@@ -246,8 +279,8 @@ def run(args: Any) -> int:
         print("\n".join(parallel_table(args.rounds)))
         print(f"\n## ConsensusVecEnv vs VMAS on CPU (>= {args.total_agents:,} agents, one thread)\n")
         print("\n".join(vec_table(args.total_agents, args.rounds)))
-    print("\n## One episode on random digraphs (mean in-degree 4), reference policy\n")
-    print("\n".join(scaling_table(args.largest)))
+    print("\n## One episode on random digraphs (mean in-degree 4), reference policy, dim = 1, 2, 3\n")
+    print("\n".join(scaling_table(args.largest, SCALING_DIMS)))
     return 0
 
 
