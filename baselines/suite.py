@@ -30,7 +30,7 @@ from fxc_env.core.families import AnyFamily, TopologyFamily
 from fxc_env.core.graphs import Topology
 from fxc_env.core.validation import ArgumentError
 from fxc_env.layout import CLOCK_SIZE
-from fxc_env.learned import load_learned_policy, pretrained_path
+from fxc_env.learned import SHIPPED, load_learned_policy, pretrained_path
 from fxc_env.reference import ReferencePolicy
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -188,8 +188,8 @@ def _renamed(message: str, name: str) -> str:
 
 
 def model_path(spec: str) -> Path:
-    """The file of a saved model: ``pretrained`` is the policy shipped with fxc_env."""
-    return pretrained_path() if spec == "pretrained" else Path(spec)
+    """The file of a saved model: ``pretrained``, ``generalist``, ``saturated``, ``paper_fig1`` name the shipped ones."""
+    return pretrained_path(spec) if spec in SHIPPED else Path(spec)
 
 
 @dataclass(frozen=True)
@@ -356,7 +356,7 @@ def load_policy(spec: str, config: EnvConfig) -> Policy:
     if spec in BASELINES:
         return BASELINES[spec](config)
     path = model_path(spec)
-    if spec == "pretrained" or path.suffix == ".zip" or path.exists():
+    if spec in SHIPPED or path.suffix == ".zip" or path.exists():
         try:
             return load_learned_policy(path, config)
         except FileNotFoundError as exc:

@@ -15,9 +15,10 @@ from pettingzoo import ParallelEnv
 
 from fxc_env.config import RENDER_MODES, EnvConfig, check_max_cycles, check_render_mode, make_config
 from fxc_env.core import validation
+from fxc_env.core.families import edge_lists
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-from fxc_env.engine import TINY, ConsensusEngine
+from fxc_env.engine import TINY, ConsensusEngine, EpisodeDraw
 from fxc_env.rendering import EpisodeView
 from fxc_env.spaces import action_space, observation_space, state_space
 
@@ -37,6 +38,20 @@ def episode_metrics_rows(engine: ConsensusEngine) -> list[dict[str, float | int]
     columns = engine.batch_metrics()
     names = [field.name for field in dataclasses.fields(EpisodeMetrics)]
     return [dict(zip(names, row, strict=True)) for row in zip(*(columns[n].tolist() for n in names), strict=True)]
+
+
+def episode_draw_info(draw: EpisodeDraw) -> dict[str, Any]:
+    """What a reset drew beyond the initial state, for the reset infos (empty when nothing is drawn).
+
+    ``edges``: the family's graphs as lists of ``[j, i]`` pairs (``topology=edges`` replays
+    the episode on a fixed topology); ``u_max``: the input limit drawn from a set.
+    """
+    info: dict[str, Any] = {}
+    if draw.topology is not None:
+        info["edges"] = edge_lists(draw.topology)
+    if draw.u_max is not None:
+        info["u_max"] = draw.u_max
+    return info
 
 
 def normalized_state(engine: ConsensusEngine) -> np.ndarray:
@@ -319,6 +334,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             agent: {"t": 0.0, "interval": 0, "energy": 0.0, "peak_u": 0.0, "saturated_fraction": 0.0}
             for agent in self.agents
         }
+        for info in infos.values():
+            info.update(episode_draw_info(draw))
         if self.render_mode == "human":
             self.render()
         return self._observe(), infos

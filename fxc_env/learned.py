@@ -22,8 +22,17 @@ import numpy as np
 
 from fxc_env.core.validation import ArgumentError
 
-#: The policy trained on ``paper_fig1`` that ships with the package (README, "Training learned policies").
-PRETRAINED = "paper_fig1_ppo.zip"
+#: The policies that ship with the package, by name (README, "Training learned policies"):
+#: ``generalist`` (one policy for every graph family), ``saturated`` (inputs bounded by a
+#: visible limit) and ``paper_fig1`` (the first release's, trained on the paper's graphs only).
+#: ``pretrained`` means the generalist.
+SHIPPED = {
+    "pretrained": "generalist.zip",
+    "generalist": "generalist.zip",
+    "saturated": "saturated.zip",
+    "paper_fig1": "paper_fig1_ppo.zip",
+}
+PRETRAINED = SHIPPED["paper_fig1"]
 #: The RLModule that ``fxc train --backend rllib`` shares between all agents.
 RLLIB_MODULE = "shared"
 #: RLlib checkpoints of a run: ``<run>/checkpoints/rllib_<timesteps>_steps/``.
@@ -48,9 +57,9 @@ MODEL_LOAD_ERRORS = (
 )
 
 
-def pretrained_path() -> Path:
-    """Path of the shipped pretrained policy."""
-    return Path(str(resources.files("fxc_env") / "pretrained" / PRETRAINED))
+def pretrained_path(name: str = "paper_fig1") -> Path:
+    """Path of a shipped policy (see :data:`SHIPPED`)."""
+    return Path(str(resources.files("fxc_env") / "pretrained" / SHIPPED[name]))
 
 
 def load_model(path: str | Path) -> Any:

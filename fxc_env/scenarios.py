@@ -62,8 +62,11 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "velocity_range": (0.2, 20.0),
     },
     # Bounded inputs (training a policy that sees its limit): six agents on switching rings
-    # (the class of the assumed Fig. 1) and random digraphs, u_max drawn from {10, 100, 1000}.
+    # (the class of the assumed Fig. 1) and random digraphs, u_max drawn from {10, 100, 1000},
+    # on the uniform schedule (T_s / K each): under a limit the paper's last, shortest
+    # intervals cannot be used, while K equal intervals keep every one usable.
     "saturated": {
+        "schedule": "uniform",
         "n_agents": 6,
         "topology": make_family(
             {

@@ -20,7 +20,7 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 from fxc_env.config import EnvConfig, check_max_cycles, check_render_mode, make_config
-from fxc_env.consensus_env import ConsensusParallelEnv, episode_metrics_rows, normalized_state
+from fxc_env.consensus_env import ConsensusParallelEnv, episode_draw_info, episode_metrics_rows, normalized_state
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome
@@ -219,7 +219,8 @@ class ConsensusVecEnv(VecEnv):
         )
         self._steps = 0
         self._needs_reset = False
-        self.reset_infos = [{} for _ in range(self.num_envs)]
+        n = self.config.n_agents
+        self.reset_infos = [episode_draw_info(draws[i // n]) for i in range(self.num_envs)]
         self._view.start(x0[0], v0[0])
 
     def _empty_infos(self) -> list[dict[str, Any]]:

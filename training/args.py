@@ -77,13 +77,15 @@ def load_hyperparams(path: str | Path, scenario: str, algo: str, *, name: str = 
         raise ArgumentError(f"{name}: the entry for {scenario!r} in {path} is not a mapping")
     if algo not in entry:
         raise ArgumentError(f"algo: {path} has no {algo!r} entry for {scenario!r}")
-    for key, value in (("env", entry.get("env", {})), (algo, entry[algo])):
+    for key, value in (("env", entry.get("env", {})), (algo, entry[algo]), ("imitation", entry.get("imitation", {}))):
         if not isinstance(value, dict):
             raise ArgumentError(f"{name}: {key!r} of {scenario!r} in {path} is not a mapping")
     return {
         "env": dict(entry.get("env", {})),
         "normalize": bool(entry.get("normalize", False)),
         "algo": dict(entry[algo]),
+        # A warm start by imitating the reference (fxc_env.training.imitation), PPO only; None: none.
+        "imitation": dict(entry["imitation"]) if algo == "ppo" and "imitation" in entry else None,
     }
 
 

@@ -26,6 +26,7 @@ from typing import Any
 from fxc_env.core.validation import ArgumentError
 from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.artefacts import versions, write_training_curve
+from fxc_env.training.imitation import imitate_reference
 
 
 def build_env(args: TrainArgs, params: dict[str, Any]):
@@ -42,6 +43,36 @@ def build_env(args: TrainArgs, params: dict[str, Any]):
     if params["normalize"]:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
     return venv
+
+
+#: ``policy_kwargs.activation_fn`` as written in the hyperparameter file.
+ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu")
+
+
+def with_activation_class(policy_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """``policy_kwargs`` with ``activation_fn`` given by name (``relu``) turned into torch's class."""
+    import torch
+
+    name = policy_kwargs.get("activation_fn")
+    if name is None or not isinstance(name, str):
+        return dict(policy_kwargs)
+    classes = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU, "elu": torch.nn.ELU, "leaky_relu": torch.nn.LeakyReLU}
+    if name not in classes:
+        raise ArgumentError(f"hyperparams: activation_fn {name!r}; expected one of {ACTIVATIONS}")
+    return {**policy_kwargs, "activation_fn": classes[name]}
+
+
+def policy_class(name: str) -> Any:
+    """SB3's policy names (``MlpPolicy``) as given; a dotted path (``fxc_env.gain_policy.GainScheduledPolicy``) imported."""
+    if "." not in name:
+        return name
+    import importlib
+
+    module, _, attribute = name.rpartition(".")
+    try:
+        return getattr(importlib.import_module(module), attribute)
+    except (ImportError, AttributeError) as exc:
+        raise ArgumentError(f"hyperparams: policy {name!r} cannot be imported ({exc})") from exc
 
 
 def train_sb3(args: TrainArgs) -> Path:
@@ -72,8 +103,17 @@ def train_sb3(args: TrainArgs) -> Path:
         run_dir.mkdir(parents=True, exist_ok=True)
         kwargs = dict(params["algo"])
         policy = kwargs.pop("policy", "MlpPolicy")
+        kwargs["policy_kwargs"] = with_activation_class(kwargs.get("policy_kwargs", {}))
+        policy = policy_class(policy)
         model = algo_class(policy, venv, seed=args.seed, device="cpu", verbose=0, **kwargs)
         record = {"args": dataclasses.asdict(args), "hyperparams": params, "num_envs": venv.num_envs}
+        if params["imitation"] is not None:
+            fit = imitate_reference(model, venv, params["imitation"], args.seed)
+            record["imitation"] = fit
+            print(
+                f"fxc train: imitated the reference on {fit['samples']:.0f} agent-steps "
+                f"(relative action error {fit['relative_action_rms_error']:.2e}); PPO goes on from there"
+            )
         (run_dir / "config.json").write_text(json.dumps(record, indent=2) + "\n")
         (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))

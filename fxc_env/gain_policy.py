@@ -1,0 +1,109 @@
+"""A gain-scheduled policy network for stable-baselines3: actions linear in the neighbour rows.
+
+A generic MLP copies the paper's controller only to about 0.1 %, and on slowly mixing graphs
+(rings) that is not enough: the velocity part of a plan is applied as ``a_v = s alpha_v / T``,
+so late in the schedule, where ``T`` is tiny, a small systematic error in ``alpha_v`` becomes
+a velocity mismatch that the deadline metric weighs by ``T_s / T``. The controllers of this
+field are linear in the measured differences with gains that depend on the situation, and
+so is this network (gain scheduling):
+
+    alpha_i = sum_j G(context_i)_j row_ij,    G_j a 2 x 2 matrix per neighbour slot j,
+
+where ``row_ij = [(x_j - x_i) / s_i, T (v_j - v_i) / s_i]`` and the context is what the
+observation holds besides the rows: the 0/1 mask, the clock and, with an input limit, the
+limit feature. The gain from a position row into the velocity plan is scaled by
+``T / T_s`` (the clock's second entry): a velocity change ``g (x_j - x_i) / T`` would grow
+without bound as the intervals shrink, while ``g (x_j - x_i) / T_s`` stays a fixed fraction
+of the disagreement, so small errors of that gain stay small (the paper's controller has
+no such term at all). A small MLP maps the context to the gains. The paper's controller (eq. 11)
+is the case ``G_j = [[1, 1], [0, 1]] / (d_i + 1)`` for every real slot, so the network can
+represent it exactly; it is equivariant to the scale of the rows (no bias), and padded slots
+(zero rows) contribute nothing. The value function is an ordinary MLP on the whole
+observation. One axis only (``dim = 1``); in the plane it acts per axis
+(:class:`fxc_env.learned.PerAxisPolicy`).
+
+Use it as ``policy: fxc_env.gain_policy.GainScheduledPolicy`` in the hyperparameter file.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from stable_baselines3.common.policies import ActorCriticPolicy
+from torch import nn
+
+from fxc_env.layout import CLOCK_SIZE
+
+
+class GainScheduledExtractor(nn.Module):
+    """SB3's ``mlp_extractor`` slot: the actor's "latent" is the action itself, the critic an MLP.
+
+    Args:
+        obs_size: length of the flat observation ``[rows (3 slots... ) | mask | clock | limit?]``.
+        hidden: widths of the hidden layers of the gain network and of the value network.
+    """
+
+    def __init__(self, obs_size: int, hidden: tuple[int, ...] = (64, 64)) -> None:
+        super().__init__()
+        slots, remainder = divmod(obs_size - CLOCK_SIZE, 3)
+        if remainder not in (0, 1) or slots < 1:
+            raise ValueError(
+                f"GainScheduledPolicy: observations of size {obs_size} are not a one-axis layout "
+                "(3 slots + 3 clock [+ 1 limit]); use it with dim = 1"
+            )
+        self.slots = slots
+        self.rows_end = 2 * slots
+        context_size = obs_size - self.rows_end
+        self.latent_dim_pi = 2
+        self.latent_dim_vf = hidden[-1]
+        self.gains = _mlp(context_size, hidden, 4 * slots)
+        self.value = _mlp(obs_size, hidden, None)
+
+    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.forward_actor(features), self.forward_critic(features)
+
+    def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
+        lead = features.shape[:-1]
+        rows = features[..., : self.rows_end].reshape(*lead, self.slots, 2, 1)
+        gains = self.gains(features[..., self.rows_end :]).reshape(*lead, self.slots, 2, 2)
+        # The gain from position rows into the velocity plan is in units of T / T_s (see the module).
+        scale = torch.ones_like(gains)
+        scale[..., 1, 0] = features[..., self.rows_end + self.slots + 1, None]
+        gains = gains * scale
+        return (gains @ rows).sum(dim=-3)[..., 0]
+
+    def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
+        return self.value(features)
+
+
+def _mlp(inputs: int, hidden: tuple[int, ...], outputs: int | None) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    width = inputs
+    for size in hidden:
+        layers += [nn.Linear(width, size), nn.Tanh()]
+        width = size
+    if outputs is not None:
+        layers.append(nn.Linear(width, outputs))
+    return nn.Sequential(*layers)
+
+
+class GainScheduledPolicy(ActorCriticPolicy):
+    """SB3 actor-critic policy whose mean action is :class:`GainScheduledExtractor`'s (see the module)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        net_arch = kwargs.pop("net_arch", None)
+        self._hidden = tuple(net_arch) if isinstance(net_arch, list | tuple) else (64, 64)
+        kwargs["ortho_init"] = False  # the gain network starts at zero gains (below), not orthogonal
+        super().__init__(*args, **kwargs)
+
+    def _build_mlp_extractor(self) -> None:
+        self.mlp_extractor = GainScheduledExtractor(self.features_dim, self._hidden)
+
+    def _build(self, lr_schedule: Any) -> None:
+        super()._build(lr_schedule)
+        self.action_net = nn.Identity()  # the extractor already returns the action mean
+        last = self.mlp_extractor.gains[-1]
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
+        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
