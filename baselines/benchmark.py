@@ -152,7 +152,9 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         "for the one shipped with fxc_env, to score as well; repeatable",
     )
     parser.add_argument(
-        "--learned-schedule", default="paper", choices=("paper", "uniform"), help="schedule of learned policies"
+        "--learned-schedule",
+        choices=("paper", "uniform"),
+        help="schedule of learned policies (default: the one a shipped policy was trained on, else paper)",
     )
     parser.add_argument(
         "--learned-action-mode", default="plan", choices=("plan", "accel"), help="action mode of learned policies"

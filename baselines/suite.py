@@ -30,7 +30,7 @@ from fxc_env.core.families import AnyFamily, TopologyFamily
 from fxc_env.core.graphs import Topology
 from fxc_env.core.validation import ArgumentError
 from fxc_env.layout import CLOCK_SIZE
-from fxc_env.learned import SHIPPED, load_learned_policy, pretrained_path
+from fxc_env.learned import SHIPPED, SHIPPED_SCHEDULES, load_learned_policy, pretrained_path
 from fxc_env.reference import ReferencePolicy
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -155,7 +155,7 @@ def builtin_contenders(names: list[str] | None = None) -> list[Contender]:
 def learned_contender(
     spec: str,
     *,
-    schedule: str = "paper",
+    schedule: str | None = None,
     action_mode: str = "plan",
     obs_mode: str = "normalized",
     name: str = "policy",
@@ -178,8 +178,9 @@ def learned_contender(
     slots, remainder = divmod(obs_size - CLOCK_SIZE, 3)  # remainder 1: the input-limit feature
     if remainder == 2 or slots < 1:
         raise ArgumentError(f"{name}: the model at {path} takes observations of size {obs_size}, not a dim-1 layout")
-    name = path.name if path.is_dir() else path.stem
-    return Contender(f"learned:{name}", str(path), True, schedule, action_mode, obs_mode, slots)
+    label = path.name if path.is_dir() else path.stem
+    schedule = SHIPPED_SCHEDULES.get(spec, "paper") if schedule is None else schedule
+    return Contender(f"learned:{label}", str(path), True, schedule, action_mode, obs_mode, slots)
 
 
 def _renamed(message: str, name: str) -> str:

@@ -33,6 +33,8 @@ SHIPPED = {
     "paper_fig1": "paper_fig1_ppo.zip",
 }
 PRETRAINED = SHIPPED["paper_fig1"]
+#: The schedule a shipped policy was trained on, where it is not the paper's.
+SHIPPED_SCHEDULES = {"saturated": "uniform"}
 #: The RLModule that ``fxc train --backend rllib`` shares between all agents.
 RLLIB_MODULE = "shared"
 #: RLlib checkpoints of a run: ``<run>/checkpoints/rllib_<timesteps>_steps/``.

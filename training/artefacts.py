@@ -43,7 +43,14 @@ def write_training_curve(run_dir: Path) -> Path | None:
     fig = Figure(figsize=(6.5, 3.8), dpi=120)
     FigureCanvasAgg(fig)
     ax = fig.subplots()
-    ax.plot(steps, returns, lw=1.2)
+    ax.plot(steps, returns, lw=0.8, color="#9ecae1", label="per rollout")
+    window = 10
+    if len(returns) >= window:
+        import numpy as np
+
+        smooth = np.convolve(returns, np.ones(window) / window, mode="valid")
+        ax.plot(steps[window - 1 :], smooth, lw=1.6, color="#08519c", label=f"mean of {window} rollouts")
+        ax.legend(fontsize=8, loc="lower right")
     ax.set_xlabel("timesteps (agent-steps)")
     ax.set_ylabel("mean episode return = ln D(0)/D(T_s)")
     ax.set_title(f"training curve: {run_dir.name}", fontsize=9)

@@ -1,0 +1,68 @@
+"""The shipped policies meet their goals on a small seeded evaluation (README, "Training learned policies").
+
+The same jobs as ``fxc evaluate`` (:func:`fxc_env.baselines.jobs.run_job`), with fewer seeds.
+Deadline errors are compared as ``log10(max(error, 1e-12))``: below 1e-12 counts as met.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fxc_env.baselines.jobs import Job, run_job
+from fxc_env.baselines.suite import Scenario, builtin_contenders, generalisation_scenarios, learned_contender
+from fxc_env.learned import pretrained_path
+
+SEEDS = tuple(range(6))
+
+
+def log_error(contender, scenario, seeds=SEEDS) -> float:
+    result = run_job(Job(contender, scenario, 200, seeds, 20.0, False))
+    assert result.error is None, result.error
+    return float(np.median(np.log10(np.maximum(result.metrics["relative_deadline_error"], 1e-12))))
+
+
+def test_the_shipped_files_are_small():
+    for name in ("generalist", "saturated", "paper_fig1"):
+        assert pretrained_path(name).stat().st_size < 2**20
+
+
+def test_pretrained_means_the_generalist():
+    assert pretrained_path("pretrained") == pretrained_path("generalist")
+
+
+@pytest.mark.parametrize("scenario", generalisation_scenarios(), ids=lambda s: s.key)
+def test_the_generalist_is_within_a_decade_of_the_reference_on_every_family_of_the_generalisation_suite(scenario):
+    """The goal asks this where the reference reaches below 1e-6; it holds on the slow rings too."""
+    reference = log_error(builtin_contenders(["reference"])[0], scenario)
+    assert log_error(learned_contender("generalist"), scenario) <= reference + 1.0
+
+
+def best_analytic_log_error(scenario) -> float:
+    """The best of the five analytic laws (reference, linear_sampled, linear, finite_time, prescribed_time)."""
+    contenders = builtin_contenders()
+    errors = []
+    for contender in contenders:
+        k = 200 if contender.sampled else 4000
+        result = run_job(Job(contender, scenario, k, SEEDS, 20.0, False))
+        errors.append(float(np.median(np.log10(np.maximum(result.metrics["relative_deadline_error"], 1e-300)))))
+    return min(errors)
+
+
+def test_the_saturated_policy_beats_every_analytic_law_tenfold_on_paper_fig1_at_u_max_100():
+    scenario = Scenario("paper_fig1", 6, conditions=(("u_max", 100.0),))
+    learned = log_error(learned_contender("saturated"), scenario)
+    assert learned <= best_analytic_log_error(scenario) - 1.0
+
+
+def test_the_saturated_policy_stays_within_a_decade_of_the_reference_where_the_limit_does_not_bind():
+    scenario = Scenario("random", 20, conditions=(("u_max", 100.0),))
+    reference = log_error(builtin_contenders(["reference"])[0], scenario)
+    assert log_error(learned_contender("saturated"), scenario) <= reference + 1.0
+
+
+def test_the_saturated_policy_sees_its_limit_and_runs_on_the_uniform_schedule():
+    contender = learned_contender("saturated")
+    assert contender.schedule == "uniform"
+    with pytest.raises(AssertionError, match="observations of size"):
+        log_error(contender, Scenario("paper_fig1", 6))  # no limit: the observation has no limit entry
