@@ -217,3 +217,73 @@ def test_simulate_names_the_bad_argument(kwargs, name):
 def test_simulate_refuses_a_policy_that_is_not_callable():
     with pytest.raises(ArgumentError, match=r"^policy"):
         fxc_env.simulate("pid", "paper_fig1")
+
+
+# ------------------------------------------------------------------ AEC form
+AEC_CASES = [
+    ("nan", np.array([np.nan, 0.0])),
+    ("inf", np.array([0.0, -np.inf])),
+    ("short", np.array([0.0])),
+    ("text", "left"),
+    ("ragged", [0.0, [1.0]]),
+]
+
+
+@pytest.mark.parametrize(("label", "action"), AEC_CASES, ids=[c[0] for c in AEC_CASES])
+def test_aec_checks_each_action_when_its_agent_acts(label, action):
+    env = fxc_env.raw_env(scenario="paper_fig1")
+    env.reset(seed=1)
+    policy = ReferencePolicy(env)
+    for _ in range(2):  # agent_0 and agent_1 act
+        env.step(policy(env.observe(env.agent_selection)))
+    before = snapshot(env.parallel)
+    assert env.agent_selection == "agent_2"
+    with pytest.raises(ArgumentError) as caught:
+        env.step(action)
+    assert str(caught.value).startswith("action of agent_2"), str(caught.value)
+    assert env.agent_selection == "agent_2"
+    assert_unchanged(before, snapshot(env.parallel))
+    while env.agent_selection != "agent_0":  # the same agent acts again; the cycle completes
+        env.step(policy(env.observe(env.agent_selection)))
+    assert env.parallel.unwrapped.engine.k == 1
+
+
+# ------------------------------------------------------------------ SB3 VecEnv
+def started_vecenv():
+    venv = fxc_env.ConsensusVecEnv(2, scenario="paper_fig1")
+    venv.seed(4)
+    obs = venv.reset()
+    venv.step(ReferencePolicy(venv)(obs))
+    return venv
+
+
+VECENV_CASES = [
+    ("actions of the wrong shape", lambda v: v.step(np.zeros((v.num_envs, 3))), "actions"),
+    ("nan actions", lambda v: v.step(np.full((v.num_envs, 2), np.nan)), "actions"),
+    ("text actions", lambda v: v.step(np.array([["a", "b"]] * v.num_envs)), "actions"),
+    ("set_attr n_agents", lambda v: v.set_attr("n_agents", 3), "n_agents"),
+    ("set_attr config", lambda v: v.set_attr("config", None), "config"),
+    ("negative seed", lambda v: v.seed(-1), "seed"),
+    ("text seed", lambda v: v.seed("abc"), "seed"),
+    ("bad x0 option", lambda v: v.set_options({"x0": [1.0, 2.0]}), "options['x0']"),
+]
+
+
+@pytest.mark.parametrize(("label", "call", "name"), VECENV_CASES, ids=[c[0] for c in VECENV_CASES])
+def test_vecenv_refuses_and_keeps_the_state(label, call, name):
+    venv = started_vecenv()
+    engine = venv.engine
+    state, k = engine.state.copy(), engine.k
+    with pytest.raises(ArgumentError) as caught:
+        call(venv)
+    assert str(caught.value).startswith(name), str(caught.value)
+    np.testing.assert_array_equal(engine.state, state)
+    assert engine.k == k
+    obs = venv.reset()  # still usable: a reset and a step work
+    venv.step(ReferencePolicy(venv)(obs))
+
+
+def test_the_table_covers_every_front_end_with_sixty_distinct_inputs_or_more():
+    rows = len(CONSTRUCTOR_CASES) + len(STEP_CASES) + len(RESET_CASES) + len(SIMULATE_CASES)
+    rows += len(AEC_CASES) + len(VECENV_CASES)
+    assert rows >= 60  # and tests/test_cli.py holds the command line's table
