@@ -136,6 +136,19 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     The engine always computes in float64; ``obs_dtype="float32"`` casts at the output (raw
     values beyond float32's range, about 3e38, would become ``inf``).
 
+    The limit entry is ``l / (1 + |l|)`` with ``l = log10(u_max T^2 / s_i)``: ``u_max T^2 / s_i``
+    compares the limit with the input a plan at the agent's scale needs (eq. 11 starts an
+    interval at about ``6 e / T^2``, at most ``10 s_i / T^2``), decades spread evenly (0 where
+    they are equal, ±0.5 a decade either way), bounded without a hard clip, 1 when
+    ``s_i = 0``; scaling the state and ``u_max`` together leaves it unchanged.
+
+    A topology *family* (``topology={"family": ...}`` or a mixture, see
+    ``fxc_env.core.families``) draws a new graph set at every reset from the episode's seed:
+    rings, paths and stars with random agent labels, complete graphs, random digraphs with a
+    mean in-degree drawn from a range; a switching period ``m`` drawn from a range deals the
+    union's edges to ``m`` graphs, so only the union need span (Theorem 2). Every draw spans
+    jointly by construction. The reset infos carry the drawn ``edges`` (and a drawn ``u_max``).
+
     ## Rewards
     Team reward, the same for every agent: ``log(D(t_k) + f) - log(D(t_{k+1}) + f)`` with the
     disagreement ``D = e_x + T_s e_v``, ``e_x = max_ij ||x_i - x_j||_2`` (``e_v`` likewise) and
