@@ -15,6 +15,7 @@ ends seed; each sampling instant's measurements are drawn once and cached.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -122,6 +123,10 @@ class ConsensusEngine:
         self._clock = np.stack([schedule.times, next_interval, 0 * k_all], axis=1) / schedule.settling_time
         self._clock[:, 2] = k_all / schedule.n_intervals
         self._next_interval = next_interval.tolist()
+        #: Per instant, what each flat row entry is multiplied by before the division by s:
+        #: 1 for position parts, ``T_{k+1}`` for velocity parts, ``(K + 1, slots * 2 dim)``.
+        per_row = np.repeat(np.stack([np.ones_like(next_interval), next_interval], axis=1), config.dim, axis=1)
+        self._row_factors = np.tile(per_row, self.layout.slots)
         #: Settling thresholds as a column, ``(len(SETTLING_THRESHOLDS), 1)``.
         self._thresholds = np.array(SETTLING_THRESHOLDS)[:, None]
         #: Generator of measurement noise, link dropout and random switching.
@@ -342,8 +347,7 @@ class ConsensusEngine:
             # Whole rows at once, x parts times 1 and v parts times T, then over s: per entry
             # x / s and (T v) / s as ever, with numpy's inner loops over an agent's whole row
             # rather than over its dim entries (3x faster at dim = 2).
-            factors = np.tile(np.repeat([1.0, self.current_interval()], c.dim), layout.slots)
-            np.multiply(raw.reshape(b, n, -1), factors, out=obs[..., : layout.rows_end])
+            np.multiply(raw.reshape(b, n, -1), self._row_factors[self.k], out=obs[..., : layout.rows_end])
             obs[..., : layout.rows_end] /= np.maximum(scale, TINY)[:, :, None]
         else:
             rows[...] = raw
@@ -400,7 +404,9 @@ class ConsensusEngine:
                 following[:, :, 1] = v_next
             self.state, self._spare = following, previous
             disagreement_next = self._disagreement()
-        if not (np.isfinite(disagreement_next).all() and np.isfinite(energy).all()):
+        # One scalar for the finiteness check (a sum overflowing past 1.8e308 is refused too:
+        # such energies would overflow the episode's totals).
+        if not math.isfinite(disagreement_next.sum() + energy.sum()):
             self.state, self._spare = previous, following
             raise self._overflow_error(actions, energy, disagreement_next)
         if saturated_time is None:
