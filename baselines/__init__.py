@@ -10,7 +10,9 @@ source paper, the graph class it is proven for, and its parameters:
   ``h = T_s / K`` (Cao & Ren 2010), with the reference's budget K;
 - :class:`FiniteTimePolicy` (:mod:`fxc_env.baselines.finite_time`): Wang & Hong 2008 family;
 - :class:`PrescribedTimePolicy` (:mod:`fxc_env.baselines.prescribed_time`): Wang, Song, Hill &
-  Krstic 2019 family, gain frozen shortly before ``T_s``.
+  Krstic 2019 family, gain frozen shortly before ``T_s``;
+- :class:`SaturationAwarePolicy` (:mod:`fxc_env.baselines.saturation_aware`): the paper's plan
+  where it fits under the input limit, a held linear law where it does not.
 
 ``fxc benchmark`` (:mod:`fxc_env.baselines.benchmark`) scores them, the reference and learned
 policies (:func:`load_policy`) on one suite (:mod:`fxc_env.baselines.suite`).
@@ -27,6 +29,7 @@ from fxc_env.baselines.finite_time import FiniteTimePolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
 from fxc_env.baselines.sampled import SampledLinearPolicy
+from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
 from fxc_env.baselines.suite import load_policy
 
 __all__ = [
@@ -34,5 +37,6 @@ __all__ = [
     "LinearConsensusPolicy",
     "PrescribedTimePolicy",
     "SampledLinearPolicy",
+    "SaturationAwarePolicy",
     "load_policy",
 ]

@@ -25,6 +25,7 @@ from fxc_env.baselines.finite_time import FiniteTimePolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
 from fxc_env.baselines.sampled import SampledLinearPolicy
+from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.families import AnyFamily, TopologyFamily
 from fxc_env.core.graphs import Topology
@@ -37,7 +38,14 @@ Policy = Callable[[np.ndarray], np.ndarray]
 
 #: Baseline policy classes by name.
 BASELINES = {
-    cls.NAME: cls for cls in (SampledLinearPolicy, LinearConsensusPolicy, FiniteTimePolicy, PrescribedTimePolicy)
+    cls.NAME: cls
+    for cls in (
+        SampledLinearPolicy,
+        LinearConsensusPolicy,
+        FiniteTimePolicy,
+        PrescribedTimePolicy,
+        SaturationAwarePolicy,
+    )
 }
 
 #: Built-in contenders in table order: name -> (sampled at every budget?, schedule, action mode, obs mode).
@@ -47,6 +55,7 @@ BUILTIN_SETTINGS = {
     "linear": (False, "uniform", "accel", "raw"),
     "finite_time": (False, "uniform", "accel", "raw"),
     "prescribed_time": (False, "uniform", "accel", "raw"),
+    "saturation_aware": (True, "uniform", "accel", "raw"),
 }
 
 

@@ -42,9 +42,9 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     suite = quick_suite()
     assert len(rows) == len(make_jobs(suite, builtin_contenders()))
     assert all(r["error"] == "" for r in rows)
-    for name in ("linear_sampled", "linear", "finite_time", "prescribed_time"):
+    for name in ("linear_sampled", "linear", "finite_time", "prescribed_time", "saturation_aware"):
         assert f"- **{name}** — settings:" in printed
-    assert printed.count("Proven for:") == 5
+    assert printed.count("Proven for:") == 6
     assert "Parameters (range over the suite" in printed
     assert "unproven" in printed  # finite-time and prescribed-time on digraphs
 

@@ -1,4 +1,4 @@
-"""A warm start for PPO: the policy first imitates the paper's controller, then PPO improves on it.
+"""A warm start for PPO: the policy first imitates an analytic law (the paper's controller by default), then PPO improves on it.
 
 The reference (eq. 11) is a known good policy, and a network that copies it to within a
 few per cent already contracts the disagreement almost as fast: in normalized units an
@@ -24,6 +24,7 @@ import numpy as np
 
 #: Defaults of the ``imitation`` entry of the hyperparameter file.
 DEFAULTS = {
+    "teacher": "reference",  # the paper's controller, or "saturation_aware" (fxc_env.baselines)
     "samples": 2_000_000,  # agent-steps of reference demonstrations, rounded up to whole episodes
     "noise": 0.05,  # standard deviation of the executed actions' noise (normalized units)
     "epochs": 10,
@@ -34,6 +35,18 @@ DEFAULTS = {
 }
 
 
+def teacher_policy(name: str, config: Any) -> Any:
+    """The policy to copy, in the run's own units (plan actions, normalized observations)."""
+    from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
+    from fxc_env.core.validation import ArgumentError
+    from fxc_env.reference import ReferencePolicy
+
+    teachers = {"reference": ReferencePolicy, "saturation_aware": SaturationAwarePolicy}
+    if name not in teachers:
+        raise ArgumentError(f"hyperparams: imitation teacher {name!r}; expected one of {tuple(teachers)}")
+    return teachers[name](config)
+
+
 def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int) -> dict[str, float]:
     """Behaviour-clone the reference into ``model`` (an SB3 PPO) on ``venv``; returns the fit's figures.
 
@@ -42,7 +55,6 @@ def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int
     import torch
 
     from fxc_env.config import config_of
-    from fxc_env.reference import ReferencePolicy
 
     options = {**DEFAULTS, **settings}
     unknown = set(options) - set(DEFAULTS)
@@ -51,7 +63,7 @@ def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int
 
         raise ArgumentError(f"hyperparams: unknown imitation key(s) {sorted(unknown)}; expected {sorted(DEFAULTS)}")
     config = config_of(venv, "imitation")
-    reference = ReferencePolicy(config)
+    reference = teacher_policy(str(options["teacher"]), config)
     rng = np.random.default_rng(seed)
     n_envs, episode = venv.num_envs, config.n_intervals
     steps = math.ceil(int(options["samples"]) / (n_envs * episode)) * episode  # whole episodes
