@@ -12,11 +12,11 @@ def test_evaluate_pretrained_prints_and_writes_the_comparison(tmp_path, capsys):
     code = cli.main(["evaluate", "--policy", "pretrained", "--seeds", "3", "--out", str(tmp_path), "--no-progress"])
     out = capsys.readouterr().out
     assert code == 0
-    assert "| reference | 200 |" in out and "| learned:paper_fig1_ppo | 200 |" in out
+    assert "| reference | 200 |" in out and "| learned:generalist | 200 |" in out
     rows = list(csv.DictReader((tmp_path / "results.csv").open()))
     assert {(r["policy"], r["scenario"]) for r in rows} == {
         (policy, scenario.key)
-        for policy in ("reference", "learned:paper_fig1_ppo")
+        for policy in ("reference", "learned:generalist")
         for scenario in EVALUATION_SCENARIOS
     }
     assert all(int(r["n_episodes"]) == 3 for r in rows)
@@ -56,3 +56,20 @@ def test_evaluate_checks_everything_before_it_runs(tmp_path, capsys, monkeypatch
     assert cli.main(argv) == 2
     assert capsys.readouterr().err.startswith("fxc evaluate: error: --policy: ")
     assert not (tmp_path / "out").exists()
+
+
+def test_evaluate_on_environment_flags_scores_that_one_environment(tmp_path, capsys):
+    argv = ["evaluate", "--policy", "saturated", "--family", "ring", "--topology-period", "2,3", "--n-agents", "8"]
+    argv += ["--u-max", "10,100", "--seeds", "2", "--out", str(tmp_path), "--no-progress"]
+    assert cli.main(argv) == 0
+    rows = list(csv.DictReader((tmp_path / "results.csv").open()))
+    assert {r["policy"] for r in rows} == {"reference", "learned:saturated"}
+    assert {r["scenario"] for r in rows} == {"ring_m2-3 (drawn) N=8, u_max={10, 100}"}
+    learned = next(r for r in rows if r["policy"] == "learned:saturated")
+    assert learned["schedule"] == "uniform"  # the schedule the shipped policy was trained on
+
+
+def test_evaluate_refuses_a_suite_and_environment_flags_together(tmp_path, capsys):
+    argv = ["evaluate", "--policy", "reference", "--suite", "realism", "--n-agents", "8", "--out", str(tmp_path)]
+    assert cli.main(argv) == 2
+    assert "--suite" in capsys.readouterr().err

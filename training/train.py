@@ -111,7 +111,7 @@ def train_sb3(args: TrainArgs) -> Path:
             fit = imitate_reference(model, venv, params["imitation"], args.seed)
             record["imitation"] = fit
             print(
-                f"fxc train: imitated the reference on {fit['samples']:.0f} agent-steps "
+                f"fxc train: imitated {params['imitation'].get('teacher', 'reference')} on {fit['samples']:.0f} agent-steps "
                 f"(relative action error {fit['relative_action_rms_error']:.2e}); PPO goes on from there"
             )
         (run_dir / "config.json").write_text(json.dumps(record, indent=2) + "\n")
