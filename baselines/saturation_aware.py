@@ -36,6 +36,14 @@ from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.validation import ArgumentError, real
 
 
+def neighbourhood_sums(rows: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sums of the real rows' position and velocity parts ``(..., dim)`` each, and ``1 / (d_i + 1)`` ``(..., 1)``."""
+    real_rows = mask[..., None]
+    sum_x = np.sum(real_rows * rows[..., 0, :], axis=-2)
+    sum_v = np.sum(real_rows * rows[..., 1, :], axis=-2)
+    return sum_x, sum_v, 1.0 / (np.sum(mask, axis=-1, keepdims=True) + 1.0)
+
+
 class SaturationAwarePolicy(HoldPolicy):
     """The paper's plan where it fits under ``u_max``, else a held linear consensus input."""
 
@@ -70,10 +78,7 @@ class SaturationAwarePolicy(HoldPolicy):
             return self.act_in_plan_units(obs)
         layout = self.layout
         rows, mask, clock = layout.split(obs)
-        real_rows = mask[..., None]
-        sum_dx = np.sum(real_rows * rows[..., 0, :], axis=-2)
-        sum_dv = np.sum(real_rows * rows[..., 1, :], axis=-2)
-        weight = 1.0 / (np.sum(mask, axis=-1, keepdims=True) + 1.0)
+        sum_dx, sum_dv, weight = neighbourhood_sums(rows, mask)
         _, T = self.time_features(clock)
         u_start, u_end = input_from_plan(weight * (sum_dx + T * sum_dv), weight * sum_dv, T)
         if not layout.limit_feature:
@@ -93,10 +98,7 @@ class SaturationAwarePolicy(HoldPolicy):
         """
         layout = self.layout
         rows, mask, clock = layout.split(obs)
-        real_rows = mask[..., None]
-        sum_x = np.sum(real_rows * rows[..., 0, :], axis=-2)
-        sum_v = np.sum(real_rows * rows[..., 1, :], axis=-2)
-        weight = 1.0 / (np.sum(mask, axis=-1, keepdims=True) + 1.0)
+        sum_x, sum_v, weight = neighbourhood_sums(rows, mask)
         plan_x, plan_v = weight * (sum_x + sum_v), weight * sum_v
         plan = np.concatenate([plan_x, plan_v], axis=-1)
         if not layout.limit_feature:
