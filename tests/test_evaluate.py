@@ -15,9 +15,7 @@ def test_evaluate_pretrained_prints_and_writes_the_comparison(tmp_path, capsys):
     assert "| reference | 200 |" in out and "| learned:generalist | 200 |" in out
     rows = list(csv.DictReader((tmp_path / "results.csv").open()))
     assert {(r["policy"], r["scenario"]) for r in rows} == {
-        (policy, scenario.key)
-        for policy in ("reference", "learned:generalist")
-        for scenario in EVALUATION_SCENARIOS
+        (policy, scenario.key) for policy in ("reference", "learned:generalist") for scenario in EVALUATION_SCENARIOS
     }
     assert all(int(r["n_episodes"]) == 3 for r in rows)
     for name in ("table.md", "deadline_vs_budget.png", "energy_vs_error.png", "disagreement_vs_time.png"):
