@@ -112,7 +112,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
     custom = {k: v for k, v in env_kwargs.items() if v is not None}
     if custom and args.suite is not None:
         raise ArgumentError("--suite: give a named suite or environment flags, not both")
-    learned = {k: custom.pop(k) for k in ("action_mode", "obs_mode") if k in custom}
+    # The learned policy's own settings (the reference keeps its schedule and modes).
+    learned = {k: custom.pop(k) for k in ("action_mode", "obs_mode", "schedule") if k in custom}
     if "n_intervals" in custom:
         raise ArgumentError("--n-intervals: the budgets K come from --budgets")
     if custom:
