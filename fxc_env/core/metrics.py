@@ -1,4 +1,4 @@
-"""Disagreement measures and per-episode metrics (SPEC 4.4 and 5).
+"""Disagreement measures and per-episode metrics (the env card's Rewards; README, "Baselines and the deadline benchmark").
 
 ``e_x = max_ij ||x_i - x_j||_2`` (the diameter of the agents' positions), ``e_v`` likewise,
 and the disagreement ``D = e_x + T_s e_v`` (metres), which weighs a velocity mismatch by
@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-#: Thresholds of the settling-time metric ``t_eps`` (SPEC 5).
+#: Thresholds of the settling-time metric ``t_eps``.
 SETTLING_THRESHOLDS = (1e-2, 1e-6)
 
 #: ``dim > 1``: :func:`spread` compares every pair, vectorised over the batch, up to this many
@@ -386,7 +386,7 @@ def reward_floor(initial_disagreement: np.ndarray, relative_floor: float) -> np.
 
 @dataclass(frozen=True)
 class EpisodeMetrics:
-    """SPEC 5's per-episode figures. Lengths in metres, times in seconds.
+    """The per-episode figures of the deadline benchmark. Lengths in metres, times in seconds.
 
     ``t_eps_*`` is the first sampling instant from which ``D(t_k) / D(0) < eps`` at every
     later sampling instant (``inf`` if that never happens by ``T_s``).
