@@ -107,3 +107,58 @@ class GainScheduledPolicy(ActorCriticPolicy):
         nn.init.zeros_(last.weight)
         nn.init.zeros_(last.bias)
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+
+
+class GatedGainExtractor(GainScheduledExtractor):
+    """Two gain-scheduled laws and a gate between them, for policies that see an input limit.
+
+    ``alpha = gate * plan + (1 - gate) * hold``: both are :class:`GainScheduledExtractor`'s
+    linear laws (their own gain networks), and the gate compares the input the first one
+    needs with the limit, ``sigmoid(k (log10 rho - log10 need))``, where ``rho = u_max T^2 / s_i``
+    comes from the observation's limit entry and ``need`` is the largest of
+    ``|6 plan_x - 2 plan_v|`` and ``|4 plan_v - 6 plan_x|`` (the plan's end inputs in units of
+    ``s_i / T^2``). The switch of the saturation-aware law (``fxc_env.baselines.saturation_aware``:
+    the paper's plan where it fits, a held linear law where it does not) is one setting of
+    it; ``k`` is learned (it starts at 20, a decade either side of the threshold is then
+    decided). The gate depends on the rows, which a single gain network cannot express.
+    """
+
+    def __init__(self, obs_size: int, hidden: tuple[int, ...] = (64, 64)) -> None:
+        super().__init__(obs_size, hidden)
+        if (obs_size - CLOCK_SIZE) % 3 != 1:
+            raise ValueError(f"GatedGainPolicy: observations of size {obs_size} have no input-limit entry")
+        self.hold_gains = _mlp(obs_size - self.rows_end, hidden, 4 * self.slots)
+        self.sharpness = nn.Parameter(torch.tensor(20.0))
+
+    def _linear_law(self, gain_network: nn.Module, features: torch.Tensor) -> torch.Tensor:
+        lead = features.shape[:-1]
+        rows = features[..., : self.rows_end].reshape(*lead, self.slots, 2, 1)
+        gains = gain_network(features[..., self.rows_end :]).reshape(*lead, self.slots, 2, 2)
+        scale = torch.ones_like(gains)
+        scale[..., 1, 0] = features[..., self.rows_end + self.slots + 1, None]
+        return ((gains * scale) @ rows).sum(dim=-3)[..., 0]
+
+    def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
+        plan = self._linear_law(self.gains, features)
+        hold = self._linear_law(self.hold_gains, features)
+        entry = features[..., -1:].clamp(-1.0 + 1e-6, 1.0 - 1e-6)
+        log_rho = entry / (1.0 - entry.abs())
+        need = torch.maximum(
+            (6 * plan[..., :1] - 2 * plan[..., 1:]).abs(), (4 * plan[..., 1:] - 6 * plan[..., :1]).abs()
+        )
+        gate = torch.sigmoid(self.sharpness * (log_rho - torch.log10(need + 1e-30)))
+        return gate * plan + (1.0 - gate) * hold
+
+
+class GatedGainPolicy(GainScheduledPolicy):
+    """SB3 actor-critic policy whose mean action is :class:`GatedGainExtractor`'s."""
+
+    def _build_mlp_extractor(self) -> None:
+        self.mlp_extractor = GatedGainExtractor(self.features_dim, self._hidden)
+
+    def _build(self, lr_schedule: Any) -> None:
+        super()._build(lr_schedule)
+        last = self.mlp_extractor.hold_gains[-1]
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
+        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)

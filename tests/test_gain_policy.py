@@ -111,3 +111,42 @@ def test_a_fresh_gain_policy_starts_at_zero_action():
 def test_a_layout_for_the_plane_is_refused_with_a_clear_message():
     with pytest.raises(ValueError, match="one-axis layout"):
         GainScheduledExtractor(4 * (2 * 2) + 4 + 3)  # 4 slots in the plane
+
+
+class HoldGains(torch.nn.Module):
+    """The saturation-aware law's held input in plan units: ``g T^2 (S_x + (gamma / T) S_v) (1/2, 1)``.
+
+    With the position -> velocity entry in units of ``T / T_s`` (the extractor scales it back).
+    """
+
+    def __init__(self, slots, settling_time, gain=1.0, gamma=3.0):
+        super().__init__()
+        self.slots, self.settling_time, self.gain, self.gamma = slots, settling_time, gain, gamma
+
+    def forward(self, context):
+        interval = context[..., self.slots + 1 : self.slots + 2] * self.settling_time  # T
+        fraction = context[..., self.slots + 1 : self.slots + 2]  # T / T_s
+        g = self.gain * interval * interval
+        per_slot = torch.cat([g / 2, g * self.gamma / interval / 2, g / fraction, g * self.gamma / interval], dim=-1)
+        mask = context[..., : self.slots].unsqueeze(-1)
+        return (mask * per_slot.unsqueeze(-2)).reshape(*context.shape[:-1], 4 * self.slots)
+
+
+def test_the_gated_network_represents_the_saturation_aware_law_exactly():
+    from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
+    from fxc_env.gain_policy import GatedGainExtractor
+
+    config = {"scenario": "paper_fig1", "obs_slots": 4, "u_max": 10.0, "schedule": "uniform"}
+    obs = observations(config, steps=40)
+    extractor = GatedGainExtractor(obs.shape[-1]).double()
+    extractor.gains = ReferenceGains(extractor.slots)
+    extractor.hold_gains = HoldGains(extractor.slots, 20.0)
+    with torch.no_grad():
+        extractor.sharpness.fill_(1e6)  # a hard switch
+    actions = extractor.forward_actor(torch.as_tensor(obs)).detach().numpy()
+    expected = SaturationAwarePolicy(fxc_env.parallel_env(**config))(obs)
+    both_laws_used = np.unique(
+        np.isclose(actions, fxc_env.ReferencePolicy(fxc_env.parallel_env(**config))(obs)).all(-1)
+    )
+    assert set(both_laws_used) == {True, False}
+    np.testing.assert_allclose(actions, expected, rtol=1e-9, atol=1e-12)

@@ -53,7 +53,11 @@ def best_analytic_log_error(scenario) -> float:
 
 @pytest.mark.parametrize(
     "scenario",
-    [Scenario("paper_fig1", 6, conditions=(("u_max", 100.0),)), Scenario("random", 20, conditions=(("u_max", 10.0),))],
+    [
+        Scenario("paper_fig1", 6, conditions=(("u_max", 10.0),)),
+        Scenario("paper_fig1", 6, conditions=(("u_max", 100.0),)),
+        Scenario("random", 20, conditions=(("u_max", 10.0),)),
+    ],
     ids=lambda s: s.key,
 )
 def test_the_saturated_policy_beats_the_five_analytic_laws_tenfold_where_the_limit_binds(scenario):
