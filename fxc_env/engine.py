@@ -244,10 +244,6 @@ class ConsensusEngine:
         """Length ``T = t_{k+1} - t_k`` of the interval about to be played (seconds)."""
         return self._next_interval[self.k]
 
-    def graph_index(self) -> int:
-        """Index ``k mod m`` of the graph active on the current interval (periodic switching, shared topology)."""
-        return self.k % self.config.topology.period
-
     def graph_indices(self) -> np.ndarray:
         """Index, within its own topology, of each episode's graph on the current interval, ``(B,)``."""
         return self._graph_ids - self._graph_offset

@@ -32,7 +32,6 @@ SHIPPED = {
     "saturated": "saturated.zip",
     "paper_fig1": "paper_fig1_ppo.zip",
 }
-PRETRAINED = SHIPPED["paper_fig1"]
 #: The schedule a shipped policy was trained on, where it is not the paper's.
 SHIPPED_SCHEDULES = {"saturated": "uniform"}
 #: The RLModule that ``fxc train --backend rllib`` shares between all agents.
