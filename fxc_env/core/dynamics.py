@@ -8,11 +8,15 @@ closed form: no ODE solver and no time step.
 
 All functions broadcast over leading dimensions: ``x, v, u0, u1`` are ``(..., dim)`` and
 ``T`` is a scalar or ``(..., 1)``. Units: seconds, metres, metres/second, metres/second^2.
+They take numpy arrays or torch tensors alike (the array API, :mod:`fxc_env.core.arrays`);
+:func:`advance_into` is numpy's in-place fast path of :func:`advance` with its costs.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from fxc_env.core.arrays import namespace
 
 
 def input_from_plan(plan_x: np.ndarray, plan_v: np.ndarray, T: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
@@ -53,6 +57,24 @@ def state_inside(
     return x_s, v_s, u
 
 
+def advance_with_costs(x, v, u0, u1, T):
+    """:func:`advance` with :func:`interval_energy` and :func:`interval_peak`: ``(x(T), v(T), energy, peak)``.
+
+    The same closed forms with ``u0 + u1`` formed once: the engine's stepping path, on
+    numpy arrays or torch tensors alike (:func:`advance_into` is numpy's in-place form, with
+    the same arithmetic, so both backends round alike).
+    """
+    xp = namespace(x, v, u0, u1)
+    total = u0 + u1
+    x_next = x + (T * v + (T * T / 6.0) * (u0 + total))
+    v_next = v + (0.5 * T) * total
+    per_component = (u0 * total + u1 * u1) * (T / 3.0)
+    largest = xp.maximum(xp.abs(u0), xp.abs(u1))
+    if per_component.shape[-1] == 1:
+        return x_next, v_next, per_component[..., 0], largest[..., 0]
+    return x_next, v_next, xp.sum(per_component, axis=-1), xp.max(largest, axis=-1)
+
+
 def advance_into(
     x: np.ndarray,
     v: np.ndarray,
@@ -62,11 +84,11 @@ def advance_into(
     x_out: np.ndarray,
     v_out: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`advance` written into ``x_out`` and ``v_out``, returning :func:`interval_energy` and :func:`interval_peak`.
+    """:func:`advance_with_costs` written into ``x_out`` and ``v_out``, returning the energy and the peak.
 
-    The same closed forms with ``u0 + u1`` formed once: the stepping path of the engine,
-    where a handful of small arrays make numpy's per-call cost dominate. ``x_out`` may be
-    ``x`` (and ``v_out`` ``v``) to advance in place.
+    numpy's fast path of the engine (no temporaries for the new state), where a handful of
+    small arrays make numpy's per-call cost dominate. ``x_out`` may be ``x`` (and ``v_out``
+    ``v``) to advance in place.
     """
     total = u0 + u1
     np.add(x, T * v + (T * T / 6.0) * (u0 + total), out=x_out)
@@ -80,46 +102,50 @@ def advance_into(
 
 def interval_energy(u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float) -> np.ndarray:
     """``integral_0^T |u|^2 ds = T (|u0|^2 + u0.u1 + |u1|^2) / 3``, summed over components: ``(...)``."""
-    per_component = (u0 * (u0 + u1) + u1 * u1) * (np.divide(T, 3.0))
-    return per_component[..., 0] if per_component.shape[-1] == 1 else per_component.sum(axis=-1)
+    per_component = (u0 * (u0 + u1) + u1 * u1) * (T / 3.0)
+    xp = namespace(per_component)
+    return per_component[..., 0] if per_component.shape[-1] == 1 else xp.sum(per_component, axis=-1)
 
 
 def interval_peak(u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
     """Peak ``|u|`` on the interval: the largest absolute component, reached at an end, ``(...)``."""
-    largest = np.maximum(np.abs(u0), np.abs(u1))
-    return largest[..., 0] if largest.shape[-1] == 1 else largest.max(axis=-1)
+    xp = namespace(u0, u1)
+    largest = xp.maximum(xp.abs(u0), xp.abs(u1))
+    return largest[..., 0] if largest.shape[-1] == 1 else xp.max(largest, axis=-1)
 
 
-def _clipped_pieces(u0: np.ndarray, u1: np.ndarray, T, u_max: float):
+def _clipped_pieces(u0, u1, T, u_max):
     """Split ``clip(u0 + (u1 - u0) s / T, -u_max, u_max)`` on ``[0, T]`` into 3 affine pieces.
 
     Returns the pieces' start ``p`` and length ``L`` (``(3, ...)``, zero-length pieces allowed),
     their value at the start ``f_p`` and slope ``c`` (0 where saturated).
     """
+    xp = namespace(u0, u1)
     slope = (u1 - u0) / T
     flat = slope == 0
-    safe = np.where(flat, 1.0, slope)
+    safe = xp.where(flat, xp.ones_like(slope), slope)
     # Where the line crosses -u_max and +u_max, clipped to [0, T] (both 0 for a flat line).
-    cross_low = np.where(flat, 0.0, np.clip((-u_max - u0) / safe, 0.0, T))
-    cross_high = np.where(flat, 0.0, np.clip((u_max - u0) / safe, 0.0, T))
-    first, second = np.minimum(cross_low, cross_high), np.maximum(cross_low, cross_high)
-    end = np.broadcast_to(T, first.shape)
-    starts = np.stack([np.zeros_like(first), first, second])
-    lengths = np.stack([first, second - first, end - second])
+    # Clipping by maximum/minimum: T may be a number or an array (one interval per episode).
+    zero = xp.zeros_like(slope)
+    cross_low = xp.where(flat, zero, xp.minimum(xp.maximum((-u_max - u0) / safe, zero), zero + T))
+    cross_high = xp.where(flat, zero, xp.minimum(xp.maximum((u_max - u0) / safe, zero), zero + T))
+    first, second = xp.minimum(cross_low, cross_high), xp.maximum(cross_low, cross_high)
+    end = zero + T
+    starts = xp.stack([zero, first, second])
+    lengths = xp.stack([first, second - first, end - second])
     middle = u0 + slope * (starts + lengths / 2)
-    saturated = np.abs(middle) > u_max
-    start_value = np.where(saturated, np.sign(middle) * u_max, u0 + slope * starts)
-    piece_slope = np.where(saturated, 0.0, slope)
+    saturated = xp.abs(middle) > u_max
+    start_value = xp.where(saturated, xp.sign(middle) * u_max, u0 + slope * starts)
+    piece_slope = xp.where(saturated, xp.zeros_like(starts), slope + xp.zeros_like(starts))
     return starts, lengths, start_value, piece_slope, saturated
 
 
-def advance_clipped(
-    x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T, u_max: float | np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def advance_clipped(x, v, u0, u1, T, u_max):
     """Exact motion under the affine input clipped per component to ``[-u_max, u_max]``.
 
     ``u_max`` is a number or an array that broadcasts against ``(..., dim)`` with a last
-    axis of 1 (one limit per episode: ``(B, 1, 1)``).
+    axis of 1 (one limit per episode: ``(B, 1, 1)``); ``T`` a number or an array that
+    broadcasts likewise.
 
     The clipped input is piecewise affine (at most three pieces, split where the line
     crosses ``±u_max``); each piece is integrated in closed form:
@@ -129,18 +155,20 @@ def advance_clipped(
         ``x(T), v(T)`` ``(..., dim)``; energy ``int |u|^2`` and peak ``|u|`` ``(...)``; and the
         saturated time per component ``(..., dim)`` in seconds.
     """
+    xp = namespace(x, v, u0, u1)
     starts, lengths, f_p, c, saturated = _clipped_pieces(u0, u1, T, u_max)
     f_q = f_p + c * lengths
-    velocity_gain = np.sum(lengths * (f_p + f_q) / 2, axis=0)
+    velocity_gain = xp.sum(lengths * (f_p + f_q) / 2, axis=0)
     # int_0^L (T - p - tau)(f_p + c tau) dtau on each piece.
     remaining = T - starts
-    position_gain = np.sum(
+    position_gain = xp.sum(
         remaining * lengths * (f_p + c * lengths / 2) - lengths**2 * (f_p / 2 + c * lengths / 3), axis=0
     )
-    energy_per_component = np.sum(lengths * (f_p * f_p + f_p * f_q + f_q * f_q) / 3, axis=0)
-    saturated_time = np.sum(np.where(saturated, lengths, 0.0), axis=0)
+    energy_per_component = xp.sum(lengths * (f_p * f_p + f_p * f_q + f_q * f_q) / 3, axis=0)
+    saturated_time = xp.sum(xp.where(saturated, lengths, xp.zeros_like(lengths)), axis=0)
     x_next = x + T * v + position_gain
     v_next = v + velocity_gain
-    limit = np.asarray(u_max)
-    peak = np.minimum(interval_peak(u0, u1), limit[..., 0] if limit.ndim else limit)
-    return x_next, v_next, energy_per_component.sum(axis=-1), peak, saturated_time
+    peak = interval_peak(u0, u1)
+    limit = u_max[..., 0] if getattr(u_max, "ndim", 0) else u_max
+    peak = xp.minimum(peak, xp.zeros_like(peak) + limit)
+    return x_next, v_next, xp.sum(energy_per_component, axis=-1), peak, saturated_time

@@ -18,6 +18,8 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
+from fxc_env.core.arrays import is_numpy, namespace
+
 #: Thresholds of the settling-time metric ``t_eps``.
 SETTLING_THRESHOLDS = (1e-2, 1e-6)
 
@@ -375,13 +377,38 @@ def _box_bound(lows: np.ndarray, highs: np.ndarray, first: np.ndarray, second: n
 
 
 def disagreement(x: np.ndarray, v: np.ndarray, settling_time: float) -> np.ndarray:
-    """``D = e_x + T_s e_v`` in metres, shape ``(...)``."""
-    return spread(x) + settling_time * spread(v)
+    """``D = e_x + T_s e_v`` in metres, shape ``(...)``; numpy arrays or torch tensors (:func:`spread_any`)."""
+    return spread_any(x) + settling_time * spread_any(v)
+
+
+def spread_any(z):
+    """:func:`spread` of a numpy array, or the same diameter of any array API array (a torch tensor).
+
+    The generic form: ``max - min`` for ``dim = 1``; for ``dim > 1`` every pair's distance, in
+    blocks of agents (O(N^2 dim) per episode: meant for the batches of many small episodes a
+    device steps; the pruned search above serves numpy's single large episodes). Every pair
+    value is computed as the all-pairs comparison does, so both agree to rounding.
+    """
+    xp = namespace(z)
+    if is_numpy(xp):
+        return spread(z)
+    if z.shape[-1] == 1:
+        return xp.max(z[..., 0], axis=-1) - xp.min(z[..., 0], axis=-1)
+    centred = z - xp.mean(z, axis=-2, keepdims=True)
+    n = z.shape[-2]
+    block = max(1, _PAIRWISE_BLOCK * 16 // max(1, n * z.shape[-1]))
+    best = None
+    for start in range(0, n, block):
+        difference = centred[..., start : start + block, None, :] - centred[..., None, :, :]
+        largest = xp.max(xp.sum(difference * difference, axis=-1), axis=(-2, -1))
+        best = largest if best is None else xp.maximum(best, largest)
+    return xp.sqrt(best)
 
 
 def reward_floor(initial_disagreement: np.ndarray, relative_floor: float) -> np.ndarray:
     """Floor ``f`` of the log-reward: ``relative_floor * D(0)``, or 1 where ``D(0) = 0``."""
-    return np.where(initial_disagreement > 0, relative_floor * initial_disagreement, 1.0)
+    xp = namespace(initial_disagreement)
+    return xp.where(initial_disagreement > 0, relative_floor * initial_disagreement, xp.ones_like(initial_disagreement))
 
 
 @dataclass(frozen=True)
