@@ -228,7 +228,7 @@ class ConsensusEngine:
         dtype = self.dtype if dtype is None else dtype
         if self.is_numpy:
             return np.asarray(values, dtype=dtype)
-        return self.xp.asarray(np.asarray(values), dtype=dtype, device=self.device)
+        return self.xp.asarray(np.array(values), dtype=dtype, device=self.device)
 
     def _zeros(self, shape: tuple[int, ...]) -> Any:
         return self.xp.zeros(shape, dtype=self.dtype, device=self.device)

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import config_of
+from fxc_env.core.arrays import is_numpy, namespace
 from fxc_env.core.dynamics import input_from_plan
 
 
@@ -29,7 +30,9 @@ class ReferencePolicy:
 
     ``ReferencePolicy(env)(obs)`` maps one agent's observation ``(obs_size,)`` (or a dict
     observation) to its action ``(2 dim,)``; an array with leading dimensions
-    ``(..., obs_size)`` maps to ``(..., 2 dim)`` in one vectorised call.
+    ``(..., obs_size)`` maps to ``(..., 2 dim)`` in one vectorised call. :meth:`act` takes
+    numpy arrays or torch tensors (on any device) alike; :class:`fxc_env.torchrl_env.ReferenceModule`
+    wraps it as a TorchRL module.
     """
 
     def __init__(self, env: Any) -> None:
@@ -53,23 +56,41 @@ class ReferencePolicy:
         obs = self.layout.flat(observation)
         return self.act(obs)
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """Eq. (11) from flat observations ``(..., obs_size)``: actions ``(..., 2 dim)``."""
+    def act(self, obs: Any) -> Any:
+        """Eq. (11) from flat observations ``(..., obs_size)``: actions ``(..., 2 dim)`` (numpy or torch)."""
         c, dim = self.config, self.config.dim
-        sums = obs[..., : self.layout.mask_end] @ self._summation  # padded rows are zero
+        xp = namespace(obs)
+        sums = obs[..., : self.layout.mask_end] @ self._summation_for(xp, obs)  # padded rows are zero
         weight = 1.0 / (sums[..., 2 * dim] + 1.0)  # 1 / (d_i + 1)
         normalized = c.obs_mode == "normalized"
         # Rows are (x_j - x_i)/s and T (v_j - v_i)/s when normalized: the plan is scale-free.
         T = None if normalized else obs[..., self.layout.mask_end + 1] * c.settling_time
-        # One component at a time: each operation runs over all agents (a (..., dim) block
-        # broadcast against (..., 1) would make numpy loop over every agent's few entries).
-        plan = np.empty((*sums.shape[:-1], 2 * dim), dtype=sums.dtype)
-        for component in range(dim):
-            rel_x, rel_v = sums[..., component], sums[..., dim + component]
-            plan[..., component] = weight * (rel_x + (rel_v if normalized else T * rel_v))
-            plan[..., dim + component] = weight * rel_v
+        rel_x, rel_v = sums[..., :dim], sums[..., dim : 2 * dim]
+        if is_numpy(xp):
+            # numpy fast path: one component at a time, each operation over all agents (a
+            # (..., dim) block broadcast against (..., 1) makes numpy loop over every agent's few entries).
+            plan = np.empty((*sums.shape[:-1], 2 * dim), dtype=sums.dtype)
+            for component in range(dim):
+                x_part, v_part = rel_x[..., component], rel_v[..., component]
+                plan[..., component] = weight * (x_part + (v_part if normalized else T * v_part))
+                plan[..., dim + component] = weight * v_part
+        else:
+            column = weight[..., None]
+            plan = xp.concat(
+                [column * (rel_x + (rel_v if normalized else T[..., None] * rel_v)), column * rel_v], axis=-1
+            )
         if c.action_mode == "plan":
             return plan
         # accel, normalized: u = (s / T^2) * alpha, with input_from_plan at T = 1 in these units.
         interval = 1.0 if normalized else T[..., None]
-        return np.concatenate(input_from_plan(plan[..., :dim], plan[..., dim:], interval), axis=-1)
+        return xp.concat(input_from_plan(plan[..., :dim], plan[..., dim:], interval), axis=-1)
+
+    def _summation_for(self, xp: Any, obs: Any) -> Any:
+        """The summation matrix in ``obs``'s namespace, dtype and device (cached per device and dtype)."""
+        if is_numpy(xp):
+            return self._summation
+        key = (str(obs.device), str(obs.dtype))
+        cached = self.__dict__.setdefault("_device_summation", {})
+        if key not in cached:
+            cached[key] = xp.asarray(self._summation, dtype=obs.dtype, device=obs.device)
+        return cached[key]

@@ -1,0 +1,283 @@
+"""The environment as a TorchRL-native batched environment: every episode steps where its tensors live.
+
+:class:`ConsensusTorchEnv` is a TorchRL ``EnvBase`` over the batched engine
+(:class:`fxc_env.engine.ConsensusEngine`) on torch tensors: ``batch_size=[B]``, all N agents
+in one group ``"agents"``, no host-device copy per step. :class:`ReferenceModule` is the
+paper's controller, eq. (11), as a torch module for TorchRL's ``TensorDictModule``;
+:func:`reference_policy` wraps it so ``env.rollout(K, reference_policy(env))`` plays the
+paper's example. Needs ``pip install "fxc-env[torchrl]"``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from fxc_env.config import EnvConfig, make_config
+from fxc_env.core import validation
+from fxc_env.engine import ConsensusEngine
+from fxc_env.layout import CLOCK_SIZE
+from fxc_env.reference import ReferencePolicy
+
+#: The one agent group of the TensorDicts.
+GROUP = "agents"
+
+
+class ConsensusTorchEnv(EnvBase):
+    """Fixed-time consensus of double integrators, B episodes at once, as a TorchRL environment.
+
+    ## Description
+    The environment of :func:`fxc_env.parallel_env` (same maths, same options: topologies and
+    families, schedules, modes, ``u_max``, noise, dropout, random switching), batched on a
+    torch device. One step plays one sampling interval of every episode in closed form; an
+    episode ends at ``T_s`` after K steps (``terminated``), or after ``max_cycles`` steps
+    (``truncated``). Episodes start together and stay in lock step until a partial reset
+    (TorchRL's ``"_reset"`` mask), after which each keeps its own clock.
+
+    ## Arguments
+    | argument | default | meaning |
+    |---|---|---|
+    | ``batch_size`` | ``1`` | B, the number of episodes (an int or ``[B]``) |
+    | ``device`` | ``"cpu"`` | torch device of every tensor (``"cuda"``, ``"meta"`` for shapes only) |
+    | ``dtype`` | ``"float64"`` | the engine's arithmetic; ``"float32"`` halves memory and reaches a deadline error near 1e-6 (round-off of the state, relative) instead of 1e-12 |
+    | ``seed`` | None | seeds the device generator (initial states, ``u_max``, noise, dropout, switching) and the host generator of topology families |
+    | ``check_values`` | ``True`` | read the device-side validity flags at every reset and at every episode end (one host read per episode; see below) |
+    | ``max_cycles`` | None | truncate episodes after this many steps |
+    | ``**env_kwargs`` | | every keyword of :func:`fxc_env.parallel_env` (``scenario``, ``n_agents``, ``topology``, ``family``, ``u_max``, ...) |
+
+    ## TensorDict entries
+    | key | shape | meaning |
+    |---|---|---|
+    | ``("agents", "observation")`` | ``[B, N, obs_size]`` | each agent's local sampled observation (the parallel env's card), in ``obs_dtype`` |
+    | ``("agents", "action")`` | ``[B, N, 2 dim]`` | each agent's action (``plan`` or ``accel``), bounded by ``action_bound`` |
+    | ``("agents", "reward")`` | ``[B, N, 1]`` | the team reward ``log(D(t_k) + f) - log(D(t_{k+1}) + f)``, the same for every agent |
+    | ``"done"``, ``"terminated"``, ``"truncated"`` | ``[B, 1]`` | the deadline ``T_s`` reached / ``max_cycles`` cut |
+    | ``"state"`` | ``[B, N * 2 dim + 3]`` | with ``global_state="normalized"``: the scale-free global state (centralised critics) |
+
+    ## When a bad value is reported
+    Shapes are checked at once (they are known on the host). Values are not read on the
+    stepping path: a non-finite action or result, or a step past ``T_s``, sets a flag per
+    episode on the device, and with ``check_values=True`` the environment raises
+    :class:`fxc_env.core.validation.ArgumentError` (naming ``actions``) at the next reset or
+    episode end. On numpy (the PettingZoo and SB3 front ends) such a step is refused at once.
+
+    ## Version history
+    * v0: first release (issue 12).
+    """
+
+    def __init__(
+        self,
+        *,
+        batch_size: int | tuple[int, ...] | list[int] | torch.Size = 1,
+        device: Any = "cpu",
+        dtype: str = "float64",
+        seed: int | None = None,
+        check_values: bool = True,
+        max_cycles: int | None = None,
+        config: EnvConfig | None = None,
+        **env_kwargs: Any,
+    ) -> None:
+        size = _batch_size(batch_size)
+        self.config = make_config(**env_kwargs) if config is None else config
+        self.max_cycles = None if max_cycles is None else validation.integer("max_cycles", max_cycles, 1, 10**9)
+        self.check_values = bool(check_values)
+        self.engine = ConsensusEngine(self.config, size, device=device, dtype=dtype)
+        spec_device = "cpu" if self.engine.device.type == "meta" else self.engine.device
+        super().__init__(device=spec_device, batch_size=torch.Size([size]), allow_done_after_reset=False)
+        self._host_rng = np.random.default_rng(seed)
+        self._observation_dtype = getattr(torch, self.config.obs_dtype)
+        self._make_specs()
+        if seed is not None:
+            self.set_seed(seed)
+
+    @property
+    def n_agents(self) -> int:
+        return self.config.n_agents
+
+    def _make_specs(self) -> None:
+        c, layout, device = self.config, self.config.layout, self.engine.device
+        if device.type == "meta":
+            # torchrl's specs read values when built; the meta engine (shapes only, for the check
+            # that a step never waits on the host) is driven through _reset/_step directly.
+            device = torch.device("cpu")
+        b, n = self.batch_size[0], c.n_agents
+        low, high = _observation_bounds(c)
+        observation = Bounded(
+            low=torch.as_tensor(low, dtype=self._observation_dtype, device=device).expand(b, n, layout.size),
+            high=torch.as_tensor(high, dtype=self._observation_dtype, device=device).expand(b, n, layout.size),
+            shape=(b, n, layout.size),
+            dtype=self._observation_dtype,
+            device=device,
+        )
+        observation_spec = Composite({GROUP: Composite({"observation": observation}, shape=(b, n))}, shape=(b,))
+        if c.global_state == "normalized":
+            size = n * 2 * c.dim + CLOCK_SIZE
+            observation_spec["state"] = Bounded(
+                -1.0, 1.0, shape=(b, size), dtype=self._observation_dtype, device=device
+            )
+        self.observation_spec = observation_spec
+        bound = c.action_bound
+        self.action_spec = Composite(
+            {
+                GROUP: Composite(
+                    {
+                        "action": Bounded(
+                            -bound, bound, shape=(b, n, c.action_size), dtype=self.engine.dtype, device=device
+                        )
+                    },
+                    shape=(b, n),
+                )
+            },
+            shape=(b,),
+        )
+        self.reward_spec = Composite(
+            {
+                GROUP: Composite(
+                    {"reward": Unbounded(shape=(b, n, 1), dtype=self.engine.dtype, device=device)}, shape=(b, n)
+                )
+            },
+            shape=(b,),
+        )
+        flag = Categorical(n=2, shape=(b, 1), dtype=torch.bool, device=device)
+        self.done_spec = Composite({"done": flag, "terminated": flag.clone(), "truncated": flag.clone()}, shape=(b,))
+
+    # ------------------------------------------------------------ EnvBase
+    def _set_seed(self, seed: int | None) -> None:
+        self.engine.seed(seed)
+        self._host_rng = np.random.default_rng(seed)
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        engine = self.engine
+        episodes = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            episodes = tensordict.get("_reset").reshape(-1)
+            if self.engine.device.type != "meta" and bool(episodes.all()):
+                episodes = None  # one read of a [B] flag: a full reset keeps the lock-step fast path
+        if self.check_values:
+            engine.raise_if_invalid()
+        x0, v0, u_max, topologies = engine.draw_batch(self._host_rng)
+        if topologies is not None and episodes is not None:
+            keep = episodes.cpu().numpy()
+            topologies = [
+                new if reset else old for new, old, reset in zip(topologies, engine.topologies, keep, strict=True)
+            ]
+        engine.reset(x0, v0, topologies=topologies, u_max=u_max, episodes=episodes)
+        self._cycles = (
+            torch.zeros(self.batch_size[0], dtype=torch.int64, device=engine.device)
+            if episodes is None
+            else torch.where(episodes, 0, self._cycles)
+        )
+        false = torch.zeros((self.batch_size[0], 1), dtype=torch.bool, device=engine.device)
+        out = TensorDict(
+            {
+                GROUP: TensorDict(
+                    {"observation": self._observations()}, batch_size=(self.batch_size[0], self.n_agents)
+                ),
+                "done": false,
+                "terminated": false.clone(),
+                "truncated": false.clone(),
+            },
+            batch_size=self.batch_size,
+            device=engine.device,
+        )
+        self._add_state(out)
+        return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        engine = self.engine
+        actions = engine.validate_actions(tensordict.get((GROUP, "action")), "actions")
+        outcome = engine.step(actions)
+        b, n = self.batch_size[0], self.n_agents
+        terminated = outcome.terminated
+        if not isinstance(terminated, torch.Tensor):
+            terminated = torch.full((b,), terminated, dtype=torch.bool, device=engine.device)
+        self._cycles = self._cycles + 1
+        truncated = (
+            torch.zeros_like(terminated) if self.max_cycles is None else (self._cycles >= self.max_cycles) & ~terminated
+        )
+        if self.check_values and engine.steps is None and engine.done:
+            engine.raise_if_invalid()  # the episode end: one read per episode
+        reward = outcome.reward[:, None, None].expand(b, n, 1)
+        out = TensorDict(
+            {
+                GROUP: TensorDict({"observation": self._observations(), "reward": reward}, batch_size=(b, n)),
+                "done": (terminated | truncated)[:, None],
+                "terminated": terminated[:, None],
+                "truncated": truncated[:, None],
+            },
+            batch_size=self.batch_size,
+            device=engine.device,
+        )
+        self._add_state(out)
+        return out
+
+    # ------------------------------------------------------------ helpers
+    def _observations(self) -> torch.Tensor:
+        return self.engine.observations().to(self._observation_dtype)
+
+    def _add_state(self, out: TensorDictBase) -> None:
+        if self.config.global_state == "normalized":
+            out.set("state", normalized_state(self.engine).to(self._observation_dtype))
+
+    def episode_metrics(self) -> dict[str, np.ndarray]:
+        """Every episode's metrics so far (``(B,)`` numpy arrays; a read off the device: call at episode ends)."""
+        return self.engine.batch_metrics()
+
+
+def normalized_state(engine: ConsensusEngine) -> torch.Tensor:
+    """The scale-free global state ``[B, N * 2 dim + 3]`` (the parallel env's ``global_state="normalized"``), on the device."""
+    c = engine.config
+    x, v = engine.x, engine.v
+    rows = torch.cat([x - x.mean(dim=1, keepdim=True), c.settling_time * (v - v.mean(dim=1, keepdim=True))], dim=-1)
+    rows = rows / torch.clamp(engine.current_disagreement, min=engine._tiny)[:, None, None]
+    rows = torch.clamp(rows, -1.0, 1.0).reshape(engine.n_episodes, -1)
+    clock = engine._per_instant(engine._clock)
+    clock = clock.reshape(-1, CLOCK_SIZE).expand(engine.n_episodes, CLOCK_SIZE)
+    return torch.cat([rows, clock], dim=-1)
+
+
+class ReferenceModule(torch.nn.Module):
+    """The paper's controller, eq. (11), as a torch module: observations ``[..., obs_size]`` to actions ``[..., 2 dim]``.
+
+    The same arithmetic as :class:`fxc_env.ReferencePolicy` (it calls its array-API path),
+    on any device and dtype, with no parameters.
+    """
+
+    def __init__(self, config: EnvConfig | Any) -> None:
+        super().__init__()
+        self.policy = ReferencePolicy(config)
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        return self.policy.act(observation)
+
+
+def reference_policy(env: ConsensusTorchEnv) -> TensorDictModule:
+    """:class:`ReferenceModule` reading ``("agents", "observation")`` and writing ``("agents", "action")``."""
+    return TensorDictModule(ReferenceModule(env.config), in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "action")])
+
+
+def _batch_size(value: Any) -> int:
+    if isinstance(value, tuple | list | torch.Size):
+        if len(value) != 1:
+            raise validation.ArgumentError(f"batch_size: expected an int or a one-element size [B], got {list(value)}")
+        value = value[0]
+    return validation.integer("batch_size", value, 1, validation.MAX_AGENTS)
+
+
+def _observation_bounds(config: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The flat observation's bounds (those of the parallel env's ``Box``)."""
+    layout = config.layout
+    row = 1.0 if config.obs_mode == "normalized" else np.inf
+    low = np.concatenate(
+        [np.full(layout.rows_end, -row), np.zeros(layout.slots + CLOCK_SIZE), [-1.0] * layout.limit_feature]
+    )
+    high = np.concatenate(
+        [np.full(layout.rows_end, row), np.ones(layout.slots + CLOCK_SIZE), [1.0] * layout.limit_feature]
+    )
+    return low, high
