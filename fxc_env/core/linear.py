@@ -1,0 +1,697 @@
+"""General linear agents: exact free motion and minimum-energy steering over one interval.
+
+Every agent obeys, on each of its ``dim`` space axes separately, the same linear model
+``z' = A z + B u`` with state ``z`` in R^n and input ``u`` in R^m (per axis). The double
+integrator of :mod:`fxc_env.core.dynamics` is ``A = [[0, 1], [0, 0]]``, ``B = [[0], [1]]``.
+By convention ``z[0]`` is the position (metres) and the other components are the model's
+further states (velocity, acceleration, ...); time is in seconds, ``A`` in 1/s.
+
+On a sampling interval of length T an agent plans the change of its state relative to free
+motion, ``Delta`` (n numbers per axis): it wants ``z(T) = F(T) z(0) + Delta`` with the
+free motion ``F(T) = e^{A T}``. The input of least energy ``int_0^T |u|^2 ds`` that does so is
+
+    ``u(s) = B^T e^{A^T (T - s)} lambda``, ``lambda = G(T)^{-1} Delta``, ``0 <= s < T``,
+
+with the controllability Gramian ``G(T) = int_0^T e^{A s} B B^T e^{A^T s} ds``. Inside the
+interval ``z(s) = e^{A s} z(0) + G(s) e^{A^T (T - s)} lambda``, and the energy is
+``lambda^T G(T) lambda = Delta^T G(T)^{-1} Delta``. ``F`` and ``G`` come from one block
+exponential (Van Loan): ``expm([[A, B B^T], [0, -A^T]] T) = [[F, G F^{-T}], [0, F^{-T}]]``.
+
+The scaled frame. ``G(T)`` is badly conditioned for short intervals (condition ~ T^{-2(n-1)}
+for an integrator chain of order n), so nothing here forms or inverts ``G(T)`` itself. Each
+interval is worked in normalised time ``sigma = s / T`` in [0, 1] and scaled state
+``w = D^{-1} z``, ``D = diag(h^{l_0}, ..., h^{l_{n-1}})``:
+
+- ``l_i`` is the *structural level* of state i: 0 for the states the input drives directly
+  (``B[i] != 0``), ``l + 1`` for the states driven by a level-l state (``A[i, j] != 0``),
+  found breadth-first (for a chain of order n: position n - 1, ..., highest derivative 0).
+- ``h = min(T, 1 / rho)`` with ``rho`` the spectral radius of A (``h = T`` when ``rho = 0``,
+  e.g. integrator chains): the interval itself, capped at the model's own time scale.
+
+In that frame ``e^{A T sigma} = D e^{Ahat sigma} D^{-1}`` with ``Ahat = T D^{-1} A D``, whose
+entries ``T A_ij h^{l_j - l_i}`` are O(1) (every nonzero ``A_ij`` has ``l_i <= l_j + 1``), the
+input matrix stays ``B`` (its rows have level 0) and ``G(T) = T D W D`` with the unit-time
+Gramian ``W = int_0^1 e^{Ahat r} B B^T e^{Ahat^T r} dr``, computed by Van Loan's block
+exponential of O(1) entries. For an integrator chain ``Ahat`` does not depend on T at all.
+``W`` is finally balanced by its diagonal, ``S = diag(W)^{-1/2}``, ``W_b = S W S`` (unit
+diagonal), and factorised once per interval, ``W_b = L L^T`` (Cholesky).
+
+Solving. A plan is solved in that frame:
+
+    ``deltahat = D^{-1} Delta``, ``y = L^{-1} S deltahat``, ``nu = S L^{-T} y = W^{-1} deltahat``,
+    ``lambda = D^{-1} nu / T``, ``u(T sigma) = B^T e^{Ahat^T (1 - sigma)} nu / T``,
+    ``energy = |y|^2 / T`` (never negative).
+
+``L^{-1}`` is formed once per interval by a triangular solve against the identity in the
+scaled frame (it is ``n x n`` and well conditioned, ``cond(L) = cond(W_b)^{1/2}``), and the
+scalings are folded into it, so a step for M agent-axes is two ``(M, n) @ (n, n)`` products
+(LAPACK's triangular solve on ``n x M`` right-hand sides is ~20x slower for n <= 4 and no
+more accurate at these condition numbers). ``G(T)`` and its inverse never appear.
+
+Accuracy. :attr:`IntervalMaps.scaled_condition` reports ``cond(W_b)`` per interval (about 14
+for the double integrator, 7.4e3 for a chain of order 4, whatever T). The change achieved by
+the computed input equals Delta up to ``~ cond(W_b) eps`` relative to ``max_i |Delta_i / D_i|``,
+i.e. normwise in the scaled frame. That is componentwise relative in natural units for plans
+of natural size (``|Delta_i| ~ h^{l_i}``); a plan that moves the position by O(1) within a
+tiny T forces inputs of order ``T^{-n}`` whose float64 rounding alone leaves absolute errors of
+order ``eps |Delta_0| h^{l_i - l_0}`` in component i of the achieved change (a property of the
+problem, not of the method: rounding the exact costate to float64 does the same).
+:meth:`IntervalMaps.steer` returns the plan ``F Z + Delta`` itself. A generic dense (A, B)
+has all levels 0 and gets ``D = I``: plain normalised time.
+
+Layout: a per-axis state is the last axis ``(..., n)`` of an array whose leading dimensions
+(episodes, agents, space axes) broadcast; inputs come as ``(..., m)``. Matrices multiply the
+last axis, so 1e5 agents x dim axes are a single ``(M, n) @ (n, n)`` product.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+
+from fxc_env.core import validation
+from fxc_env.core.validation import ArgumentError, ArgumentTypeError
+
+MODEL_NAMES = ("double_integrator", "single_integrator", "integrator_chain", "damped", "oscillator")
+#: Orders accepted by the ``"integrator_chain"`` model.
+CHAIN_ORDERS = (1, 2, 3, 4)
+#: Default damping ``c`` of the ``"damped"`` model (1/s): ``v' = -c v + u``.
+DEFAULT_DAMPING = 0.5
+#: Default angular frequency ``omega`` of the ``"oscillator"`` model (rad/s): ``v' = -omega^2 x + u``.
+DEFAULT_FREQUENCY = 1.0
+#: Points of normalised time ``sigma`` on which the peak input of a non-polynomial model is evaluated.
+PEAK_GRID_POINTS = 65
+#: Rows per chunk when a peak is evaluated on the grid (bounds the temporary memory).
+_PEAK_CHUNK = 4096
+
+
+# --------------------------------------------------------------------------- models
+def model_matrices(
+    name: Any, order: Any = None, damping: Any = None, frequency: Any = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(A, B)`` of a named per-axis model, float64 ``(n, n)`` and ``(n, 1)``; states ``(x, v, ...)``.
+
+    Args:
+        name: one of :data:`MODEL_NAMES`:
+
+            - ``"single_integrator"``: ``x' = u`` (n = 1).
+            - ``"double_integrator"``: ``x' = v``, ``v' = u`` (n = 2, the paper's agent).
+            - ``"integrator_chain"``: ``z_0' = z_1``, ..., ``z_{n-1}' = u`` with n = ``order``
+              in 1..4 (default 2).
+            - ``"damped"``: ``x' = v``, ``v' = -c v + u`` with c = ``damping`` >= 0 in 1/s (default 0.5).
+            - ``"oscillator"``: ``x' = v``, ``v' = -omega^2 x + u`` with omega = ``frequency`` >= 0
+              in rad/s (default 1).
+        order, damping, frequency: the parameter of the model that has it; ``None`` for the default.
+
+    Raises:
+        ArgumentError naming ``agent_model`` (unknown name) or the parameter (out of range, or
+        given to a model that has no such parameter).
+    """
+    name = validation.choice("agent_model", name, MODEL_NAMES)
+    owners = {"order": "integrator_chain", "damping": "damped", "frequency": "oscillator"}
+    for parameter, value in (("order", order), ("damping", damping), ("frequency", frequency)):
+        if value is not None and owners[parameter] != name:
+            raise ArgumentError(
+                f"{parameter}: only agent_model = {owners[parameter]!r} has a {parameter}, "
+                f"got {parameter} = {value!r} with agent_model = {name!r}"
+            )
+    if name == "single_integrator":
+        return np.zeros((1, 1)), np.ones((1, 1))
+    if name == "double_integrator":
+        return _chain(2)
+    if name == "integrator_chain":
+        n = 2 if order is None else validation.integer("order", order, CHAIN_ORDERS[0], CHAIN_ORDERS[-1])
+        return _chain(n)
+    A, B = _chain(2)
+    if name == "damped":
+        c = DEFAULT_DAMPING if damping is None else validation.real("damping", damping, minimum=0.0)
+        A[1, 1] = -c
+    else:
+        omega = DEFAULT_FREQUENCY if frequency is None else validation.real("frequency", frequency, minimum=0.0)
+        A[1, 0] = -(omega * omega)
+    return A, B
+
+
+def _chain(n: int) -> tuple[np.ndarray, np.ndarray]:
+    A = np.eye(n, k=1)
+    B = np.zeros((n, 1))
+    B[-1, 0] = 1.0
+    return A, B
+
+
+def is_double_integrator(A: Any, B: Any) -> bool:
+    """Whether ``(A, B)`` is exactly the double integrator ``([[0, 1], [0, 0]], [[0], [1]])``.
+
+    A length-2 ``B`` counts as the column. Never raises: anything else is ``False``. The
+    engine uses this to keep the closed forms of :mod:`fxc_env.core.dynamics` bit for bit.
+    """
+    try:
+        a = np.asarray(A, dtype=np.float64)
+        b = np.asarray(B, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        return False
+    if b.shape == (2,):
+        b = b[:, None]
+    return (
+        a.shape == (2, 2)
+        and b.shape == (2, 1)
+        and bool(np.array_equal(a, [[0.0, 1.0], [0.0, 0.0]]))
+        and bool(np.array_equal(b, [[0.0], [1.0]]))
+    )
+
+
+def _real_matrix(name: str, value: Any, expected: str, copy: bool = True) -> np.ndarray:
+    """``value`` as float64 (a copy unless ``copy`` is False); a non-numeric value raises naming ``name``."""
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError, OverflowError):
+        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {_short(value)}") from None
+    if array.dtype.kind not in "biuf":
+        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {_short(value)}")
+    return np.array(array, dtype=np.float64) if copy else array.astype(np.float64, copy=False)
+
+
+def _check_finite(name: str, array: np.ndarray) -> None:
+    if not np.all(np.isfinite(array)):
+        raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _structural_levels(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Breadth-first level of each state from the input through the nonzero pattern of A, ``(n,)`` int."""
+    n = A.shape[0]
+    levels = np.full(n, -1)
+    frontier = np.any(B != 0, axis=1)
+    levels[frontier] = 0
+    level = 0
+    while np.any(frontier):
+        level += 1
+        driven = np.any(A[:, frontier] != 0, axis=1) & (levels < 0)
+        levels[driven] = level
+        frontier = driven
+    levels[levels < 0] = 0  # structurally unreachable (cannot happen for a controllable pair)
+    return levels
+
+
+class LinearModel:
+    """A controllable per-axis model ``z' = A z + B u``, validated at construction.
+
+    Args:
+        A: ``(n, n)`` state matrix in 1/s, finite.
+        B: ``(n, m)`` input matrix (a length-n vector is one input), finite.
+
+    Raises:
+        ArgumentError naming ``A`` or ``B`` (shape, type, non-finite entries) or ``A, B`` when
+        the pair is not controllable (``rank [B, AB, ..., A^{n-1} B] < n``).
+
+    Attributes:
+        A: ``(n, n)`` read-only copy. B: ``(n, m)`` read-only copy.
+        levels: ``(n,)`` structural levels of the states (module docstring, "The scaled frame").
+        time_scale: ``1 / rho`` in seconds with rho the spectral radius of A (``inf`` if rho = 0).
+        polynomial_input: True when A is nilpotent (exactly) and n <= 4: the minimum-energy input
+            is then a polynomial of degree <= n - 1 in time and its peak is computed exactly.
+    """
+
+    def __init__(self, A: Any, B: Any) -> None:
+        a = _real_matrix("A", A, "a square (n, n) array")
+        if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] < 1:
+            raise ArgumentError(f"A: expected a square (n, n) array with n >= 1, got shape {a.shape}")
+        _check_finite("A", a)
+        n = a.shape[0]
+        b = _real_matrix("B", B, f"an (n, m) = ({n}, m) array")
+        if b.shape == (n,):
+            b = b[:, None]
+        if b.ndim != 2 or b.shape[0] != n or b.shape[1] < 1:
+            raise ArgumentError(
+                f"B: expected an (n, m) = ({n}, m) array with m >= 1 (a length-{n} vector is one input), "
+                f"got shape {b.shape}"
+            )
+        _check_finite("B", b)
+        blocks = [b]
+        for _ in range(n - 1):
+            blocks.append(a @ blocks[-1])
+        rank = int(np.linalg.matrix_rank(np.concatenate(blocks, axis=1)))
+        if rank < n:
+            raise ArgumentError(
+                "A, B: expected a controllable pair; the controllability matrix [B, AB, ..., A^(n-1) B] "
+                f"has rank {rank} < n = {n}"
+            )
+        a.setflags(write=False)
+        b.setflags(write=False)
+        self._A, self._B = a, b
+        self.levels = _structural_levels(a, b)
+        self.levels.setflags(write=False)
+        rho = float(np.max(np.abs(np.linalg.eigvals(a))))
+        self.time_scale = 1.0 / rho if rho > 0 and math.isfinite(1.0 / rho) else math.inf
+        nilpotent = bool(np.all(np.linalg.matrix_power(a, n) == 0))
+        self.polynomial_input = nilpotent and n <= 4
+        self._gain = b @ b.T
+
+    @classmethod
+    def named(cls, name: Any, order: Any = None, damping: Any = None, frequency: Any = None) -> LinearModel:
+        """The model of :func:`model_matrices` (same arguments and errors)."""
+        return cls(*model_matrices(name, order=order, damping=damping, frequency=frequency))
+
+    @property
+    def A(self) -> np.ndarray:
+        """``(n, n)`` state matrix (1/s), read-only."""
+        return self._A
+
+    @property
+    def B(self) -> np.ndarray:
+        """``(n, m)`` input matrix, read-only."""
+        return self._B
+
+    @property
+    def n_states(self) -> int:
+        """n, the state components per axis."""
+        return self._A.shape[0]
+
+    @property
+    def n_inputs(self) -> int:
+        """m, the input components per axis."""
+        return self._B.shape[1]
+
+    @property
+    def is_double_integrator(self) -> bool:
+        """Whether this is exactly the double integrator (:func:`is_double_integrator`)."""
+        return is_double_integrator(self._A, self._B)
+
+    def __repr__(self) -> str:
+        return f"LinearModel(n_states={self.n_states}, n_inputs={self.n_inputs}, A={self._A.tolist()}, B={self._B.tolist()})"
+
+    # ------------------------------------------------------------ scaled frame
+    def _frame(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Scale base h and ``Ahat`` for times ``t`` ``(K,)`` >= 0: ``(K,)`` and ``(K, n, n)``.
+
+        ``Ahat_ij = t A_ij h^{l_j - l_i}``; with ``h = t`` the powers are combined into one
+        integer power of t so that the unit couplings of a chain stay exactly 1.
+        """
+        h = np.where(t > 0, np.minimum(t, self.time_scale), 1.0)
+        exponent = self.levels[None, :] - self.levels[:, None]  # l_j - l_i, (n, n)
+        with np.errstate(all="ignore"):
+            at_interval = t[:, None, None] ** (1 + exponent)
+            capped = t[:, None, None] * h[:, None, None] ** exponent
+            factor = np.where((h == t)[:, None, None], at_interval, capped)
+            a_hat = np.where(self._A != 0, factor * self._A, 0.0)
+        return h, a_hat
+
+    def _van_loan(self, a_hat: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``e^{Ahat sigma}`` and ``V(sigma) = int_0^sigma e^{Ahat r} B B^T e^{Ahat^T r} dr``, both ``(K, n, n)``."""
+        n = self.n_states
+        block = np.zeros((*a_hat.shape[:-2], 2 * n, 2 * n))
+        block[..., :n, :n] = a_hat
+        block[..., :n, n:] = self._gain
+        block[..., n:, n:] = -np.swapaxes(a_hat, -1, -2)
+        exp = scipy.linalg.expm(block * sigma[..., None, None])
+        motion = exp[..., :n, :n]
+        gramian = exp[..., :n, n:] @ np.swapaxes(motion, -1, -2)
+        return motion, 0.5 * (gramian + np.swapaxes(gramian, -1, -2))
+
+    def free_motion_matrix(self, t: Any) -> np.ndarray:
+        """``e^{A t}`` for a time t >= 0 in seconds (scalar or array ``(...)``): ``(..., n, n)``."""
+        times = _times("t", t)
+        flat = times.reshape(-1)
+        h, a_hat = self._frame(flat)
+        motion = scipy.linalg.expm(a_hat) if flat.size else np.zeros((0, self.n_states, self.n_states))
+        return (self._ratio(h) * motion).reshape(*times.shape, self.n_states, self.n_states)
+
+    def gramian(self, t: Any) -> np.ndarray:
+        """The controllability Gramian ``G(t)`` in natural units, ``(..., n, n)`` (diagnostics and tests).
+
+        Computed as ``t D W D`` in the scaled frame; its entries are accurate, but for short t it is
+        badly conditioned: solve plans with :meth:`interval_maps`, not with this matrix.
+        """
+        times = _times("t", t)
+        flat = times.reshape(-1)
+        h, a_hat = self._frame(flat)
+        n = self.n_states
+        if not flat.size:
+            return np.zeros((*times.shape, n, n))
+        _, unit = self._van_loan(a_hat, np.ones_like(flat))
+        d = h[:, None] ** self.levels[None, :]
+        out = flat[:, None, None] * d[:, :, None] * unit * d[:, None, :]
+        return out.reshape(*times.shape, n, n)
+
+    def _ratio(self, h: np.ndarray) -> np.ndarray:
+        """``D_i / D_j = h^{l_i - l_j}``, ``(K, n, n)``."""
+        return h[:, None, None] ** (self.levels[:, None] - self.levels[None, :])
+
+    def interval_maps(self, intervals: Any) -> IntervalMaps:
+        """Precompute everything per interval length for a schedule of K intervals (seconds, ``(K,)``).
+
+        Raises:
+            ArgumentError naming ``intervals`` (not a 1-D array of lengths >= 1e-30 s, or a Gramian
+            that is numerically singular in the scaled frame: a nearly uncontrollable pair).
+        """
+        return IntervalMaps(self, intervals)
+
+
+def _times(name: str, value: Any) -> np.ndarray:
+    array = _real_matrix(name, value, "a time or an array of times")
+    if not np.all(np.isfinite(array)) or np.any(array < 0):
+        raise ArgumentError(f"{name}: every time must be finite and >= 0 s")
+    return array
+
+
+# --------------------------------------------------------------------------- intervals
+class IntervalMaps:
+    """The per-interval maps of a :class:`LinearModel` for a fixed schedule of K interval lengths.
+
+    Built by :meth:`LinearModel.interval_maps`. The operations take an interval index k
+    (``0 <= k < K``) and per-axis states ``(..., n)`` whose leading dimensions broadcast.
+
+    Attributes (all read-only arrays):
+        model: the :class:`LinearModel`.
+        intervals: ``(K,)`` interval lengths T_k in seconds.
+        motion: ``(K, n, n)`` free motion ``F_k = e^{A T_k}``.
+        scale: ``(K, n)`` the state scaling ``D = h^{levels}`` (units of the state / scaled state).
+        balance: ``(K, n)`` the diagonal balancing ``S = diag(W)^{-1/2}`` of the unit-time Gramian.
+        cholesky: ``(K, n, n)`` lower ``L`` with ``S W S = L L^T``.
+        a_hat: ``(K, n, n)`` ``Ahat = T D^{-1} A D``, the scaled state matrix.
+        scaled_condition: ``(K,)`` the 2-norm condition number of ``S W S``.
+        input_polynomials: ``(K, n, m, n)`` when ``model.polynomial_input``: row j maps the scaled
+            costate ``nu`` to the coefficient of ``tau^j`` of ``T u``, ``tau = 1 - s / T``; else None.
+    """
+
+    def __init__(self, model: LinearModel, intervals: Any) -> None:
+        lengths = np.array(validation.interval_lengths("intervals", intervals))
+        self.model = model
+        n = model.n_states
+        h, a_hat = model._frame(lengths)
+        with np.errstate(all="ignore"):  # an overflow is caught below, naming the interval
+            motion_hat, unit = model._van_loan(a_hat, np.ones_like(lengths))
+        diagonal = np.diagonal(unit, axis1=-2, axis2=-1)
+        bad = ~np.all(np.isfinite(unit), axis=(-2, -1)) | np.any(~(diagonal > 0), axis=-1)
+        balance = np.where(bad[:, None], 1.0, 1.0 / np.sqrt(np.where(bad[:, None], 1.0, diagonal)))
+        balanced = balance[:, :, None] * unit * balance[:, None, :]
+        try:
+            if np.any(bad):
+                raise np.linalg.LinAlgError
+            cholesky = np.linalg.cholesky(balanced)
+        except np.linalg.LinAlgError:
+            k = next(k for k in range(len(lengths)) if bad[k] or not _positive_definite(balanced[k]))
+            raise ArgumentError(
+                f"intervals: the controllability Gramian is numerically singular or not finite over the interval "
+                f"T = {float(lengths[k])!r} s (index {k}): (A, B) is nearly uncontrollable there, or e^(A T) "
+                "leaves float64's range"
+            ) from None
+        eigenvalues = np.linalg.eigvalsh(balanced)
+        self.intervals = lengths
+        self.motion = model._ratio(h) * motion_hat
+        self.scale = h[:, None] ** model.levels[None, :]
+        self.balance = balance
+        self.cholesky = cholesky
+        self.a_hat = a_hat
+        self.scaled_condition = eigenvalues[:, -1] / eigenvalues[:, 0]
+        self.input_polynomials = None
+        if model.polynomial_input:
+            # T u(T sigma) = B^T e^{Ahat^T tau} nu = sum_j tau^j B^T (Ahat^T)^j nu / j!.
+            rows = [np.broadcast_to(model.B.T, (len(lengths), *model.B.T.shape))]
+            for j in range(1, n):
+                rows.append(rows[-1] @ np.swapaxes(a_hat, -1, -2) / j)
+            self.input_polynomials = np.stack(rows, axis=1)
+            nonzero = np.flatnonzero(np.any(self.input_polynomials != 0, axis=(0, 2, 3)))
+            self._degree = int(nonzero[-1]) if nonzero.size else 0
+            # (K, n, (degree + 1) m): nu @ this gives the coefficients of T u, coefficient-major.
+            used = self.input_polynomials[:, : self._degree + 1]
+            self._coefficients_t = np.ascontiguousarray(np.swapaxes(used.reshape(len(lengths), -1, n), -1, -2))
+        for array in (self.intervals, self.motion, self.scale, self.balance, self.cholesky, self.a_hat):
+            array.setflags(write=False)
+        self.scaled_condition.setflags(write=False)
+        if self.input_polynomials is not None:
+            self.input_polynomials.setflags(write=False)
+        # Contiguous transposes for the (M, n) @ (n, n) products of the stepping path.
+        self._motion_t = np.ascontiguousarray(np.swapaxes(self.motion, -1, -2))
+        # The Cholesky factor's inverse, by triangular solves in the scaled frame (well conditioned),
+        # with the scalings folded in: y = delta @ _forward = L^{-1} S D^{-1} delta, nu = y @ _backward.
+        inverse = _lower_inverse(cholesky)
+        self._forward = np.ascontiguousarray(np.swapaxes(inverse, -1, -2) * (balance / self.scale)[:, :, None])
+        self._backward = np.ascontiguousarray(inverse * balance[:, None, :])
+        self._grid: dict[int, np.ndarray] = {}
+
+    @property
+    def n_intervals(self) -> int:
+        """K."""
+        return len(self.intervals)
+
+    def __repr__(self) -> str:
+        return f"IntervalMaps(n_intervals={self.n_intervals}, model={self.model!r})"
+
+    # ---------------------------------------------------------------- checks
+    def _index(self, k: Any) -> int:
+        return validation.integer("k", k, 0, self.n_intervals - 1)
+
+    def _state(self, name: str, value: Any) -> np.ndarray:
+        array = _real_matrix(name, value, f"an array (..., n) with n = {self.model.n_states}", copy=False)
+        if array.ndim < 1 or array.shape[-1] != self.model.n_states:
+            raise ArgumentError(
+                f"{name}: expected an array (..., n) with a last axis of n = {self.model.n_states}, got shape {array.shape}"
+            )
+        return array
+
+    def _pair(self, Z: Any, delta: Any) -> tuple[np.ndarray, np.ndarray]:
+        z, d = self._state("Z", Z), self._state("delta", delta)
+        try:
+            shape = np.broadcast_shapes(z.shape, d.shape)
+        except ValueError:
+            raise ArgumentError(f"delta: shape {d.shape} does not broadcast against Z's {z.shape}") from None
+        return np.broadcast_to(z, shape), np.broadcast_to(d, shape)
+
+    # ------------------------------------------------------------ operations
+    def free_motion(self, k: Any, Z: Any) -> np.ndarray:
+        """``F_k Z``: the state after interval k without input, ``(..., n)`` like ``Z``."""
+        k = self._index(k)
+        z = self._state("Z", Z)
+        return _apply_t(self._motion_t[k], z)
+
+    def costate(self, k: Any, delta: Any) -> np.ndarray:
+        """``lambda = G(T_k)^{-1} Delta`` in natural units, ``(..., n)``, solved in the scaled frame.
+
+        The input is ``u(s) = B^T e^{A^T (T_k - s)} lambda``. For short intervals lambda is large
+        (``~ T^{-(2 l + 1)}``); it is for checks, :meth:`steer` needs no natural-unit costate.
+        """
+        k = self._index(k)
+        d = self._state("delta", delta)
+        nu, _ = self._solve(k, d)
+        return nu / (self.intervals[k] * self.scale[k])
+
+    def steer(self, k: Any, Z: Any, delta: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Play interval k with the minimum-energy input that adds ``delta`` to the free motion.
+
+        Args:
+            k: interval index, ``0 <= k < K``.
+            Z: ``(..., n)`` states at the start of the interval.
+            delta: ``(..., n)`` planned changes relative to free motion (broadcasts against ``Z``).
+
+        Returns:
+            ``Z_next = F_k Z + delta`` ``(..., n)`` (the plan, exactly as planned); the energy
+            ``int_0^T |u|^2 ds = Delta^T G^{-1} Delta`` (units of u^2 s) ``(...)``; and the peak
+            ``max_s max_r |u_r(s)|`` ``(...)``. The peak is exact (end points and interior critical
+            points) when ``model.polynomial_input``; otherwise it is the largest of
+            :data:`PEAK_GRID_POINTS` equally spaced samples in ``[0, T]``, end points included
+            (a value from below, within ``O((T / 64)^2 |u''|)`` of the true peak).
+        """
+        k = self._index(k)
+        z, d = self._pair(Z, delta)
+        nu, y = self._solve(k, d)
+        T = self.intervals[k]
+        energy = np.einsum("...i,...i->...", y, y) / T
+        return _apply_t(self._motion_t[k], z) + d, energy, self._peak(k, nu)
+
+    def state_inside(self, k: Any, Z: Any, delta: Any, s: Any) -> tuple[np.ndarray, np.ndarray]:
+        """State and input at offsets ``s`` (seconds, in ``[0, T_k]``, any shape ``P``) into interval k.
+
+        Returns ``z(s)`` of shape ``P + (..., n)`` and ``u(s)`` of shape ``P + (..., m)``, where
+        ``(..., n)`` is the broadcast shape of ``Z`` and ``delta``: one batched matrix exponential
+        per point, so meant for dense plots and tests. ``z(T_k) = F_k Z + delta`` up to the solve's
+        backward error (module docstring).
+        """
+        k = self._index(k)
+        z, d = self._pair(Z, delta)
+        T = self.intervals[k]
+        offsets = _real_matrix("s", s, "an offset or an array of offsets")
+        if not np.all(np.isfinite(offsets)) or np.any(offsets < 0) or np.any(offsets > T):
+            raise ArgumentError(f"s: every offset must lie in [0, T_k] = [0, {T!r}] s")
+        sigma = np.minimum(offsets.reshape(-1) / T, 1.0)
+        n, m = self.model.n_states, self.model.n_inputs
+        a_hat = np.broadcast_to(self.a_hat[k], (sigma.size, n, n))
+        motion, partial = self.model._van_loan(a_hat, sigma)
+        back = scipy.linalg.expm(np.swapaxes(a_hat, -1, -2) * (1.0 - sigma)[:, None, None])
+        nu, _ = self._solve(k, d)
+        flat_nu = nu.reshape(-1, n)
+        w0 = (z / self.scale[k]).reshape(-1, n)
+        carried = np.einsum("pij,pjk,mk->pmi", partial, back, flat_nu, optimize=True)
+        state = self.scale[k] * (np.einsum("pij,mj->pmi", motion, w0) + carried)
+        inputs = np.einsum("ri,pij,mj->pmr", self.model.B.T, back, flat_nu) / T
+        return state.reshape(*offsets.shape, *z.shape), inputs.reshape(*offsets.shape, *z.shape[:-1], m)
+
+    # --------------------------------------------------------------- helpers
+    def _solve(self, k: int, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Scaled costate ``nu = W^{-1} D^{-1} delta`` and ``y = L^{-1} S D^{-1} delta``, both ``(..., n)``.
+
+        Rows times the interval's precomputed factors (module docstring, "Solving"): two
+        ``(M, n) @ (n, n)`` products.
+        """
+        n = self.model.n_states
+        shape = delta.shape
+        y = delta.reshape(-1, n) @ self._forward[k]
+        return (y @ self._backward[k]).reshape(shape), y.reshape(shape)
+
+    def _peak(self, k: int, nu: np.ndarray) -> np.ndarray:
+        """Peak ``|u|`` over interval k for scaled costates ``nu`` ``(..., n)``: ``(...)``."""
+        n, m = self.model.n_states, self.model.n_inputs
+        flat = nu.reshape(-1, n)
+        T = self.intervals[k]
+        if self.input_polynomials is not None:
+            p = flat @ self._coefficients_t[k]  # (M, (degree + 1) m): T u as a polynomial in tau
+            columns = [p[:, j * m : (j + 1) * m] for j in range(self._degree + 1)]
+            peak = _polynomial_peak(columns) / T  # (M, m)
+        else:
+            samples = self._grid_matrix(k)  # (n, G m)
+            peak = np.empty((flat.shape[0], m))
+            for start in range(0, flat.shape[0], _PEAK_CHUNK):
+                values = np.abs(flat[start : start + _PEAK_CHUNK] @ samples)
+                peak[start : start + _PEAK_CHUNK] = values.reshape(-1, PEAK_GRID_POINTS, m).max(axis=1) / T
+        return (peak[:, 0] if m == 1 else peak.max(axis=-1)).reshape(nu.shape[:-1])
+
+    def _grid_matrix(self, k: int) -> np.ndarray:
+        """``(B^T e^{Ahat^T tau_j})^T`` side by side over ``tau_j = j / 64``: ``(n, G m)``, cached per k."""
+        if k not in self._grid:
+            tau = np.linspace(0.0, 1.0, PEAK_GRID_POINTS)
+            back = scipy.linalg.expm(self.a_hat[k].T[None] * tau[:, None, None])
+            rows = (self.model.B.T[None] @ back).reshape(-1, self.model.n_states)
+            self._grid[k] = np.ascontiguousarray(rows.T)
+        return self._grid[k]
+
+
+def _positive_definite(matrix: np.ndarray) -> bool:
+    try:
+        np.linalg.cholesky(matrix)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def _lower_inverse(factor: np.ndarray) -> np.ndarray:
+    """``L^{-1}`` of lower triangular ``L`` ``(K, n, n)`` by forward substitution against the identity, batched."""
+    n = factor.shape[-1]
+    inverse = np.zeros_like(factor)
+    for i in range(n):
+        row = np.zeros((*factor.shape[:-2], n))
+        row[..., i] = 1.0
+        row -= np.einsum("...j,...jc->...c", factor[..., i, :i], inverse[..., :i, :])
+        inverse[..., i, :] = row / factor[..., i, i, None]
+    return inverse
+
+
+def _apply(matrix: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """``matrix @ z`` along the last axis of ``z`` ``(..., n)``, as one 2-D product."""
+    return _apply_t(np.ascontiguousarray(matrix.T), z)
+
+
+def _apply_t(matrix_t: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """``z @ matrix_t`` for ``z`` ``(..., n)`` and a C-ordered ``(n, n)`` transpose, as one 2-D product."""
+    n = matrix_t.shape[0]
+    return (z.reshape(-1, n) @ matrix_t).reshape(z.shape)
+
+
+def _polynomial_peak(p: list[np.ndarray]) -> np.ndarray:
+    """``max_{tau in [0, 1]} |p(tau)|`` for ascending coefficients ``p = [p0, ..., pd]``, d <= 3, each ``(...)``.
+
+    The candidates are both ends and the real roots of ``p'(tau) = p1 + 2 p2 tau + 3 p3 tau^2``
+    clipped to [0, 1], from the cancellation-free quadratic formula
+    ``q = -(p2 + sign(p2) sqrt(p2^2 - 3 p1 p3))``, roots ``q / (3 p3)`` and ``p1 / q`` (the latter
+    is the root ``-p1 / (2 p2)`` of a quadratic p). Degenerate cases give NaN or infinite
+    candidates, which ``fmax`` and the clipping discard.
+    """
+    if len(p) > 4:
+        raise ValueError("_polynomial_peak: degree above 3")
+    p0 = p[0]
+    peak = np.abs(p0)
+    if len(p) == 1:
+        return peak
+    total = p0 + p[1]
+    for coefficient in p[2:]:
+        total = total + coefficient
+    peak = np.maximum(peak, np.abs(total))
+    if len(p) == 2:
+        return peak
+    p1, p2 = p[1], p[2]
+    p3 = p[3] if len(p) == 4 else None
+    with np.errstate(all="ignore"):
+        if p3 is None:
+            roots = [-p1 / (2.0 * p2)]
+        else:
+            q = -(p2 + np.copysign(np.sqrt(p2 * p2 - 3.0 * p1 * p3), p2))
+            roots = [q / (3.0 * p3), p1 / q]
+        for root in roots:
+            tau = np.clip(root, 0.0, 1.0)
+            inner = p2 if p3 is None else p2 + tau * p3
+            peak = np.fmax(peak, np.abs(p0 + tau * (p1 + tau * inner)))
+    return peak
+
+
+# --------------------------------------------------------------------------- formations and final values
+def formation_offsets(offsets: Any, n_agents: int, dim: int, n_states: int) -> np.ndarray:
+    """Validated formation offsets as full per-axis states, float64 ``(N, dim, n)``.
+
+    Args:
+        offsets: ``(N, dim)`` positions (the other state components are zero) or ``(N, dim, n)``
+            full states; finite.
+        n_agents, dim, n_states: N, the space dimension and n.
+
+    Raises:
+        ArgumentError / ArgumentTypeError naming ``formation_offsets``.
+    """
+    name = "formation_offsets"
+    expected = f"an array of shape (N, dim) = ({n_agents}, {dim}) or (N, dim, n) = ({n_agents}, {dim}, {n_states})"
+    array = _real_matrix(name, offsets, expected)
+    if array.shape == (n_agents, dim):
+        full = np.zeros((n_agents, dim, n_states))
+        full[..., 0] = array
+        array = full
+    elif array.shape != (n_agents, dim, n_states):
+        raise ArgumentError(f"{name}: expected {expected}, got shape {array.shape}")
+    _check_finite(name, array)
+    return array
+
+
+def offset_at(h: np.ndarray, F_t: np.ndarray) -> np.ndarray:
+    """The offsets carried by free motion to time t: ``e^{A t} h`` with ``F_t = e^{A t}`` ``(n, n)``.
+
+    ``h`` is ``(..., n)`` (e.g. ``(N, dim, n)`` from :func:`formation_offsets`); returns its shape.
+    """
+    return _apply(np.asarray(F_t, dtype=np.float64), np.asarray(h, dtype=np.float64))
+
+
+def final_value(model: LinearModel, xi: Any, Z0: Any, t: Any) -> np.ndarray:
+    """Consensus value at time t (generalised Theorems 1-2): ``z*(t) = e^{A t} sum_j xi_j z_j(0)``.
+
+    Args:
+        model: the agents' :class:`LinearModel`.
+        xi: ``(N,)`` or ``(..., N)`` consensus weights (e.g. ``Topology.consensus_weights()``).
+        Z0: ``(..., N, dim, n)`` initial states.
+        t: time in seconds, >= 0.
+
+    Returns:
+        ``(..., dim, n)``, the common state every agent approaches at time t.
+    """
+    weights = _real_matrix("xi", xi, "an array (..., N)")
+    states = _real_matrix("Z0", Z0, "an array (..., N, dim, n)")
+    if states.ndim < 3 or states.shape[-1] != model.n_states:
+        raise ArgumentError(
+            f"Z0: expected an array (..., N, dim, n) with n = {model.n_states}, got shape {states.shape}"
+        )
+    if weights.ndim < 1 or weights.shape[-1] != states.shape[-3]:
+        raise ArgumentError(f"xi: expected an array (..., N) with N = {states.shape[-3]}, got shape {weights.shape}")
+    time = validation.real("t", t, minimum=0.0)
+    mean = np.einsum("...j,...jdn->...dn", weights, states)
+    return _apply(model.free_motion_matrix(time), mean)
