@@ -59,6 +59,9 @@ def simulate_command(args: argparse.Namespace) -> int:
             "settling_time": c.settling_time,
             "schedule": c.schedule.name,
             "dim": c.dim,
+            "agent_model": c.agent_model,
+            "n_states": c.n_states,
+            "formation_offsets": None if c.formation is None else c.formation.tolist(),
             "action_mode": c.action_mode,
             "obs_mode": c.obs_mode,
             "seed": args.seed,
@@ -75,6 +78,9 @@ def simulate_command(args: argparse.Namespace) -> int:
     if topology.note:
         print(f"  topology: {topology.note}")
     print(f"  T_s = {c.settling_time:g} s, K = {c.n_intervals} intervals ({c.schedule.name} schedule), dim = {c.dim}")
+    if c.model is not None or c.formation is not None:
+        shape = "" if c.formation is None else ", formation offsets (agreement on z_i - e^(At) h_i)"
+        print(f"  agents: {c.agent_model} (n = {c.n_states} states per axis){shape}")
     if xi is not None:
         print("  xi = [" + ", ".join(f"{w:.6g}" for w in xi) + "]")
     rows = [

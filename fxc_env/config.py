@@ -18,6 +18,7 @@ import numpy as np
 from fxc_env.core import validation
 from fxc_env.core.families import AnyFamily, is_family_spec, make_family
 from fxc_env.core.graphs import Topology, make_topology
+from fxc_env.core.linear import IntervalMaps, LinearModel, formation_offsets, model_matrices
 from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.layout import CLOCK_SIZE, ObservationLayout
@@ -71,6 +72,51 @@ class EnvConfig:
     link_dropout: float
     switching: str
     scenario: str | None
+    #: The agents' per-axis linear model, or None for the double integrator's closed forms.
+    model: LinearModel | None = None
+    #: ``"double_integrator"``, a named model of :data:`fxc_env.core.linear.MODEL_NAMES` or ``"linear"`` (a given (A, B)).
+    agent_model: str = "double_integrator"
+    #: Formation offsets ``h_i`` as full states ``(N, n, dim)``, or None (plain consensus).
+    formation: np.ndarray | None = None
+
+    @property
+    def n_states(self) -> int:
+        """n, the state size per axis: 2 (position, velocity) for the double integrator."""
+        return 2 if self.model is None else self.model.n_states
+
+    @property
+    def n_inputs(self) -> int:
+        """m, the inputs per axis: 1 for the double integrator."""
+        return 1 if self.model is None else self.model.n_inputs
+
+    @cached_property
+    def interval_maps(self) -> IntervalMaps | None:
+        """Free motion and minimum-energy steering of every interval of the schedule (general models only)."""
+        return None if self.model is None else self.model.interval_maps(self.schedule.intervals)
+
+    @cached_property
+    def row_scales(self) -> np.ndarray:
+        """Per sampling instant, what each state component is multiplied by to read in position units: ``(K + 1, n)``.
+
+        The double integrator: ``[1, T_{k+1}]`` (``x`` and ``T v``, the README's normalized
+        units). A general model: ``D_0 / D_l`` with the time-scaled frame ``D = h^levels``
+        (:mod:`fxc_env.core.linear`), e.g. ``[1, T, T^2]`` for a chain of order 3. The
+        instant ``K`` repeats the last interval's row.
+        """
+        k_all = np.arange(self.n_intervals + 1)
+        last = np.minimum(k_all, self.n_intervals - 1)
+        if self.model is None:
+            return np.stack([np.ones(len(k_all)), self.schedule.intervals[last]], axis=1)
+        scale = self.interval_maps.scale[last]
+        return scale[:, :1] / scale
+
+    @cached_property
+    def formation_motion(self) -> np.ndarray | None:
+        """``e^{A t_k}`` at every sampling instant ``(K + 1, n, n)`` when there are formation offsets, else None."""
+        if self.formation is None:
+            return None
+        model = self.model if self.model is not None else LinearModel(*model_matrices("double_integrator"))
+        return model.free_motion_matrix(self.schedule.times)
 
     @property
     def n_agents(self) -> int:
@@ -86,7 +132,9 @@ class EnvConfig:
 
     @cached_property
     def layout(self) -> ObservationLayout:
-        return ObservationLayout(self.obs_slots, self.dim, limit_feature=self.u_max_choices is not None)
+        return ObservationLayout(
+            self.obs_slots, self.dim, limit_feature=self.u_max_choices is not None, n_states=self.n_states
+        )
 
     @property
     def u_max(self) -> float | None:
@@ -101,7 +149,7 @@ class EnvConfig:
 
     @property
     def action_size(self) -> int:
-        return 2 * self.dim
+        return self.n_states * self.dim
 
     @property
     def observation_dtype(self) -> type[np.floating]:
@@ -250,6 +298,11 @@ def make_config(
     obs_noise: float = 0.0,
     link_dropout: float = 0.0,
     switching: str = "periodic",
+    agent_model: Any = None,
+    order: int | None = None,
+    damping: float | None = None,
+    frequency: float | None = None,
+    formation_offsets: Any = None,
 ) -> EnvConfig:
     """Validate the environment's keyword arguments (a scenario's preset first, explicit ones win).
 
@@ -264,6 +317,11 @@ def make_config(
     ``obs_noise`` adds Gaussian noise of that standard deviation (m, m/s) to each relative
     measurement; ``link_dropout`` loses each edge at each sampling instant with that
     probability; ``switching="random"`` draws each interval's graph from the topology set.
+    ``agent_model`` (default ``"double_integrator"``) is a name of
+    :data:`fxc_env.core.linear.MODEL_NAMES` (with ``order`` for ``"integrator_chain"``,
+    ``damping`` for ``"damped"``, ``frequency`` for ``"oscillator"``) or a controllable pair
+    ``(A, B)`` per axis; ``formation_offsets`` (positions ``(N, dim)`` or full states
+    ``(N, dim, n)``) makes agents agree on ``z_i - e^{A t} h_i``.
     """
     given = {
         "n_agents": n_agents,
@@ -279,6 +337,11 @@ def make_config(
         "position_range": position_range,
         "velocity_range": velocity_range,
         "u_max": u_max,
+        "agent_model": agent_model,
+        "order": order,
+        "damping": damping,
+        "frequency": frequency,
+        "formation_offsets": formation_offsets,
     }
     merged = _merged_settings(scenario, given, initial_state)
     dim_value = validation.integer("dim", merged["dim"], 1, validation.MAX_DIM)
@@ -291,6 +354,20 @@ def make_config(
         if action_bound is None
         else validation.real("action_bound", action_bound, positive=True)
     )
+    model_name, model = _agent_model(merged)
+    u_max_choices = _input_limits(merged.get("u_max"))
+    if model is not None:
+        if action_mode != "plan":
+            raise ArgumentError(
+                f"action_mode: {model_name!r} agents take plans only (the minimum-energy input); 'accel' is the "
+                "double integrator's"
+            )
+        if u_max_choices is not None:
+            raise ArgumentError(
+                f"u_max: input limits are integrated exactly for the double integrator only, not {model_name!r}"
+            )
+    n_states = 2 if model is None else model.n_states
+    formation = _formation(merged.get("formation_offsets"), topo.n_agents, dim_value, n_states)
     return EnvConfig(
         topology=topo,
         family=family,
@@ -307,9 +384,41 @@ def make_config(
         initial_state=_initial_state(merged.get("initial_state"), topo.n_agents, dim_value),
         position_range=_scale_range("position_range", merged["position_range"]),
         velocity_range=_scale_range("velocity_range", merged["velocity_range"]),
-        u_max_choices=_input_limits(merged.get("u_max")),
+        u_max_choices=u_max_choices,
         obs_noise=validation.real("obs_noise", obs_noise, 0.0, validation.STATE_LIMIT),
         link_dropout=validation.probability("link_dropout", link_dropout),
         switching=validation.choice("switching", switching, SWITCHING_MODES),
         scenario=scenario,
+        model=model,
+        agent_model=model_name,
+        formation=formation,
     )
+
+
+def _agent_model(merged: dict[str, Any]) -> tuple[str, LinearModel | None]:
+    """``(name, model)``: None for the double integrator's closed forms, else the validated model."""
+    value = merged.get("agent_model")
+    parameters = {key: merged.get(key) for key in ("order", "damping", "frequency")}
+    if value is None or (isinstance(value, str) and value == "double_integrator"):
+        for key, given in parameters.items():
+            if given is not None:
+                raise ArgumentError(f"{key}: the double integrator takes no {key}; give agent_model too")
+        return "double_integrator", None
+    if isinstance(value, str):
+        return value, LinearModel.named(value, **parameters)
+    if isinstance(value, tuple | list) and len(value) == 2:
+        for key, given in parameters.items():
+            if given is not None:
+                raise ArgumentError(f"{key}: a given (A, B) takes no {key}")
+        return "linear", LinearModel(*value)
+    raise ArgumentError(f"agent_model: expected a model name or a pair (A, B), got {type(value).__name__}")
+
+
+def _formation(value: Any, n_agents: int, dim: int, n_states: int) -> np.ndarray | None:
+    """Formation offsets as full states in the engine's layout ``(N, n, dim)``, or None."""
+    if value is None:
+        return None
+    offsets = formation_offsets(value, n_agents, dim, n_states)  # (N, dim, n), checked
+    if np.max(np.abs(offsets), initial=0.0) > validation.STATE_LIMIT:
+        raise ArgumentError(f"formation_offsets: expected entries within ±{validation.STATE_LIMIT:g}")
+    return np.ascontiguousarray(np.swapaxes(offsets, 1, 2))

@@ -66,10 +66,11 @@ def normalized_state(engine: ConsensusEngine) -> np.ndarray:
     velocities, and dividing by ``D`` removes the scale, as the normalized observations do.
     """
     c = engine.config
-    x, v = engine.x, engine.v
-    rows = np.concatenate(
-        [x - x.mean(axis=1, keepdims=True), c.settling_time * (v - v.mean(axis=1, keepdims=True))], axis=-1
-    )
+    z = engine.state  # (B, N, n, dim): [x, v] for the double integrator
+    components = [
+        (c.settling_time**i) * (z[:, :, i] - z[:, :, i].mean(axis=1, keepdims=True)) for i in range(c.n_states)
+    ]
+    rows = np.concatenate(components, axis=-1)
     rows /= np.maximum(engine.current_disagreement, TINY)[:, None, None]
     np.clip(rows, -1.0, 1.0, out=rows)
     k = engine.k
@@ -79,6 +80,12 @@ def normalized_state(engine: ConsensusEngine) -> np.ndarray:
     out[:, : rows[0].size] = rows.reshape(engine.n_episodes, -1)
     out[:, rows[0].size :] = clock
     return out
+
+
+def positions_velocities(engine: ConsensusEngine) -> tuple[np.ndarray, np.ndarray]:
+    """Episode 0's absolute positions and velocities ``(N, dim)`` (what the frames draw)."""
+    z = engine.absolute_state()[0]
+    return z[:, 0], (z[:, 1] if z.shape[1] > 1 else np.zeros_like(z[:, 0]))
 
 
 class ConsensusParallelEnv(ParallelEnv, EzPickle):
@@ -222,6 +229,11 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     | ``obs_noise`` | ``float`` | 0.0 | standard deviation of Gaussian noise (m, m/s) on each relative measurement |
     | ``link_dropout`` | ``float`` | 0.0 | probability that an edge is lost at a sampling instant (the mask shows it) |
     | ``switching`` | ``"periodic" \\| "random"`` | ``"periodic"`` | cycle through the graphs, or draw each interval's graph |
+    | ``agent_model`` | name or ``(A, B)`` | ``"double_integrator"`` | the agents' model per axis: ``"single_integrator"``, ``"integrator_chain"`` (``order`` 1-4), ``"damped"`` (``damping`` c, 1/s), ``"oscillator"`` (``frequency`` ω, rad/s), or a controllable pair ``(A, B)`` (README, "Agent models") |
+    | ``order`` | ``int \\| None`` | 2 | order of ``"integrator_chain"`` (1-4: single to quadruple integrator) |
+    | ``damping`` | ``float \\| None`` | 0.5 | drag ``c`` (1/s) of ``"damped"``: ``v' = -c v + u`` |
+    | ``frequency`` | ``float \\| None`` | 1.0 | ``omega`` (rad/s) of ``"oscillator"``: ``v' = -omega^2 x + u`` |
+    | ``formation_offsets`` | ``(N, dim)`` or ``(N, dim, n)`` array | None | agents agree on ``z_i - e^{A t} h_i``: position offsets hold a formation (README, "Formations") |
     | ``render_mode`` | ``None \\| "human" \\| "rgb_array"`` | None | frames of episode 0 so far |
     | ``max_cycles`` | ``int \\| None`` | None | truncate after this many steps |
 
@@ -281,6 +293,11 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         obs_noise: float = 0.0,
         link_dropout: float = 0.0,
         switching: str = "periodic",
+        agent_model: Any = None,
+        order: int | None = None,
+        damping: float | None = None,
+        frequency: float | None = None,
+        formation_offsets: Any = None,
         render_mode: str | None = None,
         max_cycles: int | None = None,
     ) -> None:
@@ -430,7 +447,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             for info in infos.values():
                 info["episode"] = dict(episode)  # each agent its own copy
         observations = self._observe()
-        self._view.record(t, engine.x[0], engine.v[0])
+        self._view.record(t, *positions_velocities(engine))
         if self.render_mode == "human":
             self.render()
         if terminated or truncated:
@@ -442,7 +459,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         """The global state (see State in the class docstring): raw ``(N, 2 dim)`` or normalized ``(N * 2 dim + 3,)``."""
         if self.config.global_state == "normalized":
             return normalized_state(self.engine)[0]
-        return np.concatenate([self.engine.x[0], self.engine.v[0]], axis=-1)
+        return np.array(self.engine.absolute_state()[0].reshape(self.config.n_agents, -1))
 
     # ---------------------------------------------------------------- render
     def render(self) -> np.ndarray | None:

@@ -93,6 +93,21 @@ class StepOutcome:
     u_end: np.ndarray
     saturated_fraction: np.ndarray
     terminated: bool
+    #: General agents: the plans ``Delta`` applied, per axis ``(B, N, dim, n)`` (None for the double integrator).
+    plan: np.ndarray | None = None
+
+
+def state_disagreement(states: np.ndarray, config: EnvConfig) -> np.ndarray:
+    """``D = sum_l T_s^l e_{z_l}`` of states ``(..., N, n, dim)`` in the engine's coordinates: ``(...)``.
+
+    ``e_x + T_s e_v`` for the double integrator (and any model with n = 2); a chain of order 3
+    adds ``T_s^2 e_a``; a single integrator has ``e_x`` alone.
+    """
+    total = None
+    for component in range(states.shape[-2]):
+        term = (config.settling_time**component) * spread(states[..., component, :])
+        total = term if total is None else total + term
+    return total
 
 
 def limit_feature(u_max: Any, interval: Any, scale: Any) -> Any:
@@ -173,8 +188,14 @@ class ConsensusEngine:
         shape = (b, n, dim)
         #: ``(B, N, 2, dim)``: ``state[:, :, 0]`` positions, ``state[:, :, 1]`` velocities,
         #: side by side so one gather fetches both of a neighbour's values.
-        self.state = self._zeros((b, n, 2, dim))
-        self._spare = self._zeros((b, n, 2, dim)) if self.is_numpy else None
+        n_states = config.n_states
+        if config.model is not None and not self.is_numpy:
+            raise ArgumentError(
+                f"device: {config.agent_model!r} agents run on numpy (device=None) in this version; the torch "
+                "backend covers the double integrator"
+            )
+        self.state = self._zeros((b, n, n_states, dim))
+        self._spare = self._zeros((b, n, n_states, dim)) if self.is_numpy else None
         self.x0 = self._zeros(shape)
         self.v0 = self._zeros(shape)
         #: Lock-step instant index (host), valid while :attr:`steps` is None.
@@ -200,8 +221,15 @@ class ConsensusEngine:
         self._times = self._array(schedule.times)
         #: Per instant, what each flat row entry is multiplied by before the division by s:
         #: 1 for position parts, ``T_{k+1}`` for velocity parts, ``(K + 1, slots * 2 dim)``.
-        per_row = np.repeat(np.stack([np.ones_like(next_interval), next_interval], axis=1), config.dim, axis=1)
+        per_row = np.repeat(config.row_scales, config.dim, axis=1)
         self._row_factors = self._array(np.tile(per_row, self.layout.slots))
+        #: Per instant, what each state component is multiplied by to read in position units, ``(K + 1, n)``.
+        self._row_scales = self._array(config.row_scales)
+        #: Formation offsets ``h`` ``(N, n, dim)`` (the engine plays ``zeta = z - e^{A t} h``), or None.
+        self._formation = None if config.formation is None else self._array(config.formation)
+        self._formation_motion = None if config.formation is None else self._array(config.formation_motion)
+        #: The initial state in the engine's coordinates ``(B, N, n, dim)``.
+        self.z0 = self._zeros((b, n, n_states, dim))
         #: Settling thresholds as a column, ``(len(SETTLING_THRESHOLDS), 1)``.
         self._thresholds = self._array(np.array(SETTLING_THRESHOLDS)[:, None])
         #: Generator of measurement noise, link dropout and random switching.
@@ -284,8 +312,25 @@ class ConsensusEngine:
 
     @property
     def v(self) -> Any:
-        """Velocities ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`)."""
+        """Velocities ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`; zeros for a single integrator)."""
+        if self.config.n_states == 1:
+            return self.xp.zeros_like(self.state[:, :, 0])
         return self.state[:, :, 1]
+
+    def absolute_state(self) -> Any:
+        """The agents' states ``(B, N, n, dim)`` at ``t_k``: :attr:`state` plus ``e^{A t_k} h`` with formation offsets.
+
+        The engine plays the formation error ``zeta_i = z_i - e^{A t} h_i``: the offsets'
+        trajectory is a free motion (no input), so ``zeta`` obeys the same dynamics under the
+        same inputs, and consensus of ``zeta`` is the formation. Without offsets this is :attr:`state`.
+        """
+        if self._formation is None:
+            return self.state
+        xp = self.xp
+        motion = self._per_instant(xp.reshape(self._formation_motion, (self.config.n_intervals + 1, -1)))
+        n = self.config.n_states
+        motion = xp.reshape(motion, (*motion.shape[:-1], n, n))  # (n, n) or (B, 1, n, n)
+        return self.state + motion @ self._formation
 
     def sample_initial_state(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """One episode's ``(x0, v0)`` (numpy): the config's initial state, else uniform draws.
@@ -377,6 +422,10 @@ class ConsensusEngine:
         the others go on where they are; from then on every episode keeps its own clock.
         """
         xp = self.xp
+        if episodes is not None and self.config.model is not None:
+            raise ArgumentError(
+                f"episodes: partial resets are for the double integrator, not {self.config.agent_model!r} agents"
+            )
         if topologies is not None:
             chosen = [self.config.topology if t is None else t for t in topologies]
             if any(a is not b for a, b in zip(chosen, self.topologies, strict=True)):
@@ -392,9 +441,10 @@ class ConsensusEngine:
         if not self.is_numpy:
             x0 = self._array(x0) if isinstance(x0, np.ndarray) else x0
             v0 = self._array(v0) if isinstance(v0, np.ndarray) else v0
+        fresh = self._initial_coordinates(x0, v0)
         if episodes is None:
-            self.x[...] = x0
-            self.v[...] = v0
+            self.state[...] = fresh
+            self.z0[...] = fresh
             self.x0[...] = x0
             self.v0[...] = v0
             self.k = 0
@@ -403,7 +453,8 @@ class ConsensusEngine:
             keep = xp.reshape(episodes, (-1, 1, 1))
             self.x0 = xp.where(keep, x0, self.x0)
             self.v0 = xp.where(keep, v0, self.v0)
-            self.state = xp.where(xp.reshape(episodes, (-1, 1, 1, 1)), xp.stack([x0, v0], axis=2), self.state)
+            self.state = xp.where(xp.reshape(episodes, (-1, 1, 1, 1)), fresh, self.state)
+            self.z0 = xp.where(xp.reshape(episodes, (-1, 1, 1, 1)), fresh, self.z0)
             current = self._episode_steps()
             self.steps = xp.where(episodes, xp.zeros_like(current), current)
             if self.invalid is not None:
@@ -411,6 +462,17 @@ class ConsensusEngine:
         if episodes is None and self.invalid is not None:
             self.invalid = xp.zeros_like(self.invalid)
         self._reset_trackers(episodes)
+
+    def _initial_coordinates(self, x0: Any, v0: Any) -> Any:
+        """The engine's state ``(B, N, n, dim)`` for initial positions and velocities ``(B, N, dim)``.
+
+        Higher state components (a chain's acceleration, ...) start at 0; a single integrator
+        has no velocity (``v0`` is not used). With formation offsets, ``h`` is subtracted (t = 0).
+        """
+        xp, n = self.xp, self.config.n_states
+        parts = [x0, v0][:n] + [xp.zeros_like(x0)] * (n - 2)
+        fresh = xp.stack(parts, axis=2)
+        return fresh if self._formation is None else fresh - self._formation
 
     def validate_state(self, name: str, value: object) -> np.ndarray:
         """A user-given ``(N, dim)`` state array, checked (see :func:`fxc_env.core.validation.state_array`)."""
@@ -573,6 +635,16 @@ class ConsensusEngine:
         if c.obs_noise > 0:
             rows += (c.obs_noise * mask[..., None, None]) * self._normal(tuple(rows.shape))
         T = self._interval(1)
+        if self.config.model is not None:
+            # General agents: the largest |z_j - z_i| per component in position units (row_scales).
+            largest = (
+                xp.max(xp.abs(rows), axis=(-3, -1))
+                if self.layout.slots
+                else self._zeros((*rows.shape[:-3], self.config.n_states))
+            )
+            scale = xp.max(largest * self._per_instant(self._row_scales), axis=-1)
+            self._measured = (self._tick, rows, mask, scale)
+            return rows, mask, scale
         if self.is_numpy:  # numpy fast path: a loop over the few slot columns (3x, see core.slots)
             largest = slots.max_abs_rows(rows)
         elif self.layout.slots:
@@ -682,24 +754,31 @@ class ConsensusEngine:
         T = self._interval(2)
         u_max = self.u_max
         with np.errstate(over="ignore", invalid="ignore"):
-            u0, u1 = self.inputs_from_actions(actions)
             saturated_time = None
-            if u_max is not None:
+            if self.config.model is not None:
+                state_next, energy, peak, u0, u1, plan = self._steer(actions)
+                x_next = v_next = None
+            elif u_max is not None:
+                u0, u1 = self.inputs_from_actions(actions)
                 x_next, v_next, energy, peak, saturated_time = dynamics.advance_clipped(
                     self.x, self.v, u0, u1, T, u_max[:, None, None]
                 )
             elif self.is_numpy and lock_step:
                 # numpy fast path: the closed forms written into the spare buffer (no temporaries).
+                u0, u1 = self.inputs_from_actions(actions)
                 x_next, v_next = self._spare[:, :, 0], self._spare[:, :, 1]
                 energy, peak = dynamics.advance_into(self.x, self.v, u0, u1, T, x_next, v_next)
             else:
+                u0, u1 = self.inputs_from_actions(actions)
                 x_next, v_next, energy, peak = dynamics.advance_with_costs(self.x, self.v, u0, u1, T)
             previous = self.state
             if self.is_numpy:
                 # Double buffering: the interval is played into the spare buffer, which becomes the
                 # state only once the result is known to be finite (a refused step changes nothing).
                 following = self._spare
-                if x_next is not following[:, :, 0]:
+                if x_next is None:
+                    following[...] = state_next
+                elif x_next is not following[:, :, 0]:
                     following[:, :, 0] = x_next
                     following[:, :, 1] = v_next
                 self.state, self._spare = following, previous
@@ -742,7 +821,34 @@ class ConsensusEngine:
             self.last_above = xp.where(above, reached + xp.zeros_like(self.last_above), self.last_above)
         self._draw_graphs()
         terminated = self.done if lock_step else self.episode_done()
-        return StepOutcome(reward, energy, peak, u0, u1, saturated, terminated)
+        plan = plan if self.config.model is not None else None
+        return StepOutcome(reward, energy, peak, u0, u1, saturated, terminated, plan)
+
+    def _steer(self, actions: np.ndarray) -> tuple[np.ndarray, ...]:
+        """A general agent's interval: the plan's minimum-energy input (:mod:`fxc_env.core.linear`).
+
+        ``actions`` ``(B, N, n dim)`` are plans ``Delta`` (terminal change relative to free
+        motion, component-major like the state), in normalized mode ``alpha`` with
+        ``Delta_l = s_i alpha_l / row_scales_l``. Returns the next state ``(B, N, n, dim)``, energy
+        and peak ``(B, N)``, and the input at both ends ``(B, N, dim)`` (``(B, N, dim, m)`` for m > 1).
+        """
+        c = self.config
+        b, n_agents, n, dim = self.n_episodes, c.n_agents, c.n_states, c.dim
+        plan = actions.reshape(b, n_agents, n, dim)
+        if c.obs_mode == "normalized":
+            plan = plan * (self.local_scale()[:, :, None, None] / self._row_scales[self.k][:, None])
+        maps = c.interval_maps
+        per_axis = np.swapaxes(self.state, -1, -2)  # (B, N, dim, n)
+        delta = np.swapaxes(plan, -1, -2)
+        following, energy, peak = maps.steer(self.k, per_axis, delta)
+        # The input at both ends: u(0+) = B^T F^T lambda, u(T-) = B^T lambda.
+        costate = maps.costate(self.k, delta)  # (B, N, dim, n)
+        model = c.model
+        u_end = costate @ model.B
+        u_start = costate @ (maps.motion[self.k] @ model.B)
+        if model.n_inputs == 1:
+            u_start, u_end = u_start[..., 0], u_end[..., 0]
+        return np.swapaxes(following, -1, -2), energy.sum(axis=-1), peak.max(axis=-1), u_start, u_end, delta
 
     def _overflow_error(self, actions: np.ndarray, energy: np.ndarray, disagreement_next: np.ndarray) -> ArgumentError:
         """The error of a step whose result would not be finite in float64, naming what caused it."""
@@ -762,6 +868,8 @@ class ConsensusEngine:
     def _disagreement(self) -> Any:
         """``D = e_x + T_s e_v`` per episode; for ``dim = 1`` from one max and one min over agents."""
         xp = self.xp
+        if self.config.model is not None:
+            return state_disagreement(self.state, self.config)
         if self.config.dim == 1:
             values = self.state[..., 0]  # (B, N, 2)
             if self.is_numpy:
@@ -786,7 +894,6 @@ class ConsensusEngine:
         """
         c = self.config
         x, v = to_host(self.x), to_host(self.v)
-        x0, v0 = to_host(self.x0), to_host(self.v0)
         steps = np.full(self.n_episodes, self.k) if self.steps is None else to_host(self.steps)
         times = np.concatenate([c.schedule.times, [np.inf]])
         t_eps = times[to_host(self.last_above) + 1]  # (thresholds, B)
@@ -798,8 +905,16 @@ class ConsensusEngine:
                 if self._shared_topology
                 else np.stack([topology.consensus_weights() for topology in self.topologies])
             )
-            predicted_v = _weighted_sum(v0[:, :, 0], xi)
-            predicted_x = _weighted_sum(x0[:, :, 0], xi) + c.settling_time * predicted_v
+            # Theorems 1-2 (generalised): z*(T_s) = e^{A T_s} sum_j xi_j z_j(0), in the engine's coordinates.
+            z0 = to_host(self.z0)[:, :, :, 0]  # (B, N, n), first axis
+            weighted = np.stack([_weighted_sum(z0[:, :, component], xi) for component in range(c.n_states)], axis=-1)
+            if c.model is None:
+                predicted_v = weighted[:, 1]
+                predicted_x = weighted[:, 0] + c.settling_time * predicted_v
+            else:
+                final = weighted @ c.model.free_motion_matrix(c.settling_time).T
+                predicted_x = final[:, 0]
+                predicted_v = final[:, 1] if c.n_states > 1 else np.zeros(self.n_episodes)
         else:
             predicted_x = predicted_v = np.full(self.n_episodes, np.nan)
         elapsed = np.maximum(c.schedule.times[steps], TINY)

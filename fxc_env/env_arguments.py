@@ -13,6 +13,7 @@ import argparse
 from typing import Any
 
 from fxc_env.core.families import FAMILY_KINDS
+from fxc_env.core.linear import MODEL_NAMES
 from fxc_env.core.validation import ArgumentError
 
 #: Flags whose value is passed through as given (already typed by argparse).
@@ -30,6 +31,10 @@ PLAIN_FLAGS = (
     "obs_noise",
     "link_dropout",
     "switching",
+    "agent_model",
+    "order",
+    "damping",
+    "frequency",
 )
 #: Flags that take a number or comma-separated numbers.
 LIST_FLAGS = ("mean_in_degree", "topology_period", "position_range", "velocity_range", "u_max")
@@ -66,6 +71,14 @@ def add_env_arguments(parser: argparse.ArgumentParser, *, scenario_default: str 
     group.add_argument("--obs-noise", type=float, help="standard deviation of measurement noise (m, m/s)")
     group.add_argument("--link-dropout", type=float, help="probability that an edge is lost at a sampling instant")
     group.add_argument("--switching", choices=("periodic", "random"), help="default periodic")
+    group.add_argument(
+        "--agent-model",
+        choices=MODEL_NAMES,
+        help="the agents' dynamics per axis (default double_integrator; README, 'Agent models')",
+    )
+    group.add_argument("--order", type=int, help="order of --agent-model integrator_chain (1-4, default 2)")
+    group.add_argument("--damping", type=float, help="drag c of --agent-model damped (1/s, default 0.5)")
+    group.add_argument("--frequency", type=float, help="frequency of --agent-model oscillator (rad/s, default 1)")
 
 
 def _numbers(flag: str, text: str) -> float | tuple[float, ...]:

@@ -21,9 +21,10 @@ CLOCK_SIZE = 3
 class ObservationLayout:
     """Where things sit in one agent's flat observation vector.
 
-    ``[rows (slots * 2 * dim) | mask (slots) | clock (3) | input limit (0 or 1)]``; row r
+    ``[rows (slots * n * dim) | mask (slots) | clock (3) | input limit (0 or 1)]``; row r
     is ``[x_j - x_i (dim), v_j - v_i (dim)]`` for the r-th in-neighbour j (ascending), zero
-    padded. ``slots`` is the largest in-degree over the topology set (``d_max``), or more
+    padded (``n = 2``; a general linear agent's row holds its n state components, each ``dim``
+    numbers). ``slots`` is the largest in-degree over the topology set (``d_max``), or more
     when ``obs_slots`` asks for room (a policy then fits several topologies). In
     ``normalized`` mode rows are ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i``. With an
     input limit ``u_max`` the last entry tells how far it binds on the coming interval
@@ -33,10 +34,12 @@ class ObservationLayout:
     slots: int
     dim: int
     limit_feature: bool = False
+    #: State components per axis (2 for the double integrator: position and velocity).
+    n_states: int = 2
 
     @cached_property
     def row_size(self) -> int:
-        return 2 * self.dim
+        return self.n_states * self.dim
 
     @cached_property
     def rows_end(self) -> int:
@@ -66,7 +69,7 @@ class ObservationLayout:
         return np.asarray(observation, dtype=np.float64)
 
     def split(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(..., size)`` -> rows ``(..., slots, 2, dim)``, mask ``(..., slots)``, clock ``(..., 3)``."""
+        """``(..., size)`` -> rows ``(..., slots, n, dim)``, mask ``(..., slots)``, clock ``(..., 3)``."""
         lead = obs.shape[:-1]
-        rows = obs[..., : self.rows_end].reshape((*lead, self.slots, 2, self.dim))
+        rows = obs[..., : self.rows_end].reshape((*lead, self.slots, self.n_states, self.dim))
         return rows, obs[..., self.rows_end : self.mask_end], obs[..., self.mask_end : self.clock_end]

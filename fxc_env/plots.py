@@ -69,7 +69,10 @@ def _draw_state(ax, trajectory: Trajectory, which: str) -> None:
         ax.plot(trajectory.dense_times, dense[:, i, 0], color=colours[i], lw=1.2, label=label)
         ax.plot(trajectory.times, sampled[:, i, 0], ".", color=colours[i], ms=3)
     metrics = trajectory.metrics
-    if np.isfinite(metrics.predicted_final_velocity):
+    # The dashed line x*(t) = xi^T x(0) + t xi^T v(0) is the double integrator's (a general agent's
+    # z*(t) = e^{A t} sum_j xi_j z_j(0) bends; with formation offsets each agent has its own target).
+    plain = c.model is None and c.formation is None
+    if plain and np.isfinite(metrics.predicted_final_velocity):
         # Theorems 1-2: x*(t) = xi^T x(0) + t xi^T v(0), v* = xi^T v(0).
         slope = metrics.predicted_final_velocity
         base = metrics.predicted_final_position - slope * c.settling_time
@@ -80,13 +83,47 @@ def _draw_state(ax, trajectory: Trajectory, which: str) -> None:
     unit = "m" if which == "x" else "m/s"
     ax.set_xlabel("t (s)")
     ax.set_ylabel(f"{quantity} ({unit}){_component_note(trajectory)}")
+    model = "" if c.model is None else f", {_model_label(c)}"
     ax.set_title(
-        f"{quantity}: {trajectory.topology.name}, N={c.n_agents}, K={c.n_intervals}, T_s={c.settling_time:g} s "
+        f"{quantity}: {trajectory.topology.name}, N={c.n_agents}, K={c.n_intervals}, T_s={c.settling_time:g} s{model} "
         "(dots: sampling instants)",
         fontsize=9,
     )
     ax.grid(alpha=0.3)
     _legend(ax)
+
+
+def _model_label(config) -> str:
+    """``integrator_chain (n = 3)``, ``damped``, ...: the agents' model for titles."""
+    if config.agent_model == "integrator_chain":
+        return f"integrator chain of order {config.n_states}"
+    return config.agent_model.replace("_", " ")
+
+
+def formation_figure(trajectory: Trajectory, path: Path) -> Path:
+    """Paths in the plane (first two axes) from the start (circles) to the formation at ``T_s`` (squares, joined)."""
+    c = trajectory.config
+    fig = new_figure(6.0, 5.6)
+    ax = fig.subplots()
+    colours = agent_colours(c.n_agents)
+    x = trajectory.dense_x
+    for i in range(c.n_agents):
+        label = f"agent_{i}" if c.n_agents <= LEGEND_LIMIT else None
+        ax.plot(x[:, i, 0], x[:, i, 1], color=colours[i], lw=0.9, label=label)
+        ax.plot(*trajectory.x[0, i, :2], "o", color=colours[i], ms=5, mfc="none")
+    final = trajectory.x[-1, :, :2]
+    ax.plot(*np.concatenate([final, final[:1]]).T, "k-", lw=0.8, alpha=0.6)
+    ax.plot(*final.T, "ks", ms=5)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x_i, first axis (m)")
+    ax.set_ylabel("x_i, second axis (m)")
+    error = trajectory.metrics.relative_deadline_error
+    ax.set_title(
+        f"formation at T_s = {c.settling_time:g} s (squares); formation error D(T_s)/D(0) = {error:.1e}", fontsize=9
+    )
+    ax.grid(alpha=0.3)
+    _legend(ax)
+    return save_figure(fig, path)
 
 
 def _state_figure(trajectory: Trajectory, path: Path, which: str) -> Path:
@@ -125,7 +162,8 @@ def inputs_figure(trajectory: Trajectory, path: Path) -> Path:
         ax.plot(trajectory.dense_times, trajectory.dense_u[:, i, 0], color=colours[i], lw=1.0, label=label)
     ax.set_yscale("symlog", linthresh=1.0)
     ax.set_xlabel("t (s)")
-    ax.set_ylabel(f"input u_i(t) (m/s²){_component_note(trajectory)}")
+    unit = "m/s²" if c.model is None else "input units"
+    ax.set_ylabel(f"input u_i(t) ({unit}){_component_note(trajectory)}")
     ax.set_title(f"inputs (symmetric log axis); peak |u| = {trajectory.metrics.peak_input:.3g} m/s²", fontsize=9)
     ax.grid(alpha=0.3)
     _legend(ax)
@@ -154,17 +192,30 @@ def disagreement_figure(trajectory: Trajectory, path: Path) -> Path:
     right.set_ylabel("D(t_k)/D(0)")
     right.grid(alpha=0.3, which="both")
     fig.suptitle(
-        f"D = e_x + T_s e_v; deadline error D(T_s)/D(0) = {trajectory.metrics.relative_deadline_error:.2e} "
+        f"{_disagreement_formula(c)}; deadline error D(T_s)/D(0) = {trajectory.metrics.relative_deadline_error:.2e} "
         f"with K = {c.n_intervals}",
         fontsize=9,
     )
     return save_figure(fig, path)
 
 
+def _disagreement_formula(config) -> str:
+    terms = ["e_x", "T_s e_v", "T_s² e_a", "T_s³ e_j"][: config.n_states]
+    formula = "D = " + " + ".join(terms)
+    return formula + " of z_i - e^(At) h_i" if config.formation is not None else formula
+
+
 def write_figures(trajectory: Trajectory, out_dir: Path) -> list[Path]:
-    """Write topology, positions, velocities, inputs, disagreement and overview PNGs into ``out_dir``."""
+    """Write topology, positions, velocities, inputs, disagreement and overview PNGs into ``out_dir``.
+
+    With formation offsets in two or more dimensions, also ``formation.png`` (:func:`formation_figure`).
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
+    extra = []
+    if trajectory.config.formation is not None and trajectory.config.dim >= 2:
+        extra.append(formation_figure(trajectory, out_dir / "formation.png"))
     return [
+        *extra,
         topology_figure(trajectory, out_dir / "topology.png"),
         positions_figure(trajectory, out_dir / "positions.png"),
         velocities_figure(trajectory, out_dir / "velocities.png"),

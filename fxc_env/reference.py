@@ -29,7 +29,8 @@ class ReferencePolicy:
     """Eq. (11) for every action mode (``plan``, ``accel``) and observation mode.
 
     ``ReferencePolicy(env)(obs)`` maps one agent's observation ``(obs_size,)`` (or a dict
-    observation) to its action ``(2 dim,)``; an array with leading dimensions
+    observation) to its action ``(2 dim,)`` (``(n dim,)`` for a general linear agent: the
+    plan ``e^{A T} e_i``, the generalised eq. (11)); an array with leading dimensions
     ``(..., obs_size)`` maps to ``(..., 2 dim)`` in one vectorised call. :meth:`act` takes
     numpy arrays or torch tensors (on any device) alike; :class:`fxc_env.torchrl_env.ReferenceModule`
     wraps it as a TorchRL module.
@@ -39,16 +40,25 @@ class ReferencePolicy:
         self.config = config_of(env, "ReferencePolicy")
         self.layout = self.config.layout
         # One matrix product sums the x rows, the v rows and the mask of every agent in a
-        # single pass over the observations: columns [sum (x_j - x_i) | sum (v_j - v_i) | d_i].
-        layout, dim = self.layout, self.config.dim
-        summation = np.zeros((layout.mask_end, 2 * dim + 1))
-        slot = np.arange(layout.slots)[:, None]
-        component = np.arange(dim)[None, :]
-        summation[(slot * layout.row_size + component).ravel(), np.tile(component.ravel(), layout.slots)] = 1.0
-        summation[
-            (slot * layout.row_size + dim + component).ravel(), np.tile(dim + component.ravel(), layout.slots)
-        ] = 1.0
-        summation[layout.rows_end : layout.mask_end, 2 * dim] = 1.0
+        # single pass over the observations: columns [sum (x_j - x_i) | sum (v_j - v_i) | d_i]
+        # (a general agent's row has n components: [sum (z_j - z_i) per component | d_i]).
+        layout = self.layout
+        width = layout.row_size
+        summation = np.zeros((layout.mask_end, width + 1))
+        entry = np.arange(width)
+        for slot in range(layout.slots):
+            summation[slot * width + entry, entry] = 1.0
+        summation[layout.rows_end : layout.mask_end, width] = 1.0
+        #: General agents: per instant, the free motion in the observation's units, ``(K + 1, n, n)``
+        #: (``F_k`` in raw mode; ``R F_k R^{-1}`` with ``R = diag(row_scales)`` when normalized).
+        self._motion = None
+        config = self.config
+        if config.model is not None:
+            motion = config.interval_maps.motion[np.minimum(np.arange(config.n_intervals + 1), config.n_intervals - 1)]
+            if config.obs_mode == "normalized":
+                scales = config.row_scales
+                motion = scales[:, :, None] * motion / scales[:, None, :]
+            self._motion = motion
         self._summation = summation
 
     def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
@@ -61,6 +71,8 @@ class ReferencePolicy:
         c, dim = self.config, self.config.dim
         xp = namespace(obs)
         sums = obs[..., : self.layout.mask_end] @ self._summation_for(xp, obs)  # padded rows are zero
+        if self._motion is not None:
+            return self._general_plan(sums, obs)
         weight = 1.0 / (sums[..., 2 * dim] + 1.0)  # 1 / (d_i + 1)
         normalized = c.obs_mode == "normalized"
         # Rows are (x_j - x_i)/s and T (v_j - v_i)/s when normalized: the plan is scale-free.
@@ -84,6 +96,21 @@ class ReferencePolicy:
         # accel, normalized: u = (s / T^2) * alpha, with input_from_plan at T = 1 in these units.
         interval = 1.0 if normalized else T[..., None]
         return xp.concat(input_from_plan(plan[..., :dim], plan[..., dim:], interval), axis=-1)
+
+    def _general_plan(self, sums: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        """A general agent's plan ``Delta_i = e^{A T} e_i`` with ``e_i`` the mean relative state (README, "Agent models").
+
+        ``e_i = (1 / (d_i + 1)) sum_j (z_j - z_i)`` per component, read off the rows; the
+        interval ``k`` comes from the clock (``k / K``), so the free motion is exact per agent.
+        """
+        c, layout = self.config, self.layout
+        n, dim = c.n_states, c.dim
+        width = layout.row_size
+        mean = sums[..., :width] / (sums[..., width : width + 1] + 1.0)
+        k = np.rint(obs[..., layout.mask_end + 2] * c.n_intervals).astype(np.int64)
+        motion = self._motion[np.clip(k, 0, c.n_intervals)]  # (..., n, n)
+        plan = motion @ mean.reshape((*mean.shape[:-1], n, dim))
+        return plan.reshape(mean.shape)
 
     def _summation_for(self, xp: Any, obs: Any) -> Any:
         """The summation matrix in ``obs``'s namespace, dtype and device (cached per device and dtype)."""

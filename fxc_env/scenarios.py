@@ -7,6 +7,7 @@ the README gives our reconstruction). Keyword arguments given next to ``scenario
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
@@ -16,6 +17,11 @@ from fxc_env.core.validation import ArgumentError
 
 PAPER_X0 = (1.0, -1.0, 2.0, 4.0, -4.0, -2.0)
 PAPER_V0 = (1.0, 2.0, 3.0, -3.0, -2.0, 0.0)
+
+#: A regular hexagon of radius 3 m (positions in the plane): the offsets of ``formation_hexagon``.
+HEXAGON = tuple((3.0 * math.cos(math.pi * i / 3), 3.0 * math.sin(math.pi * i / 3)) for i in range(6))
+#: Twenty agents on a line 1 m apart, centred (positions in the plane): the offsets of ``formation_line``.
+LINE = tuple((i - 9.5, 0.0) for i in range(20))
 
 _PRESETS: dict[str, dict[str, Any]] = {
     # The paper's example with the assumed Fig. 1 (periodic switching, Theorem 2).
@@ -79,6 +85,25 @@ _PRESETS: dict[str, dict[str, Any]] = {
         ),
         "obs_slots": 4,
         "u_max": (10.0, 100.0, 1000.0),
+    },
+    # Formation flying (the paper's introduction): six agents in the plane take a regular
+    # hexagon (radius 3 m) by T_s on the assumed Fig. 1's switching graphs: they agree on
+    # x_i - h_i, so the formation keeps moving with the common velocity.
+    "formation_hexagon": {
+        "n_agents": 6,
+        "topology": "paper_fig1",
+        "settling_time": 20.0,
+        "dim": 2,
+        "formation_offsets": HEXAGON,
+    },
+    # Twenty agents in the plane line up 1 m apart on a seeded random digraph (mean in-degree 2).
+    "formation_line": {
+        "n_agents": 20,
+        "topology": "random",
+        "mean_in_degree": 2.0,
+        "settling_time": 20.0,
+        "dim": 2,
+        "formation_offsets": LINE,
     },
 }
 

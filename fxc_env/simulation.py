@@ -11,9 +11,9 @@ import numpy as np
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.dynamics import advance_clipped, state_inside
 from fxc_env.core.graphs import Topology
-from fxc_env.core.metrics import EpisodeMetrics, disagreement
+from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
-from fxc_env.engine import ConsensusEngine
+from fxc_env.engine import ConsensusEngine, state_disagreement
 from fxc_env.reference import ReferencePolicy
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -25,13 +25,14 @@ class Trajectory:
 
     Attributes:
         times: ``(K + 1,)`` sampling instants ``t_0 .. t_K`` (``t_K = T_s``).
-        x, v: ``(K + 1, N, dim)`` states at the sampling instants.
+        x, v: ``(K + 1, N, dim)`` positions and velocities at the sampling instants (absolute:
+            with formation offsets they include ``e^{A t} h``; zero velocities for a single integrator).
         u_start, u_end: ``(K, N, dim)`` commanded input at ``t_k+`` and ``t_{k+1}-`` (the
             applied input is this line clipped to ``±u_max`` when the config sets it).
         dense_times: ``(P,)`` time points, ``points_per_interval`` per interval plus ``T_s``.
         dense_x, dense_v, dense_u: ``(P, N, dim)`` exact state and applied input there
             (``dense_u`` at ``T_s`` repeats the last interval's end value).
-        disagreement: ``(K + 1,)`` ``D(t_k)``; ``dense_disagreement`` ``(P,)``.
+        disagreement: ``(K + 1,)`` ``D(t_k)`` (of the formation error with offsets); ``dense_disagreement`` ``(P,)``.
         metrics: the episode's figures (README, "Metrics").
         config: the settings the episode ran with.
         topology: the episode's graphs (the config's, or its family's draw).
@@ -94,35 +95,32 @@ def simulate(
         raise ArgumentError(f"policy: expected 'reference' or a callable, got {policy!r}")
     engine.reset(x_start[None], v_start[None], rng=rng, topologies=[draw.topology], u_max=[draw.u_max])
     u_max = None if engine.u_max is None else float(engine.u_max[0])
-    k_total = config.n_intervals
-    xs, vs = [engine.x[0].copy()], [engine.v[0].copy()]
-    u_start, u_end = [], []
+    states = [engine.state[0].copy()]  # (N, n, dim) in the engine's coordinates (formation error)
+    u_start, u_end, plans = [], [], []
     while not engine.done:
         actions = engine.validate_actions(act(engine.observations()), name="policy output")
         outcome = engine.step(actions)
-        xs.append(engine.x[0].copy())
-        vs.append(engine.v[0].copy())
+        states.append(engine.state[0].copy())
         u_start.append(outcome.u_start[0])
         u_end.append(outcome.u_end[0])
-    x, v = np.array(xs), np.array(vs)
+        if outcome.plan is not None:
+            plans.append(outcome.plan[0])
+    z = np.array(states)  # (K + 1, N, n, dim)
     u0, u1 = np.array(u_start), np.array(u_end)
     times, intervals = config.schedule.times, config.schedule.intervals
     offsets = intervals[:, None] * (np.arange(points_per_interval) / points_per_interval)  # (K, P)
-    s = offsets[:, :, None, None]
-    pick = lambda a: a[:, None]  # noqa: E731  (K, ...) -> (K, 1, ...) against s (K, P, 1, 1)
-    T = intervals[:, None, None, None]
-    dx, dv, du = state_inside(pick(x[:-1]), pick(v[:-1]), pick(u0), pick(u1), T, s)
-    if u_max is not None:
-        # The clipped input on [0, s] is the line from u0 to u(s), clipped: integrate that.
-        reach = np.maximum(s, np.finfo(float).tiny)
-        dx, dv, *_ = advance_clipped(pick(x[:-1]), pick(v[:-1]), pick(u0), du, reach, u_max)
-        du = np.clip(du, -u_max, u_max)
-    flat = (k_total * points_per_interval, *x.shape[1:])
     dense_times = np.concatenate([(times[:-1, None] + offsets).ravel(), times[-1:]])
-    dense_x = np.concatenate([dx.reshape(flat), x[-1:]])
-    dense_v = np.concatenate([dv.reshape(flat), v[-1:]])
-    last_u = u1[-1:] if u_max is None else np.clip(u1[-1:], -u_max, u_max)
-    dense_u = np.concatenate([du.reshape(flat), last_u])
+    if config.model is None:
+        dense_z, dense_u = _dense_double_integrator(z, u0, u1, intervals, offsets, u_max)
+    else:
+        dense_z, dense_u = _dense_linear(config, z, np.array(plans), offsets, u1)
+    disagreement_sampled = state_disagreement(z, config)
+    disagreement_dense = state_disagreement(dense_z, config)
+    if config.formation is not None:  # absolute states: the formation error plus e^{A t} h
+        z = z + config.formation_motion[:, None] @ config.formation
+        dense_z = dense_z + _free_motion(config, dense_times)[:, None] @ config.formation
+    x, dense_x = z[:, :, 0], dense_z[:, :, 0]
+    v, dense_v = (z[:, :, 1], dense_z[:, :, 1]) if config.n_states > 1 else (np.zeros_like(x), np.zeros_like(dense_x))
     return Trajectory(
         times=times,
         x=x,
@@ -133,10 +131,56 @@ def simulate(
         dense_x=dense_x,
         dense_v=dense_v,
         dense_u=dense_u,
-        disagreement=disagreement(x, v, config.settling_time),
-        dense_disagreement=disagreement(dense_x, dense_v, config.settling_time),
+        disagreement=disagreement_sampled,
+        dense_disagreement=disagreement_dense,
         metrics=engine.episode_metrics(0),
         config=config,
         topology=engine.topologies[0],
         u_max=u_max,
     )
+
+
+def _dense_double_integrator(z, u0, u1, intervals, offsets, u_max):
+    """Dense states ``(P, N, 2, dim)`` and inputs ``(P, N, dim)`` inside every interval, closed form."""
+    x, v = z[:, :, 0], z[:, :, 1]
+    k_total, points = offsets.shape
+    s = offsets[:, :, None, None]
+    pick = lambda a: a[:, None]  # noqa: E731  (K, ...) -> (K, 1, ...) against s (K, P, 1, 1)
+    T = intervals[:, None, None, None]
+    dx, dv, du = state_inside(pick(x[:-1]), pick(v[:-1]), pick(u0), pick(u1), T, s)
+    if u_max is not None:
+        # The clipped input on [0, s] is the line from u0 to u(s), clipped: integrate that.
+        reach = np.maximum(s, np.finfo(float).tiny)
+        dx, dv, *_ = advance_clipped(pick(x[:-1]), pick(v[:-1]), pick(u0), du, reach, u_max)
+        du = np.clip(du, -u_max, u_max)
+    flat = (k_total * points, *x.shape[1:])
+    dense_x = np.concatenate([dx.reshape(flat), x[-1:]])
+    dense_v = np.concatenate([dv.reshape(flat), v[-1:]])
+    last_u = u1[-1:] if u_max is None else np.clip(u1[-1:], -u_max, u_max)
+    dense_u = np.concatenate([du.reshape(flat), last_u])
+    return np.stack([dense_x, dense_v], axis=2), dense_u
+
+
+def _dense_linear(config: EnvConfig, z, plans, offsets, u_end):
+    """Dense states ``(P, N, n, dim)`` and inputs ``(P, N, dim)`` (first input) of a general agent.
+
+    Each interval's state and minimum-energy input at the offsets, from matrix exponentials
+    (:meth:`fxc_env.core.linear.IntervalMaps.state_inside`), never from an ODE solver.
+    """
+    maps = config.interval_maps
+    states, inputs = [], []
+    for k in range(offsets.shape[0]):
+        per_axis = np.swapaxes(z[k], -1, -2)  # (N, dim, n)
+        inside, u = maps.state_inside(k, per_axis, plans[k], np.minimum(offsets[k], maps.intervals[k]))
+        states.append(np.swapaxes(inside, -1, -2))  # (P, N, n, dim)
+        inputs.append(u[..., 0])  # (P, N, dim)
+    last_u = u_end[-1:] if u_end.ndim == 3 else u_end[-1:, ..., 0]
+    return np.concatenate([*states, z[-1:]]), np.concatenate([*inputs, last_u])
+
+
+def _free_motion(config: EnvConfig, times: np.ndarray) -> np.ndarray:
+    """``e^{A t}`` at ``times`` ``(P, n, n)``, for the formation offsets' trajectory."""
+    from fxc_env.core.linear import LinearModel, model_matrices
+
+    model = config.model if config.model is not None else LinearModel(*model_matrices("double_integrator"))
+    return model.free_motion_matrix(times)

@@ -44,7 +44,7 @@ def action_space(config: EnvConfig) -> spaces.Box:
 
 def state_size(config: EnvConfig) -> int:
     """Length of the ``global_state="normalized"`` vector: ``N * 2 dim`` rows and the 3 clock features."""
-    return config.n_agents * 2 * config.dim + CLOCK_SIZE
+    return config.n_agents * config.n_states * config.dim + CLOCK_SIZE
 
 
 def state_space(config: EnvConfig) -> spaces.Box:
@@ -56,8 +56,8 @@ def state_space(config: EnvConfig) -> spaces.Box:
     in ``config.obs_dtype``.
     """
     if config.global_state == "normalized":
-        rows = config.n_agents * 2 * config.dim
+        rows = config.n_agents * config.n_states * config.dim
         dtype = config.observation_dtype
         low = np.concatenate([np.full(rows, -1.0, dtype=dtype), np.zeros(CLOCK_SIZE, dtype=dtype)])
         return spaces.Box(low, np.ones(state_size(config), dtype=dtype), dtype=dtype)
-    return spaces.Box(-np.inf, np.inf, shape=(config.n_agents, 2 * config.dim), dtype=np.float64)
+    return spaces.Box(-np.inf, np.inf, shape=(config.n_agents, config.n_states * config.dim), dtype=np.float64)

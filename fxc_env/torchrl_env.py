@@ -68,7 +68,7 @@ class ConsensusTorchEnv(EnvBase):
     episode end. On numpy (the PettingZoo and SB3 front ends) such a step is refused at once.
 
     ## Version history
-    * v0: first release (issue 12).
+    * v0: first release.
     """
 
     def __init__(

@@ -20,7 +20,13 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 from fxc_env.config import EnvConfig, check_max_cycles, check_render_mode, make_config
-from fxc_env.consensus_env import ConsensusParallelEnv, episode_draw_info, episode_metrics_rows, normalized_state
+from fxc_env.consensus_env import (
+    ConsensusParallelEnv,
+    episode_draw_info,
+    episode_metrics_rows,
+    normalized_state,
+    positions_velocities,
+)
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome
@@ -264,7 +270,7 @@ class ConsensusVecEnv(VecEnv):
         truncated = not terminated and self.max_cycles is not None and self._steps >= self.max_cycles
         rewards = np.repeat(outcome.reward.astype(np.float32), self.n_agents)
         obs = self._observe()
-        self._view.record(self.engine.time, self.engine.x[0], self.engine.v[0])
+        self._view.record(self.engine.time, *positions_velocities(self.engine))
         if not (terminated or truncated):
             return obs, rewards, np.zeros(self.num_envs, dtype=bool), self._empty_infos()
         per_agent = [episode for episode in episode_metrics_rows(self.engine) for _ in range(self.n_agents)]
@@ -335,7 +341,7 @@ class ConsensusVecEnv(VecEnv):
         """
         if self.config.global_state == "normalized":
             return normalized_state(self.engine)
-        return np.concatenate([self.engine.x, self.engine.v], axis=-1)
+        return np.array(self.engine.absolute_state().reshape(self.engine.n_episodes, self.n_agents, -1))
 
     # ---------------------------------------------------------------- render
     def render(self, mode: str | None = None) -> np.ndarray | None:
