@@ -69,7 +69,10 @@ def twin_engines(n_episodes=3, seed=0, **kwargs):
     return config, numpy_engine, torch_engine
 
 
-def assert_close(numpy_value, torch_value, what, k, floor=np.finfo(float).tiny):
+TINY = np.finfo(float).tiny
+
+
+def assert_close(numpy_value, torch_value, what, k, floor=TINY):
     expected = np.asarray(numpy_value, dtype=np.float64)
     got = to_host(torch_value)
     scale = max(float(np.max(np.abs(expected), initial=0.0)), floor)
