@@ -30,6 +30,7 @@ from fxc_env.baselines.suite import (
     builtin_contenders,
     full_suite,
     learned_contender,
+    models_suite,
     quick_suite,
     realism_suite,
 )
@@ -124,9 +125,10 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--quick", action="store_true", help="a smaller suite that runs in under a minute")
     parser.add_argument(
         "--suite",
-        choices=("full", "realism"),
+        choices=("full", "realism", "models"),
         default="full",
-        help="'full': topologies x sizes x budgets; 'realism': input limits, noise and dropout",
+        help="'full': topologies x sizes x budgets; 'realism': input limits, noise and dropout; 'models': every "
+        "agent model (single, double, triple, quadruple integrators, damped, oscillator) at K = 200, 400",
     )
     parser.add_argument("--out", default="out/benchmark", help="directory for table.md, CSVs and PNGs")
     parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per scenario")
@@ -190,8 +192,11 @@ def benchmark_command(args: argparse.Namespace) -> int:
             raise ArgumentError(f"--policies: unknown name(s) {unknown}; expected some of {tuple(BUILTIN_SETTINGS)}")
         if not names and not args.policy:
             raise ArgumentError(f"--policies: expected at least one of {tuple(BUILTIN_SETTINGS)} (or a --policy)")
-    make_suite = quick_suite if args.quick else realism_suite if args.suite == "realism" else full_suite
+    suites = {"full": full_suite, "realism": realism_suite, "models": models_suite}
+    make_suite = quick_suite if args.quick else suites[args.suite]
     suite = make_suite(args.seeds, **({"fine_intervals": args.fine_intervals} if args.fine_intervals else {}))
+    if names is None and args.suite == "models":
+        names = ["reference"]  # the analytic baselines are the double integrator's laws
     contenders = builtin_contenders(names)
     for spec in args.policy:
         contenders.append(

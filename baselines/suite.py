@@ -299,6 +299,34 @@ def realism_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     )
 
 
+#: The agent models of the ``models`` suite (README, "Agent models"), as ``make_config`` conditions.
+MODEL_CONDITIONS = (
+    (("agent_model", "single_integrator"),),
+    (("agent_model", "double_integrator"),),
+    (("agent_model", "integrator_chain"), ("order", 3)),
+    (("agent_model", "integrator_chain"), ("order", 4)),
+    (("agent_model", "damped"), ("damping", 0.5)),
+    (("agent_model", "oscillator"), ("frequency", 1.0)),
+)
+
+
+def models_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
+    """Every named agent model on ``paper_fig1`` and a random N = 20 digraph at K = 200 and 400.
+
+    The analytic baselines are laws for the double integrator: on the other models they do not
+    run (the table says why); the reference and ``plan``-mode learned policies run on all.
+    """
+    bases = (Scenario("paper_fig1", 6), Scenario("random", 20))
+    return Suite(
+        scenarios=tuple(replace(base, conditions=c) for base in bases for c in MODEL_CONDITIONS),
+        seeds=tuple(range(n_seeds)),
+        budgets=(200, 400),
+        fine_intervals=fine_intervals,
+        headline_budget=200,
+        name="models",
+    )
+
+
 #: Random digraphs of the generalisation suite: mean in-degree 1.5 to 3 (the slots of a 4-slot policy hold every draw).
 GENERALISATION_RANDOM = TopologyFamily("random", mean_in_degree=(1.5, 3.0))
 

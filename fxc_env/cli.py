@@ -19,15 +19,14 @@ import numpy as np
 
 from fxc_env.baselines.benchmark import add_benchmark_parser
 from fxc_env.cli_checks import output_directory
-from fxc_env.core.validation import MAX_AGENTS, ArgumentError, integer, optional_seed
+from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.env_arguments import add_env_arguments, env_kwargs_from
+from fxc_env.speed import add_arguments as speed_arguments
 from fxc_env.training.args import add_train_parser
 from fxc_env.training.evaluate import add_evaluate_parser
 
 #: The usage error: the one exception :func:`main` prints as a one-line message (exit status 2).
 UsageError = ArgumentError
-#: The first N of ``fxc speed``'s scaling table (:func:`fxc_env.speed.scaling_table`); ``--largest`` is at least this.
-SCALING_FIRST_N = 100
 
 
 def _format(value: float) -> str:
@@ -113,9 +112,7 @@ def speed_command(args: argparse.Namespace) -> int:
     from fxc_env import speed
     from fxc_env.threads import pin_threads_or_reexec
 
-    integer("--rounds", args.rounds, 1)
-    integer("--total-agents", args.total_agents, 1, MAX_AGENTS)
-    integer("--largest", args.largest, SCALING_FIRST_N, MAX_AGENTS)
+    speed.check_arguments(args)
     pin_threads_or_reexec("fxc_env.cli", sys.argv[1:] if args.argv is None else args.argv)
     return speed.run(args)
 
@@ -144,10 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--points-per-interval", type=int, default=24, help="dense samples per interval in the figures")
     sim.set_defaults(handler=simulate_command)
     fast = commands.add_parser("speed", help="throughput against MPE2 and VMAS, and scaling to 10^6 agents")
-    fast.add_argument("--rounds", type=int, default=5, help="alternating rounds per contender")
-    fast.add_argument("--total-agents", type=int, default=100_000, help="agents in all for the VecEnv vs VMAS table")
-    fast.add_argument("--largest", type=int, default=1_000_000, help="largest N of the scaling table")
-    fast.add_argument("--skip-contenders", action="store_true", help="only the scaling table (no MPE2/VMAS)")
+    speed_arguments(fast)
     fast.set_defaults(handler=speed_command, argv=None)
     add_train_parser(commands).set_defaults(handler=train_command)
     add_evaluate_parser(commands)

@@ -238,3 +238,22 @@ def test_fxc_simulate_writes_the_figures_of_a_chain_and_of_a_formation(tmp_path)
         assert result.returncode == 0, result.stderr
         for name in ("positions.png", "velocities.png", "inputs.png", "disagreement.png", *extra):
             assert (out / name).stat().st_size > 1000, name
+
+
+def test_the_models_benchmark_suite_scores_the_reference_on_every_model(tmp_path):
+    import csv
+
+    from fxc_env.baselines.benchmark import run_benchmark
+    from fxc_env.baselines.suite import builtin_contenders, models_suite
+
+    suite = models_suite(n_seeds=2)
+    output = run_benchmark(
+        suite, builtin_contenders(["reference", "linear_sampled"]), tmp_path, workers=1, progress=False
+    )
+    rows = list(csv.DictReader((tmp_path / "results.csv").open()))
+    reference = [r for r in rows if r["policy"] == "reference"]
+    assert len(reference) == 2 * 6 * 2  # two graphs, six models, K = 200 and 400
+    for row in reference:
+        assert float(row["relative_deadline_error_median"]) < 1e-10, row["scenario"]
+    # The double integrator's analytic baselines do not run on other models, and the report says why.
+    assert "action_mode" in output.markdown
