@@ -317,12 +317,14 @@ def models_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     run (the table says why); the reference and ``plan``-mode learned policies run on all.
     """
     bases = (Scenario("paper_fig1", 6), Scenario("random", 20))
+    scenarios = tuple(replace(base, conditions=c) for base in bases for c in MODEL_CONDITIONS)
     return Suite(
-        scenarios=tuple(replace(base, conditions=c) for base in bases for c in MODEL_CONDITIONS),
+        scenarios=scenarios,
         seeds=tuple(range(n_seeds)),
         budgets=(200, 400),
         fine_intervals=fine_intervals,
         headline_budget=200,
+        trace_scenario=scenarios[2],  # paper_fig1, a chain of order 3
         name="models",
     )
 

@@ -83,10 +83,10 @@ def _draw_state(ax, trajectory: Trajectory, which: str) -> None:
     unit = "m" if which == "x" else "m/s"
     ax.set_xlabel("t (s)")
     ax.set_ylabel(f"{quantity} ({unit}){_component_note(trajectory)}")
-    model = "" if c.model is None else f", {_model_label(c)}"
+    model = "" if c.model is None else f"\nagents: {_model_label(c)}"
     ax.set_title(
-        f"{quantity}: {trajectory.topology.name}, N={c.n_agents}, K={c.n_intervals}, T_s={c.settling_time:g} s{model} "
-        "(dots: sampling instants)",
+        f"{quantity}: {trajectory.topology.name}, N={c.n_agents}, K={c.n_intervals}, T_s={c.settling_time:g} s "
+        f"(dots: sampling instants){model}",
         fontsize=9,
     )
     ax.grid(alpha=0.3)
