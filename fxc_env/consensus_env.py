@@ -18,7 +18,7 @@ from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-from fxc_env.engine import TINY, ConsensusEngine, EpisodeDraw
+from fxc_env.engine import ConsensusEngine, EpisodeDraw
 from fxc_env.rendering import EpisodeView
 from fxc_env.spaces import action_space, observation_space, state_space
 
@@ -57,29 +57,12 @@ def episode_draw_info(draw: EpisodeDraw) -> dict[str, Any]:
 def normalized_state(engine: ConsensusEngine) -> np.ndarray:
     """The scale-free global state of every episode, ``(B, N * 2 dim + 3)``, in ``config.obs_dtype``.
 
-    Per agent the row ``[x_i - mean_j x_j, T_s (v_i - mean_j v_j)] / max(D, tiny)`` (agent
-    major, positions then velocities), then the clock ``t_k / T_s, T_{k+1} / T_s, k / K``.
-    ``D = e_x + T_s e_v`` is the current disagreement (README, "Using the environment"); every
-    row entry is at most ``e_x`` or ``T_s e_v`` in magnitude, so the rows lie in [-1, 1] by
-    construction (clipped there only against rounding) and are all zero when ``D = 0``.
-    Relative to the mean, the state does not change under a common shift of positions or
-    velocities, and dividing by ``D`` removes the scale, as the normalized observations do.
+    :meth:`fxc_env.engine.ConsensusEngine.normalized_state`: per agent the row
+    ``[x_i - mean_j x_j, T_s (v_i - mean_j v_j)] / max(D, tiny)`` (agent major), then the clock
+    ``t_k / T_s, T_{k+1} / T_s, k / K``, with ``D = e_x + T_s e_v`` the current disagreement
+    (README, "Using the environment"); the rows lie in [-1, 1] by construction.
     """
-    c = engine.config
-    z = engine.state  # (B, N, n, dim): [x, v] for the double integrator
-    components = [
-        (c.settling_time**i) * (z[:, :, i] - z[:, :, i].mean(axis=1, keepdims=True)) for i in range(c.n_states)
-    ]
-    rows = np.concatenate(components, axis=-1)
-    rows /= np.maximum(engine.current_disagreement, TINY)[:, None, None]
-    np.clip(rows, -1.0, 1.0, out=rows)
-    k = engine.k
-    clock = np.array([c.schedule.times[k], engine.current_interval(), 0.0]) / c.settling_time
-    clock[2] = k / c.n_intervals
-    out = np.empty((engine.n_episodes, rows[0].size + clock.size), dtype=c.observation_dtype)
-    out[:, : rows[0].size] = rows.reshape(engine.n_episodes, -1)
-    out[:, rows[0].size :] = clock
-    return out
+    return np.asarray(engine.normalized_state(), dtype=engine.config.observation_dtype)
 
 
 def positions_velocities(engine: ConsensusEngine) -> tuple[np.ndarray, np.ndarray]:

@@ -697,6 +697,29 @@ class ConsensusEngine:
         """Each agent's local scale ``s_i`` at ``t_k`` (metres), ``(B, N)``; 0 if it sees no disagreement."""
         return self.measurements()[2]
 
+    def normalized_state(self) -> Any:
+        """The scale-free global state of every episode, ``(B, N * n dim + 3)``, on the device.
+
+        Per agent the row ``[z_i - mean_j z_j]`` component by component, component l times
+        ``T_s^l`` (``[x_i - x̄, T_s (v_i - v̄)]`` for the double integrator), over
+        ``max(D, tiny)``, agent major; then the clock ``t_k / T_s, T_{k+1} / T_s, k / K``. Every
+        row entry is at most ``D`` in magnitude, so the rows lie in [-1, 1] by construction
+        (clipped there only against rounding) and are all zero when ``D = 0``: invariant to a
+        common shift and to the scale, like the normalized observations. For centralised critics.
+        """
+        xp, c = self.xp, self.config
+        z = self.state
+        components = [
+            (c.settling_time**i) * (z[:, :, i] - xp.mean(z[:, :, i], axis=1, keepdims=True)) for i in range(c.n_states)
+        ]
+        rows = xp.concat(components, axis=-1) / xp.reshape(
+            xp.maximum(self.current_disagreement, self._full((), self._tiny)), (-1, 1, 1)
+        )
+        rows = xp.reshape(xp.clip(rows, -1.0, 1.0), (self.n_episodes, -1))
+        clock = self._per_instant(self._clock)
+        clock = xp.reshape(clock, (-1, clock.shape[-1])) + self._zeros((self.n_episodes, 1))
+        return xp.concat([rows, clock], axis=-1)
+
     # ----------------------------------------------------------------- action
     def validate_actions(self, actions: object, name: str = "actions") -> Any:
         """A ``(B, N, 2 dim)`` real, finite action array; raise naming ``name`` otherwise.

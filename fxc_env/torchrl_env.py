@@ -223,23 +223,11 @@ class ConsensusTorchEnv(EnvBase):
 
     def _add_state(self, out: TensorDictBase) -> None:
         if self.config.global_state == "normalized":
-            out.set("state", normalized_state(self.engine).to(self._observation_dtype))
+            out.set("state", self.engine.normalized_state().to(self._observation_dtype))
 
     def episode_metrics(self) -> dict[str, np.ndarray]:
         """Every episode's metrics so far (``(B,)`` numpy arrays; a read off the device: call at episode ends)."""
         return self.engine.batch_metrics()
-
-
-def normalized_state(engine: ConsensusEngine) -> torch.Tensor:
-    """The scale-free global state ``[B, N * 2 dim + 3]`` (the parallel env's ``global_state="normalized"``), on the device."""
-    c = engine.config
-    x, v = engine.x, engine.v
-    rows = torch.cat([x - x.mean(dim=1, keepdim=True), c.settling_time * (v - v.mean(dim=1, keepdim=True))], dim=-1)
-    rows = rows / torch.clamp(engine.current_disagreement, min=engine._tiny)[:, None, None]
-    rows = torch.clamp(rows, -1.0, 1.0).reshape(engine.n_episodes, -1)
-    clock = engine._per_instant(engine._clock)
-    clock = clock.reshape(-1, CLOCK_SIZE).expand(engine.n_episodes, CLOCK_SIZE)
-    return torch.cat([rows, clock], dim=-1)
 
 
 class ReferenceModule(torch.nn.Module):

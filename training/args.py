@@ -3,8 +3,9 @@
 :class:`TrainArgs` is the one description of a training run: ``fxc train --help`` is built
 from its fields and their docstrings (:func:`add_train_parser`), and each back end
 (:mod:`fxc_env.training.train` for stable-baselines3, :mod:`fxc_env.training.rllib_train`
-for Ray RLlib) reads it. Hyperparameters live in a YAML file keyed by scenario, then
-algorithm (``hyperparams.yml`` beside this module).
+for Ray RLlib, :mod:`fxc_env.training.torch_ppo` for the lean torch PPO loop) reads it.
+Hyperparameters live in a YAML file keyed by scenario, then algorithm (``hyperparams.yml``
+beside this module).
 """
 
 from __future__ import annotations
@@ -24,7 +25,9 @@ from fxc_env.core.validation import ArgumentError, choice, integer
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGORITHMS = ("ppo", "sac")
-BACKENDS = ("sb3", "rllib")
+BACKENDS = ("sb3", "rllib", "torchrl")
+#: ``--critic`` of the torchrl back end: per-agent values, or one value per episode from the global state.
+CRITICS = ("local", "central")
 
 
 @dataclass
@@ -50,17 +53,21 @@ class TrainArgs:
     n_envs: int | None = None
     """Parallel episodes; overrides the hyperparameter file."""
     progress_bar: bool = True
-    """Show SB3's progress bar."""
+    """Show SB3's progress bar (torchrl: one line per rollout)."""
     torch_threads: int = 1
     """Threads torch may use."""
     backend: str = "sb3"
-    """``sb3`` (stable-baselines3 on this machine) or ``rllib`` (Ray RLlib PPO on a local Ray or a cluster)."""
+    """``sb3`` (stable-baselines3 on this machine), ``rllib`` (Ray RLlib PPO on a local Ray or a cluster) or ``torchrl`` (a lean PPO loop on the batched engine on a torch device)."""
     num_env_runners: int = 2
     """RLlib: env runner actors that sample in parallel (0: sample in this process)."""
     envs_per_runner: int = 1
     """RLlib: environments each env runner steps (``n_envs`` is the SB3 setting)."""
     address: str | None = None
     """RLlib: the Ray cluster to join (``auto`` or ``HOST:6379``); default: start a local Ray."""
+    device: str = "cpu"
+    """torchrl: the torch device of the episodes and the networks (``cpu``, ``cuda``, ``cuda:1``)."""
+    critic: str = "local"
+    """torchrl: ``local`` (each agent's value from its own observation) or ``central`` (one value per episode from the normalized global state, shared by its agents)."""
 
 
 def load_hyperparams(path: str | Path, scenario: str, algo: str, *, name: str = "hyperparams") -> dict[str, Any]:
@@ -106,8 +113,15 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
         return "--" + field.replace("_", "-") if flags else field
 
     choice(name("backend"), args.backend, BACKENDS)
-    if args.backend == "rllib" and args.algo != "ppo":
-        raise ArgumentError(f"{name('algo')}: the rllib backend trains 'ppo', got {args.algo!r}")
+    if args.backend in ("rllib", "torchrl") and args.algo != "ppo":
+        raise ArgumentError(f"{name('algo')}: the {args.backend} backend trains 'ppo', got {args.algo!r}")
+    choice(name("critic"), args.critic, CRITICS)
+    if args.backend != "torchrl" and args.critic != "local":
+        raise ArgumentError(f"{name('critic')}: only the torchrl backend has a choice of critic, got {args.critic!r}")
+    if args.backend != "torchrl" and args.device != "cpu":
+        raise ArgumentError(f"{name('device')}: only the torchrl backend runs on a chosen device, got {args.device!r}")
+    if args.backend == "torchrl":
+        torch_device(name("device"), args.device)
     choice(name("algo"), args.algo, ALGORITHMS)
     integer(name("timesteps"), args.timesteps, 1)
     integer(name("seed"), args.seed, 0, 2**32 - 1)  # numpy's legacy seeding, which SB3 uses, takes 32 bits
@@ -117,18 +131,47 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
         integer(name("n_envs"), args.n_envs, 1)
     integer(name("num_env_runners"), args.num_env_runners, 0)
     integer(name("envs_per_runner"), args.envs_per_runner, 1)
-    algo_key = f"rllib_{args.algo}" if args.backend == "rllib" else args.algo
+    algo_key = f"{args.backend}_{args.algo}" if args.backend in ("rllib", "torchrl") else args.algo
     params = load_hyperparams(args.hyperparams, args.scenario, algo_key, name=name("hyperparams"))
     if args.backend == "rllib":
         batch = params["algo"].get("train_batch_size_per_learner")
         integer(f"{name('hyperparams')}: {algo_key}.train_batch_size_per_learner", batch, 1)
     try:
-        make_config(args.scenario, **{k: v for k, v in params["env"].items() if k != "n_envs"})
+        config = make_config(args.scenario, **{k: v for k, v in params["env"].items() if k != "n_envs"})
     except ArgumentError as exc:
         raise type(exc)(f"{name('scenario')} {args.scenario!r} with the env of {args.hyperparams}: {exc}") from exc
-    default_dir = f"runs/{args.scenario}-{'rllib-' if args.backend == 'rllib' else ''}{args.algo}-seed{args.seed}"
-    output_directory(name("run_dir"), args.run_dir or default_dir)
+    if args.backend == "torchrl":
+        from fxc_env.training.torch_ppo import PPOSettings
+
+        PPOSettings.from_mapping(params["algo"], config, name=name("hyperparams"))
+    output_directory(name("run_dir"), args.run_dir or default_run_dir(args))
     return params
+
+
+def default_run_dir(args: TrainArgs) -> str:
+    """``runs/<scenario>-[<backend>-]<algo>-seed<seed>`` (no back-end part for sb3)."""
+    backend = "" if args.backend == "sb3" else f"{args.backend}-"
+    return f"runs/{args.scenario}-{backend}{args.algo}-seed{args.seed}"
+
+
+def torch_device(name: str, value: Any) -> Any:
+    """``value`` as a ``torch.device`` this machine has; raise naming ``name`` otherwise."""
+    import torch
+
+    try:
+        device = torch.device(value)
+    except (RuntimeError, TypeError) as exc:
+        raise ArgumentError(f"{name}: expected a torch device such as 'cpu' or 'cuda', got {value!r}") from exc
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ArgumentError(
+                f"{name}: {value!r} asks for CUDA, but torch.cuda.is_available() is False on this machine"
+            )
+        if device.index is not None and device.index >= torch.cuda.device_count():
+            raise ArgumentError(f"{name}: {value!r}, but this machine has {torch.cuda.device_count()} CUDA device(s)")
+    elif device.type != "cpu":
+        raise ArgumentError(f"{name}: expected 'cpu' or a CUDA device, got {value!r}")
+    return device
 
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -148,7 +191,9 @@ def field_docs(cls: type) -> dict[str, str]:
 def add_train_parser(commands: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``fxc train``: one option per :class:`TrainArgs` field."""
     parser = commands.add_parser(
-        "train", help="train a shared policy with PPO or SAC (stable-baselines3), or PPO in Ray RLlib (--backend rllib)"
+        "train",
+        help="train a shared policy with PPO or SAC (stable-baselines3), PPO in Ray RLlib (--backend rllib), "
+        "or a lean torch PPO on the batched engine (--backend torchrl, --device cpu|cuda)",
     )
     defaults = TrainArgs()
     docs = field_docs(TrainArgs)

@@ -1,0 +1,200 @@
+"""fxc_env.training.torch_ppo (``fxc train --backend torchrl``): short runs, checkpoints, resume, the saved policy."""
+
+from __future__ import annotations
+
+import csv
+import json
+import signal
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from fxc_env import make_config
+from fxc_env.core.validation import ArgumentError
+from fxc_env.engine import ConsensusEngine
+from fxc_env.training import TrainArgs, train
+from fxc_env.training.args import HYPERPARAMS, check_train_args
+from fxc_env.training.torch_ppo import Trainer, latest_torch_checkpoint, load_torch_policy
+
+# 2 episodes x 6 agents, one whole episode (K = 200) per rollout: 2400 timesteps a rollout.
+PER_ROLLOUT = 2400
+
+
+def short_args(tmp_path, **changes) -> TrainArgs:
+    base = {
+        "scenario": "paper_fig1",
+        "backend": "torchrl",
+        "n_envs": 2,
+        "timesteps": 2 * PER_ROLLOUT,
+        "checkpoint_every": PER_ROLLOUT,
+        "run_dir": str(tmp_path / "run"),
+        "progress_bar": False,
+    }
+    return TrainArgs(**{**base, **changes})
+
+
+def hyperparams_with(tmp_path, **torch_ppo) -> str:
+    """The shipped hyperparameter file with some ``torchrl_ppo`` settings changed."""
+    table = yaml.safe_load(HYPERPARAMS.read_text())
+    entry = table["paper_fig1"]
+    entry["torchrl_ppo"] = {**entry["torchrl_ppo"], **torch_ppo}
+    path = tmp_path / "hyperparams.yml"
+    path.write_text(yaml.safe_dump({"paper_fig1": entry}))
+    return str(path)
+
+
+def progress_rows(run_dir) -> list[dict[str, str]]:
+    with (run_dir / "progress.csv").open() as handle:
+        return list(csv.DictReader(handle))
+
+
+def adam_steps(checkpoint) -> float:
+    record = torch.load(checkpoint, weights_only=True)
+    return max(float(state["step"]) for state in record["optimizer"]["state"].values())
+
+
+def test_a_short_run_writes_the_run_directory_and_a_loadable_policy(tmp_path):
+    run_dir = train(short_args(tmp_path))
+    record = json.loads((run_dir / "config.json").read_text())
+    assert record["args"]["backend"] == "torchrl" and record["timesteps_per_rollout"] == PER_ROLLOUT
+    assert record["torchrl_ppo"]["gamma"] == 1.0
+    assert "torch" in json.loads((run_dir / "versions.json").read_text())
+    rows = progress_rows(run_dir)
+    assert [int(row["time/total_timesteps"]) for row in rows] == [PER_ROLLOUT, 2 * PER_ROLLOUT]
+    for row in rows:  # every rollout ends its episodes here (T = K)
+        assert np.isfinite(float(row["rollout/ep_rew_mean"])) and float(row["rollout/deadline_error"]) > 0
+        assert float(row["time/fps"]) > 0 and int(row["rollout/episodes"]) == 2
+    assert list(run_dir.glob("events.out.tfevents.*")), "TensorBoard logs"
+    assert (run_dir / "training_curve.png").stat().st_size > 0
+    names = sorted(path.name for path in (run_dir / "checkpoints").iterdir())
+    assert names == [f"model_{PER_ROLLOUT}_steps.pt", f"model_{2 * PER_ROLLOUT}_steps.pt"]
+
+    policy = load_torch_policy(run_dir)
+    config = make_config("paper_fig1", obs_slots=4, initial_state="random")
+    engine = ConsensusEngine(config, n_episodes=3)
+    x0, v0 = zip(*(engine.sample_initial_state(np.random.default_rng(s)) for s in range(3)), strict=True)
+    engine.reset(np.stack(x0), np.stack(v0))
+    obs = engine.observations()
+    actions = policy(obs)
+    assert isinstance(actions, np.ndarray) and actions.shape == (3, 6, 2) and actions.dtype == np.float64
+    assert np.array_equal(actions, policy(obs)), "deterministic: the mean action"
+    assert np.all(np.abs(actions) <= config.action_bound)
+    single = policy(torch.as_tensor(obs[0, 0], dtype=torch.float32))
+    assert isinstance(single, torch.Tensor) and single.shape == (2,) and single.dtype == torch.float32
+    assert np.allclose(single.numpy(), actions[0, 0], atol=1e-6)
+    # The saved policy plays whole episodes on the numpy engine.
+    while not engine.done:
+        engine.step(engine.validate_actions(policy(engine.observations())))
+    assert np.all(np.isfinite(engine.batch_metrics()["relative_deadline_error"]))
+    # A checkpoint is a policy file too.
+    assert np.array_equal(load_torch_policy(latest_torch_checkpoint(run_dir))(obs), actions)
+    with pytest.raises(ArgumentError, match=r"^observations: expected shape \[\.\.\., 15\]"):
+        policy(np.zeros((3, 14)))
+    with pytest.raises(ArgumentError, match=r"^policy: no torch policy file"):
+        load_torch_policy(tmp_path / "missing")
+
+
+def test_resume_continues_the_step_count_optimiser_and_generators(tmp_path, capsys):
+    train(short_args(tmp_path, timesteps=PER_ROLLOUT))
+    first = latest_torch_checkpoint(tmp_path / "run")
+    assert first.name == f"model_{PER_ROLLOUT}_steps.pt"
+    run_dir = train(short_args(tmp_path, resume=True))
+    assert f"resuming {run_dir} from {first.name} at {PER_ROLLOUT} timesteps" in capsys.readouterr().out
+    assert [int(row["time/total_timesteps"]) for row in progress_rows(run_dir)] == [PER_ROLLOUT, 2 * PER_ROLLOUT]
+    assert [int(row["time/iterations"]) for row in progress_rows(run_dir)] == [1, 2]
+    last = latest_torch_checkpoint(run_dir)
+    assert last.name == f"model_{2 * PER_ROLLOUT}_steps.pt"
+    # Adam's step counter goes on from the checkpoint's.
+    assert adam_steps(first) > 0 and adam_steps(last) == 2 * adam_steps(first)
+    # Resuming at a rollout boundary gives the run that was never stopped, bit for bit.
+    straight = train(short_args(tmp_path, run_dir=str(tmp_path / "straight")))
+    resumed = torch.load(run_dir / "policy.pt", weights_only=True)["actor"]
+    uninterrupted = torch.load(straight / "policy.pt", weights_only=True)["actor"]
+    assert all(torch.equal(resumed[k], uninterrupted[k]) for k in resumed)
+
+
+def test_ctrl_c_finishes_the_rollout_saves_a_checkpoint_and_resume_finishes(tmp_path, monkeypatch):
+    collect = Trainer.collect
+    calls = []
+
+    def pressed(self):  # the user presses Ctrl-C during the second rollout
+        calls.append(1)
+        if len(calls) == 2:
+            signal.raise_signal(signal.SIGINT)
+        return collect(self)
+
+    monkeypatch.setattr(Trainer, "collect", pressed)
+    with pytest.raises(KeyboardInterrupt):
+        train(short_args(tmp_path, timesteps=4 * PER_ROLLOUT, checkpoint_every=10**9))
+    assert latest_torch_checkpoint(tmp_path / "run").name == f"model_{2 * PER_ROLLOUT}_steps.pt"
+    monkeypatch.undo()
+    run_dir = train(short_args(tmp_path, timesteps=3 * PER_ROLLOUT, resume=True))
+    assert [int(row["time/total_timesteps"]) for row in progress_rows(run_dir)] == [2400, 4800, 7200]
+
+
+def test_a_central_critic_and_rollouts_shorter_than_an_episode(tmp_path):
+    """``--critic central`` reads the normalized global state; T = K / 2 bootstraps the cut episodes."""
+    hyperparams = hyperparams_with(tmp_path, rollout_steps=100, minibatch_size=600, epochs=2)
+    run_dir = train(short_args(tmp_path, critic="central", hyperparams=hyperparams, timesteps=3 * 1200))
+    rows = progress_rows(run_dir)
+    assert [int(row["time/total_timesteps"]) for row in rows] == [1200, 2400, 3600]
+    assert [row["rollout/ep_rew_mean"] != "" for row in rows] == [False, True, False]  # episodes end every 2nd
+    assert int(rows[0]["train/n_updates"]) == 2 * 2
+    record = torch.load(latest_torch_checkpoint(run_dir), weights_only=True)
+    assert record["model"]["critic.0.weight"].shape[1] == 6 * 2 + 3  # N * 2 dim + clock
+    assert load_torch_policy(run_dir)(np.zeros((4, 15))).shape == (4, 2)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
+def test_cuda_without_cuda_names_the_device(tmp_path):
+    with pytest.raises(ArgumentError, match=r"^device: 'cuda' asks for CUDA"):
+        train(short_args(tmp_path, device="cuda"))
+    with pytest.raises(ArgumentError, match=r"^--device: 'cuda' asks for CUDA"):
+        check_train_args(short_args(tmp_path, device="cuda"), flags=True)
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"critic": "global"}, r"critic: expected one of \('local', 'central'\), got 'global'"),
+        ({"critic": "central", "backend": "sb3"}, "critic: only the torchrl backend"),
+        ({"device": "cuda", "backend": "sb3"}, "device: only the torchrl backend"),
+        ({"device": "tpu"}, "device: expected"),
+        ({"algo": "sac"}, "algo: the torchrl backend trains 'ppo'"),
+    ],
+)
+def test_bad_arguments_are_named(tmp_path, change, message):
+    with pytest.raises(ArgumentError, match=f"^{message}"):
+        check_train_args(short_args(tmp_path, **change))
+    flag = "--" + message.split(":")[0]
+    with pytest.raises(ArgumentError, match=f"^{flag}:"):
+        check_train_args(short_args(tmp_path, **change), flags=True)
+    with pytest.raises(ArgumentError, match=f"^{message}"):
+        train(short_args(tmp_path, **change))
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ({"rollout_steps": 7}, r"hyperparams: torchrl_ppo.rollout_steps: expected K = 200 or a divisor of it, got 7"),
+        ({"epochs": 0}, r"hyperparams: torchrl_ppo.epochs: expected an integer >= 1"),
+        ({"activation": "sigmoid"}, r"hyperparams: torchrl_ppo.activation: expected one of"),
+        ({"hidden": []}, r"hyperparams: torchrl_ppo.hidden: expected a list of layer widths"),
+        ({"gamma": 1.5}, r"hyperparams: torchrl_ppo.gamma: expected a finite number"),
+        ({"n_step": 3}, r"hyperparams: torchrl_ppo has no setting 'n_step'"),
+    ],
+)
+def test_bad_hyperparameters_are_named_before_work_starts(tmp_path, setting, message):
+    args = short_args(tmp_path, hyperparams=hyperparams_with(tmp_path, **setting))
+    with pytest.raises(ArgumentError, match=f"^{message}"):
+        train(args)
+    assert not (tmp_path / "run").exists()
+
+
+def test_resume_without_a_checkpoint_is_refused(tmp_path):
+    with pytest.raises(ArgumentError, match=r"^resume: no checkpoint"):
+        train(short_args(tmp_path, resume=True))

@@ -1,0 +1,686 @@
+"""``fxc train --backend torchrl``: a lean PPO loop on the batched engine, on a torch device.
+
+One Gaussian policy is shared by every agent of B parallel episodes (IPPO with parameter
+sharing): the engine (:class:`fxc_env.engine.ConsensusEngine`, float64 on ``--device``)
+plays B episodes of N agents in lock step, and the networks (float32) read float32 copies of
+the observations ``[B, N, obs_size]``. Nothing is read back to the host on the stepping
+path: the host reads the rollout's statistics once per rollout (and the episodes' metrics
+once per episode end) for the log. The critic is ``local`` (each agent's value from its own
+observation) or ``central`` (``--critic central``: one value per episode from the
+normalized global state, the TorchRL environment's root ``"state"``, broadcast to its
+agents). Hyperparameters come from the ``torchrl_ppo`` entry of the hyperparameter file
+(:class:`PPOSettings` lists them); the loop is SB3's PPO (clipped surrogate, GAE, advantages
+normalised per minibatch, gradient clipping, Adam), written out for the engine's tensors:
+
+    rollout:  T steps of B episodes (T divides K; an episode is K steps), B * N agent-steps each
+    update:   ``epochs`` passes over the T * B * N agent-steps in minibatches of ``minibatch_size``
+
+Timesteps count agent-steps (B * N per environment step), as for the SB3 back end; a run
+stops at the first whole rollout past ``--timesteps``. The run directory:
+
+    runs/<name>/config.json                       the exact arguments and resolved hyperparameters
+    runs/<name>/versions.json                     Python and library versions
+    runs/<name>/progress.csv                      one row per rollout (SB3's column names, plus
+                                                  ``rollout/deadline_error``: the median D(T_s)/D(0)
+                                                  of the episodes that ended in the rollout)
+    runs/<name>/events.out.tfevents.*             the same scalars for TensorBoard
+    runs/<name>/checkpoints/model_<steps>_steps.pt networks, Adam's state, step counts and RNG states
+    runs/<name>/policy.pt                         the final policy (:func:`load_torch_policy`)
+    runs/<name>/training_curve.png                mean episode return against timesteps
+
+Checkpoints are written after an update (every ``--checkpoint-every`` timesteps, at the end,
+and on Ctrl-C, which finishes the rollout under way first); ``--resume`` goes on from the
+newest with its step count, optimiser state and random generators, starting fresh episodes.
+
+**The policy file** (``policy.pt``, read by :func:`load_torch_policy`) is a ``torch.save``
+of a plain dictionary (it loads with ``weights_only=True``): ``format``
+(:data:`POLICY_FORMAT`), ``obs_size``, ``action_size``, ``action_bound``, ``hidden`` (the
+widths), ``activation``, ``actor`` (the state dict of the mean network, an ``nn.Sequential``
+of ``Linear`` and activation layers), ``log_std`` (the exploration noise, unused by the
+deterministic policy), ``env`` (``scenario`` and the environment keywords it was trained on)
+and ``timesteps``. Every checkpoint holds the same dictionary under ``"policy"``.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import re
+import signal
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from fxc_env.config import EnvConfig, make_config
+from fxc_env.core import validation
+from fxc_env.core.validation import ArgumentError
+from fxc_env.engine import ConsensusEngine
+from fxc_env.training.args import TrainArgs, check_train_args, default_run_dir
+from fxc_env.training.artefacts import versions, write_training_curve
+
+#: ``format`` of the policy file and of a checkpoint.
+POLICY_FORMAT = "fxc_env.torch_ppo.policy/1"
+CHECKPOINT_FORMAT = "fxc_env.torch_ppo.checkpoint/1"
+CHECKPOINT_PATTERN = re.compile(r"model_(\d+)_steps\.pt$")
+#: Activations by name (the hyperparameter file's ``activation``).
+ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+#: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves all).
+PROGRESS_COLUMNS = (
+    "time/iterations",
+    "time/total_timesteps",
+    "time/fps",
+    "time/time_elapsed",
+    "time/collect_seconds",
+    "time/update_seconds",
+    "rollout/ep_rew_mean",
+    "rollout/deadline_error",
+    "rollout/episodes",
+    "train/policy_loss",
+    "train/value_loss",
+    "train/entropy_loss",
+    "train/approx_kl",
+    "train/clip_fraction",
+    "train/explained_variance",
+    "train/std",
+    "train/learning_rate",
+    "train/n_updates",
+)
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+# ---------------------------------------------------------------------------------- settings
+@dataclasses.dataclass(frozen=True)
+class PPOSettings:
+    """The ``torchrl_ppo`` entry of the hyperparameter file (every key optional)."""
+
+    n_envs: int = 256
+    """B, the parallel episodes (``--n-envs`` overrides it)."""
+    rollout_steps: int = 200
+    """T, environment steps per rollout: K or a divisor of K."""
+    learning_rate: float = 3.0e-4
+    epochs: int = 4
+    """Passes over a rollout's agent-steps per update."""
+    minibatch_size: int = 8192
+    """Agent-steps per gradient step."""
+    gamma: float = 1.0
+    """1: the per-step rewards telescope to the episode's log reduction ln D(0)/D(T_s)."""
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    hidden: tuple[int, ...] = (64, 64)
+    """Widths of the hidden layers of the policy's mean and of the critic (separate networks)."""
+    activation: str = "tanh"
+    log_std_init: float = -2.0
+    """Initial log standard deviation of the exploration noise (state independent, learned)."""
+    normalize_advantage: bool = True
+
+    @classmethod
+    def from_mapping(cls, entry: Mapping[str, Any], config: EnvConfig, *, name: str = "hyperparams") -> PPOSettings:
+        """Checked settings from a hyperparameter entry; raise naming ``name: torchrl_ppo.<key>``."""
+        known = {field.name for field in dataclasses.fields(cls)}
+        unknown = sorted(set(entry) - known)
+        if unknown:
+            raise ArgumentError(f"{name}: torchrl_ppo has no setting {unknown[0]!r}; expected some of {sorted(known)}")
+        values = {**{f.name: f.default for f in dataclasses.fields(cls)}, **entry}
+
+        def key(k: str) -> str:
+            return f"{name}: torchrl_ppo.{k}"
+
+        k_intervals = config.n_intervals
+        for field in ("n_envs", "rollout_steps", "epochs", "minibatch_size"):
+            validation.integer(key(field), values[field], 1)
+        if k_intervals % values["rollout_steps"]:
+            raise ArgumentError(
+                f"{key('rollout_steps')}: expected K = {k_intervals} or a divisor of it, got {values['rollout_steps']}"
+            )
+        for field in ("learning_rate", "clip_range", "max_grad_norm"):
+            validation.real(key(field), values[field], positive=True)
+        for field in ("gamma", "gae_lambda"):
+            validation.real(key(field), values[field], 0.0, 1.0)
+        for field in ("ent_coef", "vf_coef", "log_std_init"):
+            validation.real(key(field), values[field])
+        hidden = values["hidden"]
+        if not isinstance(hidden, list | tuple) or not hidden:
+            raise ArgumentError(f"{key('hidden')}: expected a list of layer widths, got {hidden!r}")
+        for width in hidden:
+            validation.integer(key("hidden"), width, 1, 1_000_000)
+        validation.choice(key("activation"), values["activation"], tuple(ACTIVATIONS))
+        if not isinstance(values["normalize_advantage"], bool):
+            raise ArgumentError(f"{key('normalize_advantage')}: expected true or false")
+        values["hidden"] = tuple(int(w) for w in hidden)
+        for field in ("learning_rate", "clip_range", "max_grad_norm", "gamma", "gae_lambda", "ent_coef", "vf_coef"):
+            values[field] = float(values[field])
+        values["log_std_init"] = float(values["log_std_init"])
+        return cls(**values)
+
+
+def run_config(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:
+    """The environment keywords of this run (the hyperparameter file's ``env``, ``scenario`` first)."""
+    kwargs = {key: value for key, value in params["env"].items() if key != "n_envs"}
+    if args.critic == "central":
+        kwargs["global_state"] = "normalized"
+    return {"scenario": args.scenario, **kwargs}
+
+
+# ---------------------------------------------------------------------------------- networks
+def mlp(inputs: int, outputs: int, hidden: tuple[int, ...], activation: str, out_gain: float) -> nn.Sequential:
+    """``Linear`` + activation layers, orthogonally initialised (SB3's gains: sqrt 2, then ``out_gain``)."""
+    layers: list[nn.Module] = []
+    width = inputs
+    for size in hidden:
+        layer = nn.Linear(width, size)
+        nn.init.orthogonal_(layer.weight, math.sqrt(2.0))
+        nn.init.zeros_(layer.bias)
+        layers += [layer, ACTIVATIONS[activation]()]
+        width = size
+    last = nn.Linear(width, outputs)
+    nn.init.orthogonal_(last.weight, out_gain)
+    nn.init.zeros_(last.bias)
+    layers.append(last)
+    return nn.Sequential(*layers)
+
+
+class ActorCritic(nn.Module):
+    """The shared Gaussian policy (mean network, state-independent log std) and the critic."""
+
+    def __init__(self, obs_size: int, action_size: int, critic_size: int, settings: PPOSettings) -> None:
+        super().__init__()
+        self.actor = mlp(obs_size, action_size, settings.hidden, settings.activation, 0.01)
+        self.log_std = nn.Parameter(torch.full((action_size,), settings.log_std_init))
+        self.critic = mlp(critic_size, 1, settings.hidden, settings.activation, 1.0)
+
+    def log_prob(self, mean: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        z = (actions - mean) * torch.exp(-self.log_std)
+        return -0.5 * (z * z).sum(-1) - self.log_std.sum() - 0.5 * LOG_2PI * mean.shape[-1]
+
+    def entropy(self) -> torch.Tensor:
+        return (self.log_std + 0.5 * (1.0 + LOG_2PI)).sum()
+
+
+def adam(parameters: Iterator[nn.Parameter], learning_rate: float) -> torch.optim.Adam:
+    """SB3's Adam (``eps = 1e-5``), fused where torch has it for the device.
+
+    Fused: one kernel for every parameter; the optimiser step is about a third of the cost
+    of a minibatch of 2048 on the CPU. torch < 2.4 has no fused Adam on the CPU.
+    """
+    parameters = list(parameters)
+    try:
+        return torch.optim.Adam(parameters, lr=learning_rate, eps=1e-5, fused=True)
+    except (RuntimeError, TypeError):
+        return torch.optim.Adam(parameters, lr=learning_rate, eps=1e-5)
+
+
+# ------------------------------------------------------------------------------ the policy
+class TorchPolicy:
+    """A trained policy, deterministic: observations ``[..., obs_size]`` to actions ``[..., action_size]``.
+
+    The action is the Gaussian's mean clipped to ``±action_bound`` (training clips its
+    samples to the same bound). numpy in, numpy (float64) out; a torch tensor in, a tensor
+    out on its device, in its floating dtype (float32 for other dtypes). ``env`` holds the
+    scenario and environment keywords it was trained on.
+    """
+
+    def __init__(self, record: Mapping[str, Any]) -> None:
+        if record.get("format") != POLICY_FORMAT:
+            raise ArgumentError(f"policy: expected a {POLICY_FORMAT!r} record, got format {record.get('format')!r}")
+        self.obs_size = int(record["obs_size"])
+        self.action_size = int(record["action_size"])
+        self.action_bound = float(record["action_bound"])
+        self.env: dict[str, Any] = dict(record.get("env", {}))
+        self.timesteps = int(record.get("timesteps", 0))
+        hidden = tuple(int(w) for w in record["hidden"])
+        self.module = mlp(self.obs_size, self.action_size, hidden, str(record["activation"]), 1.0)
+        self.module.load_state_dict(record["actor"])
+        self.module.eval().requires_grad_(False)
+
+    def __call__(self, observations: Any) -> Any:
+        numpy_in = not isinstance(observations, torch.Tensor)
+        x = torch.as_tensor(np.asarray(observations) if numpy_in else observations)
+        if x.ndim < 1 or x.shape[-1] != self.obs_size:
+            raise ArgumentError(f"observations: expected shape [..., {self.obs_size}], got {tuple(x.shape)}")
+        device = next(self.module.parameters()).device
+        if x.device != device:
+            self.module.to(x.device)
+        with torch.no_grad():
+            actions = self.module(x.to(torch.float32)).clamp(-self.action_bound, self.action_bound)
+        if numpy_in:
+            return actions.double().numpy()
+        return actions.to(x.dtype) if x.is_floating_point() else actions
+
+
+def load_torch_policy(path: str | Path) -> Callable[[Any], Any]:
+    """The deterministic policy of ``path``: a run directory (its ``policy.pt``), a ``policy.pt`` or a checkpoint.
+
+    Returns a :class:`TorchPolicy`: ``policy(obs)`` maps ``[..., obs_size]`` (numpy or torch)
+    to actions ``[..., action_size]``, the clipped mean of the trained Gaussian.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "policy.pt"
+    if not path.is_file():
+        raise ArgumentError(f"policy: no torch policy file at {str(path)!r}")
+    try:
+        record = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # a foreign or damaged file
+        raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file ({exc})") from exc
+    if isinstance(record, dict) and record.get("format") == CHECKPOINT_FORMAT:
+        record = record["policy"]
+    if not isinstance(record, dict):
+        raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file")
+    return TorchPolicy(record)
+
+
+# ------------------------------------------------------------------------------- checkpoints
+def latest_torch_checkpoint(run_dir: Path) -> Path | None:
+    """The checkpoint with the most timesteps in ``run_dir/checkpoints`` (None if there is none)."""
+    found = [
+        (int(match.group(1)), path)
+        for path in (run_dir / "checkpoints").glob("model_*_steps.pt")
+        if (match := CHECKPOINT_PATTERN.search(path.name))
+    ]
+    return max(found)[1] if found else None
+
+
+@contextmanager
+def deferred_interrupt() -> Iterator[list[bool]]:
+    """Ctrl-C sets a flag (checked between rollouts) instead of breaking an update; twice stops at once."""
+    pressed: list[bool] = []
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum: int, frame: Any) -> None:
+        if pressed:
+            raise KeyboardInterrupt
+        pressed.append(True)
+        print("\nfxc train: Ctrl-C; finishing this rollout, then saving a checkpoint", file=sys.stderr)
+
+    try:
+        signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main thread: leave Ctrl-C alone
+        yield pressed
+        return
+    try:
+        yield pressed
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+# ---------------------------------------------------------------------------------- training
+class Trainer:
+    """The state of one run: engine, networks, optimiser, generators, counters and buffers."""
+
+    def __init__(self, args: TrainArgs, params: dict[str, Any], settings: PPOSettings, device: torch.device) -> None:
+        self.args, self.settings, self.device = args, settings, device
+        self.env_kwargs = run_config(args, params)
+        self.config = config = make_config(**self.env_kwargs)
+        self.n_envs = int(args.n_envs or settings.n_envs)
+        self.n_agents = config.n_agents
+        self.obs_size = config.layout.size
+        self.action_size = config.action_size
+        self.bound = float(config.action_bound)
+        self.central = args.critic == "central"
+        self.engine = ConsensusEngine(config, self.n_envs, device=device)
+        self.engine.seed(args.seed)
+        self.host_rng = np.random.default_rng(args.seed)  # topology families only
+        self.generator = torch.Generator(device=device)  # exploration noise and minibatch order
+        self.generator.manual_seed(int(np.random.SeedSequence([args.seed, 1]).generate_state(1)[0]))
+        self.episode_return = torch.zeros(self.n_envs, dtype=torch.float64, device=device)
+        torch.manual_seed(args.seed)  # the networks' initial weights
+        self._reset()
+        self.state_size = self.engine.normalized_state().shape[-1] if self.central else self.obs_size
+        self.model = ActorCritic(self.obs_size, self.action_size, self.state_size, settings).to(device)
+        self.optimizer = adam(self.model.parameters(), settings.learning_rate)
+        self.timesteps = 0
+        self.iterations = 0
+        self.n_updates = 0
+        self.fresh = True  # the engine's episodes were just reset
+        t, b, n = settings.rollout_steps, self.n_envs, self.n_agents
+        f32 = dict(dtype=torch.float32, device=device)
+        self.obs = torch.empty((t, b, n, self.obs_size), **f32)
+        self.actions = torch.empty((t, b, n, self.action_size), **f32)
+        self.log_probs = torch.empty((t, b, n), **f32)
+        self.rewards = torch.empty((t, b), **f32)
+        self.states = torch.empty((t, b, self.state_size), **f32) if self.central else None
+
+    # ---------------------------------------------------------------------- episodes
+    def _draw(self) -> tuple[Any, Any, Any, Any]:
+        x0, v0, u_max, topologies = self.engine.draw_batch(self.host_rng)
+        return x0, v0, topologies, u_max
+
+    def _reset(self) -> None:
+        x0, v0, topologies, u_max = self._draw()
+        self.engine.reset(x0, v0, topologies=topologies, u_max=u_max)
+        self.episode_return.zero_()
+        self.fresh = True
+
+    # ----------------------------------------------------------------------- rollout
+    def collect(self) -> dict[str, Any]:
+        """One rollout of T steps; returns the returns and deadline errors of the episodes that ended."""
+        engine, model, bound = self.engine, self.model, self.bound
+        std = torch.exp(model.log_std.detach())
+        terminal = []
+        finished_returns, finished_errors = [], []
+        if not self.fresh and engine.done:
+            self._reset()
+        with torch.no_grad():
+            for t in range(self.settings.rollout_steps):
+                obs = engine.observations().to(torch.float32)
+                self.obs[t] = obs
+                if self.central:
+                    self.states[t] = engine.normalized_state().to(torch.float32)
+                mean = model.actor(obs)
+                noise = torch.randn(mean.shape, generator=self.generator, dtype=mean.dtype, device=mean.device)
+                actions = mean + std * noise
+                self.actions[t] = actions
+                self.log_probs[t] = model.log_prob(mean, actions)
+                outcome = engine.step(engine.validate_actions(actions.clamp(-bound, bound)))
+                self.rewards[t] = outcome.reward
+                self.episode_return += outcome.reward
+                self.fresh = False
+                terminal.append(bool(outcome.terminated))
+                if outcome.terminated:  # lock step: every episode ends here (one host read per episode)
+                    engine.raise_if_invalid()
+                    finished_returns.append(self.episode_return.clone())
+                    finished_errors.append(engine.batch_metrics()["relative_deadline_error"])
+                    if t + 1 < self.settings.rollout_steps:
+                        self._reset()
+            # The value after the last step: 0 at an episode end, else bootstrapped.
+            if terminal[-1]:
+                last_value = None
+            elif self.central:
+                last_value = model.critic(engine.normalized_state().to(torch.float32)).squeeze(-1)
+            else:
+                last_value = model.critic(engine.observations().to(torch.float32)).squeeze(-1)
+        return {
+            "terminal": terminal,
+            "last_value": last_value,
+            "returns": torch.cat(finished_returns) if finished_returns else None,
+            "errors": np.concatenate(finished_errors) if finished_errors else None,
+        }
+
+    def advantages(self, rollout: dict[str, Any]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """GAE: advantages, value targets ``[T, B, N]`` (local) or ``[T, B]`` (central), and the explained variance."""
+        s = self.settings
+        with torch.no_grad():
+            inputs = self.states if self.central else self.obs
+            values = self.model.critic(inputs).squeeze(-1)
+            rewards = self.rewards if self.central else self.rewards[:, :, None]
+            advantages = torch.empty_like(values)
+            running = torch.zeros_like(values[0])
+            next_value = rollout["last_value"]
+            for t in reversed(range(s.rollout_steps)):
+                if rollout["terminal"][t]:
+                    delta = rewards[t] - values[t]
+                    running = delta
+                else:
+                    delta = rewards[t] + s.gamma * next_value - values[t]
+                    running = delta + (s.gamma * s.gae_lambda) * running
+                advantages[t] = running
+                next_value = values[t]
+            targets = advantages + values
+            explained = 1.0 - torch.var(advantages) / torch.var(targets)
+        return advantages, targets, explained
+
+    # ------------------------------------------------------------------------ update
+    def update(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+        """``epochs`` passes of clipped-surrogate minibatch steps; returns the statistics (on the device)."""
+        s, model, n = self.settings, self.model, self.n_agents
+        obs = self.obs.reshape(-1, self.obs_size)
+        actions = self.actions.reshape(-1, self.action_size)
+        old_log_probs = self.log_probs.reshape(-1)
+        if self.central:
+            # One value per episode and step; its agents share the episode's advantage.
+            per_agent = advantages[:, :, None].expand(-1, -1, n).reshape(-1)
+            states = self.states.reshape(-1, self.state_size)
+            targets = targets.reshape(-1)
+        else:
+            per_agent = advantages.reshape(-1)
+            targets = targets.reshape(-1)
+        total = obs.shape[0]
+        sums = torch.zeros(5, dtype=torch.float32, device=self.device)
+        count = 0
+        for _ in range(s.epochs):
+            order = torch.randperm(total, generator=self.generator, device=self.device)
+            for start in range(0, total, s.minibatch_size):
+                index = order[start : start + s.minibatch_size]
+                advantage = per_agent[index]
+                if s.normalize_advantage and index.numel() > 1:
+                    advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
+                batch = obs[index]
+                mean = model.actor(batch)
+                log_prob = model.log_prob(mean, actions[index])
+                log_ratio = log_prob - old_log_probs[index]
+                ratio = torch.exp(log_ratio)
+                policy_loss = -torch.min(
+                    advantage * ratio, advantage * torch.clamp(ratio, 1.0 - s.clip_range, 1.0 + s.clip_range)
+                ).mean()
+                if self.central:
+                    value_index = torch.div(index, n, rounding_mode="floor")
+                    value = model.critic(states[value_index]).squeeze(-1)
+                    value_loss = torch.mean((value - targets[value_index]) ** 2)
+                else:
+                    value = model.critic(batch).squeeze(-1)
+                    value_loss = torch.mean((value - targets[index]) ** 2)
+                entropy = model.entropy()
+                loss = policy_loss + s.vf_coef * value_loss - s.ent_coef * entropy
+                self.optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                nn.utils.clip_grad_norm_(model.parameters(), s.max_grad_norm)
+                self.optimizer.step()
+                with torch.no_grad():
+                    approx_kl = torch.mean((ratio - 1.0) - log_ratio)
+                    clipped = torch.mean((torch.abs(ratio - 1.0) > s.clip_range).to(torch.float32))
+                    sums += torch.stack([policy_loss, value_loss, -entropy, approx_kl, clipped]).detach()
+                count += 1
+        self.n_updates += count
+        return sums / count
+
+    # ---------------------------------------------------------------------- state
+    def policy_record(self) -> dict[str, Any]:
+        """The policy file's dictionary (see the module docstring)."""
+        return {
+            "format": POLICY_FORMAT,
+            "obs_size": self.obs_size,
+            "action_size": self.action_size,
+            "action_bound": self.bound,
+            "hidden": list(self.settings.hidden),
+            "activation": self.settings.activation,
+            "actor": {k: v.detach().cpu().clone() for k, v in self.model.actor.state_dict().items()},
+            "log_std": self.model.log_std.detach().cpu().clone(),
+            "env": dict(self.env_kwargs),
+            "timesteps": self.timesteps,
+        }
+
+    def save_checkpoint(self, directory: Path) -> Path:
+        """Networks, Adam's state, counters and every generator's state as ``model_<timesteps>_steps.pt``."""
+        directory.mkdir(parents=True, exist_ok=True)
+        path = directory / f"model_{self.timesteps}_steps.pt"
+        engine_rng = self.engine.rng.get_state() if isinstance(self.engine.rng, torch.Generator) else None
+        record = {
+            "format": CHECKPOINT_FORMAT,
+            "timesteps": self.timesteps,
+            "iterations": self.iterations,
+            "n_updates": self.n_updates,
+            "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
+            "optimizer": self.optimizer.state_dict(),
+            "rng": {
+                "torch": torch.get_rng_state(),
+                "generator": self.generator.get_state(),
+                "engine": engine_rng,
+                "host": self.host_rng.bit_generator.state,
+            },
+            "policy": self.policy_record(),
+        }
+        partial = path.with_suffix(".pt.partial")
+        torch.save(record, partial)
+        partial.replace(path)  # a checkpoint is either whole or absent
+        return path
+
+    def load_checkpoint(self, path: Path) -> None:
+        record = torch.load(path, map_location="cpu", weights_only=True)
+        if not isinstance(record, dict) or record.get("format") != CHECKPOINT_FORMAT:
+            raise ArgumentError(f"resume: {str(path)!r} is not a torchrl back-end checkpoint")
+        try:
+            self.model.load_state_dict(record["model"])
+        except RuntimeError as exc:
+            raise ArgumentError(f"resume: {path.name} was trained with other network settings ({exc})") from exc
+        self.optimizer.load_state_dict(record["optimizer"])
+        self.timesteps = int(record["timesteps"])
+        self.iterations = int(record["iterations"])
+        self.n_updates = int(record["n_updates"])
+        rng = record["rng"]
+        torch.set_rng_state(rng["torch"])
+        self.generator.set_state(rng["generator"])
+        if rng["engine"] is not None and isinstance(self.engine.rng, torch.Generator):
+            self.engine.rng.set_state(rng["engine"])
+        self.host_rng.bit_generator.state = rng["host"]
+        self._reset()  # a resumed run starts fresh episodes
+
+
+def _trim_progress(progress: Path, timesteps: int) -> None:
+    """Drop the rows of ``progress.csv`` past ``timesteps`` (written after the checkpoint a run resumes from)."""
+    if not progress.exists():
+        return
+    with progress.open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    kept = [row for row in rows if row.get("time/total_timesteps") and int(row["time/total_timesteps"]) <= timesteps]
+    with progress.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=PROGRESS_COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(kept)
+
+
+def train_torch(args: TrainArgs) -> Path:
+    """Run (or resume) PPO on the batched engine on ``args.device``; returns the run directory."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    args = dataclasses.replace(args, backend="torchrl")
+    params = check_train_args(args)  # every argument, before any work
+    settings = PPOSettings.from_mapping(params["algo"], make_config(**run_config(args, params)))
+    torch.set_num_threads(args.torch_threads)
+    device = torch.device(args.device)
+    run_dir = Path(args.run_dir or default_run_dir(args))
+    checkpoint = latest_torch_checkpoint(run_dir) if args.resume else None
+    if args.resume and checkpoint is None:
+        raise ArgumentError(f"resume: no checkpoint in {run_dir / 'checkpoints'}")
+
+    # ------------------------------------------------------------------ set-up
+    trainer = Trainer(args, params, settings, device)
+    per_rollout = settings.rollout_steps * trainer.n_envs * trainer.n_agents
+    if checkpoint is not None:
+        trainer.load_checkpoint(checkpoint)
+        _trim_progress(run_dir / "progress.csv", trainer.timesteps)
+        print(f"fxc train: resuming {run_dir} from {checkpoint.name} at {trainer.timesteps} timesteps")
+    else:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        record = {
+            "args": dataclasses.asdict(args),
+            "hyperparams": params,
+            "torchrl_ppo": dataclasses.asdict(settings),
+            "n_envs": trainer.n_envs,
+            "n_agents": trainer.n_agents,
+            "timesteps_per_rollout": per_rollout,
+        }
+        (run_dir / "config.json").write_text(json.dumps(record, indent=2) + "\n")
+        (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
+        (run_dir / "progress.csv").write_text(",".join(PROGRESS_COLUMNS) + "\n")
+    if args.progress_bar:
+        print(
+            f"fxc train: torch PPO on {args.scenario} (N = {trainer.n_agents}, one shared policy, {args.critic} critic) "
+            f"on {device}: {trainer.n_envs} episodes, {per_rollout} timesteps per rollout"
+        )
+    # On resume, TensorBoard drops the events logged after the checkpoint (steps > its step count).
+    writer = SummaryWriter(str(run_dir), purge_step=trainer.timesteps + 1 if checkpoint is not None else None)
+
+    # ------------------------------------------------------------------- loop
+    start_steps, start_time = trainer.timesteps, time.perf_counter()
+    last_checkpoint = trainer.timesteps
+    try:
+        with deferred_interrupt() as interrupted:
+            while trainer.timesteps < args.timesteps and not interrupted:
+                began = time.perf_counter()
+                rollout = trainer.collect()
+                collected = time.perf_counter()
+                advantages, targets, explained = trainer.advantages(rollout)
+                means = trainer.update(advantages, targets)
+                stats = {"means": means, "explained_variance": explained}
+                trainer.timesteps += per_rollout
+                trainer.iterations += 1
+                row = _progress_row(trainer, rollout, stats, start_steps, start_time, began, collected)
+                with (run_dir / "progress.csv").open("a", newline="") as handle:
+                    csv.writer(handle).writerow("" if row[c] is None else row[c] for c in PROGRESS_COLUMNS)
+                for column in PROGRESS_COLUMNS:
+                    if row[column] is not None:
+                        writer.add_scalar(column, row[column], trainer.timesteps)
+                if args.progress_bar:
+                    reward = row["rollout/ep_rew_mean"]
+                    error = row["rollout/deadline_error"]
+                    print(
+                        f"  rollout {trainer.iterations}: {trainer.timesteps} timesteps, {row['time/fps']:.0f} fps"
+                        + ("" if reward is None else f", mean episode return {reward:.4g}")
+                        + ("" if error is None else f", median deadline error {error:.3g}")
+                    )
+                if trainer.timesteps - last_checkpoint >= args.checkpoint_every:
+                    trainer.save_checkpoint(run_dir / "checkpoints")
+                    last_checkpoint = trainer.timesteps
+            if interrupted:
+                path = trainer.save_checkpoint(run_dir / "checkpoints")
+                print(f"fxc train: interrupted; saved {path} (resume with --resume)", file=sys.stderr)
+                raise KeyboardInterrupt
+    finally:
+        writer.close()
+
+    # -------------------------------------------------------------- artefacts
+    trainer.save_checkpoint(run_dir / "checkpoints")  # a later --resume with more --timesteps goes on from here
+    torch.save(trainer.policy_record(), run_dir / "policy.pt")
+    curve = write_training_curve(run_dir)
+    print(
+        f"fxc train: {trainer.timesteps} timesteps; wrote {run_dir / 'policy.pt'}" + (f" and {curve}" if curve else "")
+    )
+    return run_dir
+
+
+def _progress_row(
+    trainer: Trainer,
+    rollout: dict[str, Any],
+    stats: dict[str, torch.Tensor],
+    start_steps: int,
+    start_time: float,
+    began: float,
+    collected: float,
+) -> dict[str, Any]:
+    """One ``progress.csv`` row: the one read of the rollout's statistics off the device."""
+    now = time.perf_counter()
+    means = stats["means"].cpu().tolist()
+    returns = rollout["returns"]
+    errors = rollout["errors"]
+    return {
+        "time/iterations": trainer.iterations,
+        "time/total_timesteps": trainer.timesteps,
+        "time/fps": (trainer.timesteps - start_steps) / max(now - start_time, 1e-9),
+        "time/time_elapsed": now - start_time,
+        "time/collect_seconds": collected - began,
+        "time/update_seconds": now - collected,
+        "rollout/ep_rew_mean": None if returns is None else float(returns.mean().item()),
+        "rollout/deadline_error": None if errors is None else float(np.median(errors)),
+        "rollout/episodes": 0 if returns is None else int(returns.numel()),
+        "train/policy_loss": means[0],
+        "train/value_loss": means[1],
+        "train/entropy_loss": means[2],
+        "train/approx_kl": means[3],
+        "train/clip_fraction": means[4],
+        "train/explained_variance": float(stats["explained_variance"].item()),
+        "train/std": float(torch.exp(trainer.model.log_std.detach()).mean().item()),
+        "train/learning_rate": trainer.settings.learning_rate,
+        "train/n_updates": trainer.n_updates,
+    }
