@@ -65,12 +65,19 @@ def run_suite(
             from fxc_env.baselines.ray_jobs import run_jobs_on_ray
 
             results = run_jobs_on_ray(longest_first, address=address, num_cpus=workers, on_done=bar.update)
+            for result, job in zip(results, longest_first, strict=True):
+                result.job = job
         else:
             workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
             results = []
             with single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-                for future in as_completed([pool.submit(run_job, job) for job in longest_first]):
-                    results.append(future.result())
+                submitted = {pool.submit(run_job, job): job for job in longest_first}
+                for future in as_completed(submitted):
+                    result = future.result()
+                    # The job as submitted: a copy back from another process may not compare equal
+                    # (a Topology object, say, compares by identity).
+                    result.job = submitted[future]
+                    results.append(result)
                     bar.update()
     return sorted(results, key=lambda r: order[r.job])
 
@@ -150,7 +157,7 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="PATH",
-        help="a saved SB3 model (PPO or SAC .zip), an RLlib checkpoint or run directory, or 'pretrained' "
+        help="a saved SB3 model (PPO or SAC .zip), a torch policy (policy.pt or its run directory), an RLlib checkpoint or run directory, or 'pretrained' "
         "for the one shipped with fxc_env, to score as well; repeatable",
     )
     parser.add_argument(

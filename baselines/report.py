@@ -240,7 +240,15 @@ def notes(results: list[JobResult], suite: Suite, contenders: list[Contender]) -
             d = ran[0].description
             lines.append(f"  Law: `{d['law']}`. Source: {d['source']}. Proven for: {d['graph_class']}.")
         elif contender.name.startswith("learned:"):
-            kind = "RLlib checkpoint" if Path(contender.spec).is_dir() else "SB3 model"
+            from fxc_env.torch_policy import is_torch_policy  # torch only when a learned policy is reported
+
+            kind = (
+                "torch policy"
+                if is_torch_policy(contender.spec)
+                else "RLlib checkpoint"
+                if Path(contender.spec).is_dir()
+                else "SB3 model"
+            )
             lines.append(
                 f"  Law: a learned policy ({kind} `{contender.spec}`), one network shared by every agent; "
                 "no guarantee. Scenarios with more in-neighbours than its observation has rows are not run."

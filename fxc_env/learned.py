@@ -253,7 +253,8 @@ class PerAxisPolicy:
 
 
 def load_learned_policy(path: str | Path, env: Any = None) -> LearnedPolicy | RLlibPolicy | PerAxisPolicy:
-    """A saved policy: an RLlib checkpoint or run directory, else an SB3 PPO/SAC ``.zip``.
+    """A saved policy: a torch policy (``policy.pt`` or a ``--backend torchrl`` run directory), an RLlib
+    checkpoint or run directory, else an SB3 PPO/SAC ``.zip``.
 
     A model trained in one dimension, loaded for a normalized environment with ``dim > 1``
     and the same neighbour slots, acts on every axis alone (:class:`PerAxisPolicy`).
@@ -263,7 +264,9 @@ def load_learned_policy(path: str | Path, env: Any = None) -> LearnedPolicy | RL
     damaged or not a PPO/SAC model, or the model does not fit ``env``.
     """
     path = Path(path)
-    load = RLlibPolicy if path.is_dir() else LearnedPolicy
+    from fxc_env.torch_policy import is_torch_policy, load_torch_policy
+
+    load = load_torch_policy if is_torch_policy(path) else RLlibPolicy if path.is_dir() else LearnedPolicy
     if env is None:
         return load(path)
     from fxc_env.config import config_of

@@ -14,9 +14,10 @@ import yaml
 from fxc_env import make_config
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
+from fxc_env.torch_policy import load_torch_policy
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import HYPERPARAMS, check_train_args
-from fxc_env.training.torch_ppo import Trainer, latest_torch_checkpoint, load_torch_policy
+from fxc_env.training.torch_ppo import Trainer, latest_torch_checkpoint
 
 # 2 episodes x 6 agents, one whole episode (K = 200) per rollout: 2400 timesteps a rollout.
 PER_ROLLOUT = 2400
@@ -198,3 +199,17 @@ def test_bad_hyperparameters_are_named_before_work_starts(tmp_path, setting, mes
 def test_resume_without_a_checkpoint_is_refused(tmp_path):
     with pytest.raises(ArgumentError, match=r"^resume: no checkpoint"):
         train(short_args(tmp_path, resume=True))
+
+
+def test_fxc_evaluate_scores_a_torch_run_next_to_the_reference(tmp_path, capsys):
+    from fxc_env.cli import main
+    from fxc_env.learned import load_learned_policy
+    from fxc_env.torch_policy import TorchPolicy
+
+    run_dir = train(short_args(tmp_path, timesteps=PER_ROLLOUT))
+    assert isinstance(load_learned_policy(run_dir / "policy.pt"), TorchPolicy)
+    out = tmp_path / "evaluate"
+    arguments = ["evaluate", "--policy", str(run_dir), "--topology", "ring", "--n-agents", "6", "--seeds", "2"]
+    assert main([*arguments, "--out", str(out), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "learned:run" in text and "torch policy" in text

@@ -51,7 +51,7 @@ import re
 import signal
 import sys
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -64,15 +64,13 @@ from fxc_env.config import EnvConfig, make_config
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
+from fxc_env.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp
 from fxc_env.training.args import TrainArgs, check_train_args, default_run_dir
 from fxc_env.training.artefacts import versions, write_training_curve
 
 #: ``format`` of the policy file and of a checkpoint.
-POLICY_FORMAT = "fxc_env.torch_ppo.policy/1"
-CHECKPOINT_FORMAT = "fxc_env.torch_ppo.checkpoint/1"
 CHECKPOINT_PATTERN = re.compile(r"model_(\d+)_steps\.pt$")
 #: Activations by name (the hyperparameter file's ``activation``).
-ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves all).
 PROGRESS_COLUMNS = (
     "time/iterations",
@@ -174,23 +172,6 @@ def run_config(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------------- networks
-def mlp(inputs: int, outputs: int, hidden: tuple[int, ...], activation: str, out_gain: float) -> nn.Sequential:
-    """``Linear`` + activation layers, orthogonally initialised (SB3's gains: sqrt 2, then ``out_gain``)."""
-    layers: list[nn.Module] = []
-    width = inputs
-    for size in hidden:
-        layer = nn.Linear(width, size)
-        nn.init.orthogonal_(layer.weight, math.sqrt(2.0))
-        nn.init.zeros_(layer.bias)
-        layers += [layer, ACTIVATIONS[activation]()]
-        width = size
-    last = nn.Linear(width, outputs)
-    nn.init.orthogonal_(last.weight, out_gain)
-    nn.init.zeros_(last.bias)
-    layers.append(last)
-    return nn.Sequential(*layers)
-
-
 class ActorCritic(nn.Module):
     """The shared Gaussian policy (mean network, state-independent log std) and the critic."""
 
@@ -219,66 +200,6 @@ def adam(parameters: Iterator[nn.Parameter], learning_rate: float) -> torch.opti
         return torch.optim.Adam(parameters, lr=learning_rate, eps=1e-5, fused=True)
     except (RuntimeError, TypeError):
         return torch.optim.Adam(parameters, lr=learning_rate, eps=1e-5)
-
-
-# ------------------------------------------------------------------------------ the policy
-class TorchPolicy:
-    """A trained policy, deterministic: observations ``[..., obs_size]`` to actions ``[..., action_size]``.
-
-    The action is the Gaussian's mean clipped to ``±action_bound`` (training clips its
-    samples to the same bound). numpy in, numpy (float64) out; a torch tensor in, a tensor
-    out on its device, in its floating dtype (float32 for other dtypes). ``env`` holds the
-    scenario and environment keywords it was trained on.
-    """
-
-    def __init__(self, record: Mapping[str, Any]) -> None:
-        if record.get("format") != POLICY_FORMAT:
-            raise ArgumentError(f"policy: expected a {POLICY_FORMAT!r} record, got format {record.get('format')!r}")
-        self.obs_size = int(record["obs_size"])
-        self.action_size = int(record["action_size"])
-        self.action_bound = float(record["action_bound"])
-        self.env: dict[str, Any] = dict(record.get("env", {}))
-        self.timesteps = int(record.get("timesteps", 0))
-        hidden = tuple(int(w) for w in record["hidden"])
-        self.module = mlp(self.obs_size, self.action_size, hidden, str(record["activation"]), 1.0)
-        self.module.load_state_dict(record["actor"])
-        self.module.eval().requires_grad_(False)
-
-    def __call__(self, observations: Any) -> Any:
-        numpy_in = not isinstance(observations, torch.Tensor)
-        x = torch.as_tensor(np.asarray(observations) if numpy_in else observations)
-        if x.ndim < 1 or x.shape[-1] != self.obs_size:
-            raise ArgumentError(f"observations: expected shape [..., {self.obs_size}], got {tuple(x.shape)}")
-        device = next(self.module.parameters()).device
-        if x.device != device:
-            self.module.to(x.device)
-        with torch.no_grad():
-            actions = self.module(x.to(torch.float32)).clamp(-self.action_bound, self.action_bound)
-        if numpy_in:
-            return actions.double().numpy()
-        return actions.to(x.dtype) if x.is_floating_point() else actions
-
-
-def load_torch_policy(path: str | Path) -> Callable[[Any], Any]:
-    """The deterministic policy of ``path``: a run directory (its ``policy.pt``), a ``policy.pt`` or a checkpoint.
-
-    Returns a :class:`TorchPolicy`: ``policy(obs)`` maps ``[..., obs_size]`` (numpy or torch)
-    to actions ``[..., action_size]``, the clipped mean of the trained Gaussian.
-    """
-    path = Path(path)
-    if path.is_dir():
-        path = path / "policy.pt"
-    if not path.is_file():
-        raise ArgumentError(f"policy: no torch policy file at {str(path)!r}")
-    try:
-        record = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # a foreign or damaged file
-        raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file ({exc})") from exc
-    if isinstance(record, dict) and record.get("format") == CHECKPOINT_FORMAT:
-        record = record["policy"]
-    if not isinstance(record, dict):
-        raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file")
-    return TorchPolicy(record)
 
 
 # ------------------------------------------------------------------------------- checkpoints

@@ -1,0 +1,111 @@
+"""Policies trained by ``fxc train --backend torchrl``, loaded for use: :func:`load_torch_policy`.
+
+The policy file (``policy.pt`` in a run directory, or inside a checkpoint) is a ``torch.save``
+of a plain dictionary that loads with ``weights_only=True``: ``format``
+(:data:`POLICY_FORMAT`), ``obs_size``, ``action_size``, ``action_bound``, ``hidden`` (the
+widths), ``activation``, ``actor`` (the state dict of the mean network, an ``nn.Sequential``
+of ``Linear`` and activation layers), ``log_std``, ``env`` (``scenario`` and the environment
+keywords it was trained on) and ``timesteps``. The trainer lives in
+:mod:`fxc_env.training.torch_ppo`; this module is what evaluation needs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from fxc_env.core.validation import ArgumentError
+
+#: The ``format`` of a policy record, and of a checkpoint (which holds one under ``"policy"``).
+POLICY_FORMAT = "fxc_env.torch_ppo.policy/1"
+CHECKPOINT_FORMAT = "fxc_env.torch_ppo.checkpoint/1"
+#: Activations a network may use.
+ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+
+
+def mlp(inputs: int, outputs: int, hidden: tuple[int, ...], activation: str, out_gain: float) -> nn.Sequential:
+    """``Linear`` + activation layers, orthogonally initialised (SB3's gains: sqrt 2, then ``out_gain``)."""
+    layers: list[nn.Module] = []
+    width = inputs
+    for size in hidden:
+        layer = nn.Linear(width, size)
+        nn.init.orthogonal_(layer.weight, math.sqrt(2.0))
+        nn.init.zeros_(layer.bias)
+        layers += [layer, ACTIVATIONS[activation]()]
+        width = size
+    last = nn.Linear(width, outputs)
+    nn.init.orthogonal_(last.weight, out_gain)
+    nn.init.zeros_(last.bias)
+    layers.append(last)
+    return nn.Sequential(*layers)
+
+
+class TorchPolicy:
+    """A trained policy, deterministic: observations ``[..., obs_size]`` to actions ``[..., action_size]``.
+
+    The action is the Gaussian's mean clipped to ``±action_bound`` (training clips its
+    samples to the same bound). numpy in, numpy (float64) out; a torch tensor in, a tensor
+    out on its device, in its floating dtype (float32 for other dtypes). ``env`` holds the
+    scenario and environment keywords it was trained on.
+    """
+
+    def __init__(self, record: Mapping[str, Any]) -> None:
+        if record.get("format") != POLICY_FORMAT:
+            raise ArgumentError(f"policy: expected a {POLICY_FORMAT!r} record, got format {record.get('format')!r}")
+        self.obs_size = int(record["obs_size"])
+        self.action_size = int(record["action_size"])
+        self.action_bound = float(record["action_bound"])
+        self.env: dict[str, Any] = dict(record.get("env", {}))
+        self.timesteps = int(record.get("timesteps", 0))
+        hidden = tuple(int(w) for w in record["hidden"])
+        self.module = mlp(self.obs_size, self.action_size, hidden, str(record["activation"]), 1.0)
+        self.module.load_state_dict(record["actor"])
+        self.module.eval().requires_grad_(False)
+
+    def __call__(self, observations: Any) -> Any:
+        numpy_in = not isinstance(observations, torch.Tensor)
+        x = torch.as_tensor(np.asarray(observations) if numpy_in else observations)
+        if x.ndim < 1 or x.shape[-1] != self.obs_size:
+            raise ArgumentError(f"observations: expected shape [..., {self.obs_size}], got {tuple(x.shape)}")
+        device = next(self.module.parameters()).device
+        if x.device != device:
+            self.module.to(x.device)
+        with torch.no_grad():
+            actions = self.module(x.to(torch.float32)).clamp(-self.action_bound, self.action_bound)
+        if numpy_in:
+            return actions.double().numpy()
+        return actions.to(x.dtype) if x.is_floating_point() else actions
+
+
+def load_torch_policy(path: str | Path) -> TorchPolicy:
+    """The deterministic policy of ``path``: a run directory (its ``policy.pt``), a ``policy.pt`` or a checkpoint.
+
+    Returns a :class:`TorchPolicy`: ``policy(obs)`` maps ``[..., obs_size]`` (numpy or torch)
+    to actions ``[..., action_size]``, the clipped mean of the trained Gaussian.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "policy.pt"
+    if not path.is_file():
+        raise ArgumentError(f"policy: no torch policy file at {str(path)!r}")
+    try:
+        record = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # a foreign or damaged file
+        raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file ({exc})") from exc
+    if isinstance(record, dict) and record.get("format") == CHECKPOINT_FORMAT:
+        record = record["policy"]
+    if not isinstance(record, dict):
+        raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file")
+    return TorchPolicy(record)
+
+
+def is_torch_policy(path: str | Path) -> bool:
+    """Whether ``path`` is a torch policy file (``.pt``) or a run directory holding ``policy.pt``."""
+    path = Path(path)
+    return path.suffix == ".pt" or (path.is_dir() and (path / "policy.pt").is_file())
