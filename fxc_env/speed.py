@@ -57,7 +57,7 @@ from fxc_env.threads import THREAD_VARIABLES, pin_threads_or_reexec
 
 BENCH_HINT = 'install the optional extra: .venv/bin/pip install -c constraints.txt -e ".[bench]"'
 #: The CPU tables, in the order they print (the default selection).
-CPU_TABLES = ("parallel", "vecenv", "torchrl", "scaling", "models")
+CPU_TABLES = ("parallel", "vecenv", "torchrl", "training", "scaling", "models")
 #: Every table ``--only`` may name.
 TABLES = (*CPU_TABLES, "cuda")
 #: Tables that compare with other libraries (left out by ``--skip-contenders``).
@@ -348,6 +348,71 @@ def models_table(n_agents: int = MODELS_N, steps: int = 20) -> list[str]:
     lines += [
         "",
         f"general path / closed forms at N={n_agents:,}: {general:.1f}x (goal <= {MODELS_GOAL:g}x: {_met(general <= MODELS_GOAL)})",
+    ]
+    return lines
+
+
+#: Agent-steps each back end trains for in the training table (whole PPO rollouts on paper_fig1).
+TRAINING_TIMESTEPS = {"sb3": 2 * 16 * 6 * 200, "torchrl": 4 * 64 * 6 * 200}
+#: The torch back end's goal: agent-steps per second of PPO (collection and updates) on the CPU.
+TRAINING_GOAL = 1e5
+
+
+def training_rate(backend: str, timesteps: int, threads: int) -> tuple[float, float]:
+    """(agent-steps/s over the run, wall seconds) of ``fxc train --backend`` on paper_fig1, PPO, in a scratch directory."""
+    import contextlib
+    import io
+    import tempfile
+
+    from fxc_env.training.args import TrainArgs
+    from fxc_env.training.backends import train
+
+    with tempfile.TemporaryDirectory() as scratch, contextlib.redirect_stdout(io.StringIO()):
+        start = time.perf_counter()
+        args = TrainArgs(
+            scenario="paper_fig1",
+            backend=backend,
+            timesteps=timesteps,
+            run_dir=scratch,
+            progress_bar=False,
+            torch_threads=threads,
+            checkpoint_every=10**9,
+        )
+        train(args)
+        seconds = time.perf_counter() - start
+    return timesteps / seconds, seconds
+
+
+def training_table(threads: int | None = None) -> list[str]:
+    """PPO's throughput, end to end (collection, updates, logging; set-up included), per back end on paper_fig1.
+
+    SB3 on :class:`~fxc_env.vec_env.ConsensusVecEnv` and the torch back end on the torch
+    engine, each with ``threads`` torch threads (default: every core); RLlib needs Ray, which
+    lives in ``.venv-rllib`` (``fxc train --backend rllib`` prints its own rate there).
+    """
+    import torch
+
+    threads = threads or os.cpu_count() or 1
+    previous = torch.get_num_threads()
+    lines = ["| back end | agent-steps | wall (s) | agent-steps/s | vs SB3 |", "|---|---:|---:|---:|---:|"]
+    rates = {}
+    try:
+        for backend, timesteps in TRAINING_TIMESTEPS.items():
+            rates[backend], seconds = training_rate(backend, timesteps, threads)
+            lines.append(
+                f"| {backend} | {timesteps:,} | {seconds:.1f} | {rates[backend]:,.0f} | {rates[backend] / rates['sb3']:.1f}x |"
+            )
+    finally:
+        torch.set_num_threads(previous)
+    if _importable("ray"):
+        lines.append("| rllib | | | (run `fxc train --backend rllib`: it prints its rate) | |")
+    else:
+        lines.append("| rllib | | | not in this environment (Ray lives in .venv-rllib) | |")
+    rate = rates["torchrl"]
+    lines += [
+        "",
+        f"torch back end: {rate:,.0f} agent-steps/s with {threads} threads "
+        f"(goal >= {TRAINING_GOAL:,.0f}: {_met(rate >= TRAINING_GOAL)})",
     ]
     return lines
 
@@ -929,6 +994,11 @@ def run(args: Any) -> int:
             "TorchRL on CPU: the PettingZoo wrapper, ConsensusTorchEnv and the engine (paper_fig1, N = 6, "
             "reference policy, resets included, one thread)",
             torchrl_table(args.rounds),
+        )
+    if "training" in tables:
+        _section(
+            f"Training: PPO end to end on paper_fig1, {os.cpu_count()} torch threads (set-up, collection, updates)",
+            training_table(),
         )
     if "scaling" in tables:
         _section(

@@ -136,7 +136,7 @@ def test_bad_table_selection_names_the_option(one_thread, capsys, argv, named):
 def test_table_selection_defaults_to_the_cpu_tables():
     parse = speed.add_arguments(argparse.ArgumentParser()).parse_args
     assert speed.selected_tables(parse([])) == (speed.CPU_TABLES, "cpu")
-    assert speed.selected_tables(parse(["--skip-contenders"]))[0] == ("scaling", "models")
+    assert speed.selected_tables(parse(["--skip-contenders"]))[0] == ("training", "scaling", "models")
     assert speed.selected_tables(parse(["--only", "scaling, torchrl"]))[0] == ("torchrl", "scaling")
     assert speed.selected_tables(argparse.Namespace(skip_contenders=False))[0] == speed.CPU_TABLES  # an older parser
 
@@ -173,3 +173,14 @@ def test_the_models_table_compares_every_agent_model_with_the_closed_forms(one_t
     text = "\n".join(lines)
     assert "| double_integrator as (A, B) (general path) |" in text and "| oscillator |" in text
     assert "general path / closed forms at N=200:" in lines[-1] and "goal <= 10x" in lines[-1]
+
+
+def test_the_training_table_times_every_back_end_in_this_environment(one_thread, monkeypatch):
+    monkeypatch.setattr(speed, "TRAINING_TIMESTEPS", {"sb3": 16 * 6 * 200, "torchrl": 64 * 6 * 200})
+    lines = speed.training_table(threads=1)
+    rows = {line.split("|")[1].strip(): line for line in lines if line.startswith("| ") and "---" not in line}
+    assert {"sb3", "torchrl", "rllib"} <= set(rows)
+    for backend in ("sb3", "torchrl"):
+        rate = float(rows[backend].split("|")[4].replace(",", ""))
+        assert rate > 0 and math.isfinite(rate)
+    assert "goal >= 100,000" in lines[-1]
