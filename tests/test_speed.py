@@ -180,6 +180,7 @@ def test_the_training_table_times_every_back_end_in_this_environment(one_thread,
     lines = speed.training_table(threads=1)
     rows = {line.split("|")[1].strip(): line for line in lines if line.startswith("| ") and "---" not in line}
     assert {"sb3", "torchrl", "rllib"} <= set(rows)
+    assert any(name.startswith("TorchRL Collector + ClipPPOLoss") for name in rows)
     for backend in ("sb3", "torchrl"):
         rate = float(rows[backend].split("|")[4].replace(",", ""))
         assert rate > 0 and math.isfinite(rate)
