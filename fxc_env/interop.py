@@ -11,6 +11,9 @@ wrapper here, not an environment option, because the nested ``episode`` dict is 
 PettingZoo-side contract that other consumers read; only the tensor world needs the flat form.
 
 RLlib's PettingZoo wrapper lives with the RLlib trainer (``fxc_env.training.rllib_train``).
+For TorchRL at speed use the native batched environment instead,
+:class:`fxc_env.torchrl_env.ConsensusTorchEnv` (thousands of times this wrapper's rate:
+README, "Performance").
 """
 
 from __future__ import annotations
