@@ -434,7 +434,14 @@ def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 
     )
     critic = ValueOperator(mlp(size, 1), in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "state_value")])
     frames = episodes * steps
-    collector = Collector(env, actor, frames_per_batch=frames, total_frames=frames * (rollouts + 1), device="cpu")
+    collector = Collector(
+        env,
+        actor,
+        frames_per_batch=frames,
+        total_frames=frames * (rollouts + 1),
+        device="cpu",
+        auto_register_policy_transforms=False,
+    )
     loss = ClipPPOLoss(actor_network=actor, critic_network=critic, clip_epsilon=0.2, entropy_coeff=0.0)
     loss.set_keys(
         reward=(GROUP, "reward"),
