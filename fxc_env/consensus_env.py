@@ -181,6 +181,26 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     scale-free and invariant to a common shift of positions or velocities, like the
     normalized observations. ``state_space`` matches either form.
 
+    ## Agent Models and Formations
+    ``agent_model`` gives every agent, on each axis, ``z' = A z + B u`` with ``z`` in R^n (the
+    double integrator's ``z = (x, v)`` is the default and keeps its closed forms). Rows are
+    then ``z_j - z_i`` (``n dim`` numbers, component-major), and a ``plan`` action is ``Delta``,
+    the terminal change relative to free motion (``n dim`` numbers), applied as the
+    minimum-energy input ``u(s) = B^T e^{A^T (T - s)} G(T)^{-1} Delta`` (Gramian ``G``; matrix
+    exponentials, no ODE solver). Normalized units read component l in position units,
+    ``r_l |z_j - z_i|_l`` with ``r = (1, T, T^2, ...)`` for integrator chains (in general
+    ``D_0 / D_l`` of the time-scaled frame ``D = h^levels``, ``h = min(T, 1 / rho(A))``);
+    ``s_i`` is their largest value and ``Delta_l = s_i alpha_l / r_l``, so the task stays
+    scale-free. The reference plans ``Delta_i = e^{A T} e_i`` with ``e_i`` the mean of
+    ``z_j - z_i`` over itself and its in-neighbours (eq. 11 for the double integrator); the
+    interval map is ``Z+ = (W_k kron e^{A T_k}) Z``, so Theorems 1-2 carry over: under their
+    spanning conditions every agent reaches ``z*(T_s) = e^{A T_s} sum_j xi_j z_j(0)`` and
+    follows ``z*(t) = e^{A t} sum_j xi_j z_j(0)`` afterwards. The disagreement is
+    ``D = sum_l T_s^l e_{z_l}``. With ``formation_offsets`` ``h_i`` agents agree on
+    ``z_i - e^{A t} h_i`` instead: observations, rewards and metrics are of that formation
+    error, ``state()`` and frames of the absolute states. ``accel`` actions and ``u_max`` are
+    the double integrator's.
+
     ## Arguments
     Every argument is keyword-only except ``scenario``; defaults in brackets come from the
     scenario when one is named (explicit arguments override it).
