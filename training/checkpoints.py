@@ -13,6 +13,8 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecNormalize
 
+from fxc_env.training.run_files import newest_by_steps
+
 CHECKPOINT_PATTERN = re.compile(r"model_(\d+)_steps\.zip$")
 
 
@@ -24,12 +26,7 @@ def vecnormalize_path(checkpoint: Path) -> Path:
 
 def latest_checkpoint(run_dir: Path) -> Path | None:
     """The checkpoint with the most steps in ``run_dir/checkpoints`` (None if there is none)."""
-    found = [
-        (int(match.group(1)), path)
-        for path in (run_dir / "checkpoints").glob("model_*_steps.zip")
-        if (match := CHECKPOINT_PATTERN.search(path.name))
-    ]
-    return max(found)[1] if found else None
+    return newest_by_steps(run_dir / "checkpoints", "model_*_steps.zip", CHECKPOINT_PATTERN)
 
 
 def save_checkpoint(model: Any, directory: Path) -> Path:

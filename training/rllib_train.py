@@ -26,10 +26,7 @@ import csv
 import dataclasses
 import json
 import math
-import signal
 import sys
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +38,7 @@ from fxc_env.core.validation import ArgumentError
 from fxc_env.learned import RLLIB_MODULE, rllib_checkpoint
 from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.artefacts import versions, write_training_curve
+from fxc_env.training.run_files import deferred_interrupt
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves both).
 PROGRESS_COLUMNS = (
@@ -111,29 +109,6 @@ def save(algo: Any, run_dir: Path, timesteps: int) -> Path:
     return path
 
 
-@contextmanager
-def deferred_interrupt() -> Iterator[list[bool]]:
-    """Ctrl-C sets a flag (checked between iterations) instead of breaking an iteration; twice stops at once."""
-    pressed: list[bool] = []
-    previous = signal.getsignal(signal.SIGINT)
-
-    def handler(signum: int, frame: Any) -> None:
-        if pressed:
-            raise KeyboardInterrupt
-        pressed.append(True)
-        print("\nfxc train: Ctrl-C; finishing this iteration, then saving a checkpoint", file=sys.stderr)
-
-    try:
-        signal.signal(signal.SIGINT, handler)
-    except ValueError:  # not the main thread: leave Ctrl-C alone
-        yield pressed
-        return
-    try:
-        yield pressed
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def train_rllib(args: TrainArgs) -> Path:
     """Run (or resume) RLlib PPO training; returns the run directory."""
     import torch
@@ -176,7 +151,7 @@ def train_rllib(args: TrainArgs) -> Path:
 
         # ------------------------------------------------------------------- loop
         try:
-            with deferred_interrupt() as interrupted:
+            with deferred_interrupt("iteration") as interrupted:
                 while algo.iteration < iterations and not interrupted:
                     result = algo.train()
                     row = progress_row(result, n_agents)

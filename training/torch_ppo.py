@@ -48,11 +48,9 @@ import dataclasses
 import json
 import math
 import re
-import signal
 import sys
 import time
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +65,7 @@ from fxc_env.engine import ConsensusEngine
 from fxc_env.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp
 from fxc_env.training.args import TrainArgs, check_train_args, default_run_dir
 from fxc_env.training.artefacts import versions, write_training_curve
+from fxc_env.training.run_files import deferred_interrupt, newest_by_steps
 
 #: ``format`` of the policy file and of a checkpoint.
 CHECKPOINT_PATTERN = re.compile(r"model_(\d+)_steps\.pt$")
@@ -205,35 +204,7 @@ def adam(parameters: Iterator[nn.Parameter], learning_rate: float) -> torch.opti
 # ------------------------------------------------------------------------------- checkpoints
 def latest_torch_checkpoint(run_dir: Path) -> Path | None:
     """The checkpoint with the most timesteps in ``run_dir/checkpoints`` (None if there is none)."""
-    found = [
-        (int(match.group(1)), path)
-        for path in (run_dir / "checkpoints").glob("model_*_steps.pt")
-        if (match := CHECKPOINT_PATTERN.search(path.name))
-    ]
-    return max(found)[1] if found else None
-
-
-@contextmanager
-def deferred_interrupt() -> Iterator[list[bool]]:
-    """Ctrl-C sets a flag (checked between rollouts) instead of breaking an update; twice stops at once."""
-    pressed: list[bool] = []
-    previous = signal.getsignal(signal.SIGINT)
-
-    def handler(signum: int, frame: Any) -> None:
-        if pressed:
-            raise KeyboardInterrupt
-        pressed.append(True)
-        print("\nfxc train: Ctrl-C; finishing this rollout, then saving a checkpoint", file=sys.stderr)
-
-    try:
-        signal.signal(signal.SIGINT, handler)
-    except ValueError:  # not the main thread: leave Ctrl-C alone
-        yield pressed
-        return
-    try:
-        yield pressed
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    return newest_by_steps(run_dir / "checkpoints", "model_*_steps.pt", CHECKPOINT_PATTERN)
 
 
 # ---------------------------------------------------------------------------------- training
@@ -527,7 +498,7 @@ def train_torch(args: TrainArgs) -> Path:
     start_steps, start_time = trainer.timesteps, time.perf_counter()
     last_checkpoint = trainer.timesteps
     try:
-        with deferred_interrupt() as interrupted:
+        with deferred_interrupt("rollout") as interrupted:
             while trainer.timesteps < args.timesteps and not interrupted:
                 began = time.perf_counter()
                 rollout = trainer.collect()

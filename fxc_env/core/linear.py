@@ -73,7 +73,7 @@ import numpy as np
 import scipy.linalg
 
 from fxc_env.core import validation
-from fxc_env.core.validation import ArgumentError, ArgumentTypeError
+from fxc_env.core.validation import ArgumentError
 
 MODEL_NAMES = ("double_integrator", "single_integrator", "integrator_chain", "damped", "oscillator")
 #: Orders accepted by the ``"integrator_chain"`` model.
@@ -164,24 +164,14 @@ def is_double_integrator(A: Any, B: Any) -> bool:
 
 
 def _real_matrix(name: str, value: Any, expected: str, copy: bool = True) -> np.ndarray:
-    """``value`` as float64 (a copy unless ``copy`` is False); a non-numeric value raises naming ``name``."""
-    try:
-        array = np.asarray(value)
-    except (TypeError, ValueError, OverflowError):
-        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {_short(value)}") from None
-    if array.dtype.kind not in "biuf":
-        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {_short(value)}")
-    return np.array(array, dtype=np.float64) if copy else array.astype(np.float64, copy=False)
+    """``value`` as float64 (a copy unless ``copy`` is False), checked by :func:`fxc_env.core.validation.real_array`."""
+    array = validation.real_array(name, value, expected)
+    return np.array(array) if copy else array
 
 
 def _check_finite(name: str, array: np.ndarray) -> None:
     if not np.all(np.isfinite(array)):
         raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
-
-
-def _short(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _structural_levels(A: np.ndarray, B: np.ndarray) -> np.ndarray:

@@ -118,7 +118,7 @@ def optional_seed(name: str, value: Any) -> int | None:
 def state_array(name: str, value: Any, n_agents: int, dim: int) -> np.ndarray:
     """``value`` as a float64 ``(N, dim)`` array (``(N,)`` accepted when ``dim = 1``), entries within ±STATE_LIMIT."""
     accepted = f"({n_agents}, {dim})" + (f" or ({n_agents},)" if dim == 1 else "")
-    array = _real_array(name, value, f"an array of shape {accepted}")
+    array = real_array(name, value, f"an array of shape {accepted}")
     if dim == 1 and array.shape == (n_agents,):
         array = array[:, None]
     if array.shape != (n_agents, dim):
@@ -129,7 +129,7 @@ def state_array(name: str, value: Any, n_agents: int, dim: int) -> np.ndarray:
 
 def action_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
     """``value`` as a float64 array of ``shape`` with finite entries."""
-    array = _real_array(name, value, f"an array of shape {shape}")
+    array = real_array(name, value, f"an array of shape {shape}")
     if array.shape != shape:
         raise ArgumentError(f"{name}: expected shape {shape}, got {array.shape}")
     _check_entries(name, array, None)
@@ -140,7 +140,7 @@ def interval_lengths(name: str, value: Any) -> np.ndarray:
     """``value`` as a 1-D float64 array of K >= 1 interval lengths, each at least :data:`MIN_INTERVAL` seconds."""
     if isinstance(value, str | bytes):
         raise ArgumentTypeError(f"{name}: expected 'paper', 'uniform' or an array of interval lengths, got {value!r}")
-    lengths = _real_array(name, value, "an array of interval lengths")
+    lengths = real_array(name, value, "an array of interval lengths")
     if lengths.ndim != 1 or lengths.size < 1:
         raise ArgumentError(f"{name}: expected a 1-D array of K >= 1 interval lengths, got shape {lengths.shape}")
     if not np.all(np.isfinite(lengths)) or np.any(lengths < MIN_INTERVAL):
@@ -151,8 +151,11 @@ def interval_lengths(name: str, value: Any) -> np.ndarray:
     return lengths
 
 
-def _real_array(name: str, value: Any, expected: str) -> np.ndarray:
-    """``value`` as a float64 array; a ragged or non-numeric value raises naming ``name``."""
+def real_array(name: str, value: Any, expected: str) -> np.ndarray:
+    """``value`` as a float64 array (not copied when it is one); a ragged or non-numeric value raises naming ``name``.
+
+    ``expected`` completes the message: ``"{name}: expected {expected} of real numbers, got ..."``.
+    """
     try:
         array = np.asarray(value)
     except (TypeError, ValueError, OverflowError):
