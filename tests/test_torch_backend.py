@@ -247,6 +247,7 @@ def test_step_reset_and_reference_run_on_the_meta_device(kwargs):
     for _ in range(3):
         engine.step(engine.validate_actions(policy.act(engine.observations())))
     assert engine.state.device.type == "meta"
+    assert engine.normalized_state().shape == (8, config.n_agents * 2 * config.dim + 3)  # centralised critics
     if config.family is None:  # a partial reset too (a family's would read the mask, once per reset)
         engine.reset(x0, v0, u_max=u_max, episodes=torch.ones(8, dtype=torch.bool, device="meta"))
         for _ in range(3):
