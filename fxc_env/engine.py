@@ -218,7 +218,6 @@ class ConsensusEngine:
         self._clock = self._array(clock)
         self._next_interval = next_interval.tolist()
         self._next_interval_array = self._array(next_interval)
-        self._times = self._array(schedule.times)
         #: Per instant, what each flat row entry is multiplied by before the division by s:
         #: 1 for position parts, ``T_{k+1}`` for velocity parts, ``(K + 1, slots * 2 dim)``.
         per_row = np.repeat(config.row_scales, config.dim, axis=1)
@@ -816,8 +815,9 @@ class ConsensusEngine:
                 raise self._overflow_error(actions, energy, disagreement_next)
         else:
             finite = xp.isfinite(disagreement_next) & xp.all(xp.isfinite(energy), axis=-1)
-            past_deadline = self._episode_steps() >= self.config.schedule.n_intervals
-            self.invalid = self.invalid | ~finite | past_deadline
+            self.invalid = self.invalid | ~finite
+            if not lock_step:  # in lock step a step past T_s was refused above, on the host
+                self.invalid = self.invalid | (self.steps >= self.config.schedule.n_intervals)
         if saturated_time is None:
             saturated = self._no_saturation
         else:

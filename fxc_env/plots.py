@@ -164,7 +164,7 @@ def inputs_figure(trajectory: Trajectory, path: Path) -> Path:
     ax.set_xlabel("t (s)")
     unit = "m/s²" if c.model is None else "input units"
     ax.set_ylabel(f"input u_i(t) ({unit}){_component_note(trajectory)}")
-    ax.set_title(f"inputs (symmetric log axis); peak |u| = {trajectory.metrics.peak_input:.3g} m/s²", fontsize=9)
+    ax.set_title(f"inputs (symmetric log axis); peak |u| = {trajectory.metrics.peak_input:.3g} {unit}", fontsize=9)
     ax.grid(alpha=0.3)
     _legend(ax)
     return save_figure(fig, path)
