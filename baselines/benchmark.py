@@ -34,9 +34,9 @@ from fxc_env.baselines.suite import (
     quick_suite,
     realism_suite,
 )
-from fxc_env.cli_checks import output_directory
 from fxc_env.core.validation import MAX_INTERVALS, ArgumentError, integer
-from fxc_env.threads import single_threaded_children
+from fxc_env.utils.cli_checks import output_directory
+from fxc_env.utils.threads import single_threaded_children
 
 
 def run_suite(

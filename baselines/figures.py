@@ -1,4 +1,4 @@
-"""The benchmark's figures, written headless as PNG (matplotlib's Agg canvas, as :mod:`fxc_env.plots`).
+"""The benchmark's figures, written headless as PNG (matplotlib's Agg canvas, as :mod:`fxc_env.analysis.plots`).
 
 1. ``deadline_vs_budget.png``: relative deadline error against the budget K (log-log),
    all scenarios pooled and on the trace scenario; continuous laws are single points at
@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fxc_env.analysis.plots import new_figure, save_figure
 from fxc_env.baselines.report import quantiles
-from fxc_env.plots import new_figure, save_figure
 
 if TYPE_CHECKING:
     from fxc_env.baselines.jobs import JobResult

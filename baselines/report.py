@@ -240,7 +240,7 @@ def notes(results: list[JobResult], suite: Suite, contenders: list[Contender]) -
             d = ran[0].description
             lines.append(f"  Law: `{d['law']}`. Source: {d['source']}. Proven for: {d['graph_class']}.")
         elif contender.name.startswith("learned:"):
-            from fxc_env.torch_policy import is_torch_policy  # torch only when a learned policy is reported
+            from fxc_env.policies.torch_policy import is_torch_policy  # torch only when a learned policy is reported
 
             kind = (
                 "torch policy"

@@ -27,12 +27,12 @@ from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
 from fxc_env.baselines.sampled import SampledLinearPolicy
 from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
 from fxc_env.config import EnvConfig, make_config
+from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core.families import AnyFamily, TopologyFamily
 from fxc_env.core.graphs import Topology
 from fxc_env.core.validation import ArgumentError
-from fxc_env.layout import CLOCK_SIZE
-from fxc_env.learned import SHIPPED, SHIPPED_SCHEDULES, load_learned_policy, pretrained_path
-from fxc_env.reference import ReferencePolicy
+from fxc_env.policies.learned import SHIPPED, SHIPPED_SCHEDULES, load_learned_policy, pretrained_path
+from fxc_env.policies.reference import ReferencePolicy
 
 Policy = Callable[[np.ndarray], np.ndarray]
 
@@ -175,7 +175,7 @@ def learned_contender(
     Its observation width fixes ``obs_slots`` (rows = (obs_size - 3) / (2 dim + 1), dim = 1,
     one more entry for a policy that sees the input limit); scenarios with more
     in-neighbours than that, or without an input limit for a policy that expects one, are
-    reported as not run. In ``dim > 1`` it acts per axis (:class:`fxc_env.learned.PerAxisPolicy`). The model is loaded
+    reported as not run. In ``dim > 1`` it acts per axis (:class:`fxc_env.policies.learned.PerAxisPolicy`). The model is loaded
     here, so a missing, empty or corrupt file raises :class:`ArgumentError` naming ``name``
     (``--policy`` on the command line) before any job runs.
     """
@@ -193,7 +193,7 @@ def learned_contender(
 
 
 def _renamed(message: str, name: str) -> str:
-    """``message`` (``"policy: ..."`` from :mod:`fxc_env.learned`) naming ``name`` instead."""
+    """``message`` (``"policy: ..."`` from :mod:`fxc_env.policies.learned`) naming ``name`` instead."""
     return f"{name}: {message.removeprefix('policy: ')}"
 
 
@@ -386,7 +386,7 @@ def load_policy(spec: str, config: EnvConfig) -> Policy:
     """A policy for ``config``: ``reference``, a baseline name, ``pretrained`` or a saved policy's path.
 
     Saved policies (an SB3 PPO or SAC ``.zip``, an RLlib checkpoint or run directory) load
-    through :func:`fxc_env.learned.load_learned_policy`, which checks that the model's
+    through :func:`fxc_env.policies.learned.load_learned_policy`, which checks that the model's
     observation and action sizes fit ``config``. Raises :class:`ArgumentError` (a
     ``ValueError``) naming ``policy`` when the spec is unknown, nothing is saved at the path,
     the file is not a readable model, or the model does not fit.

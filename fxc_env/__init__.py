@@ -11,15 +11,16 @@ dynamics, the paper's controller (eq. 11) as :class:`ReferencePolicy`, and the e
 
 from __future__ import annotations
 
+from fxc_env.analysis.simulation import Trajectory, simulate
 from fxc_env.config import EnvConfig, make_config
+from fxc_env.config.scenarios import SCENARIOS
 from fxc_env.core.graphs import Topology, make_topology
 from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.engine import ConsensusEngine
-from fxc_env.fxc_consensus_v0 import env, parallel_env, raw_env
-from fxc_env.reference import ReferencePolicy
-from fxc_env.registration import ENV_ID, register_environments
-from fxc_env.scenarios import SCENARIOS
-from fxc_env.simulation import Trajectory, simulate
+from fxc_env.envs import fxc_consensus_v0  # the versioned module, as PettingZoo's suites export theirs
+from fxc_env.envs.fxc_consensus_v0 import env, parallel_env, raw_env
+from fxc_env.envs.registration import ENV_ID, register_environments
+from fxc_env.policies.reference import ReferencePolicy
 
 register_environments()
 
@@ -27,26 +28,38 @@ __all__ = [
     "ENV_ID",
     "SCENARIOS",
     "ConsensusEngine",
+    "ConsensusTorchEnv",
     "ConsensusVecEnv",
     "EnvConfig",
+    "ReferenceModule",
     "ReferencePolicy",
     "Schedule",
     "Topology",
     "Trajectory",
     "env",
+    "fxc_consensus_v0",
     "make_config",
     "make_schedule",
     "make_topology",
     "parallel_env",
     "raw_env",
+    "reference_policy",
     "simulate",
 ]
 
 
-def __getattr__(name: str) -> object:
-    # ConsensusVecEnv pulls in stable-baselines3 and torch (about 2 s): import it on first use.
-    if name == "ConsensusVecEnv":
-        from fxc_env.vec_env import ConsensusVecEnv
+#: Names that pull in heavy optional packages, imported on first use: module path of each.
+_LAZY = {
+    "ConsensusVecEnv": "fxc_env.envs.vec_env",  # stable-baselines3 and torch (about 2 s)
+    "ConsensusTorchEnv": "fxc_env.envs.torch_env",  # torchrl (the torchrl extra)
+    "reference_policy": "fxc_env.policies.torchrl_reference",
+    "ReferenceModule": "fxc_env.policies.torchrl_reference",
+}
 
-        return ConsensusVecEnv
+
+def __getattr__(name: str) -> object:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'fxc_env' has no attribute {name!r}")

@@ -13,9 +13,9 @@ from scipy.integrate import solve_ivp
 
 import fxc_env
 from fxc_env import ConsensusEngine, ReferencePolicy, make_config
+from fxc_env.config.scenarios import HEXAGON
 from fxc_env.core.linear import model_matrices
 from fxc_env.core.validation import ArgumentError
-from fxc_env.scenarios import HEXAGON
 
 #: The named models (with their parameters) every test runs over.
 MODELS = [

@@ -16,7 +16,7 @@ from fxc_env.baselines.suite import (
     load_policy,
     quick_suite,
 )
-from fxc_env.learned import LearnedPolicy
+from fxc_env.policies.learned import LearnedPolicy
 
 
 def test_full_suite_is_the_issue_suite():

@@ -258,7 +258,7 @@ def placeholders(tmp_path):
     """Fixture files for the argv templates, keyed by placeholder name."""
     import zipfile
 
-    from fxc_env.learned import pretrained_path
+    from fxc_env.policies.learned import pretrained_path
 
     (tmp_path / "notes.txt").write_text("not a directory\n")
     (tmp_path / "bad.yml").write_text("default: [unclosed\n")
@@ -322,19 +322,19 @@ def test_out_with_missing_parents_is_created_like_mkdir_p(tmp_path):
 
 @pytest.mark.parametrize("error", [ValueError("boom"), TypeError("boom"), RuntimeError("boom")])
 def test_a_bug_in_a_handler_is_not_swallowed(tmp_path, monkeypatch, capsys, error):
-    import fxc_env.simulation
+    import fxc_env.analysis.simulation
 
     def broken(*args, **kwargs):
         raise error
 
-    monkeypatch.setattr(fxc_env.simulation, "simulate", broken)
+    monkeypatch.setattr(fxc_env.analysis.simulation, "simulate", broken)
     with pytest.raises(type(error), match="boom"):
         main(["simulate", "--n-intervals", "5", "--out", str(tmp_path / "out")])
     assert capsys.readouterr().err == ""
 
 
 def test_only_the_usage_error_class_is_a_usage_error(tmp_path, monkeypatch, capsys):
-    import fxc_env.simulation
+    import fxc_env.analysis.simulation
     from fxc_env.cli import UsageError
     from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 
@@ -343,14 +343,14 @@ def test_only_the_usage_error_class_is_a_usage_error(tmp_path, monkeypatch, caps
     def refuses(*args, **kwargs):
         raise ArgumentTypeError("x0: expected an array of real numbers, got 'abc'")
 
-    monkeypatch.setattr(fxc_env.simulation, "simulate", refuses)
+    monkeypatch.setattr(fxc_env.analysis.simulation, "simulate", refuses)
     assert main(["simulate", "--out", str(tmp_path / "out")]) == 2
     assert capsys.readouterr().err == "fxc simulate: error: x0: expected an array of real numbers, got 'abc'\n"
 
 
 def test_output_directory_helper(tmp_path):
-    from fxc_env.cli_checks import output_directory
     from fxc_env.core.validation import ArgumentError
+    from fxc_env.utils.cli_checks import output_directory
 
     (tmp_path / "file").write_text("x")
     assert output_directory("--out", tmp_path) == tmp_path

@@ -14,7 +14,7 @@ from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
 
 import fxc_env
-from fxc_env.interop import torchrl_env
+from fxc_env.envs.interop import torchrl_wrapper
 
 K = 16
 
@@ -51,7 +51,7 @@ def test_ppo_trains_a_few_hundred_steps_through_supersuit():
 
 
 def test_torchrl_collector_with_a_float32_policy():
-    env = torchrl_env(scenario="paper_fig1", n_intervals=K, obs_dtype="float32", global_state="normalized")
+    env = torchrl_wrapper(scenario="paper_fig1", n_intervals=K, obs_dtype="float32", global_state="normalized")
     observation = env.observation_spec["agents", "observation"]
     assert observation.dtype == torch.float32 and env.observation_spec["state"].dtype == torch.float32
     torch.manual_seed(0)

@@ -1,4 +1,4 @@
-"""fxc_env.cluster: the scale-out commands say how to get Ray where it is missing, and refuse bad combinations."""
+"""fxc_env.utils.cluster: the scale-out commands say how to get Ray where it is missing, and refuse bad combinations."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import sys
 import pytest
 
 from fxc_env import cli
-from fxc_env.cluster import import_ray
 from fxc_env.training import TrainArgs, train
+from fxc_env.utils.cluster import import_ray
 
 
 @pytest.fixture

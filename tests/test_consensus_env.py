@@ -18,8 +18,8 @@ from helpers import MODES, PAPER_V0, PAPER_X0, brute_spread, reference_actions
 
 import fxc_env
 from fxc_env import ReferencePolicy
-from fxc_env.consensus_env import ConsensusParallelEnv
 from fxc_env.core.validation import ArgumentError
+from fxc_env.envs.parallel import ConsensusParallelEnv
 
 # ------------------------------------------------------------------ helpers
 

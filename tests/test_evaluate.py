@@ -32,8 +32,8 @@ def test_evaluate_reference_alone_and_bad_budgets(tmp_path, capsys):
 def test_budgets_are_comma_separated_distinct_positive_integers():
     import pytest
 
-    from fxc_env.cli_checks import budgets
     from fxc_env.core.validation import ArgumentError
+    from fxc_env.utils.cli_checks import budgets
 
     assert budgets("--budgets", "25, 200") == (25, 200)
     assert budgets("--budgets", "200") == (200,)

@@ -16,9 +16,9 @@ from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, render
 
 import fxc_env
 from fxc_env import ReferencePolicy, fxc_consensus_v0
-from fxc_env.consensus_aec import ConsensusAECEnv
-from fxc_env.consensus_env import ConsensusParallelEnv
 from fxc_env.core.validation import ArgumentError
+from fxc_env.envs.aec import ConsensusAECEnv
+from fxc_env.envs.parallel import ConsensusParallelEnv
 
 SCENARIO_NAMES = sorted(fxc_env.SCENARIOS)
 #: K for the API runs: long enough to reach the deadline inside the test's cycles, and fast.
@@ -138,7 +138,7 @@ def test_render_modes_in_metadata():
 def test_importing_fxc_env_registers_both_forms_with_pettingzoo():
     import pettingzoo
 
-    from fxc_env.consensus_env import ConsensusParallelEnv
+    from fxc_env.envs.parallel import ConsensusParallelEnv
 
     parallel = pettingzoo.make("parallel", "fxc_consensus_v0", scenario="paper_fig1")
     assert isinstance(parallel, ConsensusParallelEnv)

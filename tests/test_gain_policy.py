@@ -8,8 +8,8 @@ import torch
 from stable_baselines3 import PPO
 
 import fxc_env
-from fxc_env.gain_policy import GainScheduledExtractor, GainScheduledPolicy
-from fxc_env.learned import LearnedPolicy
+from fxc_env.policies.gain_network import GainScheduledExtractor, GainScheduledPolicy
+from fxc_env.policies.learned import LearnedPolicy
 
 
 def observations(config, seed=0, steps=5):
@@ -134,7 +134,7 @@ class HoldGains(torch.nn.Module):
 
 def test_the_gated_network_represents_the_saturation_aware_law_exactly():
     from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
-    from fxc_env.gain_policy import GatedGainExtractor
+    from fxc_env.policies.gain_network import GatedGainExtractor
 
     config = {"scenario": "paper_fig1", "obs_slots": 4, "u_max": 10.0, "schedule": "uniform"}
     obs = observations(config, steps=40)

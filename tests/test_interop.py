@@ -1,4 +1,4 @@
-"""fxc_env.interop: the environment inside TorchRL's PettingZooWrapper (one group, flat infos)."""
+"""fxc_env.envs.interop: the environment inside TorchRL's PettingZooWrapper (one group, flat infos)."""
 
 from __future__ import annotations
 
@@ -11,13 +11,13 @@ from tensordict.nn import TensorDictModule
 from torchrl.envs.utils import check_env_specs
 
 import fxc_env
-from fxc_env.interop import EPISODE_KEYS, FlatEpisodeInfos, torchrl_env
+from fxc_env.envs.interop import EPISODE_KEYS, FlatEpisodeInfos, torchrl_wrapper
 
 AGENTS = [f"agent_{i}" for i in range(6)]
 
 
 def test_torchrl_wrapper_passes_check_env_specs_with_all_agents_in_one_group():
-    env = torchrl_env(scenario="paper_fig1")
+    env = torchrl_wrapper(scenario="paper_fig1")
     check_env_specs(env)
     assert env.group_map == {"agents": AGENTS}
     obs_size = fxc_env.make_config("paper_fig1").layout.size
@@ -30,7 +30,7 @@ def test_torchrl_wrapper_passes_check_env_specs_with_all_agents_in_one_group():
 
 
 def test_the_reference_through_torchrl_reaches_the_deadline_with_the_episode_metrics_of_the_plain_env():
-    env = torchrl_env(scenario="paper_fig1")  # the paper's initial state: no seed needed
+    env = torchrl_wrapper(scenario="paper_fig1")  # the paper's initial state: no seed needed
     reference = fxc_env.ReferencePolicy(fxc_env.make_config("paper_fig1"))
     policy = TensorDictModule(
         lambda obs: torch.as_tensor(reference(obs.numpy())),

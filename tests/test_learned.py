@@ -1,4 +1,4 @@
-"""fxc_env.learned: a saved SB3 model as a policy, and the shipped pretrained policy's result."""
+"""fxc_env.policies.learned: a saved SB3 model as a policy, and the shipped pretrained policy's result."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 
 from fxc_env import ReferencePolicy, make_config
 from fxc_env.engine import ConsensusEngine
-from fxc_env.learned import LearnedPolicy, load_model, pretrained_path
+from fxc_env.policies.learned import LearnedPolicy, load_model, pretrained_path
 
 
 def deadline_errors(policy, config, seeds) -> np.ndarray:

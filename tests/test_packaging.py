@@ -37,7 +37,11 @@ def test_the_wheel_installs_fxc_env_as_its_only_top_level_name(wheel):
         assert archive.read(top_level).decode().split() == ["fxc_env"]
     tops = {name.split("/")[0] for name in names if not name.split("/")[0].endswith(".dist-info")}
     assert tops == {"fxc_env"}
-    for module in ("fxc_env/baselines/benchmark.py", "fxc_env/training/train.py", "fxc_env/training/hyperparams.yml"):
+    for module in (
+        "fxc_env/baselines/benchmark.py",
+        "fxc_env/training/sb3_train.py",
+        "fxc_env/training/hyperparams.yml",
+    ):
         assert module in names
     assert "fxc_env/pretrained/paper_fig1_ppo.zip" in names
 

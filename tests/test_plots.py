@@ -8,7 +8,7 @@ import numpy as np
 from matplotlib.image import imread
 
 from fxc_env import simulate
-from fxc_env.plots import LEGEND_LIMIT, inputs_figure, write_figures
+from fxc_env.analysis.plots import LEGEND_LIMIT, inputs_figure, write_figures
 
 FIGURES = ["topology.png", "positions.png", "velocities.png", "inputs.png", "disagreement.png"]
 

@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 
 import fxc_env
 from fxc_env import ReferencePolicy, make_topology
-from fxc_env.rendering import DRAW_GRAPH_LIMIT, circle_layout, draw_graph
+from fxc_env.envs.rendering import DRAW_GRAPH_LIMIT, circle_layout, draw_graph
 
 
 def assert_picture(frame):

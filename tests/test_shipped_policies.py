@@ -11,7 +11,7 @@ import pytest
 
 from fxc_env.baselines.jobs import Job, run_job
 from fxc_env.baselines.suite import Scenario, builtin_contenders, generalisation_scenarios, learned_contender
-from fxc_env.learned import pretrained_path
+from fxc_env.policies.learned import pretrained_path
 
 SEEDS = tuple(range(6))
 #: The analytic laws the saturation goal compares with (the saturation-aware law came later).

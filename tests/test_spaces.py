@@ -1,4 +1,4 @@
-"""fxc_env.spaces: the spaces are shared by both front ends and hold what the env emits."""
+"""fxc_env.envs.spaces: the spaces are shared by both front ends and hold what the env emits."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from helpers import MODES
 import fxc_env
 from fxc_env.config import make_config
 from fxc_env.engine import ConsensusEngine
-from fxc_env.spaces import action_space, observation_space, state_space
+from fxc_env.envs.spaces import action_space, observation_space, state_space
 
 
 @pytest.mark.parametrize(("action_mode", "obs_mode"), MODES)

@@ -8,8 +8,9 @@ import re
 
 import pytest
 
-from fxc_env import cli, speed
+from fxc_env import cli
 from fxc_env.core.validation import ArgumentError
+from fxc_env.speed import harness as speed
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ import yaml
 from fxc_env import make_config
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
-from fxc_env.torch_policy import load_torch_policy
+from fxc_env.policies.torch_policy import load_torch_policy
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import HYPERPARAMS, check_train_args
 from fxc_env.training.torch_ppo import Trainer, latest_torch_checkpoint
@@ -203,8 +203,8 @@ def test_resume_without_a_checkpoint_is_refused(tmp_path):
 
 def test_fxc_evaluate_scores_a_torch_run_next_to_the_reference(tmp_path, capsys):
     from fxc_env.cli import main
-    from fxc_env.learned import load_learned_policy
-    from fxc_env.torch_policy import TorchPolicy
+    from fxc_env.policies.learned import load_learned_policy
+    from fxc_env.policies.torch_policy import TorchPolicy
 
     run_dir = train(short_args(tmp_path, timesteps=PER_ROLLOUT))
     assert isinstance(load_learned_policy(run_dir / "policy.pt"), TorchPolicy)

@@ -9,7 +9,8 @@ from torchrl.envs.utils import check_env_specs, step_mdp
 
 from fxc_env import ConsensusEngine, ReferencePolicy, make_config
 from fxc_env.core.validation import ArgumentError
-from fxc_env.torchrl_env import GROUP, ConsensusTorchEnv, ReferenceModule, reference_policy
+from fxc_env.envs.torch_env import GROUP, ConsensusTorchEnv
+from fxc_env.policies.torchrl_reference import ReferenceModule, reference_policy
 
 SPEC_CASES = [
     dict(scenario="paper_fig1"),

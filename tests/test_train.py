@@ -1,4 +1,4 @@
-"""fxc_env.training.train: a short real PPO run, checkpoints, resume, Ctrl-C, reproducibility."""
+"""fxc_env.training.sb3_train: a short real PPO run, checkpoints, resume, Ctrl-C, reproducibility."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from fxc_env import ReferencePolicy, make_config
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
-from fxc_env.learned import LearnedPolicy, load_model
+from fxc_env.policies.learned import LearnedPolicy, load_model
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import check_train_args, load_hyperparams
 from fxc_env.training.checkpoints import RolloutCheckpoint, latest_checkpoint
@@ -106,7 +106,7 @@ def test_the_reference_is_not_what_the_model_learns_from(tmp_path):
 
 
 def load_model_pretrained():
-    from fxc_env.learned import pretrained_path
+    from fxc_env.policies.learned import pretrained_path
 
     return load_model(pretrained_path())
 

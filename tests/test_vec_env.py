@@ -13,8 +13,8 @@ from stable_baselines3.common.vec_env import VecCheckNan, VecMonitor, VecNormali
 
 import fxc_env
 from fxc_env import ConsensusVecEnv, ReferencePolicy
-from fxc_env.consensus_env import ConsensusParallelEnv
 from fxc_env.core.validation import ArgumentError
+from fxc_env.envs.parallel import ConsensusParallelEnv
 
 TOL = 1e-12
 SHORT = {"n_intervals": 12}

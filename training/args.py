@@ -2,7 +2,7 @@
 
 :class:`TrainArgs` is the one description of a training run: ``fxc train --help`` is built
 from its fields and their docstrings (:func:`add_train_parser`), and each back end
-(:mod:`fxc_env.training.train` for stable-baselines3, :mod:`fxc_env.training.rllib_train`
+(:mod:`fxc_env.training.sb3_train` for stable-baselines3, :mod:`fxc_env.training.rllib_train`
 for Ray RLlib, :mod:`fxc_env.training.torch_ppo` for the lean torch PPO loop) reads it.
 Hyperparameters live in a YAML file keyed by scenario, then algorithm (``hyperparams.yml``
 beside this module).
@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from fxc_env.cli_checks import yaml_mapping_file
 from fxc_env.core.validation import ArgumentError, choice, integer
+from fxc_env.utils.cli_checks import yaml_mapping_file
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGORITHMS = ("ppo", "sac")
@@ -106,8 +106,8 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
     describes, and that the run directory can be created. ``--resume`` without a
     checkpoint is refused by the back end, which knows its checkpoint layout.
     """
-    from fxc_env.cli_checks import output_directory
     from fxc_env.config import make_config
+    from fxc_env.utils.cli_checks import output_directory
 
     def name(field: str) -> str:
         return "--" + field.replace("_", "-") if flags else field

@@ -17,7 +17,7 @@ def train(args: TrainArgs) -> Path:
     """Run (or resume) training on ``args.backend``; returns the run directory."""
     validation.choice("backend", args.backend, BACKENDS)  # the back end checks everything else
     if args.backend == "rllib":
-        from fxc_env.cluster import import_ray
+        from fxc_env.utils.cluster import import_ray
 
         import_ray("--backend rllib")
         from fxc_env.training.rllib_train import train_rllib
@@ -27,6 +27,6 @@ def train(args: TrainArgs) -> Path:
         from fxc_env.training.torch_ppo import train_torch
 
         return train_torch(args)
-    from fxc_env.training.train import train_sb3
+    from fxc_env.training.sb3_train import train_sb3
 
     return train_sb3(args)

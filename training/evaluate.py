@@ -22,11 +22,11 @@ from fxc_env.baselines.suite import (
     learned_contender,
     realism_suite,
 )
-from fxc_env.cli_checks import budgets as parse_budgets
-from fxc_env.cli_checks import output_directory
 from fxc_env.config import make_config
+from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.core.validation import ArgumentError, integer
-from fxc_env.env_arguments import add_env_arguments, env_kwargs_from
+from fxc_env.utils.cli_checks import budgets as parse_budgets
+from fxc_env.utils.cli_checks import output_directory
 
 EVALUATION_SCENARIOS = (
     Scenario("paper_fig1", 6),

@@ -39,7 +39,7 @@ def teacher_policy(name: str, config: Any) -> Any:
     """The policy to copy, in the run's own units (plan actions, normalized observations)."""
     from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
     from fxc_env.core.validation import ArgumentError
-    from fxc_env.reference import ReferencePolicy
+    from fxc_env.policies.reference import ReferencePolicy
 
     teachers = {"reference": ReferencePolicy, "saturation_aware": SaturationAwarePolicy}
     if name not in teachers:

@@ -33,12 +33,12 @@ from typing import Any
 from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 import fxc_env
-from fxc_env.cluster import ray_session
 from fxc_env.core.validation import ArgumentError
-from fxc_env.learned import RLLIB_MODULE, rllib_checkpoint
+from fxc_env.policies.learned import RLLIB_MODULE, rllib_checkpoint
 from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.artefacts import versions, write_training_curve
 from fxc_env.training.run_files import deferred_interrupt
+from fxc_env.utils.cluster import ray_session
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves both).
 PROGRESS_COLUMNS = (

@@ -62,7 +62,7 @@ from fxc_env.config import EnvConfig, make_config
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
-from fxc_env.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp
+from fxc_env.policies.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp
 from fxc_env.training.args import TrainArgs, check_train_args, default_run_dir
 from fxc_env.training.artefacts import versions, write_training_curve
 from fxc_env.training.run_files import deferred_interrupt, newest_by_steps

@@ -12,7 +12,7 @@ import yaml
 from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 from fxc_env import cli, make_config
-from fxc_env.learned import RLlibPolicy, load_learned_policy
+from fxc_env.policies.learned import RLlibPolicy, load_learned_policy
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import HYPERPARAMS
 from fxc_env.training.evaluate import EVALUATION_SCENARIOS

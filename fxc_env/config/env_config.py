@@ -3,7 +3,7 @@
 The engine, the PettingZoo environment, the SB3 VecEnv and the policies all read the same
 immutable config. Every argument is checked by :mod:`fxc_env.core.validation`, so a bad one
 raises an :class:`~fxc_env.core.validation.ArgumentError` that names it. Named scenarios
-(:mod:`fxc_env.scenarios`) are frozen presets that explicit arguments override.
+(:mod:`fxc_env.config.scenarios`) are frozen presets that explicit arguments override.
 """
 
 from __future__ import annotations
@@ -15,14 +15,14 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.config.layout import CLOCK_SIZE, ObservationLayout
+from fxc_env.config.scenarios import scenario_preset
 from fxc_env.core import validation
 from fxc_env.core.families import AnyFamily, is_family_spec, make_family
 from fxc_env.core.graphs import Topology, make_topology
 from fxc_env.core.linear import IntervalMaps, LinearModel, formation_offsets, model_matrices
 from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-from fxc_env.layout import CLOCK_SIZE, ObservationLayout
-from fxc_env.scenarios import scenario_preset
 
 __all__ = ["CLOCK_SIZE", "EnvConfig", "ObservationLayout", "config_of", "make_config"]
 
@@ -306,7 +306,7 @@ def make_config(
 ) -> EnvConfig:
     """Validate the environment's keyword arguments (a scenario's preset first, explicit ones win).
 
-    The arguments are those of :class:`fxc_env.consensus_env.ConsensusParallelEnv` (its card
+    The arguments are those of :class:`fxc_env.envs.parallel.ConsensusParallelEnv` (its card
     has the table). ``topology`` may be a family (:func:`fxc_env.core.families.make_family`),
     drawn anew at every reset; ``config.topology`` is then its draw from ``topology_seed``.
     ``obs_slots`` pads the observation to at least that many neighbour rows (default: the

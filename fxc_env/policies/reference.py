@@ -32,7 +32,7 @@ class ReferencePolicy:
     observation) to its action ``(2 dim,)`` (``(n dim,)`` for a general linear agent: the
     plan ``e^{A T} e_i``, the generalised eq. (11)); an array with leading dimensions
     ``(..., obs_size)`` maps to ``(..., 2 dim)`` in one vectorised call. :meth:`act` takes
-    numpy arrays or torch tensors (on any device) alike; :class:`fxc_env.torchrl_env.ReferenceModule`
+    numpy arrays or torch tensors (on any device) alike; :class:`fxc_env.policies.torchrl_reference.ReferenceModule`
     wraps it as a TorchRL module.
     """
 

@@ -63,7 +63,7 @@ def with_activation_class(policy_kwargs: dict[str, Any]) -> dict[str, Any]:
 
 
 def policy_class(name: str) -> Any:
-    """SB3's policy names (``MlpPolicy``) as given; a dotted path (``fxc_env.gain_policy.GainScheduledPolicy``) imported."""
+    """SB3's policy names (``MlpPolicy``) as given; a dotted path (``fxc_env.policies.gain_network.GainScheduledPolicy``) imported."""
     if "." not in name:
         return name
     import importlib

@@ -8,8 +8,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from fxc_env.rendering import agent_colours, draw_graph
-from fxc_env.simulation import Trajectory
+from fxc_env.analysis.simulation import Trajectory
+from fxc_env.envs.rendering import agent_colours, draw_graph
 
 #: Agents drawn individually; beyond this the curves carry no legend.
 LEGEND_LIMIT = 12

@@ -224,7 +224,7 @@ class PerAxisPolicy:
     """
 
     def __init__(self, policy: Any, config: Any) -> None:
-        from fxc_env.layout import ObservationLayout
+        from fxc_env.config.layout import ObservationLayout
 
         self.policy = policy
         self.config = config
@@ -264,13 +264,13 @@ def load_learned_policy(path: str | Path, env: Any = None) -> LearnedPolicy | RL
     damaged or not a PPO/SAC model, or the model does not fit ``env``.
     """
     path = Path(path)
-    from fxc_env.torch_policy import is_torch_policy, load_torch_policy
+    from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
 
     load = load_torch_policy if is_torch_policy(path) else RLlibPolicy if path.is_dir() else LearnedPolicy
     if env is None:
         return load(path)
     from fxc_env.config import config_of
-    from fxc_env.layout import ObservationLayout
+    from fxc_env.config.layout import ObservationLayout
 
     config = config_of(env, "policy")
     policy = load(path)

@@ -1,7 +1,7 @@
 """The ``fxc`` command line: ``fxc simulate`` runs a scenario and writes its figures.
 
 Every subcommand parses with argparse and checks all of its paths, counts and thresholds
-(:mod:`fxc_env.cli_checks`) before it starts work. A usage error is an
+(:mod:`fxc_env.utils.cli_checks`) before it starts work. A usage error is an
 :class:`~fxc_env.core.validation.ArgumentError` (the only exception :func:`main` turns into
 ``fxc <command>: error: <message>`` on stderr, exit status 2); any other exception is a bug
 and keeps its traceback.
@@ -15,15 +15,13 @@ import math
 import sys
 from collections.abc import Sequence
 
-import numpy as np
-
 from fxc_env.baselines.benchmark import add_benchmark_parser
-from fxc_env.cli_checks import output_directory
+from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
-from fxc_env.env_arguments import add_env_arguments, env_kwargs_from
-from fxc_env.speed import add_arguments as speed_arguments
+from fxc_env.speed.harness import add_arguments as speed_arguments
 from fxc_env.training.args import add_train_parser
 from fxc_env.training.evaluate import add_evaluate_parser
+from fxc_env.utils.cli_checks import output_directory
 
 #: The usage error: the one exception :func:`main` prints as a one-line message (exit status 2).
 UsageError = ArgumentError
@@ -36,8 +34,8 @@ def _format(value: float) -> str:
 
 
 def simulate_command(args: argparse.Namespace) -> int:
-    from fxc_env.plots import write_figures
-    from fxc_env.simulation import simulate
+    from fxc_env.analysis.plots import write_figures
+    from fxc_env.analysis.simulation import simulate
 
     out = output_directory("--out", args.out)
     integer("--points-per-interval", args.points_per_interval, 1)
@@ -109,8 +107,8 @@ def simulate_command(args: argparse.Namespace) -> int:
 
 
 def speed_command(args: argparse.Namespace) -> int:
-    from fxc_env import speed
-    from fxc_env.threads import pin_threads_or_reexec
+    from fxc_env.speed import harness as speed
+    from fxc_env.utils.threads import pin_threads_or_reexec
 
     speed.check_arguments(args)
     pin_threads_or_reexec("fxc_env.cli", sys.argv[1:] if args.argv is None else args.argv)
@@ -160,8 +158,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())  # one line
         print(f"fxc {args.command}: error: {message}", file=sys.stderr)
         return 2
-
-
-if __name__ == "__main__":
-    np.set_printoptions(precision=6)
-    sys.exit(main())

@@ -1,9 +1,9 @@
 """Versioned entry point, PettingZoo style: ``env``, ``parallel_env`` and ``raw_env``.
 
-* ``raw_env``: the unwrapped AEC environment, :class:`~fxc_env.consensus_aec.ConsensusAECEnv`.
+* ``raw_env``: the unwrapped AEC environment, :class:`~fxc_env.envs.aec.ConsensusAECEnv`.
 * ``env(...)``: ``raw_env(...)`` in PettingZoo's ``OrderEnforcingWrapper``. Out-of-Box
   actions are applied by design, so no clipping or bounds-asserting wrapper is added.
-* ``parallel_env(...)``: :class:`~fxc_env.consensus_env.ConsensusParallelEnv`.
+* ``parallel_env(...)``: :class:`~fxc_env.envs.parallel.ConsensusParallelEnv`.
 
 All three take the same arguments (the table in the environment's card, ``help(raw_env)``).
 """
@@ -16,8 +16,8 @@ from typing import Any, ParamSpec, TypeVar
 
 from pettingzoo.utils import wrappers
 
-from fxc_env.consensus_aec import ConsensusAECEnv
-from fxc_env.consensus_env import ConsensusParallelEnv
+from fxc_env.envs.aec import ConsensusAECEnv
+from fxc_env.envs.parallel import ConsensusParallelEnv
 
 __all__ = ["env", "parallel_env", "raw_env"]
 

@@ -2,10 +2,10 @@
 
 :class:`ConsensusTorchEnv` is a TorchRL ``EnvBase`` over the batched engine
 (:class:`fxc_env.engine.ConsensusEngine`) on torch tensors: ``batch_size=[B]``, all N agents
-in one group ``"agents"``, no host-device copy per step. :class:`ReferenceModule` is the
-paper's controller, eq. (11), as a torch module for TorchRL's ``TensorDictModule``;
-:func:`reference_policy` wraps it so ``env.rollout(K, reference_policy(env))`` plays the
-paper's example. Needs ``pip install "fxc-env[torchrl]"``.
+in one group ``"agents"``, no host-device copy per step. The paper's controller for it
+is :func:`fxc_env.policies.torchrl_reference.reference_policy`:
+``env.rollout(K, reference_policy(env))`` plays the paper's example. Needs
+``pip install "fxc-env[torchrl]"``.
 """
 
 from __future__ import annotations
@@ -15,15 +15,13 @@ from typing import Any
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModule
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from fxc_env.config import EnvConfig, make_config
+from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core import validation
 from fxc_env.engine import ConsensusEngine
-from fxc_env.layout import CLOCK_SIZE
-from fxc_env.reference import ReferencePolicy
 
 #: The one agent group of the TensorDicts.
 GROUP = "agents"
@@ -228,26 +226,6 @@ class ConsensusTorchEnv(EnvBase):
     def episode_metrics(self) -> dict[str, np.ndarray]:
         """Every episode's metrics so far (``(B,)`` numpy arrays; a read off the device: call at episode ends)."""
         return self.engine.batch_metrics()
-
-
-class ReferenceModule(torch.nn.Module):
-    """The paper's controller, eq. (11), as a torch module: observations ``[..., obs_size]`` to actions ``[..., 2 dim]``.
-
-    The same arithmetic as :class:`fxc_env.ReferencePolicy` (it calls its array-API path),
-    on any device and dtype, with no parameters.
-    """
-
-    def __init__(self, config: EnvConfig | Any) -> None:
-        super().__init__()
-        self.policy = ReferencePolicy(config)
-
-    def forward(self, observation: torch.Tensor) -> torch.Tensor:
-        return self.policy.act(observation)
-
-
-def reference_policy(env: ConsensusTorchEnv) -> TensorDictModule:
-    """:class:`ReferenceModule` reading ``("agents", "observation")`` and writing ``("agents", "action")``."""
-    return TensorDictModule(ReferenceModule(env.config), in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "action")])
 
 
 def _batch_size(value: Any) -> int:

@@ -13,8 +13,8 @@ def register_environments() -> None:
     import pettingzoo
 
     for env_type, entry_point in (
-        ("parallel", "fxc_env.fxc_consensus_v0:parallel_env"),
-        ("aec", "fxc_env.fxc_consensus_v0:env"),
+        ("parallel", "fxc_env.envs.fxc_consensus_v0:parallel_env"),
+        ("aec", "fxc_env.envs.fxc_consensus_v0:env"),
     ):
         registry = pettingzoo.parallel_registry if env_type == "parallel" else pettingzoo.aec_registry
         if ENV_ID not in registry:

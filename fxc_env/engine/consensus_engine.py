@@ -2,7 +2,7 @@
 
 This is the one code path behind every front end: the PettingZoo environment is the
 ``n_episodes = 1`` case, the SB3 VecEnv and :func:`fxc_env.simulate` use larger batches,
-and the TorchRL environment (:mod:`fxc_env.torchrl_env`) runs it on torch tensors. Arrays
+and the TorchRL environment (:mod:`fxc_env.envs.torch_env`) runs it on torch tensors. Arrays
 are numpy arrays (``device=None``, the default) or torch tensors on ``device`` (``"cpu"``,
 ``"cuda"``, ``"meta"``), float64 by default: positions ``x`` and velocities ``v`` are
 ``(B, N, dim)``; observations ``(B, N, obs_size)``; actions ``(B, N, 2 dim)``.

@@ -20,18 +20,18 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 from fxc_env.config import EnvConfig, check_max_cycles, check_render_mode, make_config
-from fxc_env.consensus_env import (
+from fxc_env.core import validation
+from fxc_env.core.validation import ArgumentError, ArgumentTypeError
+from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome
+from fxc_env.envs.parallel import (
     ConsensusParallelEnv,
     episode_draw_info,
     episode_metrics_rows,
     normalized_state,
     positions_velocities,
 )
-from fxc_env.core import validation
-from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome
-from fxc_env.rendering import EpisodeView
-from fxc_env.spaces import action_space, observation_space
+from fxc_env.envs.rendering import EpisodeView
+from fxc_env.envs.spaces import action_space, observation_space
 
 #: Attributes of a :class:`ConsensusVecEnv` that :meth:`~ConsensusVecEnv.set_attr` refuses
 #: (besides private names, methods and every attribute of its :class:`EnvConfig`).

@@ -12,7 +12,7 @@ PettingZoo-side contract that other consumers read; only the tensor world needs 
 
 RLlib's PettingZoo wrapper lives with the RLlib trainer (``fxc_env.training.rllib_train``).
 For TorchRL at speed use the native batched environment instead,
-:class:`fxc_env.torchrl_env.ConsensusTorchEnv` (thousands of times this wrapper's rate:
+:class:`fxc_env.envs.torch_env.ConsensusTorchEnv` (thousands of times this wrapper's rate:
 README, "Performance").
 """
 
@@ -61,7 +61,7 @@ class FlatEpisodeInfos(BaseParallelWrapper):
         return observations, rewards, terminations, truncations, {a: flat_info(i) for a, i in infos.items()}
 
 
-def torchrl_env(group: str = "agents", **kwargs: Any) -> Any:
+def torchrl_wrapper(group: str = "agents", **kwargs: Any) -> Any:
     """A TorchRL env of ``fxc_env.parallel_env(**kwargs)``: every agent in one group, infos flat.
 
     Needs ``pip install "fxc-env[torchrl]"``. Continuous actions, no agent mask (agents
@@ -74,8 +74,8 @@ def torchrl_env(group: str = "agents", **kwargs: Any) -> Any:
     try:
         from torchrl.envs.libs.pettingzoo import PettingZooWrapper
     except ModuleNotFoundError as exc:
-        raise ArgumentError('torchrl_env: TorchRL is not installed; pip install "fxc-env[torchrl]"') from exc
-    from fxc_env.fxc_consensus_v0 import parallel_env
+        raise ArgumentError('torchrl_wrapper: TorchRL is not installed; pip install "fxc-env[torchrl]"') from exc
+    from fxc_env.envs.fxc_consensus_v0 import parallel_env
 
     env = FlatEpisodeInfos(parallel_env(**kwargs))
     return PettingZooWrapper(

@@ -19,8 +19,8 @@ from fxc_env.core.families import edge_lists
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw
-from fxc_env.rendering import EpisodeView
-from fxc_env.spaces import action_space, observation_space, state_space
+from fxc_env.envs.rendering import EpisodeView
+from fxc_env.envs.spaces import action_space, observation_space, state_space
 
 #: The keyword arguments of :func:`fxc_env.make_config`, which every front end passes through.
 CONFIG_ARGUMENTS = tuple(inspect.signature(make_config).parameters)

@@ -20,9 +20,9 @@ is the case ``G_j = [[1, 1], [0, 1]] / (d_i + 1)`` for every real slot, so the n
 represent it exactly; it is equivariant to the scale of the rows (no bias), and padded slots
 (zero rows) contribute nothing. The value function is an ordinary MLP on the whole
 observation. One axis only (``dim = 1``); in the plane it acts per axis
-(:class:`fxc_env.learned.PerAxisPolicy`).
+(:class:`fxc_env.policies.learned.PerAxisPolicy`).
 
-Use it as ``policy: fxc_env.gain_policy.GainScheduledPolicy`` in the hyperparameter file.
+Use it as ``policy: fxc_env.policies.gain_network.GainScheduledPolicy`` in the hyperparameter file.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import torch
 from stable_baselines3.common.policies import ActorCriticPolicy
 from torch import nn
 
-from fxc_env.layout import CLOCK_SIZE
+from fxc_env.config.layout import CLOCK_SIZE
 
 
 class GainScheduledExtractor(nn.Module):

@@ -42,7 +42,7 @@ LIST_FLAGS = ("mean_in_degree", "topology_period", "position_range", "velocity_r
 
 def add_env_arguments(parser: argparse.ArgumentParser, *, scenario_default: str | None = "paper_fig1") -> None:
     """Add the environment group of flags (see the module docstring)."""
-    from fxc_env.scenarios import SCENARIOS
+    from fxc_env.config.scenarios import SCENARIOS
 
     group = parser.add_argument_group("environment (a flag left out keeps the scenario's value)")
     group.add_argument(

@@ -14,7 +14,7 @@ from fxc_env.core.graphs import Topology
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.engine import ConsensusEngine, state_disagreement
-from fxc_env.reference import ReferencePolicy
+from fxc_env.policies.reference import ReferencePolicy
 
 Policy = Callable[[np.ndarray], np.ndarray]
 

@@ -16,8 +16,8 @@ from gymnasium.utils import EzPickle
 from pettingzoo import AECEnv
 
 from fxc_env.config import EnvConfig
-from fxc_env.consensus_env import ConsensusParallelEnv
 from fxc_env.core.validation import ArgumentError
+from fxc_env.envs.parallel import ConsensusParallelEnv
 
 _AEC_PREAMBLE = """Fixed-time consensus of double integrators, AEC form (agents act in turn).
 

@@ -9,10 +9,10 @@ by round so that both see the same machine state; each figure is the median over
    CPU (``navigation`` and ``simple_spread``, random actions) at the same total agent count
    (>= 1e5), in agent-steps per second;
 3. ``torchrl``: at N = 6 (``paper_fig1``), agent-steps per second of the environment in
-   TorchRL's ``PettingZooWrapper`` (:func:`fxc_env.interop.torchrl_env`, one episode), of the
-   native batched :class:`fxc_env.torchrl_env.ConsensusTorchEnv` (``env.step`` + ``step_mdp``,
+   TorchRL's ``PettingZooWrapper`` (:func:`fxc_env.envs.interop.torchrl_wrapper`, one episode), of the
+   native batched :class:`fxc_env.envs.torch_env.ConsensusTorchEnv` (``env.step`` + ``step_mdp``,
    ``reference_policy(env)``) at B x N of about 6e3 and 1e5 agents, and of the batched engine
-   alone (observations -> :class:`~fxc_env.reference.ReferencePolicy` -> step) on torch and on
+   alone (observations -> :class:`~fxc_env.policies.reference.ReferencePolicy` -> step) on torch and on
    numpy at the same sizes; the goals: ``ConsensusTorchEnv`` >= 1000x the wrapper at 6e3
    agents, and >= 50% of the numpy engine at 1e5 agents;
 4. ``scaling``: one episode on ``random`` digraphs (mean in-degree 4) from N = 10^2 to 10^6,
@@ -33,7 +33,7 @@ Threads are pinned to one (``OMP_NUM_THREADS`` and friends are set before numpy 
 start, by re-running the command; ``torch.set_num_threads(1)``). MPE2 and VMAS come from
 the optional extra ``bench``, TorchRL from ``torchrl``:
 ``.venv/bin/pip install -c constraints.txt -e ".[bench,torchrl]"``. Without the ``fxc``
-command (a bare GPU machine), ``python -m fxc_env.speed --device cuda`` runs the same code.
+command (a bare GPU machine), ``python -m fxc_env.speed.harness --device cuda`` runs the same code.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.core.validation import MAX_AGENTS, ArgumentError, integer
-from fxc_env.threads import THREAD_VARIABLES, pin_threads_or_reexec
+from fxc_env.utils.threads import THREAD_VARIABLES, pin_threads_or_reexec
 
 BENCH_HINT = 'install the optional extra: .venv/bin/pip install -c constraints.txt -e ".[bench]"'
 #: The CPU tables, in the order they print (the default selection).
@@ -256,7 +256,7 @@ def scaling_row(n_agents: int, steps: int, dim: int = 1, **model: Any) -> tuple[
     """
     from fxc_env.config import make_config
     from fxc_env.engine import ConsensusEngine
-    from fxc_env.reference import ReferencePolicy
+    from fxc_env.policies.reference import ReferencePolicy
 
     tracemalloc.start()
     config = make_config(
@@ -384,7 +384,7 @@ def training_rate(backend: str, timesteps: int, threads: int) -> tuple[float, fl
 
 
 def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 2, minibatch: int = 2048) -> float:
-    """Agent-steps/s of PPO written with TorchRL's own pieces on :class:`~fxc_env.torchrl_env.ConsensusTorchEnv`.
+    """Agent-steps/s of PPO written with TorchRL's own pieces on :class:`~fxc_env.envs.torch_env.ConsensusTorchEnv`.
 
     ``Collector`` + ``ClipPPOLoss`` (GAE, a replay buffer of one rollout, TanhNormal actor)
     with the torch back end's settings on paper_fig1 (B = ``episodes``, one whole episode a
@@ -401,7 +401,7 @@ def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 
     from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
     from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
-    from fxc_env.torchrl_env import GROUP, ConsensusTorchEnv
+    from fxc_env.envs.torch_env import GROUP, ConsensusTorchEnv
 
     env = ConsensusTorchEnv(
         batch_size=episodes, seed=0, obs_dtype="float32", scenario="paper_fig1", obs_slots=4, initial_state="random"
@@ -485,7 +485,7 @@ def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 
 def training_table(threads: int | None = None) -> list[str]:
     """PPO's throughput, end to end (collection, updates, logging; set-up included), per back end on paper_fig1.
 
-    SB3 on :class:`~fxc_env.vec_env.ConsensusVecEnv` and the torch back end on the torch
+    SB3 on :class:`~fxc_env.envs.vec_env.ConsensusVecEnv` and the torch back end on the torch
     engine, each with ``threads`` torch threads (default: every core); RLlib needs Ray, which
     lives in ``.venv-rllib`` (``fxc train --backend rllib`` prints its own rate there).
     """
@@ -543,7 +543,7 @@ def engine_stepper(config: Any, n_episodes: int, device: Any = None, seed: int =
     Returns the step and the engine (for :meth:`~fxc_env.engine.ConsensusEngine.raise_if_invalid`).
     """
     from fxc_env.engine import ConsensusEngine
-    from fxc_env.reference import ReferencePolicy
+    from fxc_env.policies.reference import ReferencePolicy
 
     engine = ConsensusEngine(config, n_episodes, device=device)
     engine.seed(seed)
@@ -566,7 +566,7 @@ def engine_stepper(config: Any, n_episodes: int, device: Any = None, seed: int =
 
 
 def torchrl_wrapper_stepper(seed: int = 0) -> Callable[[], None]:
-    """One env-step of ``paper_fig1`` in TorchRL's ``PettingZooWrapper`` (:func:`fxc_env.interop.torchrl_env`).
+    """One env-step of ``paper_fig1`` in TorchRL's ``PettingZooWrapper`` (:func:`fxc_env.envs.interop.torchrl_wrapper`).
 
     The reference policy as a ``TensorDictModule`` on the group's observations, then
     ``env.step`` and ``step_mdp``; ``env.reset()`` when the episode is done.
@@ -575,12 +575,12 @@ def torchrl_wrapper_stepper(seed: int = 0) -> Callable[[], None]:
     from torchrl.envs.utils import step_mdp
 
     from fxc_env.config import make_config
-    from fxc_env.interop import torchrl_env
-    from fxc_env.torchrl_env import ReferenceModule
+    from fxc_env.envs.interop import torchrl_wrapper
+    from fxc_env.policies.torchrl_reference import ReferenceModule
 
     with warnings.catch_warnings():  # TorchRL warns about the PettingZoo version it was tested with
         warnings.simplefilter("ignore")
-        env = torchrl_env(scenario="paper_fig1")
+        env = torchrl_wrapper(scenario="paper_fig1")
     env.set_seed(seed)
     policy = TensorDictModule(
         ReferenceModule(make_config(scenario="paper_fig1")),
@@ -597,14 +597,15 @@ def torchrl_wrapper_stepper(seed: int = 0) -> Callable[[], None]:
 
 
 def torchrl_batched_stepper(n_episodes: int, seed: int = 0, device: str = "cpu") -> Callable[[], None]:
-    """One step of :class:`~fxc_env.torchrl_env.ConsensusTorchEnv` (``paper_fig1``, B episodes).
+    """One step of :class:`~fxc_env.envs.torch_env.ConsensusTorchEnv` (``paper_fig1``, B episodes).
 
     What a TorchRL user writes: ``reference_policy(env)``, ``env.step``, ``step_mdp``, and
     ``env.reset()`` once the episodes are done.
     """
     from torchrl.envs.utils import step_mdp
 
-    from fxc_env.torchrl_env import ConsensusTorchEnv, reference_policy
+    from fxc_env.envs.torch_env import ConsensusTorchEnv
+    from fxc_env.policies.torchrl_reference import reference_policy
 
     env = ConsensusTorchEnv(batch_size=n_episodes, device=device, seed=seed, scenario="paper_fig1")
     policy = reference_policy(env)
@@ -1134,7 +1135,7 @@ def _importable(name: str) -> bool:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m fxc_env.speed [options]``: ``fxc speed`` without the rest of the ``fxc`` command.
+    """``python -m fxc_env.speed.harness [options]``: ``fxc speed`` without the rest of the ``fxc`` command.
 
     For machines that have the package but not every dependency of the ``fxc`` command (a
     GPU box with ``pip install --no-deps -e .``). Usage errors print as one line (exit 2).
@@ -1144,7 +1145,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(arguments)
     try:
         check_arguments(args)
-        pin_threads_or_reexec("fxc_env.speed", arguments)
+        pin_threads_or_reexec("fxc_env.speed.harness", arguments)
         return run(args)
     except ArgumentError as exc:
         message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())

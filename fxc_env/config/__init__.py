@@ -1,0 +1,19 @@
+"""Settings: the validated environment configuration, its observation layout, named scenarios, CLI flags.
+
+Layer 2 (above the array maths in :mod:`fxc_env.core`): :func:`make_config` turns keyword
+arguments (or a named scenario) into a frozen :class:`EnvConfig` that every engine, environment
+and policy reads.
+"""
+
+from __future__ import annotations
+
+from fxc_env.config.env_config import (
+    RENDER_MODES,
+    EnvConfig,
+    check_max_cycles,
+    check_render_mode,
+    config_of,
+    make_config,
+)
+
+__all__ = ["RENDER_MODES", "EnvConfig", "check_max_cycles", "check_render_mode", "config_of", "make_config"]

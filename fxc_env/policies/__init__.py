@@ -1,0 +1,5 @@
+"""Policies on the local observation: the paper's controller, saved models, the gain network.
+
+Layer 4, beside :mod:`fxc_env.envs` (policies read the observation layout of
+:mod:`fxc_env.config`, never an environment object's internals).
+"""
