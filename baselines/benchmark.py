@@ -1,6 +1,6 @@
-"""``fxc benchmark``: every policy on the same scenarios, scored at the deadline ``T_s``.
+"""``fxc benchmark``: every policy on the same cases, scored at the deadline ``T_s``.
 
-Each job is one contender on one scenario at one budget K: a :class:`ConsensusEngine` runs
+Each job is one contender on one case at one budget K: a :class:`ConsensusEngine` runs
 all seeded initial states of the suite as one batch (B = number of seeds) and returns
 :meth:`ConsensusEngine.batch_metrics`. Jobs are spread over the machine's cores (one
 process per core, one BLAS thread per process), or with ``--ray`` over a Ray cluster
@@ -125,8 +125,8 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``benchmark`` subcommand to the ``fxc`` command line."""
     parser = subparsers.add_parser(
         "benchmark",
-        help="score the reference, the baselines and learned policies on the same scenarios at T_s",
-        description="Score the reference, the baselines and learned policies on identical seeded scenarios "
+        help="score the reference, the baselines and learned policies on the same cases at T_s",
+        description="Score the reference, the baselines and learned policies on identical seeded cases "
         "by the deadline metrics; write table.md, results.csv, episodes.csv and three PNGs.",
     )
     parser.add_argument("--quick", action="store_true", help="a smaller suite that runs in under a minute")
@@ -138,7 +138,7 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         "agent model (single, double, triple, quadruple integrators, damped, oscillator) at K = 200, 400",
     )
     parser.add_argument("--out", default="out/benchmark", help="directory for table.md, CSVs and PNGs")
-    parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per scenario")
+    parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per case")
     parser.add_argument("--workers", type=int, help="processes, or a local Ray's cores with --ray (default: all cores)")
     parser.add_argument(
         "--ray",

@@ -1,11 +1,11 @@
 """The benchmark's figures, written headless as PNG (matplotlib's Agg canvas, as :mod:`fxc_env.analysis.plots`).
 
 1. ``deadline_vs_budget.png``: relative deadline error against the budget K (log-log),
-   all scenarios pooled and on the trace scenario; continuous laws are single points at
+   all cases pooled and on the trace case; continuous laws are single points at
    their fine K.
 2. ``energy_vs_error.png``: energy against deadline error, one point per policy,
-   scenario and K (medians over seeds).
-3. ``disagreement_vs_time.png``: median ``D(t) / D(0)`` over seeds on the trace scenario,
+   case and K (medians over seeds).
+3. ``disagreement_vs_time.png``: median ``D(t) / D(0)`` over seeds on the trace case,
    every policy on one axis.
 """
 
@@ -38,12 +38,12 @@ def _visible(value: float) -> float:
     return max(value, DISPLAY_FLOOR) if np.isfinite(value) else np.nan
 
 
-def _budget_panel(ax, results: list[JobResult], suite: Suite, contenders: list[Contender], scenario=None) -> None:
+def _budget_panel(ax, results: list[JobResult], suite: Suite, contenders: list[Contender], case=None) -> None:
     for contender in contenders:
         mine = [
             r
             for r in results
-            if r.error is None and r.job.contender.name == contender.name and scenario in (None, r.job.scenario)
+            if r.error is None and r.job.contender.name == contender.name and case in (None, r.job.case)
         ]
         budgets = sorted({r.job.n_intervals for r in mine})
         stats = []
@@ -68,20 +68,20 @@ def _budget_panel(ax, results: list[JobResult], suite: Suite, contenders: list[C
 
 
 def deadline_vs_budget_figure(results: list[JobResult], suite: Suite, contenders: list[Contender], path: Path) -> Path:
-    """Deadline error against K: all scenarios pooled (left) and the trace scenario (right)."""
+    """Deadline error against K: all cases pooled (left) and the trace case (right)."""
     fig = new_figure(12.0, 4.6)
     left, right = fig.subplots(1, 2)
     _budget_panel(left, results, suite, contenders)
-    left.set_title(f"all scenarios pooled: median, band/bars = [q25, q75]; 0 drawn at {DISPLAY_FLOOR:g}", fontsize=9)
-    _budget_panel(right, results, suite, contenders, suite.trace_scenario)
-    assumed = " (assumed Fig. 1)" if suite.trace_scenario.topology == "paper_fig1" else ""
-    right.set_title(f"{suite.trace_scenario.key}{assumed}", fontsize=9)
+    left.set_title(f"all cases pooled: median, band/bars = [q25, q75]; 0 drawn at {DISPLAY_FLOOR:g}", fontsize=9)
+    _budget_panel(right, results, suite, contenders, suite.trace_case)
+    assumed = " (assumed Fig. 1)" if suite.trace_case.topology == "paper_fig1" else ""
+    right.set_title(f"{suite.trace_case.key}{assumed}", fontsize=9)
     right.legend(fontsize=7)
     return save_figure(fig, path)
 
 
 def energy_vs_error_figure(results: list[JobResult], contenders: list[Contender], path: Path) -> Path:
-    """Energy against deadline error, one point per (policy, scenario, K), medians over seeds."""
+    """Energy against deadline error, one point per (policy, case, K), medians over seeds."""
     fig = new_figure(7.5, 5.0)
     ax = fig.subplots()
     for contender in contenders:
@@ -96,16 +96,14 @@ def energy_vs_error_figure(results: list[JobResult], contenders: list[Contender]
     ax.set_yscale("log")
     ax.set_xlabel("relative deadline error D(T_s)/D(0) (median over seeds)")
     ax.set_ylabel("energy Σ_i ∫ u_i² dt (m²/s³, median over seeds)")
-    ax.set_title(
-        f"cost against accuracy: one point per policy, scenario and K; 0 drawn at {DISPLAY_FLOOR:g}", fontsize=9
-    )
+    ax.set_title(f"cost against accuracy: one point per policy, case and K; 0 drawn at {DISPLAY_FLOOR:g}", fontsize=9)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
     return save_figure(fig, path)
 
 
 def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list[Contender], path: Path) -> Path:
-    """Median ``D(t)/D(0)`` against t on the trace scenario, every policy (sampled ones at the headline K)."""
+    """Median ``D(t)/D(0)`` against t on the trace case, every policy (sampled ones at the headline K)."""
     fig = new_figure(8.0, 4.6)
     ax = fig.subplots()
     for contender in contenders:
@@ -117,7 +115,7 @@ def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list
             and r.trace is not None
             and r.job.contender.name == contender.name
             and r.job.n_intervals == k
-            and r.job.scenario == suite.trace_scenario
+            and r.job.case == suite.trace_case
         ]
         if not match:
             continue
@@ -135,7 +133,7 @@ def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list
     ax.set_xlabel("t (s)")
     ax.set_ylabel("D(t_k)/D(0), median over seeds")
     ax.set_title(
-        f"disagreement against time on {suite.trace_scenario.key}, {len(suite.seeds)} seeded initial states", fontsize=9
+        f"disagreement against time on {suite.trace_case.key}, {len(suite.seeds)} seeded initial states", fontsize=9
     )
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)

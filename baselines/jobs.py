@@ -1,4 +1,4 @@
-"""The benchmark's unit of work: one contender on one scenario at one budget K, and what it measured.
+"""The benchmark's unit of work: one contender on one case at one budget K, and what it measured.
 
 :func:`run_job` runs a :class:`Job` in this process; :mod:`fxc_env.baselines.benchmark` spreads
 jobs over processes, :mod:`fxc_env.baselines.ray_jobs` over a Ray cluster, and
@@ -15,17 +15,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fxc_env.baselines.suite import Contender, Scenario, Suite, contender_config, load_policy
+from fxc_env.baselines.suite import BenchmarkCase, Contender, Suite, contender_config, load_policy
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 
 
 @dataclass(frozen=True)
 class Job:
-    """One contender on one scenario at K intervals, for every seed of the suite."""
+    """One contender on one case at K intervals, for every seed of the suite."""
 
     contender: Contender
-    scenario: Scenario
+    case: BenchmarkCase
     n_intervals: int
     seeds: tuple[int, ...]
     settling_time: float
@@ -34,8 +34,8 @@ class Job:
     @property
     def cost(self) -> float:
         """Rough relative run time, to start the longest jobs first."""
-        design = 50.0 * self.scenario.n_agents**2 if self.contender.name == "linear_sampled" else 0.0
-        return self.n_intervals * (self.scenario.n_agents + 20.0) * len(self.seeds) + design
+        design = 50.0 * self.case.n_agents**2 if self.contender.name == "linear_sampled" else 0.0
+        return self.n_intervals * (self.case.n_agents + 20.0) * len(self.seeds) + design
 
 
 @dataclass
@@ -47,7 +47,7 @@ class JobResult:
             :class:`fxc_env.core.metrics.EpisodeMetrics`, plus ``final_value_gap``
             (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``.
         trace_times, trace: sampling instants and the median over seeds of ``D(t_k) / D(0)``
-            (only for the suite's trace scenario).
+            (only for the suite's trace case).
         description: the policy's law, source, graph class and parameters (as text).
         parameters: the policy's parameters as numbers.
         guarantee: whether this run is covered by the policy's theorem.
@@ -66,14 +66,14 @@ class JobResult:
 
 
 def make_jobs(suite: Suite, contenders: list[Contender]) -> list[Job]:
-    """Every (contender, scenario, K) of the suite, in table order."""
+    """Every (contender, case, K) of the suite, in table order."""
     jobs = []
     for contender in contenders:
         budgets = suite.budgets if contender.sampled else (suite.fine_intervals,)
-        for scenario in suite.scenarios:
+        for case in suite.cases:
             for k in budgets:
-                trace = scenario == suite.trace_scenario
-                jobs.append(Job(contender, scenario, k, suite.seeds, suite.settling_time, trace))
+                trace = case == suite.trace_case
+                jobs.append(Job(contender, case, k, suite.seeds, suite.settling_time, trace))
     return jobs
 
 
@@ -82,7 +82,7 @@ def run_job(job: Job) -> JobResult:
     start = time.perf_counter()
     result = JobResult(job)
     try:
-        config = contender_config(job.contender, job.scenario, job.n_intervals, job.settling_time)
+        config = contender_config(job.contender, job.case, job.n_intervals, job.settling_time)
         policy = load_policy(job.contender.spec, config)
     except ArgumentError as exc:
         result.error = str(exc)

@@ -1,8 +1,8 @@
 """The benchmark's tables: medians with spread, as Markdown and CSV.
 
 Spread is the interquartile range ``[q25, q75]`` over episodes. The headline table pools
-every scenario's episodes per policy (sampled policies at the headline budget, continuous
-laws at their fine K); the other tables break the deadline error down by scenario and by
+every case's episodes per policy (sampled policies at the headline budget, continuous
+laws at their fine K); the other tables break the deadline error down by case and by
 budget; the notes state each policy's law, source, proven graph class, parameters and the
 environment settings it ran with.
 """
@@ -98,9 +98,9 @@ def aggregate(results: list[JobResult]) -> list[dict[str, Any]]:
         job = r.job
         row: dict[str, Any] = {
             "policy": job.contender.name,
-            "scenario": job.scenario.key,
-            "topology": job.scenario.family,
-            "n_agents": job.scenario.n_agents,
+            "case": job.case.key,
+            "topology": job.case.family,
+            "n_agents": job.case.n_agents,
             "n_intervals": job.n_intervals,
             "schedule": job.contender.schedule,
             "action_mode": job.contender.action_mode,
@@ -124,13 +124,13 @@ def aggregate(results: list[JobResult]) -> list[dict[str, Any]]:
 
 
 def episode_rows(results: list[JobResult]) -> list[dict[str, Any]]:
-    """One CSV row per episode (policy, scenario, K, seed and every metric)."""
+    """One CSV row per episode (policy, case, K, seed and every metric)."""
     rows = []
     for r in _ran(results):
         for b, seed in enumerate(r.job.seeds):
             row: dict[str, Any] = {
                 "policy": r.job.contender.name,
-                "scenario": r.job.scenario.key,
+                "case": r.job.case.key,
                 "n_intervals": r.job.n_intervals,
                 "seed": seed,
             }
@@ -155,7 +155,7 @@ def write_text(text: str, path: Path) -> Path:
 
 
 def headline_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
-    """Per policy, all scenarios pooled: the episode metrics as ``median [q25, q75]``."""
+    """Per policy, all cases pooled: the episode metrics as ``median [q25, q75]``."""
     header = ["policy", "K", *(title for _, title in HEADLINE_COLUMNS), f"met ≤ {MET_THRESHOLD:g}"]
     rows = []
     for contender in contenders:
@@ -169,29 +169,29 @@ def headline_table(results: list[JobResult], suite: Suite, contenders: list[Cont
     return _table(header, rows)
 
 
-def scenario_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
-    """Deadline error per scenario (rows) and policy (columns) at the headline budget."""
+def case_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
+    """Deadline error per case (rows) and policy (columns) at the headline budget."""
     names = [c.name for c in contenders]
-    header = ["scenario", *names]
+    header = ["case", *names]
     rows = []
-    for scenario in suite.scenarios:
-        row = [scenario.key]
+    for case in suite.cases:
+        row = [case.key]
         for name in names:
-            match = [r for r in _headline_results(results, suite, name) if r.job.scenario == scenario]
+            match = [r for r in _headline_results(results, suite, name) if r.job.case == case]
             row.append(spread_cell(match[0].metrics["relative_deadline_error"]) if match else "—")
         rows.append(row)
     return _table(header, rows)
 
 
 def realism_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
-    """Per scenario and condition, each policy's median deadline error, saturated time share and energy."""
+    """Per case and condition, each policy's median deadline error, saturated time share and energy."""
     names = [c.name for c in contenders]
-    header = ["scenario", "condition", *names]
+    header = ["case", "condition", *names]
     rows = []
-    for scenario in suite.scenarios:
-        row = [f"{scenario.family} N={scenario.n_agents}", scenario.condition]
+    for case in suite.cases:
+        row = [f"{case.family} N={case.n_agents}", case.condition]
         for name in names:
-            match = [r for r in _headline_results(results, suite, name) if r.job.scenario == scenario]
+            match = [r for r in _headline_results(results, suite, name) if r.job.case == case]
             if not match:
                 row.append("—")
                 continue
@@ -205,7 +205,7 @@ def realism_table(results: list[JobResult], suite: Suite, contenders: list[Conte
 
 
 def budget_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
-    """Deadline error against the budget K, all scenarios pooled (continuous laws at their fine K)."""
+    """Deadline error against the budget K, all cases pooled (continuous laws at their fine K)."""
     header = ["policy", *(f"K = {k}" for k in suite.budgets), f"K = {suite.fine_intervals} (fine)"]
     rows = []
     for contender in contenders:
@@ -251,7 +251,7 @@ def notes(results: list[JobResult], suite: Suite, contenders: list[Contender]) -
             )
             lines.append(
                 f"  Law: a learned policy ({kind} `{contender.spec}`), one network shared by every agent; "
-                "no guarantee. Scenarios with more in-neighbours than its observation has rows are not run."
+                "no guarantee. Cases with more in-neighbours than its observation has rows are not run."
             )
         elif contender.name == "reference":
             lines.append(
@@ -284,7 +284,7 @@ def markdown_report(
     seconds: float | None = None,
     command: str | None = None,
 ) -> str:
-    """The whole report: headline, per-scenario and per-budget tables, notes."""
+    """The whole report: headline, per-case and per-budget tables, notes."""
     parts = [
         "## Deadline benchmark",
         "",
@@ -294,7 +294,7 @@ def markdown_report(
         parts.append(f"Command: `{command}`" + (f" ({seconds:.0f} s wall time)." if seconds is not None else "."))
     parts += [
         "",
-        f"### All scenarios pooled: median [q25, q75] over {len(suite.scenarios)} × {len(suite.seeds)} episodes",
+        f"### All cases pooled: median [q25, q75] over {len(suite.cases)} × {len(suite.seeds)} episodes",
         "",
         headline_table(results, suite, contenders),
         "",
@@ -303,12 +303,12 @@ def markdown_report(
         f"energy = Σ_i ∫ u_i² dt; abs(x̄ - x*) compares the achieved mean position with the reference's "
         "prediction ξᵀx(0) + T_s ξᵀv(0) (Theorems 1-2; other laws converge elsewhere on digraphs).",
         "",
-        "### Relative deadline error D(T_s)/D(0) by scenario: median [q25, q75] over seeds",
+        "### Relative deadline error D(T_s)/D(0) by case: median [q25, q75] over seeds",
         "",
-        scenario_table(results, suite, contenders),
+        case_table(results, suite, contenders),
         "",
     ]
-    if any(scenario.conditions for scenario in suite.scenarios):
+    if any(case.conditions for case in suite.cases):
         parts += [
             "### Realism: median deadline error D(T_s)/D(0) · share of agent-time at the input limit · energy (m²/s³)",
             "",
@@ -316,7 +316,7 @@ def markdown_report(
             "",
         ]
     parts += [
-        "### Relative deadline error against the communication budget K (all scenarios pooled)",
+        "### Relative deadline error against the communication budget K (all cases pooled)",
         "",
         budget_table(results, suite, contenders),
         "",

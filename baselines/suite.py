@@ -1,6 +1,6 @@
-"""What the deadline benchmark runs: scenarios, contenders and the settings each contender uses.
+"""What the deadline benchmark runs: cases, contenders and the settings each contender uses.
 
-A **scenario** is a topology family at a size N (``paper_fig1``, ``ring``, ``path``, ``star``,
+A **case** is a topology family at a size N (``paper_fig1``, ``ring``, ``path``, ``star``,
 ``random`` fixed and switching; N in {6, 20, 100}); every contender meets the same seeded
 initial states on it. A **contender** is a policy together with the environment settings it
 runs with: sampled controllers (the reference, the sampled-data linear law, learned policies)
@@ -60,7 +60,7 @@ BUILTIN_SETTINGS = {
 
 
 @dataclass(frozen=True)
-class Scenario:
+class BenchmarkCase:
     """One topology (or topology family) at one size; ``key`` names it in tables (e.g. ``ring N=20``).
 
     Attributes:
@@ -173,7 +173,7 @@ def learned_contender(
     sampled contender, named after its file or directory.
 
     Its observation width fixes ``obs_slots`` (rows = (obs_size - 3) / (2 dim + 1), dim = 1,
-    one more entry for a policy that sees the input limit); scenarios with more
+    one more entry for a policy that sees the input limit); cases with more
     in-neighbours than that, or without an input limit for a policy that expects one, are
     reported as not run. In ``dim > 1`` it acts per axis (:class:`fxc_env.policies.learned.PerAxisPolicy`). The model is loaded
     here, so a missing, empty or corrupt file raises :class:`ArgumentError` naming ``name``
@@ -204,51 +204,51 @@ def model_path(spec: str) -> Path:
 
 @dataclass(frozen=True)
 class Suite:
-    """Scenarios x seeded initial states x budgets, and the fine K of continuous laws.
+    """Cases x seeded initial states x budgets, and the fine K of continuous laws.
 
     Attributes:
-        scenarios: every topology at every size.
+        cases: every topology at every size.
         seeds: episode b draws its initial state from ``np.random.default_rng(seeds[b])``
             (positions U(-5, 5) m, velocities U(-2, 2) m/s per component).
         budgets: the K of sampled controllers.
         fine_intervals: the K of continuous-measurement laws (uniform, ZOH).
         settling_time: T_s in seconds.
         headline_budget: the K the headline table reports for sampled controllers.
-        trace_scenario: the scenario of the disagreement-versus-time figure.
+        trace_case: the case of the disagreement-versus-time figure.
         name: ``full`` or ``quick``.
     """
 
-    scenarios: tuple[Scenario, ...]
+    cases: tuple[BenchmarkCase, ...]
     seeds: tuple[int, ...]
     budgets: tuple[int, ...]
     fine_intervals: int
     settling_time: float = 20.0
     headline_budget: int = 200
-    trace_scenario: Scenario = field(default_factory=lambda: Scenario("paper_fig1", 6))
+    trace_case: BenchmarkCase = field(default_factory=lambda: BenchmarkCase("paper_fig1", 6))
     name: str = "full"
 
     def describe(self) -> str:
-        sizes = sorted({s.n_agents for s in self.scenarios})
-        families = list(dict.fromkeys(s.family for s in self.scenarios))
+        sizes = sorted({s.n_agents for s in self.cases})
+        families = list(dict.fromkeys(s.family for s in self.cases))
         return (
-            f"{self.name} suite: {len(self.scenarios)} scenarios ({', '.join(families)}; N in {sizes}), "
+            f"{self.name} suite: {len(self.cases)} cases ({', '.join(families)}; N in {sizes}), "
             f"{len(self.seeds)} seeded initial states each, T_s = {self.settling_time:g} s, "
             f"budgets K in {list(self.budgets)} for sampled policies, K = {self.fine_intervals} "
             "(uniform, zero-order hold) for continuous laws"
         )
 
 
-def _scenarios(sizes: tuple[int, ...], families: tuple[str, ...]) -> tuple[Scenario, ...]:
-    scenarios = [Scenario("paper_fig1", 6)] if "paper_fig1" in families else []
+def _cases(sizes: tuple[int, ...], families: tuple[str, ...]) -> tuple[BenchmarkCase, ...]:
+    cases = [BenchmarkCase("paper_fig1", 6)] if "paper_fig1" in families else []
     for n in sizes:
         for family in families:
             if family == "paper_fig1":
                 continue
             if family == "random_switching":
-                scenarios.append(Scenario("random", n, period=3))
+                cases.append(BenchmarkCase("random", n, period=3))
             else:
-                scenarios.append(Scenario(family, n))
-    return tuple(scenarios)
+                cases.append(BenchmarkCase(family, n))
+    return tuple(cases)
 
 
 FAMILIES = ("paper_fig1", "ring", "path", "star", "random", "random_switching")
@@ -257,7 +257,7 @@ FAMILIES = ("paper_fig1", "ring", "path", "star", "random", "random_switching")
 def full_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     """The issue's suite: every family at N in {6, 20, 100}, K in {25, 50, 100, 200, 400}."""
     return Suite(
-        scenarios=_scenarios((6, 20, 100), FAMILIES),
+        cases=_cases((6, 20, 100), FAMILIES),
         seeds=tuple(range(n_seeds)),
         budgets=(25, 50, 100, 200, 400),
         fine_intervals=fine_intervals,
@@ -268,7 +268,7 @@ def quick_suite(n_seeds: int = 20, fine_intervals: int = 1000) -> Suite:
     """A one-minute run: every family at N in {6, 20}, K in {25, 100, 200}, a coarser fine K."""
     return replace(
         full_suite(n_seeds, fine_intervals),
-        scenarios=_scenarios((6, 20), FAMILIES),
+        cases=_cases((6, 20), FAMILIES),
         budgets=(25, 100, 200),
         name="quick",
     )
@@ -289,9 +289,9 @@ REALISM_CONDITIONS: tuple[tuple[tuple[str, float], ...], ...] = (
 
 def realism_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     """Every policy under input limits, noise and dropout on ``paper_fig1`` and a random N = 20 digraph, K = 200."""
-    bases = (Scenario("paper_fig1", 6), Scenario("random", 20))
+    bases = (BenchmarkCase("paper_fig1", 6), BenchmarkCase("random", 20))
     return Suite(
-        scenarios=tuple(replace(base, conditions=c) for base in bases for c in REALISM_CONDITIONS),
+        cases=tuple(replace(base, conditions=c) for base in bases for c in REALISM_CONDITIONS),
         seeds=tuple(range(n_seeds)),
         budgets=(200,),
         fine_intervals=fine_intervals,
@@ -316,15 +316,15 @@ def models_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     The analytic baselines are laws for the double integrator: on the other models they do not
     run (the table says why); the reference and ``plan``-mode learned policies run on all.
     """
-    bases = (Scenario("paper_fig1", 6), Scenario("random", 20))
-    scenarios = tuple(replace(base, conditions=c) for base in bases for c in MODEL_CONDITIONS)
+    bases = (BenchmarkCase("paper_fig1", 6), BenchmarkCase("random", 20))
+    cases = tuple(replace(base, conditions=c) for base in bases for c in MODEL_CONDITIONS)
     return Suite(
-        scenarios=scenarios,
+        cases=cases,
         seeds=tuple(range(n_seeds)),
         budgets=(200, 400),
         fine_intervals=fine_intervals,
         headline_budget=200,
-        trace_scenario=scenarios[2],  # paper_fig1, a chain of order 3
+        trace_case=cases[2],  # paper_fig1, a chain of order 3
         name="models",
     )
 
@@ -333,7 +333,7 @@ def models_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
 GENERALISATION_RANDOM = TopologyFamily("random", mean_in_degree=(1.5, 3.0))
 
 
-def generalisation_scenarios() -> tuple[Scenario, ...]:
+def generalisation_cases() -> tuple[BenchmarkCase, ...]:
     """Families and sizes a policy must handle to count as general; every graph is drawn per episode.
 
     ``paper_fig1``; rings and random digraphs at N = 20 and 100; a path and a star (N = 20);
@@ -344,23 +344,23 @@ def generalisation_scenarios() -> tuple[Scenario, ...]:
     switching_ring = TopologyFamily("ring", period=(2, 4))
     switching_random = TopologyFamily("random", mean_in_degree=(1.5, 3.0), period=(2, 4))
     return (
-        Scenario("paper_fig1", 6),
-        Scenario(ring, 20),
-        Scenario(ring, 100),
-        Scenario(GENERALISATION_RANDOM, 20),
-        Scenario(GENERALISATION_RANDOM, 100),
-        Scenario(path, 20),
-        Scenario(star, 20),
-        Scenario(switching_ring, 20),
-        Scenario(switching_random, 20),
-        Scenario(GENERALISATION_RANDOM, 20, dim=2),
+        BenchmarkCase("paper_fig1", 6),
+        BenchmarkCase(ring, 20),
+        BenchmarkCase(ring, 100),
+        BenchmarkCase(GENERALISATION_RANDOM, 20),
+        BenchmarkCase(GENERALISATION_RANDOM, 100),
+        BenchmarkCase(path, 20),
+        BenchmarkCase(star, 20),
+        BenchmarkCase(switching_ring, 20),
+        BenchmarkCase(switching_random, 20),
+        BenchmarkCase(GENERALISATION_RANDOM, 20, dim=2),
     )
 
 
 def generalisation_suite(n_seeds: int = 20, budgets: tuple[int, ...] = (200,)) -> Suite:
-    """:func:`generalisation_scenarios` at K = 200 (T_s = 20 s), seeds ``0 .. n_seeds - 1``."""
+    """:func:`generalisation_cases` at K = 200 (T_s = 20 s), seeds ``0 .. n_seeds - 1``."""
     return Suite(
-        scenarios=generalisation_scenarios(),
+        cases=generalisation_cases(),
         seeds=tuple(range(n_seeds)),
         budgets=budgets,
         fine_intervals=1000,
@@ -369,10 +369,10 @@ def generalisation_suite(n_seeds: int = 20, budgets: tuple[int, ...] = (200,)) -
     )
 
 
-def contender_config(contender: Contender, scenario: Scenario, n_intervals: int, settling_time: float) -> EnvConfig:
-    """The environment a contender meets on a scenario at K intervals."""
+def contender_config(contender: Contender, case: BenchmarkCase, n_intervals: int, settling_time: float) -> EnvConfig:
+    """The environment a contender meets on a case at K intervals."""
     return make_config(
-        **scenario.config_kwargs(),
+        **case.config_kwargs(),
         settling_time=settling_time,
         n_intervals=n_intervals,
         schedule=contender.schedule,

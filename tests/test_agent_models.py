@@ -254,6 +254,6 @@ def test_the_models_benchmark_suite_scores_the_reference_on_every_model(tmp_path
     reference = [r for r in rows if r["policy"] == "reference"]
     assert len(reference) == 2 * 6 * 2  # two graphs, six models, K = 200 and 400
     for row in reference:
-        assert float(row["relative_deadline_error_median"]) < 1e-10, row["scenario"]
+        assert float(row["relative_deadline_error_median"]) < 1e-10, row["case"]
     # The double integrator's analytic baselines do not run on other models, and the report says why.
     assert "action_mode" in output.markdown

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from fxc_env.baselines.jobs import Job, make_jobs, run_job
-from fxc_env.baselines.suite import Scenario, builtin_contenders, learned_contender, quick_suite
+from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, learned_contender, quick_suite
 from fxc_env.cli import main
 
 FIGURES = ("deadline_vs_budget.png", "energy_vs_error.png", "disagreement_vs_time.png")
@@ -27,18 +27,18 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     with open(tmp_path / "results.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     reference = [
-        r for r in rows if (r["policy"], r["scenario"], r["n_intervals"]) == ("reference", "paper_fig1 N=6", "200")
+        r for r in rows if (r["policy"], r["case"], r["n_intervals"]) == ("reference", "paper_fig1 N=6", "200")
     ]
     assert len(reference) == 1
     assert float(reference[0]["relative_deadline_error_median"]) <= 1e-9
     assert float(reference[0]["relative_deadline_error_q75"]) <= 1e-9
 
-    # The printed Markdown: the by-scenario row of paper_fig1 opens with the reference's median at K = 200.
+    # The printed Markdown: the by-case row of paper_fig1 opens with the reference's median at K = 200.
     row = next(line for line in printed.splitlines() if line.startswith("| paper_fig1 N=6 |"))
     assert float(row.split("|")[2].split("[")[0]) <= 1e-9
     assert (tmp_path / "table.md").read_text().strip() in printed
 
-    # Every policy ran every quick scenario with the settings and notes the issue asks for.
+    # Every policy ran every quick case with the settings and notes the issue asks for.
     suite = quick_suite()
     assert len(rows) == len(make_jobs(suite, builtin_contenders()))
     assert all(r["error"] == "" for r in rows)
@@ -51,7 +51,7 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
 
 def test_a_job_is_seeded_and_repeatable():
     contender = builtin_contenders(["linear_sampled"])[0]
-    job = Job(contender, Scenario("random", 6, period=3), 25, (0, 1, 2), 20.0, True)
+    job = Job(contender, BenchmarkCase("random", 6, period=3), 25, (0, 1, 2), 20.0, True)
     first, second = run_job(job), run_job(job)
     for name, values in first.metrics.items():
         np.testing.assert_array_equal(values, second.metrics[name], err_msg=name)
@@ -60,9 +60,9 @@ def test_a_job_is_seeded_and_repeatable():
 
 
 def test_every_policy_meets_the_same_initial_states():
-    scenario, seeds = Scenario("ring", 6), (4, 5)
+    case, seeds = BenchmarkCase("ring", 6), (4, 5)
     initial = [
-        run_job(Job(c, scenario, 25, seeds, 20.0, False)).metrics["initial_disagreement"] for c in builtin_contenders()
+        run_job(Job(c, case, 25, seeds, 20.0, False)).metrics["initial_disagreement"] for c in builtin_contenders()
     ]
     for values in initial[1:]:
         np.testing.assert_array_equal(values, initial[0])
@@ -70,10 +70,10 @@ def test_every_policy_meets_the_same_initial_states():
 
 def test_a_learned_policy_runs_as_a_contender_or_says_why_not():
     contender = learned_contender("pretrained")
-    ran = run_job(Job(contender, Scenario("paper_fig1", 6), 50, (0, 1), 20.0, False))
+    ran = run_job(Job(contender, BenchmarkCase("paper_fig1", 6), 50, (0, 1), 20.0, False))
     assert ran.error is None and ran.guarantee.startswith("learned")
     assert np.all(np.isfinite(ran.metrics["relative_deadline_error"]))
-    skipped = run_job(Job(contender, Scenario("complete", 6), 50, (0, 1), 20.0, False))
+    skipped = run_job(Job(contender, BenchmarkCase("complete", 6), 50, (0, 1), 20.0, False))
     assert "obs_slots" in skipped.error  # in-degree 5 does not fit the model's 4 rows
 
 
@@ -84,10 +84,10 @@ def test_realism_suite_reports_saturation_for_the_reference_under_an_input_limit
     from fxc_env.baselines.suite import realism_suite
 
     full = realism_suite(n_seeds=3, fine_intervals=200)
-    assert {s.condition for s in full.scenarios} >= {"ideal", "u_max = 10", "obs_noise = 0.1", "link_dropout = 0.3"}
-    suite = replace(full, scenarios=tuple(s for s in full.scenarios if s.condition in ("ideal", "u_max = 10")))
+    assert {s.condition for s in full.cases} >= {"ideal", "u_max = 10", "obs_noise = 0.1", "link_dropout = 0.3"}
+    suite = replace(full, cases=tuple(s for s in full.cases if s.condition in ("ideal", "u_max = 10")))
     output = run_benchmark(suite, builtin_contenders(["reference"]), tmp_path, workers=1, progress=False)
-    rows = {r["scenario"]: r for r in csv.DictReader((tmp_path / "results.csv").open())}
+    rows = {r["case"]: r for r in csv.DictReader((tmp_path / "results.csv").open())}
     limited, ideal = rows["paper_fig1 N=6, u_max=10"], rows["paper_fig1 N=6"]
     assert float(limited["saturated_fraction_median"]) > 0 and float(ideal["saturated_fraction_median"]) == 0
     assert float(limited["peak_input_median"]) <= 10
@@ -98,17 +98,17 @@ def test_realism_suite_reports_saturation_for_the_reference_under_an_input_limit
 def test_a_realism_job_with_noise_and_dropout_is_seeded_and_repeatable():
     contender = builtin_contenders(["reference"])[0]
     conditions = (("obs_noise", 0.1), ("link_dropout", 0.3))
-    scenario = Scenario("random", 8, period=3, conditions=conditions)
-    job = Job(contender, scenario, 25, (0, 1, 2), 20.0, True)
+    case = BenchmarkCase("random", 8, period=3, conditions=conditions)
+    job = Job(contender, case, 25, (0, 1, 2), 20.0, True)
     first, second = run_job(job), run_job(job)
     assert first.error is None
     for name, values in first.metrics.items():
         np.testing.assert_array_equal(values, second.metrics[name], err_msg=name)
     np.testing.assert_array_equal(first.trace, second.trace)
     # The noise matters (else this test proves nothing), and other seeds give other runs.
-    ideal = run_job(Job(contender, Scenario("random", 8, period=3), 25, (0, 1, 2), 20.0, False))
+    ideal = run_job(Job(contender, BenchmarkCase("random", 8, period=3), 25, (0, 1, 2), 20.0, False))
     assert not np.array_equal(first.metrics["relative_deadline_error"], ideal.metrics["relative_deadline_error"])
-    other = run_job(Job(contender, scenario, 25, (3, 4, 5), 20.0, False))
+    other = run_job(Job(contender, case, 25, (3, 4, 5), 20.0, False))
     assert not np.array_equal(first.metrics["relative_deadline_error"], other.metrics["relative_deadline_error"])
 
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from fxc_env.baselines.jobs import Job, JobResult
 from fxc_env.baselines.report import CSV_METRICS, aggregate, quantiles, spread_cell
-from fxc_env.baselines.suite import Scenario, builtin_contenders
+from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders
 
 
 def test_quantiles_ignore_nan_and_rank_inf_last():
@@ -23,7 +23,7 @@ def test_spread_cell_reads_median_then_interquartile_range():
 
 
 def test_aggregate_counts_divergence_and_deadlines_met():
-    job = Job(builtin_contenders(["linear"])[0], Scenario("ring", 6), 100, (0, 1, 2, 3), 20.0, False)
+    job = Job(builtin_contenders(["linear"])[0], BenchmarkCase("ring", 6), 100, (0, 1, 2, 3), 20.0, False)
     relative = np.array([1e-9, 1e-3, np.inf, 1e-7])
     metrics = {name: np.ones(4) for name in CSV_METRICS}
     metrics.update(relative_deadline_error=relative)
@@ -31,7 +31,7 @@ def test_aggregate_counts_divergence_and_deadlines_met():
     assert row["diverged"] == 1
     assert row["met_1e-6"] == 0.5
     assert row["relative_deadline_error_median"] == 1e-7  # lower median of [1e-9, 1e-7, 1e-3, inf]
-    assert (row["scenario"], row["n_intervals"], row["schedule"], row["parameters"]) == (
+    assert (row["case"], row["n_intervals"], row["schedule"], row["parameters"]) == (
         "ring N=6",
         100,
         "uniform",

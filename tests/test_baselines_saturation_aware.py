@@ -8,7 +8,7 @@ import pytest
 import fxc_env
 from fxc_env.baselines.jobs import Job, run_job
 from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
-from fxc_env.baselines.suite import Scenario, builtin_contenders
+from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders
 from fxc_env.config import make_config
 from fxc_env.engine import ConsensusEngine
 
@@ -78,19 +78,22 @@ def test_plan_units_and_physical_units_give_the_same_episode(u_max):
     )
 
 
-def median_log_error(contender, scenario):
+def median_log_error(contender, case):
     k = 200 if contender.sampled else 4000
-    result = run_job(Job(contender, scenario, k, SEEDS, 20.0, False))
+    result = run_job(Job(contender, case, k, SEEDS, 20.0, False))
     return float(np.median(np.log10(np.maximum(result.metrics["relative_deadline_error"], 1e-300))))
 
 
 @pytest.mark.parametrize(
-    "scenario",
-    [Scenario("paper_fig1", 6, conditions=(("u_max", 10.0),)), Scenario("random", 20, conditions=(("u_max", 10.0),))],
+    "case",
+    [
+        BenchmarkCase("paper_fig1", 6, conditions=(("u_max", 10.0),)),
+        BenchmarkCase("random", 20, conditions=(("u_max", 10.0),)),
+    ],
     ids=lambda s: s.key,
 )
-def test_under_a_tight_limit_it_is_ten_times_below_every_other_analytic_law(scenario):
+def test_under_a_tight_limit_it_is_ten_times_below_every_other_analytic_law(case):
     contenders = builtin_contenders()
     mine = next(c for c in contenders if c.name == "saturation_aware")
-    best_other = min(median_log_error(c, scenario) for c in contenders if c is not mine)
-    assert median_log_error(mine, scenario) <= best_other - 1.0
+    best_other = min(median_log_error(c, case) for c in contenders if c is not mine)
+    assert median_log_error(mine, case) <= best_other - 1.0

@@ -1,4 +1,4 @@
-"""The benchmark suite: scenarios, contenders and their settings, and loading policies by name or file."""
+"""The benchmark suite: cases, contenders and their settings, and loading policies by name or file."""
 
 from __future__ import annotations
 
@@ -21,26 +21,26 @@ from fxc_env.policies.learned import LearnedPolicy
 
 def test_full_suite_is_the_issue_suite():
     suite = full_suite()
-    families = {s.family for s in suite.scenarios}
+    families = {s.family for s in suite.cases}
     assert families == {"paper_fig1", "ring", "path", "star", "random (fixed)", "random (switching)"}
-    assert {s.n_agents for s in suite.scenarios} == {6, 20, 100}
-    assert len(suite.scenarios) == 1 + 5 * 3
+    assert {s.n_agents for s in suite.cases} == {6, 20, 100}
+    assert len(suite.cases) == 1 + 5 * 3
     assert len(suite.seeds) >= 20
     assert suite.budgets == (25, 50, 100, 200, 400)
-    assert len({s.key for s in suite.scenarios}) == len(suite.scenarios)
+    assert len({s.key for s in suite.cases}) == len(suite.cases)
 
 
 def test_quick_suite_keeps_every_family_and_the_headline_budget():
     quick, full = quick_suite(), full_suite()
-    assert {s.family for s in quick.scenarios} == {s.family for s in full.scenarios}
+    assert {s.family for s in quick.cases} == {s.family for s in full.cases}
     assert quick.headline_budget in quick.budgets
-    assert quick.trace_scenario in quick.scenarios
+    assert quick.trace_case in quick.cases
 
 
 def test_contender_settings_reach_the_environment():
-    scenario = full_suite().scenarios[0]
+    case = full_suite().cases[0]
     for contender in builtin_contenders():
-        config = contender_config(contender, scenario, 50, 20.0)
+        config = contender_config(contender, case, 50, 20.0)
         assert (config.schedule.name, config.action_mode, config.obs_mode) == BUILTIN_SETTINGS[contender.name][1:]
         assert config.n_intervals == 50
     sampled = {c.name for c in builtin_contenders() if c.sampled}
@@ -61,7 +61,7 @@ def test_load_policy_by_name():
 def test_learned_policy_plugs_in_with_its_observation_width():
     contender = learned_contender("pretrained")
     assert contender.sampled and contender.obs_slots == 4
-    config = contender_config(contender, full_suite().scenarios[0], 200, 20.0)
+    config = contender_config(contender, full_suite().cases[0], 200, 20.0)
     policy = load_policy(contender.spec, config)
     assert isinstance(policy, LearnedPolicy)
     obs = np.zeros((3, config.n_agents, config.layout.size))

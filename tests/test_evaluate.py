@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 
 from fxc_env import cli
-from fxc_env.training.evaluate import EVALUATION_SCENARIOS
+from fxc_env.training.evaluate import EVALUATION_CASES
 
 
 def test_evaluate_pretrained_prints_and_writes_the_comparison(tmp_path, capsys):
@@ -14,8 +14,8 @@ def test_evaluate_pretrained_prints_and_writes_the_comparison(tmp_path, capsys):
     assert code == 0
     assert "| reference | 200 |" in out and "| learned:generalist | 200 |" in out
     rows = list(csv.DictReader((tmp_path / "results.csv").open()))
-    assert {(r["policy"], r["scenario"]) for r in rows} == {
-        (policy, scenario.key) for policy in ("reference", "learned:generalist") for scenario in EVALUATION_SCENARIOS
+    assert {(r["policy"], r["case"]) for r in rows} == {
+        (policy, case.key) for policy in ("reference", "learned:generalist") for case in EVALUATION_CASES
     }
     assert all(int(r["n_episodes"]) == 3 for r in rows)
     for name in ("table.md", "deadline_vs_budget.png", "energy_vs_error.png", "disagreement_vs_time.png"):
@@ -62,7 +62,7 @@ def test_evaluate_on_environment_flags_scores_that_one_environment(tmp_path, cap
     assert cli.main(argv) == 0
     rows = list(csv.DictReader((tmp_path / "results.csv").open()))
     assert {r["policy"] for r in rows} == {"reference", "learned:saturated"}
-    assert {r["scenario"] for r in rows} == {"ring_m2-3 (drawn) N=8, u_max={10, 100}"}
+    assert {r["case"] for r in rows} == {"ring_m2-3 (drawn) N=8, u_max={10, 100}"}
     learned = next(r for r in rows if r["policy"] == "learned:saturated")
     assert learned["schedule"] == "uniform"  # the schedule the shipped policy was trained on
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import Scenario, builtin_contenders, generalisation_scenarios, learned_contender
+from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, generalisation_cases, learned_contender
 from fxc_env.policies.learned import pretrained_path
 
 SEEDS = tuple(range(6))
@@ -18,8 +18,8 @@ SEEDS = tuple(range(6))
 FIVE_LAWS = ("reference", "linear_sampled", "linear", "finite_time", "prescribed_time")
 
 
-def log_error(contender, scenario, seeds=SEEDS) -> float:
-    result = run_job(Job(contender, scenario, 200, seeds, 20.0, False))
+def log_error(contender, case, seeds=SEEDS) -> float:
+    result = run_job(Job(contender, case, 200, seeds, 20.0, False))
     assert result.error is None, result.error
     return float(np.median(np.log10(np.maximum(result.metrics["relative_deadline_error"], 1e-12))))
 
@@ -33,46 +33,46 @@ def test_pretrained_means_the_generalist():
     assert pretrained_path("pretrained") == pretrained_path("generalist")
 
 
-@pytest.mark.parametrize("scenario", generalisation_scenarios(), ids=lambda s: s.key)
-def test_the_generalist_is_within_a_decade_of_the_reference_on_every_family_of_the_generalisation_suite(scenario):
+@pytest.mark.parametrize("case", generalisation_cases(), ids=lambda s: s.key)
+def test_the_generalist_is_within_a_decade_of_the_reference_on_every_family_of_the_generalisation_suite(case):
     """The goal asks this where the reference reaches below 1e-6; it holds on the slow rings too."""
-    reference = log_error(builtin_contenders(["reference"])[0], scenario)
-    assert log_error(learned_contender("generalist"), scenario) <= reference + 1.0
+    reference = log_error(builtin_contenders(["reference"])[0], case)
+    assert log_error(learned_contender("generalist"), case) <= reference + 1.0
 
 
-def best_analytic_log_error(scenario) -> float:
+def best_analytic_log_error(case) -> float:
     """The best of the five analytic laws the goal names (reference, linear_sampled, linear, finite_time, prescribed_time)."""
     contenders = builtin_contenders(list(FIVE_LAWS))
     errors = []
     for contender in contenders:
         k = 200 if contender.sampled else 4000
-        result = run_job(Job(contender, scenario, k, SEEDS, 20.0, False))
+        result = run_job(Job(contender, case, k, SEEDS, 20.0, False))
         errors.append(float(np.median(np.log10(np.maximum(result.metrics["relative_deadline_error"], 1e-300)))))
     return min(errors)
 
 
 @pytest.mark.parametrize(
-    "scenario",
+    "case",
     [
-        Scenario("paper_fig1", 6, conditions=(("u_max", 10.0),)),
-        Scenario("paper_fig1", 6, conditions=(("u_max", 100.0),)),
-        Scenario("random", 20, conditions=(("u_max", 10.0),)),
+        BenchmarkCase("paper_fig1", 6, conditions=(("u_max", 10.0),)),
+        BenchmarkCase("paper_fig1", 6, conditions=(("u_max", 100.0),)),
+        BenchmarkCase("random", 20, conditions=(("u_max", 10.0),)),
     ],
     ids=lambda s: s.key,
 )
-def test_the_saturated_policy_beats_the_five_analytic_laws_tenfold_where_the_limit_binds(scenario):
-    learned = log_error(learned_contender("saturated"), scenario)
-    assert learned <= best_analytic_log_error(scenario) - 1.0
+def test_the_saturated_policy_beats_the_five_analytic_laws_tenfold_where_the_limit_binds(case):
+    learned = log_error(learned_contender("saturated"), case)
+    assert learned <= best_analytic_log_error(case) - 1.0
 
 
 def test_the_saturated_policy_stays_within_a_decade_of_the_reference_where_the_limit_does_not_bind():
-    scenario = Scenario("random", 20, conditions=(("u_max", 100.0),))
-    reference = log_error(builtin_contenders(["reference"])[0], scenario)
-    assert log_error(learned_contender("saturated"), scenario) <= reference + 1.0
+    case = BenchmarkCase("random", 20, conditions=(("u_max", 100.0),))
+    reference = log_error(builtin_contenders(["reference"])[0], case)
+    assert log_error(learned_contender("saturated"), case) <= reference + 1.0
 
 
 def test_the_saturated_policy_sees_its_limit_and_runs_on_the_uniform_schedule():
     contender = learned_contender("saturated")
     assert contender.schedule == "uniform"
     with pytest.raises(AssertionError, match="observations of size"):
-        log_error(contender, Scenario("paper_fig1", 6))  # no limit: the observation has no limit entry
+        log_error(contender, BenchmarkCase("paper_fig1", 6))  # no limit: the observation has no limit entry

@@ -15,7 +15,7 @@ from typing import Any
 
 from fxc_env.baselines.benchmark import run_benchmark
 from fxc_env.baselines.suite import (
-    Scenario,
+    BenchmarkCase,
     Suite,
     builtin_contenders,
     generalisation_suite,
@@ -28,18 +28,18 @@ from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.utils.cli_checks import budgets as parse_budgets
 from fxc_env.utils.cli_checks import output_directory
 
-EVALUATION_SCENARIOS = (
-    Scenario("paper_fig1", 6),
-    Scenario("ring", 20),
-    Scenario("path", 20),
-    Scenario("random", 20),
+EVALUATION_CASES = (
+    BenchmarkCase("paper_fig1", 6),
+    BenchmarkCase("ring", 20),
+    BenchmarkCase("path", 20),
+    BenchmarkCase("random", 20),
 )
 
 
 def evaluation_suite(n_seeds: int = 20, budgets: tuple[int, ...] = (200,)) -> Suite:
     """``paper_fig1`` and the N = 20 generalisation graphs, seeds ``0 .. n_seeds - 1``."""
     return Suite(
-        scenarios=EVALUATION_SCENARIOS,
+        cases=EVALUATION_CASES,
         seeds=tuple(range(n_seeds)),
         budgets=budgets,
         fine_intervals=1000,
@@ -69,7 +69,7 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
         "or an RLlib checkpoint or run directory (fxc train --backend rllib)",
     )
     parser.add_argument("--suite", choices=SUITES, help="a named suite (default 'evaluate' without environment flags)")
-    parser.add_argument("--seeds", type=int, default=20, help="seeded episodes per scenario")
+    parser.add_argument("--seeds", type=int, default=20, help="seeded episodes per case")
     parser.add_argument("--budgets", default="200", help="comma-separated K values (default 200)")
     parser.add_argument("--out", default="out/evaluate", help="directory for table.md, CSVs and PNGs")
     parser.add_argument("--workers", type=int, help="processes (default: one per core)")
@@ -79,8 +79,8 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=evaluate_command)
 
 
-def custom_scenario(env_kwargs: dict[str, Any]) -> tuple[Scenario, float]:
-    """The one scenario that environment flags describe, and its ``T_s``; validated by building its config."""
+def custom_case(env_kwargs: dict[str, Any]) -> tuple[BenchmarkCase, float]:
+    """The one case that environment flags describe, and its ``T_s``; validated by building its config."""
     config = make_config(**env_kwargs)
     given = {k: v for k, v in env_kwargs.items() if k not in ENV_FIELDS_OF_CONTENDERS and k != "scenario"}
     conditions = []
@@ -94,11 +94,11 @@ def custom_scenario(env_kwargs: dict[str, Any]) -> tuple[Scenario, float]:
             if name != "dim":
                 conditions.append((name, value[0] if isinstance(value, tuple) and len(set(value)) == 1 else value))
     topology = config.family if config.family is not None else config.topology
-    scenario = Scenario(topology, config.n_agents, conditions=tuple(conditions), dim=config.dim)
-    return scenario, config.settling_time
+    case = BenchmarkCase(topology, config.n_agents, conditions=tuple(conditions), dim=config.dim)
+    return case, config.settling_time
 
 
-#: Settings that belong to each contender (its schedule, K, modes, width), not to the scenario.
+#: Settings that belong to each contender (its schedule, K, modes, width), not to the case.
 ENV_FIELDS_OF_CONTENDERS = ("n_intervals", "schedule", "action_mode", "obs_mode", "obs_slots")
 
 
@@ -118,11 +118,11 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if "n_intervals" in custom:
         raise ArgumentError("--n-intervals: the budgets K come from --budgets")
     if custom:
-        scenario, settling_time = custom_scenario(custom)
+        case, settling_time = custom_case(custom)
         suite = replace(
             evaluation_suite(seeds, budgets),
-            scenarios=(scenario,),
-            trace_scenario=scenario,
+            cases=(case,),
+            trace_case=case,
             settling_time=settling_time,
             name="custom",
         )

@@ -15,7 +15,7 @@ from fxc_env import cli, make_config
 from fxc_env.policies.learned import RLlibPolicy, load_learned_policy
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import HYPERPARAMS
-from fxc_env.training.evaluate import EVALUATION_SCENARIOS
+from fxc_env.training.evaluate import EVALUATION_CASES
 from fxc_env.training.rllib_train import ConsensusRLlibEnv
 
 #: Environment steps per iteration in these tests: two episodes of K = 200 (one per env runner).
@@ -106,8 +106,8 @@ def test_fxc_evaluate_scores_the_rllib_run_next_to_the_reference(trained, tmp_pa
     name = f"learned:{trained.name}"
     assert f"| {name} | 200 |" in printed and "RLlib checkpoint" in printed
     rows = list(csv.DictReader((out / "results.csv").open()))
-    assert {(r["policy"], r["scenario"]) for r in rows} == {
-        (policy, s.key) for policy in ("reference", name) for s in EVALUATION_SCENARIOS
+    assert {(r["policy"], r["case"]) for r in rows} == {
+        (policy, s.key) for policy in ("reference", name) for s in EVALUATION_CASES
     }
     assert all(r["error"] == "" and int(r["n_episodes"]) == 2 for r in rows)
 
