@@ -1,7 +1,7 @@
 """Independent ground truth for the tests: the paper's numbers and hand-built matrices.
 
 Nothing here calls the package's own linear algebra; expected values are built from
-SPEC 2's definitions with plain numpy so the tests can catch the package being wrong.
+the paper's definitions (Section 2 and the proof of Theorem 1) with plain numpy so the tests can catch the package being wrong.
 """
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ import itertools
 
 import numpy as np
 
-# The paper's example (Section 5, SPEC 2).
+# The paper's example (Section 5).
 PAPER_X0 = np.array([1.0, -1.0, 2.0, 4.0, -4.0, -2.0])
 PAPER_V0 = np.array([1.0, 2.0, 3.0, -3.0, -2.0, 0.0])
 PAPER_SETTLING_TIME = 20.0
 PAPER_XI = np.array([1 / 4, 1 / 8, 1 / 8, 1 / 4, 1 / 8, 1 / 8])
 PAPER_X_STAR = -1.875
 PAPER_V_STAR = -0.125
-#: The assumed Fig. 1 (SPEC 2), as written there: 1-based pairs (j, i), "i receives from j".
+#: The assumed Fig. 1 (the README's reconstruction: the paper's image is lost): 1-based pairs (j, i), "i receives from j".
 PAPER_GRAPHS_ONE_BASED = [[(1, 2), (4, 5)], [(2, 3), (5, 6)], [(3, 4), (6, 1)]]
 PAPER_GRAPHS = [[(j - 1, i - 1) for j, i in graph] for graph in PAPER_GRAPHS_ONE_BASED]
 
@@ -35,7 +35,7 @@ def adjacency_by_hand(n: int, edges) -> np.ndarray:
 
 
 def averaging_matrix_by_hand(n: int, edges) -> np.ndarray:
-    """``W = I - (D + I)^{-1} L`` with ``L = D - A`` (SPEC 2), dense."""
+    """``W = I - (D + I)^{-1} L`` with ``L = D - A`` (the paper, after (17a)), dense."""
     a = adjacency_by_hand(n, edges)
     d = np.diag(a.sum(axis=1))
     laplacian = d - a

@@ -1,4 +1,4 @@
-"""Exact motion under an affine input (SPEC 2): closed forms against scipy."""
+"""Exact motion under an affine input (the paper's (10)-(11)): closed forms against scipy."""
 
 from __future__ import annotations
 
@@ -102,7 +102,7 @@ def test_input_from_plan_realises_the_plan(seed):
     xs, vs = integrate(x, v, u0, u1, T, [T])
     np.testing.assert_allclose(xs[-1], x + T * v + a_x, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(vs[-1], v + a_v, rtol=1e-9, atol=1e-9)
-    # SPEC 2: alpha = 6 a_x / T^2 - 2 a_v / T, beta = (6 a_v T - 12 a_x) / T^3.
+    # The minimum-energy plan of the paper's Remark 1: alpha = 6 a_x / T^2 - 2 a_v / T, beta = (6 a_v T - 12 a_x) / T^3.
     alpha = 6 * a_x / T**2 - 2 * a_v / T
     beta = (6 * a_v * T - 12 * a_x) / T**3
     np.testing.assert_allclose(u0, alpha, rtol=1e-12)
@@ -129,7 +129,7 @@ def test_input_from_plan_is_minimum_energy():
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_reference_plan_gives_the_endpoint_and_energy_formulas_of_spec_2(seed):
+def test_reference_plan_gives_the_closed_form_endpoints_and_energy(seed):
     rng = np.random.default_rng(200 + seed)
     e_x, e_v = rng.normal(size=3), rng.normal(size=3)
     T = float(rng.uniform(0.01, 3.0))

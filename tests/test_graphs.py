@@ -1,4 +1,4 @@
-"""Topologies: generators, neighbour arrays, W, xi and validation (SPEC 2, 4.1, 4.5)."""
+"""Topologies: generators, neighbour arrays, W, xi and validation (the paper's Section 2; README, "Using the environment")."""
 
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ def test_named_topologies_default_to_six_agents():
         assert make_topology(name).n_agents == 6
 
 
-def test_paper_fig1_is_the_assumed_reconstruction_of_spec_2():
+def test_paper_fig1_is_the_assumed_reconstruction_of_the_readme():
     topo = make_topology("paper_fig1")
     assert topo.period == 3
     for g, expected in enumerate(PAPER_GRAPHS):

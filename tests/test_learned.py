@@ -21,7 +21,7 @@ def deadline_errors(policy, config, seeds) -> np.ndarray:
 
 
 def test_pretrained_policy_is_small_and_meets_the_deadline_goal_on_paper_fig1():
-    """Issue 5's goal: median log10 deadline error within 1.0 of the reference's, 20 seeded states."""
+    """The learned policy's bar: median log10 deadline error within 1.0 of the reference's, 20 seeded states."""
     assert pretrained_path().stat().st_size < 2 * 2**20
     config = make_config("paper_fig1", obs_slots=4, initial_state="random")
     seeds = range(20)

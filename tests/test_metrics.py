@@ -1,4 +1,4 @@
-"""Disagreement measures (SPEC 4.4) and the per-episode record (SPEC 5)."""
+"""Disagreement measures and the per-episode record (README, "Using the environment" and the deadline benchmark)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Figures of a whole run written as PNG (SPEC 4.6)."""
+"""Figures of a whole run written as PNG (README, "Quick start")."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Realism options of the engine (issue 6): saturation, noise, dropout, random switching, long horizons."""
+"""Realism options of the engine (README, "Realism options"): saturation, noise, dropout, random switching, long horizons."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def crossing_times(u0: float, u1: float, T: float, u_max: float) -> list[float]:
 
 
 def test_u_max_100_on_paper_fig1_caps_every_input_and_matches_solve_ivp():
-    """Issue 6 acceptance: |u| <= 100 everywhere and the state equals solve_ivp's to 1e-8 relative."""
+    """Saturated at u_max = 100: |u| <= 100 everywhere and the state equals solve_ivp's to 1e-8 relative."""
     u_max = 100.0
     trajectory = fxc_env.simulate(scenario="paper_fig1", u_max=u_max)
     assert np.abs(trajectory.dense_u).max() <= u_max
@@ -128,7 +128,7 @@ def test_random_switching_draws_each_episode_s_graph_from_the_set():
 
 
 def test_hundred_thousand_intervals_keep_the_final_value_without_overflow():
-    """Issue 6: K = 1e5 on the paper example, no overflow, NaN or loss of x*(20) = -1.875."""
+    """A long horizon: K = 1e5 on the paper example, no overflow, NaN or loss of x*(20) = -1.875."""
     config = make_config("paper_fig1", n_intervals=100_000)
     engine = ConsensusEngine(config)
     x0, v0 = engine.sample_initial_state(np.random.default_rng(0))

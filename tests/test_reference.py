@@ -111,7 +111,7 @@ def test_fixed_ring_reaches_the_average_through_the_parallel_env(action_mode, ob
 
 @pytest.mark.parametrize(("action_mode", "obs_mode"), MODES)
 def test_reference_stays_inside_the_action_box(action_mode, obs_mode):
-    # SPEC 4.3: the action Boxes are wide enough for the reference in every mode; checked
+    # The action Boxes are wide enough for the reference in every mode; checked
     # along whole episodes from several random initial states (the documented ranges).
     for kwargs in ({"scenario": "random_20_planar"}, {"topology": "complete", "n_agents": 8}):
         for seed in range(3):
@@ -134,7 +134,7 @@ def test_normalized_reference_actions_are_order_one():
         actions = {agent: policy(obs[agent]) for agent in env.agents}
         largest = max(largest, max(np.max(np.abs(a)) for a in actions.values()))
         obs, *_ = env.step(actions)
-    # Disagreement falls by ~12 orders of magnitude, yet the actions stay O(1) (SPEC 4.3).
+    # Disagreement falls by ~12 orders of magnitude, yet the actions stay O(1) (the README's scale-free units).
     assert 0.1 < largest <= 2.0
 
 
@@ -150,7 +150,7 @@ def test_agent_without_disagreement_coasts():
 
 
 def test_raw_accel_box_holds_the_reference_on_a_20_ring():
-    # SPEC 4.3 again, on a fixed directed ring of 20 agents with the default settings and
+    # The action Box again, on a fixed directed ring of 20 agents with the default settings and
     # the documented random initial ranges: the reference's raw input ends must fit the Box.
     env = fxc_env.parallel_env(topology="ring", n_agents=20, action_mode="accel", obs_mode="raw")
     policy = ReferencePolicy(env)

@@ -1,4 +1,4 @@
-"""Sampling schedules (SPEC 2-3): the paper's T_k, the exact deadline, and validation."""
+"""Sampling schedules (the paper, below (11)): its T_k = 6 T_s / (pi k)^2, the exact deadline, and validation."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def test_paper_intervals_follow_six_ts_over_pi_k_squared(k_total):
 def test_first_interval_is_sixty_one_percent_of_the_deadline():
     sched = make_schedule(20.0, 200, "paper")
     assert sched.intervals[0] == pytest.approx(6.0 * 20.0 / np.pi**2, rel=1e-15)
-    assert round(sched.intervals[0] / 20.0, 2) == 0.61  # SPEC 3: T_1 = 0.61 T_s
+    assert round(sched.intervals[0] / 20.0, 2) == 0.61  # the paper's T_1 = 6 T_s / pi^2 = 0.61 T_s
     assert round(sched.intervals[0], 2) == 12.16  # 12.16 s of 20
 
 

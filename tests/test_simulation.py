@@ -132,7 +132,7 @@ def test_paper_example_in_every_mode(action_mode, obs_mode):
     np.testing.assert_allclose(trajectory.v[-1, :, 0], PAPER_V_STAR, rtol=0, atol=1e-9)
 
 
-def test_spec_3_anchors_of_the_paper_example():
+def test_anchors_of_the_paper_example():
     trajectory = simulate(points_per_interval=24)
     spreads = np.array([brute_spread(x) for x in trajectory.x])
     assert spreads[0] == 8.0
