@@ -38,7 +38,7 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     assert float(row.split("|")[2].split("[")[0]) <= 1e-9
     assert (tmp_path / "table.md").read_text().strip() in printed
 
-    # Every policy ran every quick case with the settings and notes the issue asks for.
+    # Every policy ran every quick case with the settings and notes the README's benchmark table lists.
     suite = quick_suite()
     assert len(rows) == len(make_jobs(suite, builtin_contenders()))
     assert all(r["error"] == "" for r in rows)

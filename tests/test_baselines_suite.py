@@ -19,7 +19,7 @@ from fxc_env.baselines.suite import (
 from fxc_env.policies.learned import LearnedPolicy
 
 
-def test_full_suite_is_the_issue_suite():
+def test_full_suite_covers_every_family_size_and_budget():
     suite = full_suite()
     families = {s.family for s in suite.cases}
     assert families == {"paper_fig1", "ring", "path", "star", "random (fixed)", "random (switching)"}

@@ -1,4 +1,4 @@
-"""Settings (SPEC 4.1): defaults, scenarios, overrides, layout and validation."""
+"""Settings (README, "Using the environment"): defaults, scenarios, overrides, layout and validation."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from helpers import PAPER_GRAPHS, PAPER_V0, PAPER_X0
 from fxc_env import SCENARIOS, make_config
 
 
-def test_defaults_of_spec_4_1():
+def test_defaults_are_the_paper_example():
     c = make_config()
     assert c.n_agents == 6
     assert c.topology.period == 3

@@ -41,7 +41,7 @@ def test_reset_sets_the_state_and_clock():
 
 @pytest.mark.parametrize(("action_mode", "obs_mode"), MODES)
 def test_reference_realises_the_exact_interval_map(action_mode, obs_mode):
-    # SPEC 2: X(t_{k+1}) = W X(t_k) + T W V(t_k), V(t_{k+1}) = W V(t_k), with W of G_{k mod 3}.
+    # The paper's interval map (17a): X(t_{k+1}) = W X(t_k) + T W V(t_k), V(t_{k+1}) = W V(t_k), with W of G_{k mod 3}.
     config, engine = paper_engine(action_mode=action_mode, obs_mode=obs_mode, n_intervals=60)
     policy = ReferencePolicy(config)
     ws = [averaging_matrix_by_hand(6, g) for g in PAPER_GRAPHS]
