@@ -1,7 +1,9 @@
-# Two entry points: `make demo` and `make test`. Both build .venv from nothing, pinned by
+# Entry points: `make demo`, `make test` and `make check`. All build .venv from nothing, pinned by
 # constraints.txt (torch 2.13.0 CPU lies on this machine's disk; nothing is fetched at run time).
-# `make test` also builds .venv-rllib for the Ray RLlib tests: Ray 2.60 pins gymnasium 1.2.2
-# where .venv has 1.4.0, so it gets its own environment, pinned by constraints-rllib.txt.
+# `make check` is the fast loop (under a minute on 2 cores): ruff and every test not marked
+# slow (`pytest -m "not slow"`), in .venv only. `make test` runs everything and also builds
+# .venv-rllib for the Ray RLlib tests: Ray 2.60 pins gymnasium 1.2.2 where .venv has 1.4.0,
+# so it gets its own environment, pinned by constraints-rllib.txt.
 PYTHON ?= python3
 PIP_FLAGS := --quiet --disable-pip-version-check
 VENV := .venv
@@ -16,7 +18,7 @@ RLLIB_STAMP := $(RLLIB_VENV)/.installed
 # environment's own tests.
 RLLIB_TESTS := tests/rllib tests/test_fxc_consensus_v0.py tests/test_consensus_env.py tests/test_vec_env.py
 
-.PHONY: demo test lint format clean
+.PHONY: demo test check lint format clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -40,6 +42,13 @@ test: $(TORCHRL_STAMP) $(RLLIB_STAMP)
 	$(BIN)/ruff format --check .
 	MPLBACKEND=Agg $(BIN)/python -m pytest --ignore=tests/rllib
 	MPLBACKEND=Agg $(RLLIB_BIN)/python -m pytest $(RLLIB_TESTS)
+
+# The fast loop: the end-to-end tests (whole trainings, solve_ivp sweeps, shipped-policy
+# evaluations, wheel builds, big benchmark runs) are marked slow and left to `make test`.
+check: $(TORCHRL_STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	MPLBACKEND=Agg $(BIN)/python -m pytest -q -m "not slow" --ignore=tests/rllib
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
