@@ -1,0 +1,196 @@
+"""How far from optimal: the minimum-energy bound, the propagation bound and the settled interval.
+
+Two lower bounds hold for *every* controller of the consensus task (README, "How far from
+optimal"), centralised or not:
+
+- **Energy** (:func:`energy_bound`, :func:`linear_energy_bound`). Agent i, steered from
+  ``z_i(0)`` to a common ``z*`` in time ``T_s``, needs at least
+  ``(z* - e^{A T_s} z_i(0))^T G(T_s)^{-1} (z* - e^{A T_s} z_i(0))`` (the minimum-energy input,
+  paper Remark 1; ``G`` the controllability Gramian). The sum over agents is smallest for ``z*`` the
+  mean of the free-motion predictions ``p_i = e^{A T_s} z_i(0)``, so every controller that
+  reaches exact consensus at ``T_s`` spends at least
+  ``E* = sum_i (p_i - p̄)^T G(T_s)^{-1} (p_i - p̄)``, summed over the ``dim`` axes. For the double
+  integrator ``p_i = (x_i + T_s v_i, v_i)`` and ``G(T)^{-1} = [[12/T^3, -6/T^2], [-6/T^2, 4/T]]``:
+  per agent ``12 d^2/T^3 - 12 d w/T^2 + 4 w^2/T`` with ``d = x* - x_i - v_i T``, ``w = v* - v_i``.
+- **Sampling instants** (:func:`propagation_bound`). Information moves one hop per interval
+  (an agent measures its in-neighbours at ``t_k`` only), so an agent cannot have heard from a
+  root ``r`` before the time-respecting distance from ``r`` to it. A controller whose consensus
+  value depends on every root's initial state (Theorems 1-2: ``xi`` is positive on the roots)
+  cannot be exact earlier than the longest such distance.
+
+:func:`settled_interval` reads, from a run's relative disagreements ``D(t_k)/D(0)``, the interval
+after which the error stayed below a tolerance: the intervals a law actually used.
+
+Pure numpy/scipy: no environment, no torch.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse import csgraph
+
+from fxc_env.core import validation
+from fxc_env.core.graphs import Topology
+from fxc_env.core.linear import LinearModel
+from fxc_env.core.validation import ArgumentError
+
+__all__ = ["energy_bound", "linear_energy_bound", "propagation_bound", "root_set", "settled_interval"]
+
+
+def _states(name: str, value: Any, minimum_ndim: int) -> np.ndarray:
+    array = validation.real_array(name, value, f"an array of at least {minimum_ndim} dimensions")
+    if array.ndim < minimum_ndim:
+        raise ArgumentError(f"{name}: expected an array of at least {minimum_ndim} dimensions, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
+    return array
+
+
+def energy_bound(x0: Any, v0: Any, settling_time: Any) -> np.ndarray:
+    """``E*`` in m²/s³: the least energy ``sum_i int |u_i|^2 dt`` of any exact consensus at ``T_s``.
+
+    Double-integrator agents (paper eq. 1). ``E* = sum_i (p_i - p̄)^T G(T_s)^{-1} (p_i - p̄)`` with
+    ``p_i = (x_i + T_s v_i, v_i)`` per axis (module docstring); reached by one affine input per agent
+    that steers it to the mean of the free-motion predictions.
+
+    Args:
+        x0, v0: initial positions (m) and velocities (m/s), ``(..., N, dim)`` (batched over the
+            leading dimensions; ``(N,)`` is one 1-D episode).
+        settling_time: ``T_s`` in seconds, > 0.
+
+    Returns:
+        ``(...)`` float64: one bound per episode, summed over agents and axes.
+    """
+    x = _states("x0", x0, 1)
+    v = _states("v0", v0, 1)
+    if x.shape != v.shape:
+        raise ArgumentError(f"v0: expected the shape of x0 {x.shape}, got {v.shape}")
+    T = validation.real("settling_time", settling_time, positive=True)
+    if x.ndim == 1:
+        x, v = x[:, None], v[:, None]
+    predicted = x + T * v
+    d = predicted - predicted.mean(axis=-2, keepdims=True)  # p_x - mean: minus the plan's position change
+    w = v - v.mean(axis=-2, keepdims=True)
+    per_axis = 12.0 * d * d / T**3 - 12.0 * d * w / T**2 + 4.0 * w * w / T
+    return per_axis.sum(axis=(-2, -1))
+
+
+def linear_energy_bound(model: LinearModel, z0: Any, settling_time: Any, offsets: Any = None) -> np.ndarray:
+    """``E*`` for general linear agents ``z' = A z + B u`` per axis (README, "Agent models").
+
+    ``p_i = e^{A T_s} z_i(0)``, ``E* = sum_i (p_i - p̄)^T G(T_s)^{-1} (p_i - p̄)`` summed over axes,
+    solved in the time- and state-scaled frame of :class:`~fxc_env.core.linear.IntervalMaps`
+    (the Gramian is never inverted). With formation offsets ``h`` the agents agree on the
+    formation error ``z_i - e^{A t} h_i``, so the bound is that of ``z_i(0) - h_i``.
+
+    Args:
+        model: the per-axis :class:`~fxc_env.core.linear.LinearModel`.
+        z0: initial states ``(..., N, n, dim)`` (the engine's layout: n state components per axis).
+        settling_time: ``T_s`` in seconds, > 0.
+        offsets: formation offsets ``(N, n, dim)`` as full states, or None.
+
+    Returns:
+        ``(...)`` float64, in units of ``u^2 s``.
+    """
+    if not isinstance(model, LinearModel):
+        raise ArgumentError(f"model: expected a fxc_env.core.linear.LinearModel, got {type(model).__name__}")
+    z = _states("z0", z0, 3)
+    n = model.n_states
+    if z.shape[-2] != n:
+        raise ArgumentError(f"z0: expected shape (..., N, {n}, dim) for a model of {n} states, got {z.shape}")
+    if offsets is not None:
+        h = _states("offsets", offsets, 3)
+        if h.shape != z.shape[-3:]:
+            raise ArgumentError(f"offsets: expected shape {z.shape[-3:]}, got {h.shape}")
+        z = z - h
+    T = validation.real("settling_time", settling_time, positive=True)
+    maps = model.interval_maps([T])
+    per_axis = np.swapaxes(z, -1, -2)  # (..., N, dim, n)
+    predicted = maps.free_motion(0, per_axis)
+    delta = predicted - predicted.mean(axis=-3, keepdims=True)
+    _, y = maps._solve(0, delta)  # y = L^{-1} S D^{-1} delta: |y|^2 / T = delta^T G^{-1} delta
+    return np.einsum("...i,...i->...", y, y).sum(axis=(-2, -1)) / T
+
+
+def root_set(topology: Topology) -> np.ndarray:
+    """The roots: agents from which every agent can be reached in the (joint) graph, sorted ``(R,)``.
+
+    For a fixed digraph with a directed spanning tree, the source strongly connected component;
+    for a period, that of the union of its graphs (Theorem 2's joint graph).
+    """
+    forward = sp.csr_array(topology.union().T)  # forward[j, i] != 0: edge j -> i
+    _, labels = csgraph.connected_components(forward, directed=True, connection="strong")
+    coo = forward.tocoo()
+    crossing = labels[coo.row] != labels[coo.col]
+    has_incoming = np.zeros(labels.max() + 1, dtype=bool)
+    has_incoming[labels[coo.col[crossing]]] = True
+    sources = np.flatnonzero(~has_incoming)
+    if len(sources) != 1:
+        raise ArgumentError("topology: the (joint) graph has no directed spanning tree, so it has no root set")
+    return np.flatnonzero(labels == sources[0])
+
+
+def propagation_bound(topology: Topology) -> int:
+    """The fewest sampling intervals after which every agent can have heard from every root.
+
+    Agent i measures its in-neighbours of ``G_k`` at ``t_k`` (graph k of the period on interval k),
+    so a root's initial state reaches i no sooner than the time-respecting path from the root to i
+    allows. For a fixed digraph this is the longest shortest-path distance from a root to an agent
+    (a directed ring of N: ``N - 1``; a path: ``N - 1``; a star: 1); for a period ``G_0, G_1, ...``
+    it is counted through the time-varying graph, interval by interval from ``k = 0``.
+
+    A controller whose consensus value depends on every root's initial state (the paper's, with
+    ``xi`` positive on the roots, Theorems 1-2) cannot reach exact consensus in fewer intervals; one
+    that follows a single leader ``r`` needs only ``r``'s own longest distance.
+
+    Returns:
+        The bound as an int (0 for a single agent).
+    """
+    if not isinstance(topology, Topology):
+        raise ArgumentError(f"topology: expected a fxc_env.core.graphs.Topology, got {type(topology).__name__}")
+    n = topology.n_agents
+    if n == 1:
+        return 0
+    roots = root_set(topology)
+    if topology.period == 1:
+        forward = sp.csr_array(topology.adjacency(0).T)
+        distances = csgraph.shortest_path(forward, method="D", unweighted=True, indices=roots)
+        return int(np.max(distances))
+    # reached[r, i]: root r's initial state has reached agent i. Each interval k adds the
+    # receivers of G_{k mod m} whose senders were reached by t_k. Every period adds at least one
+    # agent per root while the joint graph spans, so m N intervals always suffice.
+    adjacency = [topology.adjacency(g).astype(bool) for g in range(topology.period)]  # [i, j]: i receives from j
+    reached = np.zeros((len(roots), n), dtype=bool)
+    reached[np.arange(len(roots)), roots] = True
+    for k in range(topology.period * n + 1):
+        if reached.all():
+            return k
+        heard = (adjacency[k % topology.period] @ reached.T.astype(np.int8)).T > 0
+        reached |= heard
+    raise AssertionError("the joint graph spans, so every root reaches every agent within m N intervals")
+
+
+def settled_interval(errors: Any, tol: float = 1e-9) -> np.ndarray:
+    """The interval after which the relative error stayed below ``tol``, per episode.
+
+    Args:
+        errors: relative disagreements ``D(t_k) / D(0)`` at the instants ``k = 0 .. K``,
+            ``(..., K + 1)`` (batched over episodes in the leading dimensions); NaN counts as above.
+        tol: the tolerance, > 0 (default 1e-9).
+
+    Returns:
+        ``(...)`` float64: the smallest k with ``errors[..., j] < tol`` for every ``j >= k``, i.e. the
+        number of intervals the law used; ``inf`` where the error is not below ``tol`` at ``T_s``.
+    """
+    values = validation.real_array("errors", errors, "an array (..., K + 1)")
+    if values.ndim < 1:
+        raise ArgumentError(f"errors: expected an array (..., K + 1), got shape {values.shape}")
+    tol = validation.real("tol", tol, positive=True)
+    above = ~(values < tol)
+    any_above = above.any(axis=-1)
+    last = values.shape[-1] - 1 - np.argmax(above[..., ::-1], axis=-1)
+    settled = np.where(any_above, last + 1.0, 0.0)
+    return np.where(above[..., -1], np.inf, settled)
