@@ -1,4 +1,4 @@
-"""fxc_env.training.torch_ppo (``fxc train --backend torchrl``): short runs, checkpoints, resume, the saved policy."""
+"""fxc_env.training.torch_ppo (``fxc train --backend torch``): short runs, checkpoints, resume, the saved policy."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ PER_ROLLOUT = 2400
 def short_args(tmp_path, **changes) -> TrainArgs:
     base = {
         "scenario": "paper_fig1",
-        "backend": "torchrl",
+        "backend": "torch",
         "n_envs": 2,
         "timesteps": 2 * PER_ROLLOUT,
         "checkpoint_every": PER_ROLLOUT,
@@ -37,10 +37,10 @@ def short_args(tmp_path, **changes) -> TrainArgs:
 
 
 def hyperparams_with(tmp_path, **torch_ppo) -> str:
-    """The shipped hyperparameter file with some ``torchrl_ppo`` settings changed."""
+    """The shipped hyperparameter file with some ``torch_ppo`` settings changed."""
     table = yaml.safe_load(HYPERPARAMS.read_text())
     entry = table["paper_fig1"]
-    entry["torchrl_ppo"] = {**entry["torchrl_ppo"], **torch_ppo}
+    entry["torch_ppo"] = {**entry["torch_ppo"], **torch_ppo}
     path = tmp_path / "hyperparams.yml"
     path.write_text(yaml.safe_dump({"paper_fig1": entry}))
     return str(path)
@@ -56,11 +56,12 @@ def adam_steps(checkpoint) -> float:
     return max(float(state["step"]) for state in record["optimizer"]["state"].values())
 
 
+@pytest.mark.slow
 def test_a_short_run_writes_the_run_directory_and_a_loadable_policy(tmp_path):
     run_dir = train(short_args(tmp_path))
     record = json.loads((run_dir / "config.json").read_text())
-    assert record["args"]["backend"] == "torchrl" and record["timesteps_per_rollout"] == PER_ROLLOUT
-    assert record["torchrl_ppo"]["gamma"] == 1.0
+    assert record["args"]["backend"] == "torch" and record["timesteps_per_rollout"] == PER_ROLLOUT
+    assert record["torch_ppo"]["gamma"] == 1.0
     assert "torch" in json.loads((run_dir / "versions.json").read_text())
     rows = progress_rows(run_dir)
     assert [int(row["time/total_timesteps"]) for row in rows] == [PER_ROLLOUT, 2 * PER_ROLLOUT]
@@ -97,6 +98,7 @@ def test_a_short_run_writes_the_run_directory_and_a_loadable_policy(tmp_path):
         load_torch_policy(tmp_path / "missing")
 
 
+@pytest.mark.slow
 def test_resume_continues_the_step_count_optimiser_and_generators(tmp_path, capsys):
     train(short_args(tmp_path, timesteps=PER_ROLLOUT))
     first = latest_torch_checkpoint(tmp_path / "run")
@@ -116,6 +118,7 @@ def test_resume_continues_the_step_count_optimiser_and_generators(tmp_path, caps
     assert all(torch.equal(resumed[k], uninterrupted[k]) for k in resumed)
 
 
+@pytest.mark.slow
 def test_ctrl_c_finishes_the_rollout_saves_a_checkpoint_and_resume_finishes(tmp_path, monkeypatch):
     collect = Trainer.collect
     calls = []
@@ -135,6 +138,7 @@ def test_ctrl_c_finishes_the_rollout_saves_a_checkpoint_and_resume_finishes(tmp_
     assert [int(row["time/total_timesteps"]) for row in progress_rows(run_dir)] == [2400, 4800, 7200]
 
 
+@pytest.mark.slow
 def test_a_central_critic_and_rollouts_shorter_than_an_episode(tmp_path):
     """``--critic central`` reads the normalized global state; T = K / 2 bootstraps the cut episodes."""
     hyperparams = hyperparams_with(tmp_path, rollout_steps=100, minibatch_size=600, epochs=2)
@@ -161,10 +165,10 @@ def test_cuda_without_cuda_names_the_device(tmp_path):
     ("change", "message"),
     [
         ({"critic": "global"}, r"critic: expected one of \('local', 'central'\), got 'global'"),
-        ({"critic": "central", "backend": "sb3"}, "critic: only the torchrl backend"),
-        ({"device": "cuda", "backend": "sb3"}, "device: only the torchrl backend"),
+        ({"critic": "central", "backend": "sb3"}, "critic: only the torch backend"),
+        ({"device": "cuda", "backend": "sb3"}, "device: only the torch backend"),
         ({"device": "tpu"}, "device: expected"),
-        ({"algo": "sac"}, "algo: the torchrl backend trains 'ppo'"),
+        ({"algo": "sac"}, "algo: the torch backend trains 'ppo'"),
     ],
 )
 def test_bad_arguments_are_named(tmp_path, change, message):
@@ -181,12 +185,12 @@ def test_bad_arguments_are_named(tmp_path, change, message):
 @pytest.mark.parametrize(
     ("setting", "message"),
     [
-        ({"rollout_steps": 7}, r"hyperparams: torchrl_ppo.rollout_steps: expected K = 200 or a divisor of it, got 7"),
-        ({"epochs": 0}, r"hyperparams: torchrl_ppo.epochs: expected an integer >= 1"),
-        ({"activation": "sigmoid"}, r"hyperparams: torchrl_ppo.activation: expected one of"),
-        ({"hidden": []}, r"hyperparams: torchrl_ppo.hidden: expected a list of layer widths"),
-        ({"gamma": 1.5}, r"hyperparams: torchrl_ppo.gamma: expected a finite number"),
-        ({"n_step": 3}, r"hyperparams: torchrl_ppo has no setting 'n_step'"),
+        ({"rollout_steps": 7}, r"hyperparams: torch_ppo.rollout_steps: expected K = 200 or a divisor of it, got 7"),
+        ({"epochs": 0}, r"hyperparams: torch_ppo.epochs: expected an integer >= 1"),
+        ({"activation": "sigmoid"}, r"hyperparams: torch_ppo.activation: expected one of"),
+        ({"hidden": []}, r"hyperparams: torch_ppo.hidden: expected a list of layer widths"),
+        ({"gamma": 1.5}, r"hyperparams: torch_ppo.gamma: expected a finite number"),
+        ({"n_step": 3}, r"hyperparams: torch_ppo has no setting 'n_step'"),
     ],
 )
 def test_bad_hyperparameters_are_named_before_work_starts(tmp_path, setting, message):
@@ -197,10 +201,11 @@ def test_bad_hyperparameters_are_named_before_work_starts(tmp_path, setting, mes
 
 
 def test_resume_without_a_checkpoint_is_refused(tmp_path):
-    with pytest.raises(ArgumentError, match=r"^resume: no checkpoint"):
+    with pytest.raises(ArgumentError, match=r"^resume: no checkpoint in .* \(expected model_<timesteps>_steps.pt\)"):
         train(short_args(tmp_path, resume=True))
 
 
+@pytest.mark.slow
 def test_fxc_evaluate_scores_a_torch_run_next_to_the_reference(tmp_path, capsys):
     from fxc_env.cli import main
     from fxc_env.policies.learned import load_learned_policy
@@ -213,3 +218,46 @@ def test_fxc_evaluate_scores_a_torch_run_next_to_the_reference(tmp_path, capsys)
     assert main([*arguments, "--out", str(out), "--no-progress"]) == 0
     text = capsys.readouterr().out
     assert "learned:run" in text and "torch policy" in text
+
+
+@pytest.mark.slow
+def test_backend_torchrl_is_the_same_run_with_a_deprecation_message(tmp_path, capsys):
+    from fxc_env.cli import main
+
+    common = ["train", "--n-envs", "2", "--timesteps", str(PER_ROLLOUT), "--no-progress-bar"]
+    assert main([*common, "--backend", "torch", "--run-dir", str(tmp_path / "torch")]) == 0
+    assert "deprecated" not in capsys.readouterr().err
+    assert main([*common, "--backend", "torchrl", "--run-dir", str(tmp_path / "old_name")]) == 0
+    err = capsys.readouterr().err
+    assert err == "fxc train: --backend torchrl is deprecated; use --backend torch\n"
+    configs = [json.loads((tmp_path / name / "config.json").read_text()) for name in ("torch", "old_name")]
+    assert [config["args"]["backend"] for config in configs] == ["torch", "torch"]
+    assert {**configs[0]["args"], "run_dir": None} == {**configs[1]["args"], "run_dir": None}
+    first, second = (
+        torch.load(tmp_path / name / "policy.pt", weights_only=True)["actor"] for name in ("torch", "old_name")
+    )
+    assert all(torch.equal(first[k], second[k]) for k in first), "the same seed trains the same policy"
+
+
+@pytest.mark.slow
+def test_a_run_of_the_old_backend_name_resumes_and_loads(tmp_path, monkeypatch, capsys):
+    """A run written as ``--backend torchrl`` (its config, its default directory, a ``torchrl_ppo`` entry) goes on."""
+    from fxc_env.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    old = tmp_path / "runs" / "paper_fig1-torchrl-ppo-seed0"
+    train(short_args(tmp_path, run_dir=str(old), timesteps=PER_ROLLOUT))
+    record = json.loads((old / "config.json").read_text())
+    record["args"]["backend"] = "torchrl"
+    record["torchrl_ppo"] = record.pop("torch_ppo")
+    (old / "config.json").write_text(json.dumps(record))
+    table = yaml.safe_load(HYPERPARAMS.read_text())
+    table["paper_fig1"]["torchrl_ppo"] = table["paper_fig1"].pop("torch_ppo")
+    (tmp_path / "old.yml").write_text(yaml.safe_dump({"paper_fig1": table["paper_fig1"]}))
+    capsys.readouterr()
+    argv = ["train", "--backend", "torch", "--resume", "--n-envs", "2", "--timesteps", str(2 * PER_ROLLOUT)]
+    assert main([*argv, "--hyperparams", "old.yml", "--no-progress-bar"]) == 0
+    assert f"resuming runs/paper_fig1-torchrl-ppo-seed0 from model_{PER_ROLLOUT}_steps.pt" in capsys.readouterr().out
+    assert not (tmp_path / "runs" / "paper_fig1-torch-ppo-seed0").exists()
+    assert [int(row["time/total_timesteps"]) for row in progress_rows(old)] == [PER_ROLLOUT, 2 * PER_ROLLOUT]
+    assert load_torch_policy(old)(np.zeros((3, 15))).shape == (3, 2)

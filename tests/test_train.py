@@ -1,8 +1,9 @@
-"""fxc_env.training.sb3_train: a short real PPO run, checkpoints, resume, Ctrl-C, reproducibility."""
+"""fxc_env.training.sb3_train (``fxc train``, ``--backend sb3``): a short real PPO run, checkpoints, resume, Ctrl-C, reproducibility."""
 
 from __future__ import annotations
 
 import json
+import signal
 
 import numpy as np
 import pytest
@@ -13,7 +14,8 @@ from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.learned import LearnedPolicy, load_model
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import check_train_args, load_hyperparams
-from fxc_env.training.checkpoints import RolloutCheckpoint, latest_checkpoint
+from fxc_env.training.run_dir import RunDir
+from fxc_env.training.sb3_train import RolloutCheckpoint
 
 # 4 episodes x 6 agents = 24 sub-environments; one PPO rollout is 200 x 24 = 4800 timesteps.
 SHORT = {"scenario": "paper_fig1", "n_envs": 4, "progress_bar": False}
@@ -25,6 +27,11 @@ def short_args(tmp_path, **changes) -> TrainArgs:
     )
 
 
+def latest_checkpoint(run_dir):
+    return RunDir(run_dir, "sb3").newest_checkpoint()
+
+
+@pytest.mark.slow
 def test_a_short_run_writes_the_run_directory_and_an_evaluable_model(tmp_path):
     run_dir = train(short_args(tmp_path))
     record = json.loads((run_dir / "config.json").read_text())
@@ -48,6 +55,7 @@ def test_a_short_run_writes_the_run_directory_and_an_evaluable_model(tmp_path):
     assert np.all(np.isfinite(metrics["relative_deadline_error"])) and np.all(metrics["sampling_instants"] == 200)
 
 
+@pytest.mark.slow
 def test_resume_continues_from_the_newest_checkpoint_with_its_step_count_and_optimiser(tmp_path, capsys):
     train(short_args(tmp_path, timesteps=4800))
     checkpoint = latest_checkpoint(tmp_path / "run")
@@ -64,25 +72,34 @@ def test_resume_continues_from_the_newest_checkpoint_with_its_step_count_and_opt
     assert step_saved > 0 and step_resumed == 2 * step_saved
 
 
-def test_ctrl_c_saves_a_checkpoint_at_the_current_step_and_resume_finishes(tmp_path, monkeypatch):
-    calls = []
+@pytest.mark.slow
+def test_ctrl_c_saves_a_checkpoint_after_the_rollout_under_way_and_resume_finishes(tmp_path, monkeypatch, capsys):
+    on_step = RolloutCheckpoint._on_step
+    steps = []
 
-    def interrupt(self):  # the user presses Ctrl-C at the start of the second rollout
-        calls.append(self.model.num_timesteps)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
+    def pressed(self):  # the user presses Ctrl-C in the middle of the second rollout (200 steps each)
+        steps.append(1)
+        if len(steps) == 300:
+            signal.raise_signal(signal.SIGINT)
+        return on_step(self)
 
-    monkeypatch.setattr(RolloutCheckpoint, "_on_rollout_start", interrupt)
+    monkeypatch.setattr(RolloutCheckpoint, "_on_step", pressed)
+    handler = signal.getsignal(signal.SIGINT)
     with pytest.raises(KeyboardInterrupt):
-        train(short_args(tmp_path))
+        train(short_args(tmp_path, timesteps=3 * 4800, checkpoint_every=10**9))
+    err = capsys.readouterr().err
+    assert "Ctrl-C; finishing this rollout" in err and "interrupted; saved" in err and "model_9600_steps.zip" in err
+    # The rollout under way and its update finish; the checkpoint is taken where the next rollout starts.
     checkpoint = latest_checkpoint(tmp_path / "run")
-    interrupted_at = load_model(checkpoint).num_timesteps
-    assert checkpoint.name == f"model_{interrupted_at}_steps.zip" and 0 < interrupted_at < 9600
+    assert checkpoint.name == "model_9600_steps.zip" and load_model(checkpoint).num_timesteps == 9600
+    assert not (tmp_path / "run" / "model.zip").exists()
+    assert signal.getsignal(signal.SIGINT) is handler, "Ctrl-C is the user's again"
     monkeypatch.undo()
-    run_dir = train(short_args(tmp_path, resume=True))
-    assert load_model(run_dir / "model.zip").num_timesteps == 9600
+    run_dir = train(short_args(tmp_path, timesteps=3 * 4800, resume=True))
+    assert load_model(run_dir / "model.zip").num_timesteps == 3 * 4800
 
 
+@pytest.mark.slow
 def test_same_seed_same_policy(tmp_path):
     first = load_model(train(short_args(tmp_path / "a", timesteps=4800)) / "model.zip")
     second = load_model(train(short_args(tmp_path / "b", timesteps=4800)) / "model.zip")
@@ -91,7 +108,9 @@ def test_same_seed_same_policy(tmp_path):
 
 
 def test_resume_without_checkpoint_and_bad_arguments_are_refused(tmp_path):
-    with pytest.raises(ValueError, match="resume: no checkpoint"):
+    with pytest.raises(
+        ValueError, match=r"^resume: no checkpoint in .*run/checkpoints \(expected model_<timesteps>_steps.zip\)"
+    ):
         train(short_args(tmp_path, resume=True))
     with pytest.raises(ValueError, match="algo: expected one of"):
         train(short_args(tmp_path, algo="dqn"))

@@ -1,21 +1,21 @@
 """The arguments of ``fxc train``, shared by every back end, and the hyperparameter file.
 
-:class:`TrainArgs` is the one description of a training run: ``fxc train --help`` is built
-from its fields and their docstrings (:func:`add_train_parser`), and each back end
-(:mod:`fxc_env.training.sb3_train` for stable-baselines3, :mod:`fxc_env.training.rllib_train`
-for Ray RLlib, :mod:`fxc_env.training.torch_ppo` for the lean torch PPO loop) reads it.
-Hyperparameters live in a YAML file keyed by scenario, then algorithm (``hyperparams.yml``
-beside this module).
+:class:`TrainArgs` is the one description of a training run: each field is declared once,
+with its default and its help text (:func:`arg`), and ``fxc train``'s flags are built from the
+fields (:func:`add_train_parser`: ``--n-envs`` for ``n_envs``, ``--resume/--no-resume`` for
+a bool). Each back end reads it: :mod:`fxc_env.training.sb3_train` (stable-baselines3),
+:mod:`fxc_env.training.rllib_train` (Ray RLlib) and :mod:`fxc_env.training.torch_ppo` (the
+lean torch PPO loop, ``--backend torch``). Hyperparameters live in a YAML file keyed by
+scenario, then algorithm (``hyperparams.yml`` beside this module).
 """
 
 from __future__ import annotations
 
 import argparse
-import ast
 import dataclasses
-import inspect
-import itertools
-import textwrap
+import sys
+import typing
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,56 +25,86 @@ from fxc_env.utils.cli_checks import yaml_mapping_file
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 ALGORITHMS = ("ppo", "sac")
-BACKENDS = ("sb3", "rllib", "torchrl")
-#: ``--critic`` of the torchrl back end: per-agent values, or one value per episode from the global state.
+BACKENDS = ("sb3", "rllib", "torch")
+#: Old back-end names, still accepted: ``torchrl`` was the torch loop's name (it never used TorchRL).
+BACKEND_ALIASES = {"torchrl": "torch"}
+#: ``--critic`` of the torch back end: per-agent values, or one value per episode from the global state.
 CRITICS = ("local", "central")
+
+
+def arg(default: Any, doc: str) -> Any:
+    """A :class:`TrainArgs` field: its default and the help text ``fxc train --help`` shows for it."""
+    return dataclasses.field(default=default, metadata={"help": doc})
 
 
 @dataclass
 class TrainArgs:
-    """Arguments of one training run (``fxc train --help`` lists them too)."""
+    """Arguments of one training run (``fxc train --help`` lists them, one flag per field)."""
 
-    scenario: str = "paper_fig1"
-    """Named scenario of :data:`fxc_env.SCENARIOS`; also the key into the hyperparameter file."""
-    algo: str = "ppo"
-    """``ppo`` or ``sac``."""
-    timesteps: int = 2_000_000
-    """Total agent-steps (SB3 timesteps: one per agent per environment step)."""
-    seed: int = 0
-    """Seeds the policy, SB3 and the episodes' initial states."""
-    run_dir: str | None = None
-    """Run directory; default ``runs/<scenario>-<algo>-seed<seed>``."""
-    checkpoint_every: int = 100_000
-    """Save a checkpoint every this many timesteps (rounded to whole environment steps)."""
-    resume: bool = False
-    """Continue from the newest checkpoint in ``run_dir`` (same step count, optimiser state, statistics)."""
-    hyperparams: str = str(HYPERPARAMS)
-    """YAML file of hyperparameters keyed by scenario then algorithm."""
-    n_envs: int | None = None
-    """Parallel episodes; overrides the hyperparameter file."""
-    progress_bar: bool = True
-    """Show SB3's progress bar (torchrl: one line per rollout)."""
-    torch_threads: int = 1
-    """Threads torch may use."""
-    backend: str = "sb3"
-    """``sb3`` (stable-baselines3 on this machine), ``rllib`` (Ray RLlib PPO on a local Ray or a cluster) or ``torchrl`` (a lean PPO loop on the batched engine on a torch device)."""
-    num_env_runners: int = 2
-    """RLlib: env runner actors that sample in parallel (0: sample in this process)."""
-    envs_per_runner: int = 1
-    """RLlib: environments each env runner steps (``n_envs`` is the SB3 setting)."""
-    address: str | None = None
-    """RLlib: the Ray cluster to join (``auto`` or ``HOST:6379``); default: start a local Ray."""
-    device: str = "cpu"
-    """torchrl: the torch device of the episodes and the networks (``cpu``, ``cuda``, ``cuda:1``)."""
-    critic: str = "local"
-    """torchrl: ``local`` (each agent's value from its own observation) or ``central`` (one value per episode from the normalized global state, shared by its agents)."""
+    scenario: str = arg(
+        "paper_fig1", "Named scenario of :data:`fxc_env.SCENARIOS`; also the key into the hyperparameter file."
+    )
+    algo: str = arg("ppo", "``ppo`` or ``sac``.")
+    timesteps: int = arg(2_000_000, "Total agent-steps (SB3 timesteps: one per agent per environment step).")
+    seed: int = arg(0, "Seeds the policy, SB3 and the episodes' initial states.")
+    run_dir: str | None = arg(None, "Run directory; default ``runs/<scenario>-<algo>-seed<seed>``.")
+    checkpoint_every: int = arg(
+        100_000, "Save a checkpoint every this many timesteps (rounded to whole environment steps)."
+    )
+    resume: bool = arg(
+        False, "Continue from the newest checkpoint in ``run_dir`` (same step count, optimiser state, statistics)."
+    )
+    hyperparams: str = arg(str(HYPERPARAMS), "YAML file of hyperparameters keyed by scenario then algorithm.")
+    n_envs: int | None = arg(None, "Parallel episodes; overrides the hyperparameter file.")
+    progress_bar: bool = arg(True, "Show SB3's progress bar (torch: one line per rollout).")
+    torch_threads: int = arg(1, "Threads torch may use.")
+    backend: str = arg(
+        "sb3",
+        "``sb3`` (stable-baselines3 on this machine), ``rllib`` (Ray RLlib PPO on a local Ray or a cluster) or "
+        "``torch`` (a lean PPO loop on the batched engine on a torch device; ``torchrl``, its old name, is deprecated).",
+    )
+    num_env_runners: int = arg(2, "RLlib: env runner actors that sample in parallel (0: sample in this process).")
+    envs_per_runner: int = arg(1, "RLlib: environments each env runner steps (``n_envs`` is the SB3 setting).")
+    address: str | None = arg(
+        None, "RLlib: the Ray cluster to join (``auto`` or ``HOST:6379``); default: start a local Ray."
+    )
+    device: str = arg(
+        "cpu", "torch: the torch device of the episodes and the networks (``cpu``, ``cuda``, ``cuda:1``)."
+    )
+    critic: str = arg(
+        "local",
+        "torch: ``local`` (each agent's value from its own observation) or ``central`` (one value per episode "
+        "from the normalized global state, shared by its agents).",
+    )
+
+
+def flag_type(field: dataclasses.Field) -> type:
+    """``bool``, ``int`` or ``str``: what the flag of a :class:`TrainArgs` field reads (``int | None`` is ``int``)."""
+    hint = typing.get_type_hints(TrainArgs)[field.name]
+    kinds = typing.get_args(hint) or (hint,)
+    for kind in (bool, int):
+        if kind in kinds:
+            return kind
+    return str
+
+
+def canonical_backend(name: Any, *, warn: bool = True) -> Any:
+    """``name``, or the back end an old name stands for (``torchrl`` -> ``torch``, with a ``DeprecationWarning``)."""
+    if isinstance(name, str) and name in BACKEND_ALIASES:
+        if warn:
+            new = BACKEND_ALIASES[name]
+            warnings.warn(f"backend {name!r} is deprecated; use {new!r}", DeprecationWarning, stacklevel=3)
+        return BACKEND_ALIASES[name]
+    return name
 
 
 def load_hyperparams(path: str | Path, scenario: str, algo: str, *, name: str = "hyperparams") -> dict[str, Any]:
     """The ``env``, ``normalize`` and algorithm entries for ``scenario`` (or ``default``).
 
-    A missing or malformed file, or one without the entries, raises
-    :class:`~fxc_env.core.validation.ArgumentError` naming ``name`` (``--hyperparams`` on the command line).
+    ``algo`` is the entry's key: ``ppo``, ``sac``, ``rllib_ppo`` or ``torch_ppo`` (an older
+    file's ``torchrl_ppo`` is read when it has no ``torch_ppo``). A missing or malformed file,
+    or one without the entries, raises :class:`~fxc_env.core.validation.ArgumentError` naming
+    ``name`` (``--hyperparams`` on the command line).
     """
     table = yaml_mapping_file(name, path)
     entry = table.get(scenario, table.get("default"))
@@ -82,15 +112,16 @@ def load_hyperparams(path: str | Path, scenario: str, algo: str, *, name: str = 
         raise ArgumentError(f"{name}: {path} has neither {scenario!r} nor 'default'")
     if not isinstance(entry, dict):
         raise ArgumentError(f"{name}: the entry for {scenario!r} in {path} is not a mapping")
-    if algo not in entry:
+    key = "torchrl_ppo" if algo == "torch_ppo" and algo not in entry and "torchrl_ppo" in entry else algo
+    if key not in entry:
         raise ArgumentError(f"algo: {path} has no {algo!r} entry for {scenario!r}")
-    for key, value in (("env", entry.get("env", {})), (algo, entry[algo]), ("imitation", entry.get("imitation", {}))):
+    for part, value in (("env", entry.get("env", {})), (key, entry[key]), ("imitation", entry.get("imitation", {}))):
         if not isinstance(value, dict):
-            raise ArgumentError(f"{name}: {key!r} of {scenario!r} in {path} is not a mapping")
+            raise ArgumentError(f"{name}: {part!r} of {scenario!r} in {path} is not a mapping")
     return {
         "env": dict(entry.get("env", {})),
         "normalize": bool(entry.get("normalize", False)),
-        "algo": dict(entry[algo]),
+        "algo": dict(entry[key]),
         # A warm start by imitating the reference (fxc_env.training.imitation), PPO only; None: none.
         "imitation": dict(entry["imitation"]) if algo == "ppo" and "imitation" in entry else None,
     }
@@ -101,10 +132,11 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
 
     Raises :class:`~fxc_env.core.validation.ArgumentError` naming the argument: the field
     name (``n_envs``), or with ``flags`` the command-line flag (``--n-envs``). Checked: the
-    back end and algorithm, the counts and thresholds, the seed, the hyperparameter file
-    (a YAML mapping with an entry for the scenario and algorithm), the environment it
-    describes, and that the run directory can be created. ``--resume`` without a
-    checkpoint is refused by the back end, which knows its checkpoint layout.
+    back end (``torchrl`` is read as ``torch``) and algorithm, the counts and thresholds, the
+    seed, the hyperparameter file (a YAML mapping with an entry for the scenario and
+    algorithm), the environment it describes, and that the run directory can be created.
+    ``--resume`` without a checkpoint is refused by the back end, which knows its checkpoint
+    layout.
     """
     from fxc_env.config import make_config
     from fxc_env.utils.cli_checks import output_directory
@@ -112,15 +144,16 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
     def name(field: str) -> str:
         return "--" + field.replace("_", "-") if flags else field
 
-    choice(name("backend"), args.backend, BACKENDS)
-    if args.backend in ("rllib", "torchrl") and args.algo != "ppo":
+    choice(name("backend"), canonical_backend(args.backend), BACKENDS)
+    args = dataclasses.replace(args, backend=canonical_backend(args.backend, warn=False))
+    if args.backend in ("rllib", "torch") and args.algo != "ppo":
         raise ArgumentError(f"{name('algo')}: the {args.backend} backend trains 'ppo', got {args.algo!r}")
     choice(name("critic"), args.critic, CRITICS)
-    if args.backend != "torchrl" and args.critic != "local":
-        raise ArgumentError(f"{name('critic')}: only the torchrl backend has a choice of critic, got {args.critic!r}")
-    if args.backend != "torchrl" and args.device != "cpu":
-        raise ArgumentError(f"{name('device')}: only the torchrl backend runs on a chosen device, got {args.device!r}")
-    if args.backend == "torchrl":
+    if args.backend != "torch" and args.critic != "local":
+        raise ArgumentError(f"{name('critic')}: only the torch backend has a choice of critic, got {args.critic!r}")
+    if args.backend != "torch" and args.device != "cpu":
+        raise ArgumentError(f"{name('device')}: only the torch backend runs on a chosen device, got {args.device!r}")
+    if args.backend == "torch":
         torch_device(name("device"), args.device)
     choice(name("algo"), args.algo, ALGORITHMS)
     integer(name("timesteps"), args.timesteps, 1)
@@ -131,7 +164,7 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
         integer(name("n_envs"), args.n_envs, 1)
     integer(name("num_env_runners"), args.num_env_runners, 0)
     integer(name("envs_per_runner"), args.envs_per_runner, 1)
-    algo_key = f"{args.backend}_{args.algo}" if args.backend in ("rllib", "torchrl") else args.algo
+    algo_key = f"{args.backend}_{args.algo}" if args.backend in ("rllib", "torch") else args.algo
     params = load_hyperparams(args.hyperparams, args.scenario, algo_key, name=name("hyperparams"))
     if args.backend == "rllib":
         batch = params["algo"].get("train_batch_size_per_learner")
@@ -140,7 +173,7 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
         config = make_config(args.scenario, **{k: v for k, v in params["env"].items() if k != "n_envs"})
     except ArgumentError as exc:
         raise type(exc)(f"{name('scenario')} {args.scenario!r} with the env of {args.hyperparams}: {exc}") from exc
-    if args.backend == "torchrl":
+    if args.backend == "torch":
         from fxc_env.training.torch_ppo import PPOSettings
 
         PPOSettings.from_mapping(params["algo"], config, name=name("hyperparams"))
@@ -149,9 +182,19 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
 
 
 def default_run_dir(args: TrainArgs) -> str:
-    """``runs/<scenario>-[<backend>-]<algo>-seed<seed>`` (no back-end part for sb3)."""
-    backend = "" if args.backend == "sb3" else f"{args.backend}-"
-    return f"runs/{args.scenario}-{backend}{args.algo}-seed{args.seed}"
+    """``runs/<scenario>-[<backend>-]<algo>-seed<seed>`` (no back-end part for sb3).
+
+    A torch run resumed without ``--run-dir`` goes on in ``runs/<scenario>-torchrl-...``, the
+    default of the back end's old name, when only that one exists.
+    """
+    backend = canonical_backend(args.backend, warn=False)
+    part = "" if backend == "sb3" else f"{backend}-"
+    path = f"runs/{args.scenario}-{part}{args.algo}-seed{args.seed}"
+    if backend == "torch" and args.resume and not Path(path).exists():
+        legacy = f"runs/{args.scenario}-torchrl-{args.algo}-seed{args.seed}"
+        if Path(legacy).is_dir():
+            return legacy
+    return path
 
 
 def torch_device(name: str, value: Any) -> Any:
@@ -174,41 +217,47 @@ def torch_device(name: str, value: Any) -> Any:
     return device
 
 
-def field_docs(cls: type) -> dict[str, str]:
-    """The docstring under each field of a dataclass (the text ``--help`` shows)."""
-    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body  # type: ignore[attr-defined]
-    docs = {}
-    for node, following in itertools.pairwise(body):
-        if (
-            isinstance(node, ast.AnnAssign)
-            and isinstance(following, ast.Expr)
-            and isinstance(following.value, ast.Constant)
-        ):
-            docs[node.target.id] = str(following.value.value)  # type: ignore[union-attr]
-    return docs
-
-
+# ---------------------------------------------------------------------------- command line
 def add_train_parser(commands: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Register ``fxc train``: one option per :class:`TrainArgs` field."""
+    """Register ``fxc train``: one flag per :class:`TrainArgs` field, with its default and help text.
+
+    A bool field is ``--flag/--no-flag``; every other flag is read as text and turned into
+    the field's type by :func:`args_from_namespace`, so that a bad value is refused by
+    :func:`check_train_args` in one line naming the flag, like every other bad value.
+    """
     parser = commands.add_parser(
         "train",
         help="train a shared policy with PPO or SAC (stable-baselines3), PPO in Ray RLlib (--backend rllib), "
-        "or a lean torch PPO on the batched engine (--backend torchrl, --device cpu|cuda)",
+        "or a lean torch PPO on the batched engine (--backend torch, --device cpu|cuda)",
     )
-    defaults = TrainArgs()
-    docs = field_docs(TrainArgs)
     for field in dataclasses.fields(TrainArgs):
         flag = "--" + field.name.replace("_", "-")
-        default = getattr(defaults, field.name)
-        if isinstance(default, bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=default, help=docs.get(field.name))
+        help_text = field.metadata["help"]
+        if flag_type(field) is bool:
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=field.default, help=help_text)
         else:
-            kind = int if field.type in ("int", "int | None") else str
-            parser.add_argument(flag, type=kind, default=default, help=docs.get(field.name))
+            parser.add_argument(flag, default=field.default, help=help_text)
     return parser
 
 
 def args_from_namespace(namespace: argparse.Namespace) -> TrainArgs:
-    """The :class:`TrainArgs` an ``fxc train`` command line asks for."""
-    names = {field.name for field in dataclasses.fields(TrainArgs)}
-    return TrainArgs(**{k: v for k, v in vars(namespace).items() if k in names})
+    """The :class:`TrainArgs` an ``fxc train`` command line asks for.
+
+    Integer flags are converted (text that is not an integer is kept, for
+    :func:`check_train_args` to refuse naming the flag). ``--backend torchrl`` is read as
+    ``--backend torch``, with a one-line deprecation message on stderr.
+    """
+    values = {}
+    for field in dataclasses.fields(TrainArgs):
+        value = getattr(namespace, field.name)
+        if flag_type(field) is int and isinstance(value, str):
+            try:
+                value = int(value)
+            except ValueError:
+                pass
+        values[field.name] = value
+    if values["backend"] in BACKEND_ALIASES:
+        new = BACKEND_ALIASES[values["backend"]]
+        print(f"fxc train: --backend {values['backend']} is deprecated; use --backend {new}", file=sys.stderr)
+        values["backend"] = new
+    return TrainArgs(**values)

@@ -1,29 +1,32 @@
-"""Which back end trains: ``fxc train --backend sb3|rllib|torchrl`` lands in :func:`train`.
+"""Which back end trains: ``fxc train --backend sb3|rllib|torch`` lands in :func:`train`.
 
-The back ends share :class:`fxc_env.training.args.TrainArgs` and the run-directory layout;
-each is imported only when chosen (Ray is an optional extra; ``torchrl`` is the lean torch PPO
-loop of :mod:`fxc_env.training.torch_ppo`, on the engine's torch tensors).
+The back ends share :class:`fxc_env.training.args.TrainArgs` and the run directory
+(:mod:`fxc_env.training.run_dir`); each is imported only when chosen (Ray is an optional
+extra; ``torch`` is the lean PPO loop of :mod:`fxc_env.training.torch_ppo`, on the engine's
+torch tensors, also accepted under its old name ``torchrl``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from fxc_env.core import validation
-from fxc_env.training.args import BACKENDS, TrainArgs
+from fxc_env.training.args import BACKENDS, TrainArgs, canonical_backend
 
 
 def train(args: TrainArgs) -> Path:
     """Run (or resume) training on ``args.backend``; returns the run directory."""
-    validation.choice("backend", args.backend, BACKENDS)  # the back end checks everything else
-    if args.backend == "rllib":
+    backend = validation.choice("backend", canonical_backend(args.backend), BACKENDS)  # the back end checks the rest
+    args = dataclasses.replace(args, backend=backend)
+    if backend == "rllib":
         from fxc_env.utils.cluster import import_ray
 
         import_ray("--backend rllib")
         from fxc_env.training.rllib_train import train_rllib
 
         return train_rllib(args)
-    if args.backend == "torchrl":
+    if backend == "torch":
         from fxc_env.training.torch_ppo import train_torch
 
         return train_torch(args)

@@ -65,7 +65,7 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
         "--policy",
         required=True,
         help="'reference', 'pretrained' (shipped with fxc_env), the path of a saved SB3 model (.zip), "
-        "a torch policy (policy.pt or its run directory: fxc train --backend torchrl), "
+        "a torch policy (policy.pt or its run directory: fxc train --backend torch), "
         "or an RLlib checkpoint or run directory (fxc train --backend rllib)",
     )
     parser.add_argument("--suite", choices=SUITES, help="a named suite (default 'evaluate' without environment flags)")

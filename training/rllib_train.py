@@ -9,35 +9,28 @@ Hyperparameters come from the ``rllib_<algo>`` entry of the hyperparameter file.
 
 An iteration samples ``train_batch_size_per_learner`` environment steps (times N agent-steps)
 and updates the module; ``--timesteps`` (agent-steps, as for SB3) is rounded up to whole
-iterations. The run directory:
+iterations. The run directory is :mod:`fxc_env.training.run_dir`'s (config.json,
+versions.json with Ray's version, training_curve.png; no TensorBoard events), with:
 
-    runs/<name>/config.json                          the exact arguments and resolved hyperparameters
-    runs/<name>/versions.json                        Python and library versions (Ray included)
-    runs/<name>/progress.csv                         one row per iteration (SB3's column names)
+    runs/<name>/progress.csv                         one row per iteration (:data:`PROGRESS_COLUMNS`, SB3's names)
     runs/<name>/checkpoints/rllib_<timesteps>_steps/ RLlib algorithm checkpoints (the newest is the policy)
-    runs/<name>/training_curve.png                   mean episode return against timesteps
 
 ``fxc evaluate --policy runs/<name>`` (or a checkpoint directory) scores the trained module.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import json
 import math
-import sys
 from pathlib import Path
 from typing import Any
 
 from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 import fxc_env
-from fxc_env.core.validation import ArgumentError
-from fxc_env.policies.learned import RLLIB_MODULE, rllib_checkpoint
+from fxc_env.policies.learned import RLLIB_MODULE
 from fxc_env.training.args import TrainArgs, check_train_args
-from fxc_env.training.artefacts import versions, write_training_curve
-from fxc_env.training.run_files import deferred_interrupt
+from fxc_env.training.run_dir import RunDir
 from fxc_env.utils.cluster import ray_session
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves both).
@@ -97,14 +90,13 @@ def _shared_module(agent_id: str, episode: Any, **kwargs: Any) -> str:
 
 
 def latest_rllib_checkpoint(run_dir: Path) -> Path | None:
-    """The RLlib checkpoint with the most timesteps in ``run_dir/checkpoints`` (None if there is none)."""
-    found = rllib_checkpoint(run_dir)
-    return found if found is not None and found != run_dir else None
+    """The whole RLlib checkpoint with the most timesteps in ``run_dir/checkpoints`` (None if there is none)."""
+    return RunDir(run_dir, "rllib").newest_checkpoint()
 
 
-def save(algo: Any, run_dir: Path, timesteps: int) -> Path:
+def save(algo: Any, run: RunDir, timesteps: int) -> Path:
     """Save the whole algorithm (module, optimiser, connectors, counters) as ``rllib_<timesteps>_steps``."""
-    path = run_dir / "checkpoints" / f"rllib_{timesteps}_steps"
+    path = run.checkpoint_path(timesteps)
     algo.save_to_path(str(path.resolve()))
     return path
 
@@ -113,35 +105,32 @@ def train_rllib(args: TrainArgs) -> Path:
     """Run (or resume) RLlib PPO training; returns the run directory."""
     import torch
 
-    params = check_train_args(dataclasses.replace(args, backend="rllib"))  # every argument, before any work
+    args = dataclasses.replace(args, backend="rllib")
+    params = check_train_args(args)  # every argument, before any work
     torch.set_num_threads(args.torch_threads)
-    run_dir = Path(args.run_dir or f"runs/{args.scenario}-rllib-{args.algo}-seed{args.seed}")
+    run = RunDir.of(args)
     n_agents = fxc_env.make_config(**env_config(args, params)).n_agents
     per_iteration = int(params["algo"]["train_batch_size_per_learner"]) * n_agents
     iterations = math.ceil(args.timesteps / per_iteration)
     save_every = max(1, math.ceil(args.checkpoint_every / per_iteration))
-    checkpoint = latest_rllib_checkpoint(run_dir) if args.resume else None
-    if args.resume and checkpoint is None:
-        raise ArgumentError(f"resume: no RLlib checkpoint in {run_dir / 'checkpoints'}")
+    checkpoint = run.resume_checkpoint(args.resume)
 
     with ray_session("--backend rllib", args.address) as ray:
         # ------------------------------------------------------------------ set-up
         algo = algorithm_config(args, params).build_algo()
         if checkpoint is not None:
             algo.restore_from_path(str(checkpoint.resolve()))
-            print(f"fxc train: resuming {run_dir} from {checkpoint.name} at iteration {algo.iteration}")
+            run.announce_resume(checkpoint, f"iteration {algo.iteration}")
         else:
-            run_dir.mkdir(parents=True, exist_ok=True)
-            record = {
-                "args": dataclasses.asdict(args),
-                "hyperparams": params,
-                "n_agents": n_agents,
-                "timesteps_per_iteration": per_iteration,
-                "ray_cluster_cpus": ray.cluster_resources().get("CPU"),
-            }
-            (run_dir / "config.json").write_text(json.dumps(record, indent=2) + "\n")
-            (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
-            (run_dir / "progress.csv").write_text(",".join(PROGRESS_COLUMNS) + "\n")
+            run.start(
+                {
+                    "args": dataclasses.asdict(args),
+                    "hyperparams": params,
+                    "n_agents": n_agents,
+                    "timesteps_per_iteration": per_iteration,
+                    "ray_cluster_cpus": ray.cluster_resources().get("CPU"),
+                }
+            )
         print(
             f"fxc train: RLlib PPO on {args.scenario} (N = {n_agents}, one shared module), "
             f"{args.num_env_runners} env runner(s) x {args.envs_per_runner} env(s), "
@@ -150,24 +139,22 @@ def train_rllib(args: TrainArgs) -> Path:
         )
 
         # ------------------------------------------------------------------- loop
+        resumed_at = (algo.iteration, algo.iteration * per_iteration) if checkpoint is not None else None
         try:
-            with deferred_interrupt("iteration") as interrupted:
+            with (
+                run.progress(PROGRESS_COLUMNS, tensorboard=False, resumed_at=resumed_at) as progress,
+                run.interruptible("iteration", lambda: save(algo, run, algo.iteration * per_iteration)) as interrupted,
+            ):
                 while algo.iteration < iterations and not interrupted:
-                    result = algo.train()
-                    row = progress_row(result, n_agents)
-                    with (run_dir / "progress.csv").open("a", newline="") as handle:
-                        csv.writer(handle).writerow(row[c] for c in PROGRESS_COLUMNS)
+                    row = progress_row(algo.train(), n_agents)
+                    progress.write(row)
                     print(
                         f"  iteration {algo.iteration}/{iterations}: {row['time/total_timesteps']} timesteps, "
                         f"mean episode return {row['rollout/ep_rew_mean']:.4g} "
                         f"over {row['rollout/episodes']} episodes, {row['time/iteration_seconds']:.1f} s"
                     )
                     if algo.iteration % save_every == 0 or algo.iteration == iterations:
-                        save(algo, run_dir, algo.iteration * per_iteration)
-            if interrupted:
-                path = save(algo, run_dir, algo.iteration * per_iteration)
-                print(f"fxc train: interrupted; saved {path} (resume with --resume)", file=sys.stderr)
-                raise KeyboardInterrupt
+                        save(algo, run, algo.iteration * per_iteration)
         finally:
             logdir = Path(algo.logdir)
             algo.stop()
@@ -175,10 +162,8 @@ def train_rllib(args: TrainArgs) -> Path:
                 logdir.rmdir()  # RLlib's empty ~/ray_results/<date> directory; our logs are in run_dir
 
     # -------------------------------------------------------------- artefacts
-    final = latest_rllib_checkpoint(run_dir)
-    curve = write_training_curve(run_dir)
-    print(f"fxc train: {algo.iteration * per_iteration} timesteps; wrote {final}" + (f" and {curve}" if curve else ""))
-    return run_dir
+    run.finish(algo.iteration * per_iteration, latest_rllib_checkpoint(run.path))
+    return run.path
 
 
 def progress_row(result: dict[str, Any], n_agents: int) -> dict[str, Any]:

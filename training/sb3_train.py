@@ -1,37 +1,42 @@
-"""``fxc train``: PPO or SAC (stable-baselines3) on :class:`fxc_env.ConsensusVecEnv`.
-
-This is the stable-baselines3 back end; ``--backend rllib`` trains PPO in Ray RLlib instead
-(:mod:`fxc_env.training.rllib_train`), and :func:`fxc_env.training.backends.train` picks one.
+"""``fxc train`` (``--backend sb3``, the default): PPO or SAC (stable-baselines3) on :class:`fxc_env.ConsensusVecEnv`.
 
 One policy is shared by every agent (parameter sharing): each agent of each parallel
-episode is one SB3 sub-environment. Read top to bottom: arguments, set-up, the training
-loop (with checkpoints and Ctrl-C handling), then the artefacts of the run directory:
+episode is one SB3 sub-environment. Read top to bottom: the environment and the model, the
+checkpoints, then :func:`train_sb3` (arguments, set-up, the loop, the final files). The run
+directory is :mod:`fxc_env.training.run_dir`'s (config.json, versions.json, progress.csv and
+TensorBoard events from SB3's logger, training_curve.png), plus:
 
-    runs/<name>/config.json        the exact arguments and resolved hyperparameters
-    runs/<name>/versions.json      Python and library versions
-    runs/<name>/progress.csv       SB3 log (TensorBoard event files beside it)
-    runs/<name>/checkpoints/       model_<steps>_steps.zip (+ VecNormalize statistics)
-    runs/<name>/model.zip          the final policy
-    runs/<name>/training_curve.png mean episode return against timesteps
+    runs/<name>/checkpoints/model_<steps>_steps.zip  policy, optimiser and step count (SB3's ``save``),
+                                                     VecNormalize statistics beside it when used
+    runs/<name>/model.zip                            the final policy (+ vecnormalize.pkl)
+
+``--backend rllib`` trains PPO in Ray RLlib instead (:mod:`fxc_env.training.rllib_train`),
+``--backend torch`` a lean PPO loop on the batched engine (:mod:`fxc_env.training.torch_ppo`);
+:func:`fxc_env.training.backends.train` picks one.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
-import sys
 from pathlib import Path
 from typing import Any
 
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecNormalize
+
 from fxc_env.core.validation import ArgumentError
 from fxc_env.training.args import TrainArgs, check_train_args
-from fxc_env.training.artefacts import versions, write_training_curve
 from fxc_env.training.imitation import imitate_reference
+from fxc_env.training.run_dir import RunDir
+
+#: ``policy_kwargs.activation_fn`` as written in the hyperparameter file.
+ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu")
 
 
+# ------------------------------------------------------------------------ environment and model
 def build_env(args: TrainArgs, params: dict[str, Any]):
     """The monitored (and optionally normalised) ConsensusVecEnv of this run."""
-    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+    from stable_baselines3.common.vec_env import VecMonitor
 
     from fxc_env import ConsensusVecEnv
 
@@ -43,10 +48,6 @@ def build_env(args: TrainArgs, params: dict[str, Any]):
     if params["normalize"]:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
     return venv
-
-
-#: ``policy_kwargs.activation_fn`` as written in the hyperparameter file.
-ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu")
 
 
 def with_activation_class(policy_kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -75,36 +76,78 @@ def policy_class(name: str) -> Any:
         raise ArgumentError(f"hyperparams: policy {name!r} cannot be imported ({exc})") from exc
 
 
+# ---------------------------------------------------------------------------------- checkpoints
+def vecnormalize_path(checkpoint: Path) -> Path:
+    """Where the VecNormalize statistics of ``checkpoint`` are kept (SB3's naming)."""
+    return checkpoint.with_name(checkpoint.name.replace("model_", "model_vecnormalize_", 1)).with_suffix(".pkl")
+
+
+def save_checkpoint(model: Any, run: RunDir) -> Path:
+    """Save ``model`` (optimiser included) and any VecNormalize statistics as ``model_<steps>_steps``."""
+    path = run.checkpoint_path(model.num_timesteps)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    model.save(path)
+    env = model.get_env()
+    if isinstance(env, VecNormalize):
+        env.save(str(vecnormalize_path(path)))
+    return path
+
+
+class RolloutCheckpoint(BaseCallback):
+    """Save a checkpoint every ``every`` timesteps, at the start of a rollout; after Ctrl-C, save there and stop.
+
+    The start of a rollout is just after the previous rollout's update. SB3's
+    CheckpointCallback saves inside a rollout, before its update, so resuming from it would
+    replay the rollout's steps without their gradient update. Once :attr:`pressed` (the flag
+    of :meth:`RunDir.interruptible <fxc_env.training.run_dir.RunDir.interruptible>`) is set, the
+    next rollout start saves (:attr:`saved_on_interrupt`) and the step after it stops SB3.
+    """
+
+    def __init__(self, run: RunDir, every: int) -> None:
+        super().__init__()
+        self.run, self.every = run, every
+        self.pressed: list[bool] = []
+        self.last = 0
+        self.saved_on_interrupt: Path | None = None
+
+    def _on_training_start(self) -> None:
+        self.last = self.model.num_timesteps
+
+    def _on_rollout_start(self) -> None:
+        if self.pressed:
+            self.saved_on_interrupt = save_checkpoint(self.model, self.run)
+        elif self.model.num_timesteps - self.last >= self.every:
+            save_checkpoint(self.model, self.run)
+            self.last = self.model.num_timesteps
+
+    def _on_step(self) -> bool:
+        return self.saved_on_interrupt is None  # False stops SB3's learn()
+
+
+# ------------------------------------------------------------------------------------- training
 def train_sb3(args: TrainArgs) -> Path:
     """Run (or resume) training with stable-baselines3; returns the run directory."""
     import torch
     from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.logger import configure
-    from stable_baselines3.common.vec_env import VecNormalize
 
-    from fxc_env.training.checkpoints import RolloutCheckpoint, latest_checkpoint, save_checkpoint, vecnormalize_path
-
-    params = check_train_args(dataclasses.replace(args, backend="sb3"))  # every argument, before any work
+    args = dataclasses.replace(args, backend="sb3")
+    params = check_train_args(args)  # every argument, before any work
     torch.set_num_threads(args.torch_threads)
-    run_dir = Path(args.run_dir or f"runs/{args.scenario}-{args.algo}-seed{args.seed}")
+    run = RunDir.of(args)
+    checkpoint = run.resume_checkpoint(args.resume)
 
     # ------------------------------------------------------------------ set-up
     venv = build_env(args, params)
     algo_class = {"ppo": PPO, "sac": SAC}[args.algo]
-    checkpoint = latest_checkpoint(run_dir) if args.resume else None
-    if args.resume and checkpoint is None:
-        raise ArgumentError(f"resume: no checkpoint in {run_dir / 'checkpoints'}")
     if checkpoint is not None:
         if isinstance(venv, VecNormalize):
             venv = VecNormalize.load(str(vecnormalize_path(checkpoint)), venv.venv)
         model = algo_class.load(checkpoint, env=venv, device="cpu")
-        print(f"fxc train: resuming {run_dir} from {checkpoint.name} at {model.num_timesteps} timesteps")
+        run.announce_resume(checkpoint, f"{model.num_timesteps} timesteps")
     else:
-        run_dir.mkdir(parents=True, exist_ok=True)
         kwargs = dict(params["algo"])
-        policy = kwargs.pop("policy", "MlpPolicy")
+        policy = policy_class(kwargs.pop("policy", "MlpPolicy"))
         kwargs["policy_kwargs"] = with_activation_class(kwargs.get("policy_kwargs", {}))
-        policy = policy_class(policy)
         model = algo_class(policy, venv, seed=args.seed, device="cpu", verbose=0, **kwargs)
         record = {"args": dataclasses.asdict(args), "hyperparams": params, "num_envs": venv.num_envs}
         if params["imitation"] is not None:
@@ -114,33 +157,24 @@ def train_sb3(args: TrainArgs) -> Path:
                 f"fxc train: imitated {params['imitation'].get('teacher', 'reference')} on {fit['samples']:.0f} agent-steps "
                 f"(relative action error {fit['relative_action_rms_error']:.2e}); PPO goes on from there"
             )
-        (run_dir / "config.json").write_text(json.dumps(record, indent=2) + "\n")
-        (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
-    model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
-    checkpoints = RolloutCheckpoint(run_dir / "checkpoints", args.checkpoint_every)
+        run.start(record)
+    model.set_logger(run.sb3_logger())
 
     # ------------------------------------------------------------------- loop
-    remaining = args.timesteps - model.num_timesteps
-    try:
+    callback = RolloutCheckpoint(run, args.checkpoint_every)
+    with run.interruptible("rollout", lambda: callback.saved_on_interrupt or save_checkpoint(model, run)) as pressed:
+        callback.pressed = pressed  # after Ctrl-C: a checkpoint at the next rollout start, then stop
+        remaining = args.timesteps - model.num_timesteps
         if remaining > 0:
             model.learn(
-                remaining, callback=checkpoints, reset_num_timesteps=checkpoint is None, progress_bar=args.progress_bar
+                remaining, callback=callback, reset_num_timesteps=checkpoint is None, progress_bar=args.progress_bar
             )
-    except KeyboardInterrupt:
-        # Ctrl-C loses nothing: a checkpoint at the current step count, then stop.
-        path = save_checkpoint(model, run_dir / "checkpoints")
-        print(f"\nfxc train: interrupted; saved {path} (resume with --resume)", file=sys.stderr)
-        raise
 
     # -------------------------------------------------------------- artefacts
-    save_checkpoint(model, run_dir / "checkpoints")  # a later --resume with more --timesteps goes on from here
-    model.save(run_dir / "model.zip")
+    save_checkpoint(model, run)  # a later --resume with more --timesteps goes on from here
+    model.save(run.path / "model.zip")
     if isinstance(venv, VecNormalize):
-        venv.save(str(run_dir / "vecnormalize.pkl"))
-    curve = write_training_curve(run_dir)
-    print(
-        f"fxc train: {model.num_timesteps} timesteps; wrote {run_dir / 'model.zip'}"
-        + (f" and {curve}" if curve else "")
-    )
+        venv.save(str(run.path / "vecnormalize.pkl"))
+    run.finish(model.num_timesteps, run.path / "model.zip")
     venv.close()
-    return run_dir
+    return run.path

@@ -1,4 +1,4 @@
-"""``fxc train --backend torchrl``: a lean PPO loop on the batched engine, on a torch device.
+"""``fxc train --backend torch``: a lean PPO loop on the batched engine, on a torch device.
 
 One Gaussian policy is shared by every agent of B parallel episodes (IPPO with parameter
 sharing): the engine (:class:`fxc_env.engine.ConsensusEngine`, float64 on ``--device``)
@@ -8,25 +8,25 @@ path: the host reads the rollout's statistics once per rollout (and the episodes
 once per episode end) for the log. The critic is ``local`` (each agent's value from its own
 observation) or ``central`` (``--critic central``: one value per episode from the
 normalized global state, the TorchRL environment's root ``"state"``, broadcast to its
-agents). Hyperparameters come from the ``torchrl_ppo`` entry of the hyperparameter file
-(:class:`PPOSettings` lists them); the loop is SB3's PPO (clipped surrogate, GAE, advantages
-normalised per minibatch, gradient clipping, Adam), written out for the engine's tensors:
+agents). Plain torch: the loop does not use TorchRL (``--backend torchrl``, its old name, is
+still accepted). Hyperparameters come from the ``torch_ppo`` entry of the hyperparameter
+file (:class:`PPOSettings` lists them); the loop is SB3's PPO (clipped surrogate, GAE,
+advantages normalised per minibatch, gradient clipping, Adam), written out for the engine's
+tensors:
 
     rollout:  T steps of B episodes (T divides K; an episode is K steps), B * N agent-steps each
     update:   ``epochs`` passes over the T * B * N agent-steps in minibatches of ``minibatch_size``
 
 Timesteps count agent-steps (B * N per environment step), as for the SB3 back end; a run
-stops at the first whole rollout past ``--timesteps``. The run directory:
+stops at the first whole rollout past ``--timesteps``. The run directory is
+:mod:`fxc_env.training.run_dir`'s (config.json, versions.json, TensorBoard events,
+training_curve.png), with:
 
-    runs/<name>/config.json                       the exact arguments and resolved hyperparameters
-    runs/<name>/versions.json                     Python and library versions
-    runs/<name>/progress.csv                      one row per rollout (SB3's column names, plus
-                                                  ``rollout/deadline_error``: the median D(T_s)/D(0)
-                                                  of the episodes that ended in the rollout)
-    runs/<name>/events.out.tfevents.*             the same scalars for TensorBoard
+    runs/<name>/progress.csv                       one row per rollout (:data:`PROGRESS_COLUMNS`: SB3's
+                                                   names, plus ``rollout/deadline_error``: the median
+                                                   D(T_s)/D(0) of the episodes that ended in the rollout)
     runs/<name>/checkpoints/model_<steps>_steps.pt networks, Adam's state, step counts and RNG states
-    runs/<name>/policy.pt                         the final policy (:func:`load_torch_policy`)
-    runs/<name>/training_curve.png                mean episode return against timesteps
+    runs/<name>/policy.pt                          the final policy (:func:`load_torch_policy`)
 
 Checkpoints are written after an update (every ``--checkpoint-every`` timesteps, at the end,
 and on Ctrl-C, which finishes the rollout under way first); ``--resume`` goes on from the
@@ -43,12 +43,8 @@ and ``timesteps``. Every checkpoint holds the same dictionary under ``"policy"``
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import json
 import math
-import re
-import sys
 import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -63,13 +59,9 @@ from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp
-from fxc_env.training.args import TrainArgs, check_train_args, default_run_dir
-from fxc_env.training.artefacts import versions, write_training_curve
-from fxc_env.training.run_files import deferred_interrupt, newest_by_steps
+from fxc_env.training.args import TrainArgs, check_train_args
+from fxc_env.training.run_dir import RunDir
 
-#: ``format`` of the policy file and of a checkpoint.
-CHECKPOINT_PATTERN = re.compile(r"model_(\d+)_steps\.pt$")
-#: Activations by name (the hyperparameter file's ``activation``).
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves all).
 PROGRESS_COLUMNS = (
     "time/iterations",
@@ -97,7 +89,7 @@ LOG_2PI = math.log(2.0 * math.pi)
 # ---------------------------------------------------------------------------------- settings
 @dataclasses.dataclass(frozen=True)
 class PPOSettings:
-    """The ``torchrl_ppo`` entry of the hyperparameter file (every key optional)."""
+    """The ``torch_ppo`` entry of the hyperparameter file (every key optional)."""
 
     n_envs: int = 256
     """B, the parallel episodes (``--n-envs`` overrides it)."""
@@ -124,15 +116,15 @@ class PPOSettings:
 
     @classmethod
     def from_mapping(cls, entry: Mapping[str, Any], config: EnvConfig, *, name: str = "hyperparams") -> PPOSettings:
-        """Checked settings from a hyperparameter entry; raise naming ``name: torchrl_ppo.<key>``."""
+        """Checked settings from a hyperparameter entry; raise naming ``name: torch_ppo.<key>``."""
         known = {field.name for field in dataclasses.fields(cls)}
         unknown = sorted(set(entry) - known)
         if unknown:
-            raise ArgumentError(f"{name}: torchrl_ppo has no setting {unknown[0]!r}; expected some of {sorted(known)}")
+            raise ArgumentError(f"{name}: torch_ppo has no setting {unknown[0]!r}; expected some of {sorted(known)}")
         values = {**{f.name: f.default for f in dataclasses.fields(cls)}, **entry}
 
         def key(k: str) -> str:
-            return f"{name}: torchrl_ppo.{k}"
+            return f"{name}: torch_ppo.{k}"
 
         k_intervals = config.n_intervals
         for field in ("n_envs", "rollout_steps", "epochs", "minibatch_size"):
@@ -204,7 +196,7 @@ def adam(parameters: Iterator[nn.Parameter], learning_rate: float) -> torch.opti
 # ------------------------------------------------------------------------------- checkpoints
 def latest_torch_checkpoint(run_dir: Path) -> Path | None:
     """The checkpoint with the most timesteps in ``run_dir/checkpoints`` (None if there is none)."""
-    return newest_by_steps(run_dir / "checkpoints", "model_*_steps.pt", CHECKPOINT_PATTERN)
+    return RunDir(run_dir, "torch").newest_checkpoint()
 
 
 # ---------------------------------------------------------------------------------- training
@@ -393,10 +385,10 @@ class Trainer:
             "timesteps": self.timesteps,
         }
 
-    def save_checkpoint(self, directory: Path) -> Path:
-        """Networks, Adam's state, counters and every generator's state as ``model_<timesteps>_steps.pt``."""
-        directory.mkdir(parents=True, exist_ok=True)
-        path = directory / f"model_{self.timesteps}_steps.pt"
+    def save_checkpoint(self, run: RunDir) -> Path:
+        """Networks, Adam's state, counters and every generator's state as ``checkpoints/model_<timesteps>_steps.pt``."""
+        path = run.checkpoint_path(self.timesteps)
+        path.parent.mkdir(parents=True, exist_ok=True)
         engine_rng = self.engine.rng.get_state() if isinstance(self.engine.rng, torch.Generator) else None
         record = {
             "format": CHECKPOINT_FORMAT,
@@ -421,7 +413,7 @@ class Trainer:
     def load_checkpoint(self, path: Path) -> None:
         record = torch.load(path, map_location="cpu", weights_only=True)
         if not isinstance(record, dict) or record.get("format") != CHECKPOINT_FORMAT:
-            raise ArgumentError(f"resume: {str(path)!r} is not a torchrl back-end checkpoint")
+            raise ArgumentError(f"resume: {str(path)!r} is not a torch back-end checkpoint")
         try:
             self.model.load_state_dict(record["model"])
         except RuntimeError as exc:
@@ -439,123 +431,93 @@ class Trainer:
         self._reset()  # a resumed run starts fresh episodes
 
 
-def _trim_progress(progress: Path, timesteps: int) -> None:
-    """Drop the rows of ``progress.csv`` past ``timesteps`` (written after the checkpoint a run resumes from)."""
-    if not progress.exists():
-        return
-    with progress.open(newline="") as handle:
-        rows = list(csv.DictReader(handle))
-    kept = [row for row in rows if row.get("time/total_timesteps") and int(row["time/total_timesteps"]) <= timesteps]
-    with progress.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=PROGRESS_COLUMNS, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(kept)
-
-
 def train_torch(args: TrainArgs) -> Path:
     """Run (or resume) PPO on the batched engine on ``args.device``; returns the run directory."""
-    from torch.utils.tensorboard import SummaryWriter
-
-    args = dataclasses.replace(args, backend="torchrl")
+    args = dataclasses.replace(args, backend="torch")
     params = check_train_args(args)  # every argument, before any work
     settings = PPOSettings.from_mapping(params["algo"], make_config(**run_config(args, params)))
     torch.set_num_threads(args.torch_threads)
     device = torch.device(args.device)
-    run_dir = Path(args.run_dir or default_run_dir(args))
-    checkpoint = latest_torch_checkpoint(run_dir) if args.resume else None
-    if args.resume and checkpoint is None:
-        raise ArgumentError(f"resume: no checkpoint in {run_dir / 'checkpoints'}")
+    run = RunDir.of(args)
+    checkpoint = run.resume_checkpoint(args.resume)
 
     # ------------------------------------------------------------------ set-up
     trainer = Trainer(args, params, settings, device)
     per_rollout = settings.rollout_steps * trainer.n_envs * trainer.n_agents
     if checkpoint is not None:
         trainer.load_checkpoint(checkpoint)
-        _trim_progress(run_dir / "progress.csv", trainer.timesteps)
-        print(f"fxc train: resuming {run_dir} from {checkpoint.name} at {trainer.timesteps} timesteps")
+        run.announce_resume(checkpoint, f"{trainer.timesteps} timesteps")
     else:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        record = {
-            "args": dataclasses.asdict(args),
-            "hyperparams": params,
-            "torchrl_ppo": dataclasses.asdict(settings),
-            "n_envs": trainer.n_envs,
-            "n_agents": trainer.n_agents,
-            "timesteps_per_rollout": per_rollout,
-        }
-        (run_dir / "config.json").write_text(json.dumps(record, indent=2) + "\n")
-        (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
-        (run_dir / "progress.csv").write_text(",".join(PROGRESS_COLUMNS) + "\n")
+        run.start(
+            {
+                "args": dataclasses.asdict(args),
+                "hyperparams": params,
+                "torch_ppo": dataclasses.asdict(settings),
+                "n_envs": trainer.n_envs,
+                "n_agents": trainer.n_agents,
+                "timesteps_per_rollout": per_rollout,
+            }
+        )
     if args.progress_bar:
         print(
             f"fxc train: torch PPO on {args.scenario} (N = {trainer.n_agents}, one shared policy, {args.critic} critic) "
             f"on {device}: {trainer.n_envs} episodes, {per_rollout} timesteps per rollout"
         )
-    # On resume, TensorBoard drops the events logged after the checkpoint (steps > its step count).
-    writer = SummaryWriter(str(run_dir), purge_step=trainer.timesteps + 1 if checkpoint is not None else None)
 
     # ------------------------------------------------------------------- loop
+    resumed_at = (trainer.iterations, trainer.timesteps) if checkpoint is not None else None
     start_steps, start_time = trainer.timesteps, time.perf_counter()
     last_checkpoint = trainer.timesteps
-    try:
-        with deferred_interrupt("rollout") as interrupted:
-            while trainer.timesteps < args.timesteps and not interrupted:
-                began = time.perf_counter()
-                rollout = trainer.collect()
-                collected = time.perf_counter()
-                advantages, targets, explained = trainer.advantages(rollout)
-                means = trainer.update(advantages, targets)
-                stats = {"means": means, "explained_variance": explained}
-                trainer.timesteps += per_rollout
-                trainer.iterations += 1
-                row = _progress_row(trainer, rollout, stats, start_steps, start_time, began, collected)
-                with (run_dir / "progress.csv").open("a", newline="") as handle:
-                    csv.writer(handle).writerow("" if row[c] is None else row[c] for c in PROGRESS_COLUMNS)
-                for column in PROGRESS_COLUMNS:
-                    if row[column] is not None:
-                        writer.add_scalar(column, row[column], trainer.timesteps)
-                if args.progress_bar:
-                    reward = row["rollout/ep_rew_mean"]
-                    error = row["rollout/deadline_error"]
-                    print(
-                        f"  rollout {trainer.iterations}: {trainer.timesteps} timesteps, {row['time/fps']:.0f} fps"
-                        + ("" if reward is None else f", mean episode return {reward:.4g}")
-                        + ("" if error is None else f", median deadline error {error:.3g}")
-                    )
-                if trainer.timesteps - last_checkpoint >= args.checkpoint_every:
-                    trainer.save_checkpoint(run_dir / "checkpoints")
-                    last_checkpoint = trainer.timesteps
-            if interrupted:
-                path = trainer.save_checkpoint(run_dir / "checkpoints")
-                print(f"fxc train: interrupted; saved {path} (resume with --resume)", file=sys.stderr)
-                raise KeyboardInterrupt
-    finally:
-        writer.close()
+    with (
+        run.progress(PROGRESS_COLUMNS, tensorboard=True, resumed_at=resumed_at) as progress,
+        run.interruptible("rollout", lambda: trainer.save_checkpoint(run)) as interrupted,
+    ):
+        while trainer.timesteps < args.timesteps and not interrupted:
+            began = time.perf_counter()
+            rollout = trainer.collect()
+            collected = time.perf_counter()
+            advantages, targets, explained = trainer.advantages(rollout)
+            means = trainer.update(advantages, targets)
+            trainer.timesteps += per_rollout
+            trainer.iterations += 1
+            row = progress_row(trainer, rollout, means, explained, start_steps, start_time, began, collected)
+            progress.write(row)
+            if args.progress_bar:
+                reward, error = row["rollout/ep_rew_mean"], row["rollout/deadline_error"]
+                print(
+                    f"  rollout {trainer.iterations}: {trainer.timesteps} timesteps, {row['time/fps']:.0f} fps"
+                    + ("" if reward is None else f", mean episode return {reward:.4g}")
+                    + ("" if error is None else f", median deadline error {error:.3g}")
+                )
+            if trainer.timesteps - last_checkpoint >= args.checkpoint_every:
+                trainer.save_checkpoint(run)
+                last_checkpoint = trainer.timesteps
 
     # -------------------------------------------------------------- artefacts
-    trainer.save_checkpoint(run_dir / "checkpoints")  # a later --resume with more --timesteps goes on from here
-    torch.save(trainer.policy_record(), run_dir / "policy.pt")
-    curve = write_training_curve(run_dir)
-    print(
-        f"fxc train: {trainer.timesteps} timesteps; wrote {run_dir / 'policy.pt'}" + (f" and {curve}" if curve else "")
-    )
-    return run_dir
+    trainer.save_checkpoint(run)  # a later --resume with more --timesteps goes on from here
+    torch.save(trainer.policy_record(), run.path / "policy.pt")
+    run.finish(trainer.timesteps, run.path / "policy.pt")
+    return run.path
 
 
-def _progress_row(
+def progress_row(
     trainer: Trainer,
     rollout: dict[str, Any],
-    stats: dict[str, torch.Tensor],
+    means: torch.Tensor,
+    explained: torch.Tensor,
     start_steps: int,
     start_time: float,
     began: float,
     collected: float,
 ) -> dict[str, Any]:
-    """One ``progress.csv`` row: the one read of the rollout's statistics off the device."""
+    """One ``progress.csv`` row (:data:`PROGRESS_COLUMNS`): the one read of the rollout's statistics off the device.
+
+    ``means``: the update's mean policy loss, value loss, entropy loss, approximate KL and
+    clip fraction (:meth:`Trainer.update`); ``explained``: the critic's explained variance.
+    """
     now = time.perf_counter()
-    means = stats["means"].cpu().tolist()
-    returns = rollout["returns"]
-    errors = rollout["errors"]
+    losses = means.cpu().tolist()
+    returns, errors = rollout["returns"], rollout["errors"]
     return {
         "time/iterations": trainer.iterations,
         "time/total_timesteps": trainer.timesteps,
@@ -566,12 +528,12 @@ def _progress_row(
         "rollout/ep_rew_mean": None if returns is None else float(returns.mean().item()),
         "rollout/deadline_error": None if errors is None else float(np.median(errors)),
         "rollout/episodes": 0 if returns is None else int(returns.numel()),
-        "train/policy_loss": means[0],
-        "train/value_loss": means[1],
-        "train/entropy_loss": means[2],
-        "train/approx_kl": means[3],
-        "train/clip_fraction": means[4],
-        "train/explained_variance": float(stats["explained_variance"].item()),
+        "train/policy_loss": losses[0],
+        "train/value_loss": losses[1],
+        "train/entropy_loss": losses[2],
+        "train/approx_kl": losses[3],
+        "train/clip_fraction": losses[4],
+        "train/explained_variance": float(explained.item()),
         "train/std": float(torch.exp(trainer.model.log_std.detach()).mean().item()),
         "train/learning_rate": trainer.settings.learning_rate,
         "train/n_updates": trainer.n_updates,

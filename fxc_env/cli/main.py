@@ -116,7 +116,11 @@ def speed_command(args: argparse.Namespace) -> int:
 
 
 def train_command(args: argparse.Namespace) -> int:
-    """``fxc train``: the back end named by ``--backend`` trains (see :mod:`fxc_env.training.backends`)."""
+    """``fxc train``: the back end named by ``--backend`` trains (see :mod:`fxc_env.training.backends`).
+
+    Every flag is checked before work starts (``--backend torchrl`` is read as ``--backend torch``,
+    with a deprecation message on stderr); Ctrl-C saves a checkpoint and exits with status 130.
+    """
     from fxc_env.training.args import args_from_namespace, check_train_args
     from fxc_env.training.backends import train
 

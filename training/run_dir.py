@@ -1,0 +1,255 @@
+"""The run directory of ``fxc train``: what every back end writes besides its algorithm's state.
+
+    runs/<name>/config.json             the exact arguments and resolved hyperparameters (:meth:`RunDir.start`)
+    runs/<name>/versions.json           Python and library versions (:func:`versions`)
+    runs/<name>/progress.csv            one row per rollout or iteration (:class:`Progress`; SB3's own
+                                        logger for sb3, :meth:`RunDir.sb3_logger`), SB3's column names
+    runs/<name>/events.out.tfevents.*   the same scalars for TensorBoard (sb3 and torch)
+    runs/<name>/checkpoints/            one per save, named with its step count (:data:`CHECKPOINT_NAMES`)
+    runs/<name>/training_curve.png      mean episode return against timesteps (:func:`write_training_curve`)
+
+A back end reads top to bottom with it: ``run = RunDir.of(args)``; ``run.resume_checkpoint(args.resume)``
+(the newest checkpoint, or None for a fresh run; ``--resume`` without one is refused);
+``run.start(record)`` for a fresh run; the loop inside ``run.progress(...)`` (one row a unit of
+work) and ``run.interruptible(unit, save)`` (Ctrl-C finishes the unit under way, saves a
+checkpoint and stops; a second Ctrl-C stops at once); ``run.finish(...)``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import platform
+import re
+import signal
+import sys
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from fxc_env.core.validation import ArgumentError
+from fxc_env.training.args import TrainArgs, canonical_backend, default_run_dir
+
+#: Checkpoint names by back end (``{}``: the timesteps it was saved at). SB3's sits beside its
+#: VecNormalize statistics (``model_vecnormalize_<steps>_steps.pkl``); RLlib's is a directory.
+CHECKPOINT_NAMES = {"sb3": "model_{}_steps.zip", "torch": "model_{}_steps.pt", "rllib": "rllib_{}_steps"}
+#: A checkpoint directory is whole once this file is in it (RLlib writes it last).
+_COMPLETE = {"rllib": "rllib_checkpoint.json"}
+
+
+def versions() -> dict[str, str]:
+    """Python and the versions of the libraries a run depends on (``not installed`` for those missing)."""
+    found = {"python": platform.python_version()}
+    for name in ("fxc-env", "numpy", "gymnasium", "pettingzoo", "stable-baselines3", "torch", "ray"):
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            found[name] = "not installed"
+    return found
+
+
+class RunDir:
+    """The run directory ``path`` of a ``backend`` (``sb3``, ``torch`` or ``rllib``; ``torchrl`` is read as ``torch``)."""
+
+    def __init__(self, path: str | Path, backend: str) -> None:
+        self.backend = canonical_backend(backend, warn=False)
+        self.path = Path(path)
+        self.checkpoints = self.path / "checkpoints"
+        self.checkpoint_name = CHECKPOINT_NAMES[self.backend]
+        prefix, suffix = self.checkpoint_name.split("{}")
+        self._pattern = re.compile(re.escape(prefix) + r"(\d+)" + re.escape(suffix))
+
+    @classmethod
+    def of(cls, args: TrainArgs) -> RunDir:
+        """The run directory of ``args``: ``--run-dir``, or :func:`~fxc_env.training.args.default_run_dir`."""
+        return cls(args.run_dir or default_run_dir(args), args.backend)
+
+    # ------------------------------------------------------------------ checkpoints
+    def checkpoint_path(self, timesteps: int) -> Path:
+        """Where the checkpoint saved at ``timesteps`` goes (``checkpoints/model_<timesteps>_steps.zip`` for sb3)."""
+        return self.checkpoints / self.checkpoint_name.format(int(timesteps))
+
+    def checkpoint_steps(self, path: Path) -> int | None:
+        """The timesteps in a checkpoint's name (None if ``path`` is not named as this back end's checkpoints)."""
+        match = self._pattern.fullmatch(Path(path).name)
+        return int(match.group(1)) if match else None
+
+    def newest_checkpoint(self) -> Path | None:
+        """The whole checkpoint with the most timesteps (None if there is none)."""
+        marker = _COMPLETE.get(self.backend)
+        found = [
+            (steps, path)
+            for path in self.checkpoints.glob(self.checkpoint_name.format("*"))
+            if (steps := self.checkpoint_steps(path)) is not None and (marker is None or (path / marker).is_file())
+        ]
+        return max(found)[1] if found else None
+
+    def resume_checkpoint(self, resume: bool) -> Path | None:
+        """The checkpoint a run goes on from: the newest with ``resume``, None without; ``resume`` and none is refused."""
+        if not resume:
+            return None
+        checkpoint = self.newest_checkpoint()
+        if checkpoint is None:
+            expected = self.checkpoint_name.format("<timesteps>")
+            raise ArgumentError(f"resume: no checkpoint in {self.checkpoints} (expected {expected})")
+        return checkpoint
+
+    def announce_resume(self, checkpoint: Path, position: str) -> None:
+        """``fxc train: resuming <run> from <checkpoint> at <position>`` on stdout."""
+        print(f"fxc train: resuming {self.path} from {checkpoint.name} at {position}")
+
+    # -------------------------------------------------------------------- the files
+    def start(self, record: Mapping[str, Any]) -> None:
+        """A fresh run: create the directory, write ``config.json`` (``record``) and ``versions.json``."""
+        self.path.mkdir(parents=True, exist_ok=True)
+        (self.path / "config.json").write_text(json.dumps(record, indent=2) + "\n")
+        (self.path / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
+
+    def progress(
+        self, columns: Sequence[str], *, tensorboard: bool, resumed_at: tuple[int, int] | None = None
+    ) -> Progress:
+        """The log of this run (see :class:`Progress`); use it as a context manager."""
+        return Progress(self.path, columns, tensorboard=tensorboard, resumed_at=resumed_at)
+
+    def sb3_logger(self) -> Any:
+        """SB3's logger writing ``progress.csv`` and TensorBoard events here (SB3 picks the columns)."""
+        from stable_baselines3.common.logger import configure
+
+        return configure(str(self.path), ["csv", "tensorboard"])
+
+    @contextmanager
+    def interruptible(self, unit: str, save: Callable[[], Path]) -> Iterator[list[bool]]:
+        """Run a training loop: Ctrl-C sets the yielded flag, the loop stops after the ``unit`` under way.
+
+        On leaving the block with the flag set, ``save()`` writes a checkpoint (its path is
+        printed on stderr) and ``KeyboardInterrupt`` is raised. A second Ctrl-C raises
+        ``KeyboardInterrupt`` at once, without a checkpoint (the unit is half done).
+        """
+        with deferred_interrupt(unit) as pressed:
+            yield pressed
+            if pressed:
+                path = save()
+                print(f"fxc train: interrupted; saved {path} (resume with --resume)", file=sys.stderr)
+                raise KeyboardInterrupt
+
+    def finish(self, timesteps: int, wrote: Path) -> Path | None:
+        """Write ``training_curve.png`` and say what the run wrote; returns the curve's path (None without rows)."""
+        curve = write_training_curve(self.path)
+        print(f"fxc train: {timesteps} timesteps; wrote {wrote}" + (f" and {curve}" if curve else ""))
+        return curve
+
+
+class Progress:
+    """``progress.csv`` with fixed ``columns``, and with ``tensorboard`` the same scalars as TensorBoard events.
+
+    A fresh run writes the header. A run resumed from a checkpoint taken after
+    ``resumed_at = (iterations, timesteps)`` drops the rows logged after it (by the run that
+    went on past the checkpoint), and TensorBoard drops its events past ``timesteps``, so
+    the log reads as one run. A row's TensorBoard step is its ``time/total_timesteps``.
+    """
+
+    def __init__(
+        self, run_dir: Path, columns: Sequence[str], *, tensorboard: bool, resumed_at: tuple[int, int] | None
+    ) -> None:
+        self.path = run_dir / "progress.csv"
+        self.columns = tuple(columns)
+        kept: list[dict[str, str]] = []
+        if resumed_at is not None and self.path.exists():
+            with self.path.open(newline="") as handle:
+                kept = [row for row in csv.DictReader(handle) if _iteration(row) <= resumed_at[0]]
+        with self.path.open("w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=self.columns, extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(kept)
+        self.writer = None
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            purge = resumed_at[1] + 1 if resumed_at is not None else None
+            self.writer = SummaryWriter(str(run_dir), purge_step=purge)
+
+    def write(self, row: Mapping[str, Any]) -> None:
+        """Append ``row`` (a value per column; None: an empty cell and no TensorBoard scalar)."""
+        with self.path.open("a", newline="") as handle:
+            csv.writer(handle).writerow("" if row[c] is None else row[c] for c in self.columns)
+        if self.writer is not None:
+            for column in self.columns:
+                if row[column] is not None:
+                    self.writer.add_scalar(column, row[column], row["time/total_timesteps"])
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _iteration(row: Mapping[str, str]) -> float:
+    text = row.get("time/iterations") or ""
+    return int(text) if text.isdigit() else float("inf")  # a damaged row goes
+
+
+@contextmanager
+def deferred_interrupt(unit: str) -> Iterator[list[bool]]:
+    """Ctrl-C sets a flag (checked between ``unit``s) instead of breaking one; twice stops at once."""
+    pressed: list[bool] = []
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum: int, frame: Any) -> None:
+        if pressed:
+            raise KeyboardInterrupt
+        pressed.append(True)
+        print(f"\nfxc train: Ctrl-C; finishing this {unit}, then saving a checkpoint", file=sys.stderr)
+
+    try:
+        signal.signal(signal.SIGINT, handler)
+    except ValueError:  # not the main thread: leave Ctrl-C alone
+        yield pressed
+        return
+    try:
+        yield pressed
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def write_training_curve(run_dir: Path) -> Path | None:
+    """Plot ``rollout/ep_rew_mean`` against ``time/total_timesteps`` from ``progress.csv`` into ``training_curve.png``."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    progress = run_dir / "progress.csv"
+    if not progress.exists():
+        return None
+    steps, returns = [], []
+    with progress.open() as handle:
+        for row in csv.DictReader(handle):
+            if row.get("rollout/ep_rew_mean") and row.get("time/total_timesteps"):
+                steps.append(float(row["time/total_timesteps"]))
+                returns.append(float(row["rollout/ep_rew_mean"]))
+    if not steps:
+        return None
+    fig = Figure(figsize=(6.5, 3.8), dpi=120)
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    ax.plot(steps, returns, lw=0.8, color="#9ecae1", label="per rollout")
+    window = 10
+    if len(returns) >= window:
+        import numpy as np
+
+        smooth = np.convolve(returns, np.ones(window) / window, mode="valid")
+        ax.plot(steps[window - 1 :], smooth, lw=1.6, color="#08519c", label=f"mean of {window} rollouts")
+        ax.legend(fontsize=8, loc="lower right")
+    ax.set_xlabel("timesteps (agent-steps)")
+    ax.set_ylabel("mean episode return = ln D(0)/D(T_s)")
+    ax.set_title(f"training curve: {run_dir.name}", fontsize=9)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = run_dir / "training_curve.png"
+    fig.savefig(path)
+    return path
