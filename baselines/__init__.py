@@ -1,7 +1,7 @@
 """Classical consensus controllers (baselines) and the deadline benchmark.
 
 Each baseline is a policy on the local observation, like :class:`fxc_env.ReferencePolicy`,
-acting in ``accel`` mode with a zero-order hold; its module docstring gives the law, its
+the classical ones acting in ``accel`` mode with a zero-order hold; its module docstring gives the law, its
 source paper, the graph class it is proven for, and its parameters:
 
 - :class:`LinearConsensusPolicy` (:mod:`fxc_env.baselines.linear`): Ren & Atkins 2007, gamma by Yu,
@@ -12,7 +12,13 @@ source paper, the graph class it is proven for, and its parameters:
 - :class:`PrescribedTimePolicy` (:mod:`fxc_env.baselines.prescribed_time`): Wang, Song, Hill &
   Krstic 2019 family, gain frozen shortly before ``T_s``;
 - :class:`SaturationAwarePolicy` (:mod:`fxc_env.baselines.saturation_aware`): the paper's plan
-  where it fits under the input limit, a held linear law where it does not.
+  where it fits under the input limit, a held linear law where it does not;
+- :class:`MinimumTimePolicy` (:mod:`fxc_env.baselines.minimum_time`): this project's minimum-time law
+  for a known fixed digraph, exact after one interval per eigenvalue of ``(D + I)^{-1} L`` (a ring of
+  N: N - 1), in ``plan`` or ``accel`` mode, raw or normalized.
+
+:mod:`fxc_env.core.optimality` gives the bounds every law is measured against: the least energy
+``E*`` of an exact consensus at ``T_s`` and the fewest intervals (the propagation bound).
 
 ``fxc benchmark`` (:mod:`fxc_env.baselines.benchmark`) scores them, the reference and learned
 policies (:func:`load_policy`) on one suite (:mod:`fxc_env.baselines.suite`).
@@ -27,6 +33,7 @@ from __future__ import annotations
 
 from fxc_env.baselines.finite_time import FiniteTimePolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
+from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
 from fxc_env.baselines.sampled import SampledLinearPolicy
 from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
@@ -35,6 +42,7 @@ from fxc_env.baselines.suite import load_policy
 __all__ = [
     "FiniteTimePolicy",
     "LinearConsensusPolicy",
+    "MinimumTimePolicy",
     "PrescribedTimePolicy",
     "SampledLinearPolicy",
     "SaturationAwarePolicy",

@@ -23,6 +23,7 @@ import numpy as np
 
 from fxc_env.baselines.finite_time import FiniteTimePolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
+from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
 from fxc_env.baselines.sampled import SampledLinearPolicy
 from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
@@ -45,6 +46,7 @@ BASELINES = {
         FiniteTimePolicy,
         PrescribedTimePolicy,
         SaturationAwarePolicy,
+        MinimumTimePolicy,
     )
 }
 
@@ -56,6 +58,7 @@ BUILTIN_SETTINGS = {
     "finite_time": (False, "uniform", "accel", "raw"),
     "prescribed_time": (False, "uniform", "accel", "raw"),
     "saturation_aware": (True, "uniform", "accel", "raw"),
+    "minimum_time": (True, "uniform", "plan", "normalized"),
 }
 
 

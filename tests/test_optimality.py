@@ -1,0 +1,208 @@
+"""Lower bounds for every controller: the minimum energy E*, the propagation bound, the settled interval."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.integrate
+import scipy.linalg
+import scipy.optimize
+
+import fxc_env
+from fxc_env.baselines.minimum_time import MinimumTimePolicy
+from fxc_env.config import make_config
+from fxc_env.core.graphs import make_topology
+from fxc_env.core.linear import LinearModel
+from fxc_env.core.optimality import (
+    energy_bound,
+    linear_energy_bound,
+    propagation_bound,
+    settled_interval,
+)
+from fxc_env.core.validation import ArgumentError
+
+PAPER_X0 = np.array([1.0, -1.0, 2.0, 4.0, -4.0, -2.0])
+PAPER_V0 = np.array([1.0, 2.0, 3.0, -3.0, -2.0, 0.0])
+
+
+def steering_energy(start: np.ndarray, target: np.ndarray, T: float) -> float:
+    """One double integrator from (x, v) to (x*, v*) in time T: 12 d²/T³ - 12 d w/T² + 4 w²/T."""
+    d = target[0] - start[0] - start[1] * T
+    w = target[1] - start[1]
+    return 12 * d * d / T**3 - 12 * d * w / T**2 + 4 * w * w / T
+
+
+def test_the_paper_example_needs_at_least_5_4597():
+    assert abs(float(energy_bound(PAPER_X0, PAPER_V0, 20.0)) - 5.4597) < 1e-4
+
+
+def test_the_bound_is_the_closed_form_at_the_mean_of_the_coasted_states_batched_in_the_plane():
+    rng = np.random.default_rng(7)
+    x0, v0, T = rng.uniform(-5, 5, (3, 9, 2)), rng.uniform(-2, 2, (3, 9, 2)), 7.5
+    bound = energy_bound(x0, v0, T)
+    assert bound.shape == (3,)
+    for b in range(3):
+        expected = 0.0
+        for axis in range(2):
+            target = np.array([np.mean(x0[b, :, axis] + T * v0[b, :, axis]), np.mean(v0[b, :, axis])])
+            expected += sum(steering_energy(np.array([x0[b, i, axis], v0[b, i, axis]]), target, T) for i in range(9))
+        assert bound[b] == pytest.approx(expected, rel=1e-12)
+
+
+def test_no_common_final_state_is_cheaper_a_numerical_minimisation_for_three_agents():
+    x0, v0, T = np.array([0.3, -2.0, 4.1]), np.array([1.5, -0.7, 0.2]), 3.0
+    # The Gramian integral G(T) = int_0^T e^{As} B B^T e^{A^T s} ds by quadrature, for each agent's cost.
+    A, B = np.array([[0.0, 1.0], [0.0, 0.0]]), np.array([[0.0], [1.0]])
+    gramian = scipy.integrate.quad_vec(lambda s: scipy.linalg.expm(A * s) @ B @ B.T @ scipy.linalg.expm(A.T * s), 0, T)[
+        0
+    ]
+    motion = scipy.linalg.expm(A * T)
+
+    def total(target):
+        cost = 0.0
+        for i in range(3):
+            delta = target - motion @ np.array([x0[i], v0[i]])
+            cost += delta @ np.linalg.solve(gramian, delta)
+        return cost
+
+    best = scipy.optimize.minimize(total, np.zeros(2), method="BFGS", options={"gtol": 1e-12})
+    assert best.fun == pytest.approx(float(energy_bound(x0, v0, T)), rel=1e-8)
+    assert best.x == pytest.approx([np.mean(x0 + T * v0), np.mean(v0)], abs=1e-6)
+
+
+def test_the_general_bound_of_the_double_integrator_is_the_closed_form():
+    model = LinearModel.named("double_integrator")
+    rng = np.random.default_rng(3)
+    x0, v0 = rng.uniform(-5, 5, (4, 6, 2)), rng.uniform(-2, 2, (4, 6, 2))
+    z0 = np.stack([x0, v0], axis=-2)  # (B, N, n, dim)
+    for T in (20.0, 1e-3):
+        np.testing.assert_allclose(linear_energy_bound(model, z0, T), energy_bound(x0, v0, T), rtol=1e-12)
+
+
+def test_the_general_bound_of_an_oscillator_matches_a_numerical_minimisation():
+    model = LinearModel.named("oscillator", frequency=1.3)
+    A, B, T = model.A, model.B, 2.0
+    z0 = np.array([[1.0, 0.5], [-2.0, 0.1], [0.4, -1.2]])[:, :, None]  # (N, n, dim = 1)
+    gramian = scipy.integrate.quad_vec(lambda s: scipy.linalg.expm(A * s) @ B @ B.T @ scipy.linalg.expm(A.T * s), 0, T)[
+        0
+    ]
+    motion = scipy.linalg.expm(A * T)
+
+    def total(target):
+        return sum((target - motion @ z[:, 0]) @ np.linalg.solve(gramian, target - motion @ z[:, 0]) for z in z0)
+
+    best = scipy.optimize.minimize(total, np.zeros(2), method="BFGS", options={"gtol": 1e-12})
+    assert best.fun == pytest.approx(float(linear_energy_bound(model, z0, T)), rel=1e-7)
+
+
+def test_formation_offsets_give_the_bound_of_the_formation_error():
+    model = LinearModel.named("double_integrator")
+    rng = np.random.default_rng(0)
+    z0, h = rng.normal(size=(5, 2, 1)), np.zeros((5, 2, 1))
+    h[:, 0, 0] = rng.normal(size=5)
+    assert linear_energy_bound(model, z0, 4.0, offsets=h) == pytest.approx(
+        float(energy_bound(z0[:, 0] - h[:, 0], z0[:, 1], 4.0)), rel=1e-12
+    )
+    # Agents already in formation (any common motion) need nothing.
+    moved = h + np.array([[3.0], [1.0]])
+    assert float(linear_energy_bound(model, moved, 4.0, offsets=h)) < 1e-24
+
+
+@pytest.mark.parametrize(
+    ("policy", "kwargs"),
+    [
+        ("reference", {"scenario": "paper_fig1"}),
+        ("reference", {"scenario": "paper_fig1", "schedule": "uniform"}),
+        ("reference", {"scenario": None, "topology": "complete", "n_agents": 5, "initial_state": "random"}),
+        ("minimum_time", {"scenario": None, "topology": "ring", "n_agents": 6, "schedule": "uniform"}),
+        ("minimum_time", {"scenario": None, "topology": "random", "n_agents": 12, "dim": 2}),
+        ("minimum_time", {"scenario": None, "topology": "path", "n_agents": 6, "n_intervals": 5}),
+    ],
+)
+def test_every_law_that_ends_below_1e_9_spent_at_least_e_star(policy, kwargs):
+    config = make_config(**kwargs)
+    for seed in (0, 1, 2):
+        act = "reference" if policy == "reference" else MinimumTimePolicy(config)
+        run = fxc_env.simulate(act, seed=seed, points_per_interval=1, **kwargs)
+        assert run.metrics.relative_deadline_error < 1e-9
+        bound = float(energy_bound(run.x[0], run.v[0], run.config.settling_time))
+        assert run.metrics.energy >= bound > 0
+
+
+def test_the_paper_numbers_the_reference_spends_far_above_e_star():
+    run = fxc_env.simulate("reference", "paper_fig1", points_per_interval=1)
+    ratio = run.metrics.energy / float(energy_bound(PAPER_X0, PAPER_V0, 20.0))
+    assert 1e7 < ratio < 3e7  # 9.16e7 m²/s³ against 5.46
+
+
+@pytest.mark.parametrize("n", [2, 3, 6, 20, 101])
+def test_a_directed_ring_of_n_needs_n_minus_1_intervals_and_so_does_a_path(n):
+    assert propagation_bound(make_topology("ring", n)) == n - 1
+    assert propagation_bound(make_topology("path", n)) == n - 1
+
+
+def test_a_star_and_a_complete_graph_need_one_interval():
+    assert propagation_bound(make_topology("star", 12)) == 1
+    assert propagation_bound(make_topology("complete", 7)) == 1
+
+
+def test_a_switching_period_is_counted_through_the_time_varying_graph():
+    # Assumed Fig. 1: G_0 = {0->1, 3->4}, G_1 = {1->2, 4->5}, G_2 = {2->3, 5->0}. Agent 2 sends
+    # first on interval 2 (G_2), then 3, 4, 5, 0 one interval each: agent 1 hears it after 7.
+    assert propagation_bound(make_topology("paper_fig1")) == 7
+    # The same ring as one fixed graph: 5.
+    ring = [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 0)]
+    assert propagation_bound(make_topology(ring, 6)) == 5
+
+
+def test_only_the_roots_count_on_a_graph_with_a_spanning_tree():
+    # 0 <-> 1 is the root component; 1 -> 2 -> 3 hangs off it: root 0 reaches 3 in 3 hops.
+    topology = make_topology([(0, 1), (1, 0), (1, 2), (2, 3)], 4)
+    assert propagation_bound(topology) == 3
+
+
+def test_no_law_beats_the_propagation_bound_the_minimum_time_law_meets_it_on_a_ring():
+    config = make_config(topology="ring", n_agents=7, n_intervals=12, schedule="uniform")
+    run = fxc_env.simulate(
+        MinimumTimePolicy(config),
+        None,
+        points_per_interval=1,
+        topology="ring",
+        n_agents=7,
+        n_intervals=12,
+        schedule="uniform",
+    )
+    errors = run.disagreement / run.disagreement[0]
+    assert settled_interval(errors) == propagation_bound(config.topology) == 6
+    assert errors[5] > 1e-3  # one interval short, a root has not been heard everywhere
+
+
+def test_settled_interval_counts_the_intervals_after_which_the_error_stayed_below():
+    errors = np.array(
+        [
+            [1.0, 0.5, 1e-10, 1e-12],  # below from k = 2 on
+            [1.0, 1e-10, 1e-3, 1e-12],  # dipped, came back up, below from k = 3
+            [1.0, 1.0, 1.0, 1.0],  # never
+            [1.0, np.nan, 1e-12, 1e-13],  # NaN counts as above
+        ]
+    )
+    np.testing.assert_array_equal(settled_interval(errors), [2, 3, np.inf, 2])
+    np.testing.assert_array_equal(settled_interval(errors, tol=0.7), [1, 1, np.inf, 2])
+    assert settled_interval(np.zeros((2, 3, 5))).shape == (2, 3)
+
+
+@pytest.mark.parametrize(
+    ("call", "name"),
+    [
+        (lambda: energy_bound([1.0, 2.0], [1.0], 1.0), "v0"),
+        (lambda: energy_bound([1.0, np.nan], [1.0, 2.0], 1.0), "x0"),
+        (lambda: energy_bound([1.0, 2.0], [1.0, 2.0], 0.0), "settling_time"),
+        (lambda: linear_energy_bound("double_integrator", np.zeros((2, 2, 1)), 1.0), "model"),
+        (lambda: linear_energy_bound(LinearModel.named("double_integrator"), np.zeros((2, 3, 1)), 1.0), "z0"),
+        (lambda: propagation_bound([(0, 1)]), "topology"),
+        (lambda: settled_interval([1.0, 0.1], tol=-1.0), "tol"),
+    ],
+)
+def test_bad_arguments_are_named(call, name):
+    with pytest.raises(ArgumentError, match=f"^{name}:"):
+        call()
