@@ -18,6 +18,7 @@ once, when a run starts (never on ``--resume``); the run's ``config.json`` recor
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -47,10 +48,62 @@ def teacher_policy(name: str, config: Any) -> Any:
     return teachers[name](config)
 
 
-def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int) -> dict[str, float]:
-    """Behaviour-clone the reference into ``model`` (an SB3 PPO) on ``venv``; returns the fit's figures.
+@dataclass(frozen=True)
+class Demonstrations:
+    """The teacher's demonstrations on a VecEnv of ``n_envs`` sub-environments (one per agent and episode).
 
-    ``settings`` overrides :data:`DEFAULTS`. Deterministic for a given ``seed`` on the CPU.
+    ``steps`` is a whole number of episodes of K steps. Arrays are float32:
+    ``observations [steps, n_envs, obs_size]`` (what each agent saw), ``actions
+    [steps, n_envs, action_size]`` (the teacher's clean action there, the label; the executed
+    action had noise added) and ``returns [steps, n_envs]`` (the discounted return from each
+    step to its episode's end, the value target).
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    returns: np.ndarray
+
+
+def demonstrations(
+    venv: Any, teacher: Any, samples: int, noise: float, gamma: float, rng: np.random.Generator
+) -> Demonstrations:
+    """Roll ``teacher`` out on ``venv`` for at least ``samples`` agent-steps, rounded up to whole episodes.
+
+    The executed actions are the teacher's plus Gaussian noise of standard deviation
+    ``noise`` (normalized units, drawn from ``rng``), so that states off the teacher's path
+    are covered; the labels are the clean actions.
+    """
+    from fxc_env.config import config_of
+
+    config = config_of(venv, "imitation")
+    n_envs, episode = venv.num_envs, config.n_intervals
+    steps = math.ceil(int(samples) / (n_envs * episode)) * episode  # whole episodes
+    observations = np.empty((steps, n_envs, config.layout.size), dtype=np.float32)
+    actions = np.empty((steps, n_envs, config.action_size), dtype=np.float32)
+    rewards = np.empty((steps, n_envs))
+    dones = np.empty((steps, n_envs), dtype=bool)
+    obs = venv.reset()
+    for t in range(steps):
+        target = teacher(obs)
+        observations[t], actions[t] = obs, target
+        obs, rewards[t], dones[t], _ = venv.step(target + noise * rng.standard_normal(target.shape))
+    returns = np.empty((steps, n_envs), dtype=np.float32)
+    following = np.zeros(n_envs)
+    for t in reversed(range(steps)):
+        following = rewards[t] + gamma * following * ~dones[t]
+        returns[t] = following
+    return Demonstrations(observations, actions, returns)
+
+
+def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int) -> dict[str, float]:
+    """Behaviour-clone the teacher into ``model`` (an SB3 PPO) on ``venv``; returns the fit's figures.
+
+    ``settings`` overrides :data:`DEFAULTS`; an unknown key or teacher raises
+    :class:`~fxc_env.core.validation.ArgumentError` naming ``hyperparams`` before ``model``
+    or ``venv`` is touched. Returns ``samples`` (agent-steps demonstrated),
+    ``relative_action_rms_error`` (RMS of the mean action's error over RMS of the label, on
+    up to 100,000 of the demonstrations) and ``value_rms_error``. Deterministic for a given
+    ``seed`` on the CPU.
     """
     import torch
 
@@ -65,29 +118,12 @@ def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int
     config = config_of(venv, "imitation")
     reference = teacher_policy(str(options["teacher"]), config)
     rng = np.random.default_rng(seed)
-    n_envs, episode = venv.num_envs, config.n_intervals
-    steps = math.ceil(int(options["samples"]) / (n_envs * episode)) * episode  # whole episodes
-    obs_size = config.layout.size
-    observations = np.empty((steps, n_envs, obs_size), dtype=np.float32)
-    targets = np.empty((steps, n_envs, config.action_size), dtype=np.float32)
-    rewards = np.empty((steps, n_envs))
-    dones = np.empty((steps, n_envs), dtype=bool)
-    obs = venv.reset()
-    for t in range(steps):
-        target = reference(obs)
-        observations[t], targets[t] = obs, target
-        obs, rewards[t], dones[t], _ = venv.step(target + options["noise"] * rng.standard_normal(target.shape))
-    gamma = float(model.gamma)
-    returns = np.empty((steps, n_envs), dtype=np.float32)
-    following = np.zeros(n_envs)
-    for t in reversed(range(steps)):
-        following = rewards[t] + gamma * following * ~dones[t]
-        returns[t] = following
+    data = demonstrations(venv, reference, int(options["samples"]), options["noise"], float(model.gamma), rng)
 
     policy = model.policy
-    x = torch.as_tensor(observations.reshape(-1, obs_size))
-    y = torch.as_tensor(targets.reshape(-1, config.action_size))
-    g = torch.as_tensor(returns.reshape(-1, 1))
+    x = torch.as_tensor(data.observations.reshape(-1, config.layout.size))
+    y = torch.as_tensor(data.actions.reshape(-1, config.action_size))
+    g = torch.as_tensor(data.returns.reshape(-1, 1))
     optimizer = torch.optim.Adam(policy.parameters(), lr=float(options["learning_rate"]))
     generator = torch.Generator().manual_seed(seed)
     batch = int(options["batch_size"])
@@ -113,7 +149,7 @@ def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int
         action_error = float(torch.sqrt(torch.mean((mean - y[sample]) ** 2)) / torch.sqrt(torch.mean(y[sample] ** 2)))
         value_error = float(torch.sqrt(torch.mean((policy.predict_values(x[sample]) - g[sample]) ** 2)))
     return {
-        "samples": float(steps * n_envs),
+        "samples": float(len(x)),
         "relative_action_rms_error": action_error,
         "value_rms_error": value_error,
     }
