@@ -31,6 +31,9 @@ from fxc_env.baselines.suite import (
     full_suite,
     learned_contender,
     models_suite,
+    optimality_contenders,
+    optimality_suite,
+    quick_optimality_suite,
     quick_suite,
     realism_suite,
 )
@@ -132,10 +135,12 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--quick", action="store_true", help="a smaller suite that runs in under a minute")
     parser.add_argument(
         "--suite",
-        choices=("full", "realism", "models"),
+        choices=("full", "realism", "models", "optimality"),
         default="full",
         help="'full': topologies x sizes x budgets; 'realism': input limits, noise and dropout; 'models': every "
-        "agent model (single, double, triple, quadruple integrators, damped, oscillator) at K = 200, 400",
+        "agent model (single, double, triple, quadruple integrators, damped, oscillator) at K = 200, 400; "
+        "'optimality': error, energy / E* and intervals used against the propagation bound (rings and random "
+        "digraphs N = 20, 100, paper_fig1, K = 200, reference and minimum_time on both schedules)",
     )
     parser.add_argument("--out", default="out/benchmark", help="directory for table.md, CSVs and PNGs")
     parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per case")
@@ -199,12 +204,18 @@ def benchmark_command(args: argparse.Namespace) -> int:
             raise ArgumentError(f"--policies: unknown name(s) {unknown}; expected some of {tuple(BUILTIN_SETTINGS)}")
         if not names and not args.policy:
             raise ArgumentError(f"--policies: expected at least one of {tuple(BUILTIN_SETTINGS)} (or a --policy)")
-    suites = {"full": full_suite, "realism": realism_suite, "models": models_suite}
-    make_suite = quick_suite if args.quick else suites[args.suite]
+    suites = {"full": full_suite, "realism": realism_suite, "models": models_suite, "optimality": optimality_suite}
+    if args.suite == "optimality":
+        make_suite = quick_optimality_suite if args.quick else optimality_suite
+    else:
+        make_suite = quick_suite if args.quick else suites[args.suite]
     suite = make_suite(args.seeds, **({"fine_intervals": args.fine_intervals} if args.fine_intervals else {}))
     if names is None and args.suite == "models":
         names = ["reference"]  # the analytic baselines are the double integrator's laws
-    contenders = builtin_contenders(names)
+    if names is None and args.suite == "optimality":
+        contenders = optimality_contenders()  # the reference and minimum_time on both schedules
+    else:
+        contenders = builtin_contenders(names)
     for spec in args.policy:
         contenders.append(
             learned_contender(

@@ -7,6 +7,8 @@
    case and K (medians over seeds).
 3. ``disagreement_vs_time.png``: median ``D(t) / D(0)`` over seeds on the trace case,
    every policy on one axis.
+4. ``error_vs_energy_ratio.png`` (optimality suite): deadline error against energy / E*, the
+   bound E* drawn.
 """
 
 from __future__ import annotations
@@ -25,7 +27,20 @@ if TYPE_CHECKING:
 
 #: Values below this (exact agreement, round-off) are drawn at it on log axes.
 DISPLAY_FLOOR = 1e-18
-COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
+COLOURS = (
+    "#1f77b4",
+    "#d62728",
+    "#2ca02c",
+    "#9467bd",
+    "#ff7f0e",
+    "#8c564b",
+    "#e377c2",
+    "#17becf",
+    "#bcbd22",
+    "#7f7f7f",
+)
+#: One marker per policy where points of several policies may coincide (the optimality figure).
+MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">")
 
 
 def _colour(contenders: list[Contender], name: str) -> str:
@@ -140,11 +155,53 @@ def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list
     return save_figure(fig, path)
 
 
+def optimality_figure(results: list[JobResult], contenders: list[Contender], path: Path) -> Path:
+    """Deadline error against energy / E* (log-log), one point per (policy, case), medians over seeds.
+
+    Exact consensus costs at least E* (:func:`fxc_env.core.optimality.energy_bound`): no point
+    with an error at round-off lies left of the bound line at energy / E* = 1.
+    """
+    fig = new_figure(7.5, 5.0)
+    ax = fig.subplots()
+    for contender in contenders:
+        mine = [r for r in results if r.error is None and r.job.contender.name == contender.name]
+        if not mine:
+            continue
+        ratio = [_visible(quantiles(r.metrics["energy_ratio"])[0]) for r in mine]
+        error = [_visible(quantiles(r.metrics["relative_deadline_error"])[0]) for r in mine]
+        index = [c.name for c in contenders].index(contender.name)
+        ax.scatter(
+            ratio,
+            error,
+            s=28,
+            marker=MARKERS[index % len(MARKERS)],
+            facecolors="none",
+            edgecolors=_colour(contenders, contender.name),
+            label=contender.name if contender.sampled else f"{contender.name} (fine K)",
+        )
+    ax.axvline(1.0, color="black", lw=1.0, ls="--", label="E* (least energy of exact consensus)")
+    ax.axvspan(1e-3, 1.0, color="grey", alpha=0.12)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlim(left=0.3)
+    ax.set_xlabel("energy / E* (median over seeds)")
+    ax.set_ylabel("relative deadline error D(T_s)/D(0) (median over seeds)")
+    ax.set_title(
+        f"error against energy over the bound: one point per policy and case; 0 drawn at {DISPLAY_FLOOR:g}", fontsize=9
+    )
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    return save_figure(fig, path)
+
+
 def write_figures(results: list[JobResult], suite: Suite, contenders: list[Contender], out_dir: Path) -> list[Path]:
-    """Write the three PNGs into ``out_dir``."""
+    """Write the three PNGs into ``out_dir`` (four for the optimality suite: :func:`optimality_figure`)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    return [
+    files = [
         deadline_vs_budget_figure(results, suite, contenders, out_dir / "deadline_vs_budget.png"),
         energy_vs_error_figure(results, contenders, out_dir / "energy_vs_error.png"),
         disagreement_figure(results, suite, contenders, out_dir / "disagreement_vs_time.png"),
     ]
+    if suite.name.startswith("optimality"):
+        files.append(optimality_figure(results, contenders, out_dir / "error_vs_energy_ratio.png"))
+    return files

@@ -372,6 +372,44 @@ def generalisation_suite(n_seeds: int = 20, budgets: tuple[int, ...] = (200,)) -
     )
 
 
+def optimality_cases(sizes: tuple[int, ...] = (20, 100)) -> tuple[BenchmarkCase, ...]:
+    """``paper_fig1`` and directed rings and random digraphs at each size: slow and fast mixing."""
+    return (BenchmarkCase("paper_fig1", 6), *(BenchmarkCase(f, n) for n in sizes for f in ("ring", "random")))
+
+
+def optimality_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
+    """How far from optimal (README, "How far from optimal"): :func:`optimality_cases` at K = 200, T_s = 20 s.
+
+    Every job reports its episodes' bounds (``E*`` and the propagation bound) beside the deadline
+    error, the energy ratio and the intervals used; run it with :func:`optimality_contenders`.
+    """
+    return Suite(
+        cases=optimality_cases(),
+        seeds=tuple(range(n_seeds)),
+        budgets=(200,),
+        fine_intervals=fine_intervals,
+        trace_case=BenchmarkCase("ring", 20),
+        name="optimality",
+    )
+
+
+def quick_optimality_suite(n_seeds: int = 5, fine_intervals: int = 1000) -> Suite:
+    """:func:`optimality_suite` at N = 20 only (and ``paper_fig1``), a coarser fine K: seconds."""
+    return replace(optimality_suite(n_seeds, fine_intervals), cases=optimality_cases((20,)), name="optimality-quick")
+
+
+def optimality_contenders() -> list[Contender]:
+    """The reference and the minimum-time law on both schedules, and the other analytic laws with their settings."""
+    both = [
+        Contender("reference", "reference", True, "paper", "plan", "normalized"),
+        Contender("reference/uniform", "reference", True, "uniform", "plan", "normalized"),
+        Contender("minimum_time", "minimum_time", True, "uniform", "plan", "normalized"),
+        Contender("minimum_time/paper", "minimum_time", True, "paper", "plan", "normalized"),
+    ]
+    others = [name for name in BUILTIN_SETTINGS if name not in ("reference", "minimum_time")]
+    return both + builtin_contenders(others)
+
+
 def contender_config(contender: Contender, case: BenchmarkCase, n_intervals: int, settling_time: float) -> EnvConfig:
     """The environment a contender meets on a case at K intervals."""
     return make_config(

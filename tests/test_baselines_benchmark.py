@@ -133,3 +133,28 @@ def test_a_damaged_saved_policy_is_an_argument_error_naming_policy(tmp_path):
             learned_contender(str(path), name="--policy")
     with pytest.raises(ArgumentError, match=r"^--policy: no saved model"):
         learned_contender(str(tmp_path / "missing.zip"), name="--policy")
+
+
+def test_the_optimality_suite_reports_every_law_against_e_star_and_the_propagation_bound(tmp_path, capsys):
+    argv = ["benchmark", "--suite", "optimality", "--quick", "--seeds", "2", "--out", str(tmp_path), "--no-progress"]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "### How far from optimal" in printed
+    with Image.open(tmp_path / "error_vs_energy_ratio.png") as image:
+        assert image.format == "PNG" and image.size[0] > 400
+    rows = list(csv.DictReader((tmp_path / "results.csv").open()))
+    by = {(r["policy"], r["case"]): r for r in rows}
+    # Both schedules for the reference and the minimum-time law, the other analytic laws beside them.
+    assert {"reference", "reference/uniform", "minimum_time", "minimum_time/paper", "linear", "finite_time"} <= {
+        policy for policy, _ in by
+    }
+    ring = by[("minimum_time", "ring N=20")]
+    assert float(ring["relative_deadline_error_q75"]) <= 1e-12
+    assert float(ring["settled_interval_median"]) == float(ring["propagation_bound_median"]) == 19
+    assert by[("minimum_time/paper", "paper_fig1 N=6")]["error"].startswith("topology:")
+    # E* bounds every episode that ends in exact consensus (episodes.csv: one row per episode).
+    episodes = list(csv.DictReader((tmp_path / "episodes.csv").open()))
+    exact = [e for e in episodes if float(e["relative_deadline_error"]) < 1e-9]
+    assert len(exact) >= 10
+    assert all(float(e["energy_ratio"]) >= 1.0 for e in exact)
+    assert all(float(e["settled_interval"]) >= float(e["propagation_bound"]) for e in exact)
