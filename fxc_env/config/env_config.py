@@ -15,37 +15,34 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.config.arguments import (
+    ARGUMENTS,
+    DEFAULT_ACTION_BOUNDS,
+    ENV_ARGUMENTS,
+    MAX_CYCLES,
+    NO_FALLBACK,
+    RENDER_MODE,
+    RENDER_MODES,
+    env_arguments,
+)
 from fxc_env.config.layout import CLOCK_SIZE, ObservationLayout
 from fxc_env.config.scenarios import scenario_preset
 from fxc_env.core import validation
 from fxc_env.core.families import AnyFamily, is_family_spec, make_family
 from fxc_env.core.graphs import Topology, make_topology
-from fxc_env.core.linear import IntervalMaps, LinearModel, formation_offsets, model_matrices
+from fxc_env.core.linear import IntervalMaps, LinearModel, check_horizon, formation_offsets, model_matrices
 from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 
-__all__ = ["CLOCK_SIZE", "EnvConfig", "ObservationLayout", "config_of", "make_config"]
-
-ACTION_MODES = ("plan", "accel")
-SWITCHING_MODES = ("periodic", "random")
-OBS_MODES = ("normalized", "raw")
-OBS_FORMATS = ("flat", "dict")
-OBS_DTYPES = ("float64", "float32")
-GLOBAL_STATES = ("raw", "normalized")
-RENDER_MODES = ("human", "rgb_array")
-
-#: Half-widths of the action Box per (action_mode, obs_mode). Normalised bounds hold the
-#: reference for every state (its plan is at most 2 and 1, its accel ends at most 10 and 8).
-#: Raw bounds are nominal: no fixed bound holds every graph and scale. They hold the
-#: reference from the documented random initial ranges on every built-in topology up to
-#: N = 100 (the slowest, a 100-ring, peaks near 4e7 m/s^2 in accel mode); pass
-#: ``action_bound`` for larger or slower-mixing cases.
-DEFAULT_ACTION_BOUNDS = {
-    ("plan", "normalized"): 2.0,
-    ("accel", "normalized"): 10.0,
-    ("plan", "raw"): 1.0e3,
-    ("accel", "raw"): 1.0e9,
-}
+__all__ = [
+    "CLOCK_SIZE",
+    "DEFAULT_ACTION_BOUNDS",
+    "RENDER_MODES",
+    "EnvConfig",
+    "ObservationLayout",
+    "config_of",
+    "make_config",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -159,12 +156,12 @@ class EnvConfig:
 
 def check_render_mode(render_mode: Any) -> str | None:
     """``render_mode`` if it is None or one of :data:`RENDER_MODES`."""
-    return None if render_mode is None else validation.choice("render_mode", render_mode, RENDER_MODES)
+    return RENDER_MODE.check(render_mode)
 
 
 def check_max_cycles(max_cycles: Any) -> int | None:
     """``max_cycles`` if it is None or an integer >= 1."""
-    return None if max_cycles is None else validation.integer("max_cycles", max_cycles, 1)
+    return MAX_CYCLES.check(max_cycles)
 
 
 def config_of(source: Any, who: str = "policy") -> EnvConfig:
@@ -196,15 +193,21 @@ def _merged_settings(scenario: str | None, given: dict[str, Any], initial_state:
         if initial_state != "random":
             raise ArgumentError(f"initial_state: expected None, 'random' or a pair (x0, v0), got {initial_state!r}")
         merged.pop("initial_state")
-    merged.setdefault("topology", "paper_fig1")
-    merged.setdefault("settling_time", 20.0)
-    merged.setdefault("schedule", "paper")
-    merged.setdefault("dim", 1)
-    merged.setdefault("position_range", 5.0)
-    merged.setdefault("velocity_range", 2.0)
+    for argument in ENV_ARGUMENTS:
+        if argument.fallback is not NO_FALLBACK and argument.name not in _CONDITIONAL_FALLBACKS:
+            merged.setdefault(argument.name, argument.fallback)
     if isinstance(merged["schedule"], str):
-        merged.setdefault("n_intervals", 200)
+        merged.setdefault("n_intervals", ARGUMENTS["n_intervals"].fallback)
     return merged
+
+
+#: Fallbacks that apply only sometimes: K to a named schedule (interval lengths set K), N to a
+#: named topology or a family (an edge list or a graph sets N).
+_CONDITIONAL_FALLBACKS = ("n_intervals", "n_agents")
+
+
+#: The arguments a named scenario may set (the others keep their defaults unless given).
+_FROM_SCENARIO = tuple(argument.name for argument in ENV_ARGUMENTS if argument.from_scenario)
 
 
 def _initial_state(value: Any, n_agents: int, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -258,15 +261,15 @@ def _topology(merged: dict[str, Any], topology_seed: Any) -> tuple[Topology, Any
     spec = merged["topology"]
     if is_family_spec(spec):
         family = make_family(spec)
-        n_agents = validation.integer("n_agents", merged.get("n_agents", 6), 1, validation.MAX_AGENTS)
-        seed = validation.optional_seed("topology_seed", topology_seed)
+        n_agents = ARGUMENTS["n_agents"].check(merged.get("n_agents", ARGUMENTS["n_agents"].fallback))
+        seed = ARGUMENTS["topology_seed"].check(topology_seed)
         return family.draw(n_agents, np.random.default_rng(seed)), family
     topology = make_topology(
         spec,
         merged.get("n_agents"),
         seed=topology_seed,
-        mean_in_degree=merged.get("mean_in_degree", 2.0),
-        period=merged.get("topology_period", 1),
+        mean_in_degree=merged["mean_in_degree"],
+        period=merged["topology_period"],
     )
     return topology, None
 
@@ -306,57 +309,44 @@ def make_config(
 ) -> EnvConfig:
     """Validate the environment's keyword arguments (a scenario's preset first, explicit ones win).
 
-    The arguments are those of :class:`fxc_env.envs.parallel.ConsensusParallelEnv` (its card
-    has the table). ``topology`` may be a family (:func:`fxc_env.core.families.make_family`),
-    drawn anew at every reset; ``config.topology`` is then its draw from ``topology_seed``.
-    ``obs_slots`` pads the observation to at least that many neighbour rows (default: the
-    largest in-degree of the topology or of any draw of the family). ``position_range`` and
-    ``velocity_range`` (default 5 m and 2 m/s) are half-widths or ``(low, high)`` ranges
-    drawn log-uniformly per episode. Arguments left at None take the scenario's value. Realism options are off by default: ``u_max`` clips every input component to
-    ``[-u_max, u_max]`` m/s^2 (integrated exactly; a set of numbers is drawn per episode);
-    ``obs_noise`` adds Gaussian noise of that standard deviation (m, m/s) to each relative
-    measurement; ``link_dropout`` loses each edge at each sampling instant with that
-    probability; ``switching="random"`` draws each interval's graph from the topology set.
-    ``agent_model`` (default ``"double_integrator"``) is a name of
-    :data:`fxc_env.core.linear.MODEL_NAMES` (with ``order`` for ``"integrator_chain"``,
-    ``damping`` for ``"damped"``, ``frequency`` for ``"oscillator"``) or a controllable pair
-    ``(A, B)`` per axis; ``formation_offsets`` (positions ``(N, dim)`` or full states
-    ``(N, dim, n)``) makes agents agree on ``z_i - e^{A t} h_i``.
+    The arguments, their types, defaults and allowed values are the table
+    :data:`fxc_env.config.arguments.ENV_ARGUMENTS` (the environment card shows it:
+    ``help(fxc_env.parallel_env)``). Arguments left at None take the scenario's value, else
+    the table's fallback (the card's ``[value]``). ``topology`` may be a family
+    (:func:`fxc_env.core.families.make_family`), drawn anew at every reset; ``config.topology``
+    is then its draw from ``topology_seed``. ``obs_slots`` pads the observation to at least
+    that many neighbour rows (default: the largest in-degree of the topology or of any draw of
+    the family). ``position_range`` and ``velocity_range`` are half-widths (m, m/s) or
+    ``(low, high)`` ranges drawn log-uniformly per episode. Realism options are off by
+    default: ``u_max`` clips every input component to ``[-u_max, u_max]`` m/s^2 (integrated
+    exactly; a set of numbers is drawn per episode); ``obs_noise`` adds Gaussian noise of that
+    standard deviation (m, m/s) to each relative measurement; ``link_dropout`` loses each edge
+    at each sampling instant with that probability; ``switching="random"`` draws each
+    interval's graph from the topology set. ``agent_model`` (default ``"double_integrator"``)
+    is a name of :data:`fxc_env.core.linear.MODEL_NAMES` (with ``order`` for
+    ``"integrator_chain"``, ``damping`` for ``"damped"``, ``frequency`` for ``"oscillator"``)
+    or a controllable pair ``(A, B)`` per axis; ``formation_offsets`` (positions ``(N, dim)``
+    or full states ``(N, dim, n)``) makes agents agree on ``z_i - e^{A t} h_i``.
+
+    Raises:
+        ArgumentError: naming the first bad argument and what was expected (a ``TypeError``
+            too for a wrong type).
     """
-    given = {
-        "n_agents": n_agents,
-        "topology": topology,
-        "settling_time": settling_time,
-        "n_intervals": n_intervals,
-        "schedule": schedule,
-        "dim": dim,
-        "initial_state": initial_state,
-        "mean_in_degree": mean_in_degree,
-        "topology_period": topology_period,
-        "obs_slots": obs_slots,
-        "position_range": position_range,
-        "velocity_range": velocity_range,
-        "u_max": u_max,
-        "agent_model": agent_model,
-        "order": order,
-        "damping": damping,
-        "frequency": frequency,
-        "formation_offsets": formation_offsets,
-    }
+    arguments = env_arguments(locals())
+    given = {name: arguments[name] for name in _FROM_SCENARIO}
     merged = _merged_settings(scenario, given, initial_state)
-    dim_value = validation.integer("dim", merged["dim"], 1, validation.MAX_DIM)
+    dim_value = ARGUMENTS["dim"].check(merged["dim"])
     topo, family = _topology(merged, topology_seed)
     sched = make_schedule(merged["settling_time"], merged.get("n_intervals"), merged["schedule"])
-    action_mode = validation.choice("action_mode", action_mode, ACTION_MODES)
-    obs_mode = validation.choice("obs_mode", obs_mode, OBS_MODES)
-    bound = (
-        DEFAULT_ACTION_BOUNDS[(action_mode, obs_mode)]
-        if action_bound is None
-        else validation.real("action_bound", action_bound, positive=True)
-    )
+    action_mode = ARGUMENTS["action_mode"].check(action_mode)
+    obs_mode = ARGUMENTS["obs_mode"].check(obs_mode)
+    bound = ARGUMENTS["action_bound"].check(action_bound)
+    if bound is None:
+        bound = DEFAULT_ACTION_BOUNDS[(action_mode, obs_mode)]
     model_name, model = _agent_model(merged)
     u_max_choices = _input_limits(merged.get("u_max"))
     if model is not None:
+        check_horizon(model, sched.settling_time)
         if action_mode != "plan":
             raise ArgumentError(
                 f"action_mode: {model_name!r} agents take plans only (the minimum-energy input); 'accel' is the "
@@ -376,18 +366,18 @@ def make_config(
         obs_slots=_obs_slots(merged.get("obs_slots"), topo, family),
         action_mode=action_mode,
         obs_mode=obs_mode,
-        obs_format=validation.choice("obs_format", obs_format, OBS_FORMATS),
-        obs_dtype=validation.choice("obs_dtype", obs_dtype, OBS_DTYPES),
-        global_state=validation.choice("global_state", global_state, GLOBAL_STATES),
+        obs_format=ARGUMENTS["obs_format"].check(obs_format),
+        obs_dtype=ARGUMENTS["obs_dtype"].check(obs_dtype),
+        global_state=ARGUMENTS["global_state"].check(global_state),
         action_bound=bound,
-        reward_floor=validation.real("reward_floor", reward_floor, positive=True),
+        reward_floor=ARGUMENTS["reward_floor"].check(reward_floor),
         initial_state=_initial_state(merged.get("initial_state"), topo.n_agents, dim_value),
         position_range=_scale_range("position_range", merged["position_range"]),
         velocity_range=_scale_range("velocity_range", merged["velocity_range"]),
         u_max_choices=u_max_choices,
-        obs_noise=validation.real("obs_noise", obs_noise, 0.0, validation.STATE_LIMIT),
-        link_dropout=validation.probability("link_dropout", link_dropout),
-        switching=validation.choice("switching", switching, SWITCHING_MODES),
+        obs_noise=ARGUMENTS["obs_noise"].check(obs_noise),
+        link_dropout=ARGUMENTS["link_dropout"].check(link_dropout),
+        switching=ARGUMENTS["switching"].check(switching),
         scenario=scenario,
         model=model,
         agent_model=model_name,
