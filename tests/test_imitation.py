@@ -38,10 +38,18 @@ def parameters(model) -> list[np.ndarray]:
     return [p.detach().numpy().copy() for p in model.policy.parameters()]
 
 
+@pytest.fixture(scope="module", autouse=True)
+def one_torch_thread():
+    """Small networks: one thread is faster than several sharing the machine's cores."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 @pytest.fixture(scope="module")
 def imitated():
     """PPO's policy after imitating the reference on 48,000 agent-steps (10 episodes of each of 24 agents)."""
-    torch.set_num_threads(1)
     venv = vec_env(0)
     model = ppo(venv)
     fit = imitate_reference(model, venv, {"samples": 48_000, "epochs": 20, "batch_size": 1024, "log_std": -2.5}, 0)
