@@ -24,8 +24,8 @@ after N - 1 intervals, :func:`fxc_env.core.optimality.propagation_bound`. The fa
 order (each next one kills the mode whose partial product is largest), so partial products stay
 small; afterwards the agents play the paper's plan (``G_k = P_k``, eq. 11), which holds consensus
 and damps the round-off left. The consensus value is the paper's, ``xi^T z(0)`` coasted (Theorem 1:
-every factor is a polynomial in ``Ŵ`` equal to 1 at 0). With fewer intervals K than factors the first
-K in Leja order are played.
+every factor is a polynomial in ``Ŵ`` equal to 1 at 0). With fewer intervals K than factors, the
+design plays the subset that leaves the smallest predicted residual (:func:`budget_factors`).
 
 - Source: this project (a deadbeat / finite-time "minimal polynomial" design in the spirit of
   Sundaram & Hadjicostis 2007 and Kibangou 2012, on the sampled-data plan of the paper).
@@ -130,11 +130,57 @@ def leja_factors(eigenvalues: np.ndarray) -> list[Factor]:
     return [Factor(values[i]) for i in order]
 
 
+def _log_factor(points: np.ndarray, factor: Factor) -> np.ndarray:
+    """``log |1 - mu'/mu|`` (and of the conjugate for a pair) at ``points``, ``-inf`` where a mode dies."""
+    mu = factor.eigenvalue
+    with np.errstate(divide="ignore"):
+        value = np.log(np.abs(1.0 - points / mu))
+        if mu.imag != 0:
+            value = value + np.log(np.abs(1.0 - points / np.conj(mu)))
+    return value
+
+
+def budget_factors(eigenvalues: np.ndarray, n_intervals: int) -> tuple[list[Factor], float]:
+    """The factors to play in K intervals, and the largest modal residual they leave (predicted).
+
+    When every factor fits, all of them (:func:`leja_factors`; residual 0). Otherwise the best, by the
+    largest predicted ``|q(mu')|`` over the nonzero eigenvalues, of: the first factors in Leja order,
+    or the factors of the s slowest modes (smallest ``|mu|``, played in Leja order) for the best s,
+    each followed by the paper's plan (factor ``1 - mu'``) on the intervals left. The prediction is
+    modal (exact for normal ``Ŵ``, a ring's); the paper's plan alone is the case s = 0.
+    """
+    points = np.asarray(eigenvalues, dtype=complex)
+    everything = leja_factors(points)
+    if sum(f.intervals for f in everything) <= n_intervals:
+        return everything, 0.0
+    with np.errstate(divide="ignore"):
+        reference = np.log(np.abs(1.0 - points))  # the paper's plan on one interval
+
+    def best_prefix(order: list[Factor]) -> tuple[float, int]:
+        log_q, used = np.zeros(len(points)), 0
+        best = (float(np.max(log_q + n_intervals * reference)), 0)
+        for s, factor in enumerate(order, start=1):
+            if used + factor.intervals > n_intervals:
+                break
+            log_q = log_q + _log_factor(points, factor)
+            used += factor.intervals
+            best = min(best, (float(np.max(log_q + (n_intervals - used) * reference)), s))
+        return best
+
+    leja_score, leja_count = best_prefix(everything)
+    slowest = sorted(everything, key=lambda f: abs(f.eigenvalue))
+    slow_score, slow_count = best_prefix(slowest)
+    if leja_score <= slow_score:
+        return everything[:leja_count], float(np.exp(leja_score))
+    chosen = leja_factors(np.array([f.eigenvalue for f in slowest[:slow_count]]))
+    return chosen, float(np.exp(slow_score))
+
+
 def gain_schedule(factors: list[Factor], intervals: np.ndarray) -> tuple[np.ndarray, int]:
     """The gains ``G_k`` ``(K, 2, 2)`` (physical units: ``[[1, s], [1/s, 1]]``) and the intervals the factors use.
 
     Factors are played in order while they fit in the K intervals; the remaining intervals play the
-    paper's plan ``G_k = P_k``.
+    paper's plan ``G_k = P_k`` (the factor of the eigenvalue 1).
     """
     K = len(intervals)
     coasting = np.zeros((K, 2, 2))
@@ -187,11 +233,13 @@ class MinimumTimePolicy:
         self.config = config
         self.layout = config.layout
         intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
-        self.factors = leja_factors(nonzero_eigenvalues(config.topology))
+        eigenvalues = nonzero_eigenvalues(config.topology)
+        #: The needed intervals: one per real eigenvalue, two per complex pair.
+        self.needed_intervals = int(np.sum(eigenvalues.imag >= 0) + np.sum(eigenvalues.imag > 0))
+        #: The factors played, and the largest modal residual they leave (0 when all fit in K).
+        self.factors, self.predicted_residual = budget_factors(eigenvalues, config.n_intervals)
         #: ``(K, 2, 2)`` gains in physical units, and the intervals the factors use.
         self.gains, self.factor_intervals = gain_schedule(self.factors, intervals)
-        #: The needed intervals: one per real eigenvalue, two per complex pair.
-        self.needed_intervals = sum(f.intervals for f in self.factors)
         # Normalized rows are (x_j - x_i)/s and T (v_j - v_i)/s; plans alpha_x = a_x/s, alpha_v = T a_v/s:
         # the gain in those units is S G S^{-1} with S = diag(1, T).
         scaled = self.gains.copy()
@@ -227,6 +275,7 @@ class MinimumTimePolicy:
             "needed_intervals": float(self.needed_intervals),
             "factor_intervals": float(self.factor_intervals),
             "min_abs_eigenvalue": float(magnitudes.min()),
+            "predicted_residual": self.predicted_residual,
         }
 
     def describe(self) -> dict[str, str]:

@@ -96,8 +96,8 @@ class BenchmarkCase:
         if not isinstance(self.topology, str):
             return f"{self.topology.name} (drawn)" + plane
         if self.topology == "random":
-            return "random (switching)" if self.period > 1 else "random (fixed)"
-        return self.topology
+            return ("random (switching)" if self.period > 1 else "random (fixed)") + plane
+        return self.topology + plane
 
     @property
     def key(self) -> str:

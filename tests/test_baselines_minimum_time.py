@@ -80,6 +80,17 @@ def test_fewer_intervals_than_factors_plays_the_first_ones_and_says_there_is_no_
     assert MinimumTimePolicy(make_config(topology="ring", n_agents=12, n_intervals=11)).guarantee().startswith("exact")
 
 
+@pytest.mark.parametrize(("topology", "n"), [("ring", 40), ("random", 60)])
+def test_with_fewer_intervals_than_factors_it_does_no_worse_than_the_papers_plan(topology, n):
+    kwargs = {"topology": topology, "n_agents": n, "n_intervals": 20, "schedule": "uniform"}
+    policy = MinimumTimePolicy(make_config(**kwargs))
+    assert policy.needed_intervals > 20
+    for seed in (0, 1):
+        errors, _ = run(seed, **kwargs)
+        reference = fxc_env.simulate("reference", None, seed=seed, points_per_interval=1, **kwargs)
+        assert errors[-1] <= reference.metrics.relative_deadline_error * (1 + 1e-9)
+
+
 def test_leja_order_starts_at_the_largest_eigenvalue_and_keeps_each_complex_pair_as_one_factor():
     eigenvalues = nonzero_eigenvalues(make_topology("ring", 10))
     factors = leja_factors(eigenvalues)
