@@ -140,3 +140,16 @@ def test_a_refused_case_is_reported_as_not_run_in_the_benchmark():
     contender = builtin_contenders(["minimum_time"])[0]
     result = run_job(Job(contender, BenchmarkCase("paper_fig1", 6), 50, (0, 1), 20.0, False))
     assert result.error is not None and result.error.startswith("topology:")
+
+
+def test_fxc_evaluate_with_baselines_scores_it(tmp_path):
+    import csv
+
+    from fxc_env.cli import main
+
+    argv = ["evaluate", "--policy", "reference", "--baselines", "--seeds", "2", "--out", str(tmp_path), "--no-progress"]
+    assert main([*argv, "--topology", "ring", "--n-agents", "8"]) == 0
+    rows = {r["policy"]: r for r in csv.DictReader((tmp_path / "results.csv").open())}
+    assert rows["minimum_time"]["error"] == ""
+    assert float(rows["minimum_time"]["relative_deadline_error_q75"]) <= 1e-12
+    assert float(rows["minimum_time"]["settled_interval_median"]) == 7  # N - 1
