@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from fxc_env.baselines.benchmark import add_benchmark_parser
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
-from fxc_env.speed.harness import add_arguments as speed_arguments
+from fxc_env.speed.command import add_arguments as speed_arguments
 from fxc_env.training.args import add_train_parser
 from fxc_env.training.evaluate import add_evaluate_parser
 from fxc_env.utils.cli_checks import output_directory
@@ -107,7 +107,7 @@ def simulate_command(args: argparse.Namespace) -> int:
 
 
 def speed_command(args: argparse.Namespace) -> int:
-    from fxc_env.speed import harness as speed
+    from fxc_env.speed import command as speed
     from fxc_env.utils.threads import pin_threads_or_reexec
 
     speed.check_arguments(args)

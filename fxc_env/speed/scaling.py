@@ -1,0 +1,115 @@
+"""One episode on random digraphs from N = 10^2 to 10^6: seconds per sampling interval, per agent-step, memory.
+
+Per N, an interval is the observations, the reference policy (paper eq. 11) and the exact
+step; the peak memory is traced while building and stepping. The goals: one interval at
+N = :data:`INTERVAL_GOAL_N` (``dim = 1``) within :data:`INTERVAL_GOAL` seconds, and
+``dim = 2`` within :data:`RATIO_GOAL` times ``dim = 1`` at N = :data:`RATIO_N`.
+"""
+
+from __future__ import annotations
+
+import time
+import tracemalloc
+from typing import Any
+
+import numpy as np
+
+from fxc_env.speed.timing import met
+
+#: The first N of the scaling table; ``--largest`` is at least this.
+SCALING_FIRST_N = 100
+
+
+#: The scaling table's dimensions: the paper's ``dim = 1``, then the plane and space.
+SCALING_DIMS = (1, 2, 3)
+
+#: N at which the table compares each ``dim`` with ``dim = 1``, and the goal for ``dim = 2``.
+RATIO_N = 100_000
+
+RATIO_GOAL = 3.0
+
+#: The engine's interval goal: seconds per interval at N = INTERVAL_GOAL_N (random digraph, mean in-degree 4, dim = 1).
+INTERVAL_GOAL_N = 10**6
+INTERVAL_GOAL = 0.1
+
+
+def scaling_row(n_agents: int, steps: int, dim: int = 1, **model: Any) -> tuple[float, float, float]:
+    """(seconds per interval, seconds per agent-step, peak traced MiB) for one episode in ``dim`` dimensions.
+
+    ``model``: ``agent_model`` and its parameters (default: the double integrator's closed forms).
+    """
+    from fxc_env.config import make_config
+    from fxc_env.engine import ConsensusEngine
+    from fxc_env.policies.reference import ReferencePolicy
+
+    tracemalloc.start()
+    config = make_config(
+        topology="random", n_agents=n_agents, mean_in_degree=4.0, n_intervals=steps + 1, dim=dim, **model
+    )
+    engine = ConsensusEngine(config, n_episodes=1)
+    x0, v0 = engine.sample_initial_state(np.random.default_rng(0))
+    engine.reset(x0[None], v0[None])
+    policy = ReferencePolicy(config)
+    buffer = np.empty((1, n_agents, config.layout.size))
+    engine.step(policy(engine.observations(buffer)))  # warm-up
+    start = time.perf_counter()
+    for _ in range(steps):
+        engine.step(policy(engine.observations(buffer)))
+    seconds = (time.perf_counter() - start) / steps
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return seconds, seconds / n_agents, peak / 2**20
+
+
+def scaling_table(largest: int, dims: tuple[int, ...] = (1,)) -> list[str]:
+    """One table of N = 100, 1000, ... up to ``largest`` per ``dim`` (each headed when ``dims`` has several).
+
+    With ``dim = 1`` among several, closing lines give each other dim's time per interval
+    over ``dim = 1``'s at N = :data:`RATIO_N` (at the largest N measured when ``largest``
+    is smaller, saying so), and ``dim = 2``'s against :data:`RATIO_GOAL`. With ``dim = 1``,
+    the last line is the interval goal at N = :data:`INTERVAL_GOAL_N` (:func:`interval_goal_line`).
+    """
+    lines: list[str] = []
+    seconds_at: dict[tuple[int, int], float] = {}
+    for dim in dims:
+        if len(dims) > 1:
+            lines += ([""] if lines else []) + [f"dim = {dim}:", ""]
+        lines += [
+            "| N | seconds / interval | ns / agent-step | peak traced memory (MiB) |",
+            "|---:|---:|---:|---:|",
+        ]
+        n = SCALING_FIRST_N
+        while n <= largest:
+            steps = int(min(200, max(5, 2e6 / n)))
+            seconds, per_agent, peak = scaling_row(n, steps, dim)
+            seconds_at[dim, n] = seconds
+            lines.append(f"| {n:,} | {seconds:.2e} | {per_agent * 1e9:.0f} | {peak:,.1f} |")
+            n *= 10
+    measured = sorted(n for d, n in seconds_at if d == 1)
+    if len(dims) > 1 and measured:
+        compared = RATIO_N if RATIO_N in measured else measured[-1]
+        lines.append("")
+        for dim in dims:
+            if dim == 1 or (dim, compared) not in seconds_at:
+                continue
+            ratio = seconds_at[dim, compared] / seconds_at[1, compared]
+            goal = f" (goal <= {RATIO_GOAL:g}x)" if dim == 2 else ""
+            lines.append(f"dim={dim} / dim=1 at N={compared:,}: {ratio:.1f}x{goal}")
+        if compared != RATIO_N:
+            lines.append(f"(the goal is stated at N={RATIO_N:,}: pass --largest {RATIO_N} or more)")
+    if 1 in dims:
+        lines += ["", interval_goal_line(seconds_at.get((1, INTERVAL_GOAL_N)))]
+    return lines
+
+
+def interval_goal_line(seconds_per_interval: float | None) -> str:
+    """The interval goal's line from the ``dim = 1`` time at N = :data:`INTERVAL_GOAL_N` (None: not measured)."""
+    where = f"one interval at N={INTERVAL_GOAL_N:,} (random digraph, mean in-degree 4, dim = 1, reference policy)"
+    goal = f"goal <= {INTERVAL_GOAL:g} s"
+    if seconds_per_interval is None:
+        return f"{where}: not measured ({goal}: pass --largest {INTERVAL_GOAL_N})"
+    ratio = seconds_per_interval / INTERVAL_GOAL
+    return (
+        f"{where}: {seconds_per_interval:.3f} s, {ratio:.2f}x the goal "
+        f"({goal}: {met(seconds_per_interval <= INTERVAL_GOAL)})"
+    )
