@@ -7,7 +7,7 @@ agent, and is not stored, so the same agent can act again.
 
 from __future__ import annotations
 
-import inspect
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -16,6 +16,7 @@ from gymnasium.utils import EzPickle
 from pettingzoo import AECEnv
 
 from fxc_env.config import EnvConfig
+from fxc_env.config.arguments import env_arguments
 from fxc_env.core.validation import ArgumentError
 from fxc_env.envs.parallel import ConsensusParallelEnv
 
@@ -38,10 +39,44 @@ class ConsensusAECEnv(AECEnv, EzPickle):
 
     metadata = ConsensusParallelEnv.metadata
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        # The parallel env's signature (set below), so help() and inspect list every argument.
-        arguments = _PARALLEL_SIGNATURE.bind(*args, **kwargs).arguments
-        render_mode = arguments.get("render_mode")
+    def __init__(
+        self,
+        scenario: str | None = None,
+        *,
+        n_agents: int | None = None,
+        topology: Any = None,
+        settling_time: float | None = None,
+        n_intervals: int | None = None,
+        schedule: Any = None,
+        dim: int | None = None,
+        action_mode: str = "plan",
+        obs_mode: str = "normalized",
+        obs_format: str = "flat",
+        obs_dtype: str = "float64",
+        global_state: str = "raw",
+        action_bound: float | None = None,
+        reward_floor: float = 1e-12,
+        initial_state: Any = None,
+        position_range: float | tuple[float, float] | None = None,
+        velocity_range: float | tuple[float, float] | None = None,
+        topology_seed: int | None = 0,
+        mean_in_degree: float | None = None,
+        topology_period: int | None = None,
+        obs_slots: int | None = None,
+        u_max: float | Sequence[float] | None = None,
+        obs_noise: float = 0.0,
+        link_dropout: float = 0.0,
+        switching: str = "periodic",
+        agent_model: Any = None,
+        order: int | None = None,
+        damping: float | None = None,
+        frequency: float | None = None,
+        formation_offsets: Any = None,
+        render_mode: str | None = None,
+        max_cycles: int | None = None,
+    ) -> None:
+        # The parallel env's arguments (fxc_env.config.arguments), written out for help() and IDEs.
+        arguments = {**env_arguments(locals()), "render_mode": render_mode, "max_cycles": max_cycles}
         AECEnv.__init__(self)
         #: The parallel environment that plays each interval once every agent has acted.
         self.parallel = ConsensusParallelEnv(**arguments)
@@ -153,7 +188,3 @@ class ConsensusAECEnv(AECEnv, EzPickle):
 
     def close(self) -> None:
         self.parallel.close()
-
-
-_PARALLEL_SIGNATURE = inspect.signature(ConsensusParallelEnv)
-ConsensusAECEnv.__init__.__signature__ = inspect.signature(ConsensusParallelEnv.__init__)  # type: ignore[attr-defined]

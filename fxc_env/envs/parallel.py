@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -14,6 +13,13 @@ from gymnasium.utils import EzPickle
 from pettingzoo import ParallelEnv
 
 from fxc_env.config import RENDER_MODES, EnvConfig, check_max_cycles, check_render_mode, make_config
+from fxc_env.config.arguments import (
+    ENV_ARGUMENT_NAMES,
+    ENV_ARGUMENTS,
+    FRONT_END_ARGUMENTS,
+    env_arguments,
+    with_arguments_table,
+)
 from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
 from fxc_env.core.metrics import EpisodeMetrics
@@ -23,7 +29,7 @@ from fxc_env.envs.rendering import EpisodeView
 from fxc_env.envs.spaces import action_space, observation_space, state_space
 
 #: The keyword arguments of :func:`fxc_env.make_config`, which every front end passes through.
-CONFIG_ARGUMENTS = tuple(inspect.signature(make_config).parameters)
+CONFIG_ARGUMENTS = ENV_ARGUMENT_NAMES
 
 
 def episode_metrics_rows(engine: ConsensusEngine) -> list[dict[str, float | int]]:
@@ -203,42 +209,10 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
 
     ## Arguments
     Every argument is keyword-only except ``scenario``; defaults in brackets come from the
-    scenario when one is named (explicit arguments override it).
+    scenario when one is named (explicit arguments override it). The table is
+    ``fxc_env.config.arguments.ENV_ARGUMENTS``, which every front end and the ``fxc`` flags share.
 
-    | parameter | type | default | meaning |
-    |-----------|------|---------|---------|
-    | ``scenario`` | ``str \\| None`` | None | named preset from ``fxc_env.SCENARIOS`` (e.g. ``"paper_fig1"``, the paper's example) |
-    | ``n_agents`` | ``int \\| None`` | [6] | N for a named topology |
-    | ``topology`` | name, edge list, list of edge lists, DiGraph(s), family | [``"paper_fig1"``] | ``"paper_fig1"`` (the **assumed** Fig. 1), ``"ring"``, ``"path"``, ``"star"``, ``"complete"``, ``"random"``; edges ``(j, i)``: i receives from j; a family (``fxc_env.core.families.make_family``) is drawn anew at every reset |
-    | ``settling_time`` | ``float \\| None`` | [20.0] | the deadline ``T_s`` (s) |
-    | ``n_intervals`` | ``int \\| None`` | [200] | K, the number of sampling intervals |
-    | ``schedule`` | ``"paper" \\| "uniform"`` or interval lengths | [``"paper"``] | the sampling instants (``T_k = 6 T_s / (pi k)^2``, last interval ending at ``T_s``) |
-    | ``dim`` | ``int \\| None`` | [1] | space dimension of ``x_i, v_i, u_i`` |
-    | ``action_mode`` | ``"plan" \\| "accel"`` | ``"plan"`` | meaning of an action (Action Space) |
-    | ``obs_mode`` | ``"normalized" \\| "raw"`` | ``"normalized"`` | scale-free or physical observations and actions |
-    | ``obs_format`` | ``"flat" \\| "dict"`` | ``"flat"`` | one Box, or ``{"neighbours", "mask", "clock"}`` |
-    | ``obs_dtype`` | ``"float64" \\| "float32"`` | ``"float64"`` | dtype of observations, their spaces and the normalized global state |
-    | ``global_state`` | ``"raw" \\| "normalized"`` | ``"raw"`` | what ``state()`` returns (State) |
-    | ``action_bound`` | ``float \\| None`` | table above | half-width ``b`` of the action Box |
-    | ``reward_floor`` | ``float`` | 1e-12 | ``f / D(0)`` in the reward |
-    | ``initial_state`` | ``None \\| "random" \\| (x0, v0)`` | [random] | fixed initial state ``(N, dim)`` arrays; ``"random"`` drops the scenario's |
-    | ``position_range`` | ``float \\| (low, high) \\| None`` | [5.0] | initial positions ``U(-r, r)`` (m); a pair draws ``r`` log-uniformly per episode |
-    | ``velocity_range`` | ``float \\| (low, high) \\| None`` | [2.0] | initial velocities ``U(-r, r)`` (m/s); a pair as above |
-    | ``topology_seed`` | ``int \\| None`` | 0 | seed of ``topology="random"`` (of a family: the draw ``config.topology`` shows) |
-    | ``mean_in_degree`` | ``float \\| None`` | [2.0] | mean in-degree of ``"random"`` |
-    | ``topology_period`` | ``int \\| None`` | [1] | number of switching graphs of ``"random"`` |
-    | ``obs_slots`` | ``int \\| None`` | ``d_max`` | neighbour rows in an observation (at least ``d_max``) |
-    | ``u_max`` | ``float \\| set of floats \\| None`` | None | clips each input component to ``±u_max`` m/s^2, integrated exactly (infos report the saturated share); a set draws one limit per episode |
-    | ``obs_noise`` | ``float`` | 0.0 | standard deviation of Gaussian noise (m, m/s) on each relative measurement |
-    | ``link_dropout`` | ``float`` | 0.0 | probability that an edge is lost at a sampling instant (the mask shows it) |
-    | ``switching`` | ``"periodic" \\| "random"`` | ``"periodic"`` | cycle through the graphs, or draw each interval's graph |
-    | ``agent_model`` | name or ``(A, B)`` | ``"double_integrator"`` | the agents' model per axis: ``"single_integrator"``, ``"integrator_chain"`` (``order`` 1-4), ``"damped"`` (``damping`` c, 1/s), ``"oscillator"`` (``frequency`` ω, rad/s), or a controllable pair ``(A, B)`` (README, "Agent models") |
-    | ``order`` | ``int \\| None`` | 2 | order of ``"integrator_chain"`` (1-4: single to quadruple integrator) |
-    | ``damping`` | ``float \\| None`` | 0.5 | drag ``c`` (1/s) of ``"damped"``: ``v' = -c v + u`` |
-    | ``frequency`` | ``float \\| None`` | 1.0 | ``omega`` (rad/s) of ``"oscillator"``: ``v' = -omega^2 x + u`` |
-    | ``formation_offsets`` | ``(N, dim)`` or ``(N, dim, n)`` array | None | agents agree on ``z_i - e^{A t} h_i``: position offsets hold a formation (README, "Formations") |
-    | ``render_mode`` | ``None \\| "human" \\| "rgb_array"`` | None | frames of episode 0 so far |
-    | ``max_cycles`` | ``int \\| None`` | None | truncate after this many steps |
+    {arguments table}
 
     The realism options (``u_max`` to ``switching``; README, "Realism options") are off by
     default and draw from the env's generator. Every bad argument raises
@@ -260,6 +234,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     ## Version History
     * v0: initial release.
     """
+
+    __doc__ = with_arguments_table(__doc__, (*ENV_ARGUMENTS, *FRONT_END_ARGUMENTS))
 
     metadata = {
         "name": "fxc_consensus_v0",
@@ -304,7 +280,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         render_mode: str | None = None,
         max_cycles: int | None = None,
     ) -> None:
-        arguments = {name: value for name, value in locals().items() if name in CONFIG_ARGUMENTS}
+        arguments = env_arguments(locals())
         check_render_mode(render_mode)
         check_max_cycles(max_cycles)
         self.config: EnvConfig = make_config(**arguments)

@@ -10,6 +10,8 @@ is :func:`fxc_env.policies.torchrl_reference.reference_policy`:
 
 from __future__ import annotations
 
+import inspect
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -19,12 +21,79 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from fxc_env.config import EnvConfig, make_config
+from fxc_env.config.arguments import ARGUMENTS, ENV_ARGUMENTS, Argument, env_arguments, with_arguments_table
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core import validation
 from fxc_env.engine import ConsensusEngine
 
 #: The one agent group of the TensorDicts.
 GROUP = "agents"
+
+#: The batched environment's own arguments, before the environment's (:mod:`fxc_env.config.arguments`).
+TORCH_ARGUMENTS: tuple[Argument, ...] = (
+    Argument(
+        "batch_size",
+        "int | tuple[int, ...] | list[int] | torch.Size",
+        1,
+        help="B, the number of episodes",
+        card="B, the number of episodes (an int or ``[B]``)",
+        card_type="``int \\| [B]``",
+    ),
+    Argument(
+        "device",
+        "Any",
+        "cpu",
+        help="torch device of every tensor",
+        card='torch device of every tensor (``"cuda"``, ``"meta"`` for shapes only)',
+        card_type="``str \\| torch.device``",
+    ),
+    Argument(
+        "dtype",
+        "str",
+        "float64",
+        help="the engine's arithmetic: float64 or float32",
+        card='the engine\'s arithmetic; ``"float32"`` halves memory: agents still agree at ``T_s`` '
+        "(``D(T_s)/D(0)`` <= 1e-6 at K = 200, often exactly 0 in float32) but the value they agree on drifts "
+        "from Theorem 1's by float32 round-off, about 1e-5 relative (float64: 1e-12)",
+        card_type='``"float64" \\| "float32"``',
+    ),
+    Argument(
+        "seed",
+        "int | None",
+        None,
+        help="seeds the device and host generators",
+        card="seeds the device generator (initial states, ``u_max``, noise, dropout, switching) and the host "
+        "generator of topology families",
+    ),
+    Argument(
+        "check_values",
+        "bool",
+        True,
+        help="read the device-side validity flags at every reset and episode end",
+        card="read the device-side validity flags at every reset and at every episode end (one host read per "
+        "episode; see below)",
+    ),
+    Argument(
+        "max_cycles",
+        "int | None",
+        None,
+        help="truncate episodes after this many steps",
+        card="truncate episodes after this many steps",
+        kind="integer",
+        minimum=1,
+        maximum=10**9,
+    ),
+    Argument(
+        "config",
+        "EnvConfig | None",
+        None,
+        help="a prebuilt EnvConfig instead of the environment's arguments",
+        card="a prebuilt :class:`~fxc_env.config.EnvConfig` (``make_config``'s) instead of the environment's "
+        "arguments, which then stay at their defaults",
+    ),
+)
+
+_OWN_ARGUMENTS = {argument.name: argument for argument in TORCH_ARGUMENTS}
 
 
 class ConsensusTorchEnv(EnvBase):
@@ -39,15 +108,10 @@ class ConsensusTorchEnv(EnvBase):
     (TorchRL's ``"_reset"`` mask), after which each keeps its own clock.
 
     ## Arguments
-    | argument | default | meaning |
-    |---|---|---|
-    | ``batch_size`` | ``1`` | B, the number of episodes (an int or ``[B]``) |
-    | ``device`` | ``"cpu"`` | torch device of every tensor (``"cuda"``, ``"meta"`` for shapes only) |
-    | ``dtype`` | ``"float64"`` | the engine's arithmetic; ``"float32"`` halves memory: agents still agree at ``T_s`` (``D(T_s)/D(0)`` <= 1e-6 at K = 200, often exactly 0 in float32) but the value they agree on drifts from Theorem 1's by float32 round-off, about 1e-5 relative (float64: 1e-12) |
-    | ``seed`` | None | seeds the device generator (initial states, ``u_max``, noise, dropout, switching) and the host generator of topology families |
-    | ``check_values`` | ``True`` | read the device-side validity flags at every reset and at every episode end (one host read per episode; see below) |
-    | ``max_cycles`` | None | truncate episodes after this many steps |
-    | ``**env_kwargs`` | | every keyword of :func:`fxc_env.parallel_env` (``scenario``, ``n_agents``, ``topology``, ``family``, ``u_max``, ...) |
+    Every argument is keyword-only: the batch's own, then the environment's, those of
+    :func:`fxc_env.parallel_env` (defaults in brackets come from the scenario when one is named).
+
+    {arguments table}
 
     ## TensorDict entries
     | key | shape | meaning |
@@ -69,6 +133,8 @@ class ConsensusTorchEnv(EnvBase):
     * v0: first release.
     """
 
+    __doc__ = with_arguments_table(__doc__, (*TORCH_ARGUMENTS, *ENV_ARGUMENTS))
+
     def __init__(
         self,
         *,
@@ -79,11 +145,41 @@ class ConsensusTorchEnv(EnvBase):
         check_values: bool = True,
         max_cycles: int | None = None,
         config: EnvConfig | None = None,
-        **env_kwargs: Any,
+        scenario: str | None = None,
+        n_agents: int | None = None,
+        topology: Any = None,
+        settling_time: float | None = None,
+        n_intervals: int | None = None,
+        schedule: Any = None,
+        dim: int | None = None,
+        action_mode: str = "plan",
+        obs_mode: str = "normalized",
+        obs_format: str = "flat",
+        obs_dtype: str = "float64",
+        global_state: str = "raw",
+        action_bound: float | None = None,
+        reward_floor: float = 1e-12,
+        initial_state: Any = None,
+        position_range: float | tuple[float, float] | None = None,
+        velocity_range: float | tuple[float, float] | None = None,
+        topology_seed: int | None = 0,
+        mean_in_degree: float | None = None,
+        topology_period: int | None = None,
+        obs_slots: int | None = None,
+        u_max: float | Sequence[float] | None = None,
+        obs_noise: float = 0.0,
+        link_dropout: float = 0.0,
+        switching: str = "periodic",
+        agent_model: Any = None,
+        order: int | None = None,
+        damping: float | None = None,
+        frequency: float | None = None,
+        formation_offsets: Any = None,
     ) -> None:
+        arguments = env_arguments(locals())
         size = _batch_size(batch_size)
-        self.config = make_config(**env_kwargs) if config is None else config
-        self.max_cycles = None if max_cycles is None else validation.integer("max_cycles", max_cycles, 1, 10**9)
+        self.config = make_config(**arguments) if config is None else _prebuilt(config, arguments)
+        self.max_cycles = _OWN_ARGUMENTS["max_cycles"].check(max_cycles)
         self.check_values = bool(check_values)
         self.engine = ConsensusEngine(self.config, size, device=device, dtype=dtype)
         spec_device = "cpu" if self.engine.device.type == "meta" else self.engine.device
@@ -226,6 +322,34 @@ class ConsensusTorchEnv(EnvBase):
     def episode_metrics(self) -> dict[str, np.ndarray]:
         """Every episode's metrics so far (``(B,)`` numpy arrays; a read off the device: call at episode ends)."""
         return self.engine.batch_metrics()
+
+
+# TorchRL's metaclass and EnvBase.__new__ take (*args, **kwargs); the class's signature is
+# __init__'s, so help(), inspect and IDEs list every argument as for the PettingZoo env.
+_INIT_SIGNATURE = inspect.signature(ConsensusTorchEnv.__init__)
+ConsensusTorchEnv.__signature__ = _INIT_SIGNATURE.replace(  # type: ignore[attr-defined]
+    parameters=list(_INIT_SIGNATURE.parameters.values())[1:]
+)
+
+
+def _prebuilt(config: Any, arguments: dict[str, Any]) -> EnvConfig:
+    """``config`` when it is an :class:`EnvConfig` and no environment argument is given beside it."""
+    if not isinstance(config, EnvConfig):
+        raise validation.ArgumentTypeError(
+            f"config: expected an EnvConfig (make_config's), got {type(config).__name__}"
+        )
+    given = [name for name, value in arguments.items() if not _is_default(value, ARGUMENTS[name].default)]
+    if given:
+        raise validation.ArgumentError(
+            f"config: give a prebuilt config or the environment's arguments, not both (got {', '.join(given)})"
+        )
+    return config
+
+
+def _is_default(value: Any, default: Any) -> bool:
+    return value is default or (
+        type(value) is type(default) and isinstance(value, str | int | float | bool) and value == default
+    )
 
 
 def _batch_size(value: Any) -> int:

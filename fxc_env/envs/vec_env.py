@@ -20,6 +20,14 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 from fxc_env.config import EnvConfig, check_max_cycles, check_render_mode, make_config
+from fxc_env.config.arguments import (
+    ENV_ARGUMENTS,
+    FRONT_END_ARGUMENTS,
+    REQUIRED,
+    Argument,
+    env_arguments,
+    with_arguments_table,
+)
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome
@@ -49,6 +57,18 @@ FIXED_ATTRIBUTES = frozenset(
         "last_outcome",
         "reset_infos",
     }
+)
+
+#: The VecEnv's own argument, before the environment's (:mod:`fxc_env.config.arguments`).
+N_ENVS = Argument(
+    "n_envs",
+    "int",
+    REQUIRED,
+    help="number of parallel episodes",
+    card="number of parallel episodes (``num_envs = n_envs * N`` sub-environments)",
+    kind="integer",
+    minimum=1,
+    card_type="``int``",
 )
 
 
@@ -94,20 +114,58 @@ class ConsensusVecEnv(VecEnv):
     in :class:`ConsensusParallelEnv`). ``render_mode="rgb_array"`` or ``"human"`` draws
     episode 0 (:meth:`render`, :meth:`get_images`; only episode 0 is recorded).
 
-    Args:
-        n_envs: number of parallel episodes.
-        render_mode: None, ``"rgb_array"`` or ``"human"``.
-        max_cycles: truncate every episode after this many steps (None: run to ``T_s``).
-        env_kwargs: any keyword argument of :func:`fxc_env.make_config` (``scenario``, ...).
+    ## Arguments
+    ``n_envs`` is positional, every other argument keyword-only; the environment's arguments
+    are those of :class:`ConsensusParallelEnv` (``obs_format="flat"`` only). Defaults in
+    brackets come from the scenario when one is named.
+
+    {arguments table}
     """
 
+    __doc__ = with_arguments_table(__doc__, (N_ENVS, *ENV_ARGUMENTS, *FRONT_END_ARGUMENTS))
+
     def __init__(
-        self, n_envs: int, *, render_mode: str | None = None, max_cycles: int | None = None, **env_kwargs: Any
+        self,
+        n_envs: int,
+        *,
+        scenario: str | None = None,
+        n_agents: int | None = None,
+        topology: Any = None,
+        settling_time: float | None = None,
+        n_intervals: int | None = None,
+        schedule: Any = None,
+        dim: int | None = None,
+        action_mode: str = "plan",
+        obs_mode: str = "normalized",
+        obs_format: str = "flat",
+        obs_dtype: str = "float64",
+        global_state: str = "raw",
+        action_bound: float | None = None,
+        reward_floor: float = 1e-12,
+        initial_state: Any = None,
+        position_range: float | tuple[float, float] | None = None,
+        velocity_range: float | tuple[float, float] | None = None,
+        topology_seed: int | None = 0,
+        mean_in_degree: float | None = None,
+        topology_period: int | None = None,
+        obs_slots: int | None = None,
+        u_max: float | Sequence[float] | None = None,
+        obs_noise: float = 0.0,
+        link_dropout: float = 0.0,
+        switching: str = "periodic",
+        agent_model: Any = None,
+        order: int | None = None,
+        damping: float | None = None,
+        frequency: float | None = None,
+        formation_offsets: Any = None,
+        render_mode: str | None = None,
+        max_cycles: int | None = None,
     ) -> None:
-        n_envs = validation.integer("n_envs", n_envs, 1)
+        arguments = env_arguments(locals())
+        n_envs = N_ENVS.check(n_envs)
         check_render_mode(render_mode)
         check_max_cycles(max_cycles)
-        config = make_config(**env_kwargs)
+        config = make_config(**arguments)
         if config.obs_format != "flat":
             raise ArgumentError(
                 f"obs_format: ConsensusVecEnv supports only obs_format='flat' (a Box per agent), "
