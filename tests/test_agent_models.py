@@ -46,6 +46,7 @@ def reference_episode(config, x0, v0):
 
 
 @pytest.mark.parametrize("kwargs", MODELS, ids=model_id)
+@pytest.mark.slow
 def test_a_whole_reference_episode_matches_solve_ivp(kwargs):
     # Each interval integrated by scipy's DOP853 from the same start under the minimum-energy
     # input u(s) = B^T e^{A^T (T - s)} lambda (lambda = G(T)^{-1} Delta by the package); the
@@ -108,6 +109,7 @@ def test_the_general_path_with_the_double_integrators_matrices_equals_the_closed
 
 @pytest.mark.parametrize("kwargs", MODELS, ids=model_id)
 @pytest.mark.parametrize("period", [1, 3])
+@pytest.mark.slow
 def test_the_generalised_final_value_on_held_out_random_digraphs(kwargs, period):
     # Theorems 1-2 generalised: z_i(T_s) = e^{A T_s} sum_j xi_j z_j(0) for every agent, on
     # random digraphs the package never saw in its tests (seeds 101..), fixed and switching.
@@ -125,6 +127,7 @@ def test_the_generalised_final_value_on_held_out_random_digraphs(kwargs, period)
         assert np.max(np.abs(states[-1] - final[None])) <= 1e-8 * scale, seed
 
 
+@pytest.mark.slow
 def test_deadline_errors_of_every_model_at_K_200_and_400():
     # Every named model on paper_fig1 reaches round-off level by T_s (README's table).
     for kwargs in MODELS:
@@ -160,6 +163,7 @@ def test_the_parallel_env_with_a_chain_passes_pettingzoos_api_test():
 
 
 # ------------------------------------------------------------------------ formations
+@pytest.mark.slow
 def test_the_hexagon_scenario_reaches_its_formation_by_the_deadline():
     trajectory = fxc_env.simulate("reference", "formation_hexagon", seed=3)
     final = trajectory.x[-1]  # (6, 2) absolute positions at T_s
@@ -223,6 +227,7 @@ def test_a_general_model_on_torch_is_refused_naming_device():
         ConsensusEngine(config, 1, device="cpu")
 
 
+@pytest.mark.slow
 def test_fxc_simulate_writes_the_figures_of_a_chain_and_of_a_formation(tmp_path):
     for arguments, extra in (
         (["--agent-model", "integrator_chain", "--order", "3"], []),
@@ -240,6 +245,7 @@ def test_fxc_simulate_writes_the_figures_of_a_chain_and_of_a_formation(tmp_path)
             assert (out / name).stat().st_size > 1000, name
 
 
+@pytest.mark.slow
 def test_the_models_benchmark_suite_scores_the_reference_on_every_model(tmp_path):
     import csv
 

@@ -92,6 +92,7 @@ def median_log_error(contender, case):
     ],
     ids=lambda s: s.key,
 )
+@pytest.mark.slow
 def test_under_a_tight_limit_it_is_ten_times_below_every_other_analytic_law(case):
     # The minimum-time law refuses an input limit (tests/test_baselines_minimum_time.py): not a contender here.
     contenders = [c for c in builtin_contenders() if c.name != "minimum_time"]

@@ -40,6 +40,7 @@ def assert_figures(out):
         assert image.ndim == 3 and len(np.unique(image[..., :3].reshape(-1, 3), axis=0)) > 10
 
 
+@pytest.mark.slow
 def test_simulate_the_paper_example(tmp_path, capsys):
     assert main(["simulate", "--scenario", "paper_fig1", "--out", str(tmp_path)]) == 0
     for name in FILES:
@@ -71,6 +72,7 @@ def test_simulate_the_paper_example(tmp_path, capsys):
     assert deadline_error == pytest.approx(m["relative_deadline_error"], rel=1e-3)
 
 
+@pytest.mark.slow
 def test_simulate_with_other_options(tmp_path, capsys):
     out = tmp_path / "ring10"
     argv = [
@@ -113,6 +115,7 @@ def test_simulate_with_other_options(tmp_path, capsys):
     assert "K = 100" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_simulate_random_switching_topology(tmp_path):
     argv = ["simulate", "--scenario", "none", "--topology", "random", "--n-agents", "12", "--topology-period", "2"]
     argv += ["--topology-seed", "5", "--n-intervals", "30", "--points-per-interval", "2", "--out", str(tmp_path)]

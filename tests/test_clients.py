@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import supersuit as ss
 import torch
 from stable_baselines3 import PPO
@@ -37,6 +38,7 @@ def test_supersuit_copies_draw_independent_episodes():
     assert not np.array_equal(first, second)
 
 
+@pytest.mark.slow
 def test_ppo_trains_a_few_hundred_steps_through_supersuit():
     venv = VecMonitor(supersuit_vec_env(2))
     model = PPO("MlpPolicy", venv, n_steps=32, batch_size=96, n_epochs=1, device="cpu")

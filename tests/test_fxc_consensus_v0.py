@@ -24,12 +24,27 @@ SCENARIO_NAMES = sorted(fxc_env.SCENARIOS)
 #: K for the API runs: long enough to reach the deadline inside the test's cycles, and fast.
 K = 40
 
+
+def _slow_unless(fast: bool) -> tuple:
+    return () if fast else (pytest.mark.slow,)
+
+
+#: Every scenario in every mode; `make check` (not slow) keeps each scenario once and each
+#: mode at least once, the modes taken in turn over the scenarios.
 ALL = [
-    pytest.param(scenario, action_mode, obs_mode, id=f"{scenario}-{action_mode}-{obs_mode}")
-    for scenario in SCENARIO_NAMES
+    pytest.param(
+        scenario,
+        action_mode,
+        obs_mode,
+        id=f"{scenario}-{action_mode}-{obs_mode}",
+        marks=_slow_unless((action_mode, obs_mode) == MODES[index % len(MODES)]),
+    )
+    for index, scenario in enumerate(SCENARIO_NAMES)
     for action_mode in ACTION_MODES
     for obs_mode in OBS_MODES
 ]
+#: PettingZoo's render test on every scenario; `make check` keeps the paper's example.
+RENDERED = [pytest.param(scenario, marks=_slow_unless(scenario == "paper_fig1")) for scenario in SCENARIO_NAMES]
 
 
 @pytest.fixture(autouse=True)
@@ -83,8 +98,7 @@ def test_state(scenario, action_mode, obs_mode):
     state_test(fxc_env.env(**kwargs), fxc_env.parallel_env(**kwargs), num_cycles=K + 5)
 
 
-@pytest.mark.parametrize("scenario", SCENARIO_NAMES)
-@pytest.mark.parametrize(("action_mode", "obs_mode"), MODES)
+@pytest.mark.parametrize(("scenario", "action_mode", "obs_mode"), ALL)
 def test_dict_observations_pass_the_api_tests(scenario, action_mode, obs_mode):
     kwargs = {
         "scenario": scenario,
@@ -120,7 +134,7 @@ def test_max_cycles(scenario, action_mode, obs_mode):
     max_cycles_test(_module_with(scenario=scenario, action_mode=action_mode, obs_mode=obs_mode))
 
 
-@pytest.mark.parametrize("scenario", SCENARIO_NAMES)
+@pytest.mark.parametrize("scenario", RENDERED)
 def test_render(scenario):
     def env_fn(render_mode=None):
         return fxc_env.env(scenario=scenario, render_mode=render_mode, n_intervals=K)

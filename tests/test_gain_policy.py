@@ -89,6 +89,7 @@ def test_the_position_to_velocity_gain_is_in_units_of_the_interval():
     np.testing.assert_allclose(action, [[0.3, 0.5 * 0.01], [0.3, 0.5 * 0.5]])
 
 
+@pytest.mark.slow
 def test_ppo_with_the_gain_policy_saves_and_loads_as_a_learned_policy(tmp_path):
     venv = fxc_env.ConsensusVecEnv(2, **CONFIG, n_intervals=10)
     model = PPO(GainScheduledPolicy, venv, n_steps=10, batch_size=60, n_epochs=1, seed=0, device="cpu")

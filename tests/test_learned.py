@@ -20,6 +20,7 @@ def deadline_errors(policy, config, seeds) -> np.ndarray:
     return np.log10(engine.batch_metrics()["relative_deadline_error"])
 
 
+@pytest.mark.slow
 def test_pretrained_policy_is_small_and_meets_the_deadline_goal_on_paper_fig1():
     """The learned policy's bar: median log10 deadline error within 1.0 of the reference's, 20 seeded states."""
     assert pretrained_path().stat().st_size < 2 * 2**20

@@ -75,6 +75,7 @@ def relative(a, b):
 
 # --------------------------------------------------------------------------- one interval
 @pytest.mark.parametrize(("name", "kw"), NAMED, ids=NAMED_IDS)
+@pytest.mark.slow
 def test_one_interval_matches_solve_ivp(name, kw):
     model = LinearModel.named(name, **kw)
     n = model.n_states
@@ -190,6 +191,7 @@ def episode_check(model, settling_time=10.0, n_intervals=200):
     [("double_integrator", {}), ("integrator_chain", {"order": 3}), ("damped", {}), ("oscillator", {})],
     ids=["double_integrator", "integrator_chain-3", "damped", "oscillator"],
 )
+@pytest.mark.slow
 def test_episode_on_a_ring_matches_solve_ivp_and_reaches_the_final_value(name, kw):
     episode_check(LinearModel.named(name, **kw))
 

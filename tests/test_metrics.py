@@ -125,14 +125,14 @@ def test_episode_metrics_as_dict_is_json_safe():
 
 
 @pytest.mark.parametrize("dim", [2, 3])
-@pytest.mark.parametrize("n", [3, 50, 200, 2000])
+@pytest.mark.parametrize("n", [3, 50, 200, pytest.param(2000, marks=pytest.mark.slow)])
 def test_spread_in_the_plane_and_space_is_the_all_pairs_diameter(dim, n):
     rng = np.random.default_rng(100 * dim + n)
     assert_exact_diameter(rng.normal(scale=3.0, size=(n, dim)) + 2.0)
     assert_exact_diameter(rng.uniform(-5.0, 5.0, size=(3, n, dim)))  # the engine's initial states
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
 def test_spread_of_large_batches_and_state_views(dim):
     rng = np.random.default_rng(dim)
     assert_exact_diameter(rng.normal(size=(40, 300, dim)) * rng.uniform(0.1, 10.0, size=(40, 1, dim)))
@@ -155,7 +155,7 @@ def test_spread_of_points_all_on_a_circle_or_sphere(dim, n, monkeypatch):
         assert searches  # every point survives the filters: the pruned search runs
 
 
-@pytest.mark.parametrize("n", [3, 500, 3000])
+@pytest.mark.parametrize("n", [3, 500, pytest.param(3000, marks=pytest.mark.slow)])
 def test_spread_of_collinear_and_coplanar_points(n):
     rng = np.random.default_rng(n)
     t = rng.normal(size=(n, 1))
@@ -176,7 +176,7 @@ def test_spread_of_identical_points_is_zero(dim, n):
     assert spread(np.full((2, n, dim), -7.3)).tolist() == [0.0, 0.0]
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
 def test_spread_near_consensus_a_few_ulps_wide(dim):
     # A swarm that has converged: coordinates a few units in the last place apart, far from
     # the origin, so the rounded centroid sits off the cloud by more than its width.
@@ -200,7 +200,7 @@ def test_spread_at_tiny_and_huge_scales(dim, scale):
 
 
 @pytest.mark.parametrize("dim", [2, 3])
-@pytest.mark.parametrize("n", [10, 3000])
+@pytest.mark.parametrize("n", [10, pytest.param(3000, marks=pytest.mark.slow)])
 def test_spread_of_non_finite_entries_is_nan_like_all_pairs(dim, n):
     rng = np.random.default_rng(n)
     z = rng.normal(size=(3, n, dim))

@@ -30,6 +30,7 @@ def wheel(tmp_path_factory) -> Path:
     return found
 
 
+@pytest.mark.slow
 def test_the_wheel_installs_fxc_env_as_its_only_top_level_name(wheel):
     with zipfile.ZipFile(wheel) as archive:
         names = archive.namelist()
@@ -46,6 +47,7 @@ def test_the_wheel_installs_fxc_env_as_its_only_top_level_name(wheel):
     assert "fxc_env/pretrained/paper_fig1_ppo.zip" in names
 
 
+@pytest.mark.slow
 def test_a_wheel_install_imports_its_subpackages_next_to_a_foreign_baselines_package(wheel, tmp_path):
     """Installed into a bare directory beside a package called ``baselines``, ours is untouched."""
     target = tmp_path / "site"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import pytest
 from matplotlib.image import imread
 
 from fxc_env import simulate
@@ -20,6 +21,7 @@ def assert_png_picture(path):
     assert len(np.unique(image[..., :3].reshape(-1, 3), axis=0)) > 10  # not blank
 
 
+@pytest.mark.slow
 def test_write_figures(tmp_path):
     # The paper example's figures are checked through `fxc simulate` (test_cli.py); here a
     # planar run too large for legends and for drawing the graph.

@@ -127,6 +127,7 @@ def test_random_switching_draws_each_episode_s_graph_from_the_set():
     assert np.isnan(engine.batch_metrics()["predicted_final_position"]).all()  # Theorem 2 needs a period
 
 
+@pytest.mark.slow
 def test_hundred_thousand_intervals_keep_the_final_value_without_overflow():
     """A long horizon: K = 1e5 on the paper example, no overflow, NaN or loss of x*(20) = -1.875."""
     config = make_config("paper_fig1", n_intervals=100_000)

@@ -34,6 +34,7 @@ def test_pretrained_means_the_generalist():
 
 
 @pytest.mark.parametrize("case", generalisation_cases(), ids=lambda s: s.key)
+@pytest.mark.slow
 def test_the_generalist_is_within_a_decade_of_the_reference_on_every_family_of_the_generalisation_suite(case):
     """The goal asks this where the reference reaches below 1e-6; it holds on the slow rings too."""
     reference = log_error(builtin_contenders(["reference"])[0], case)
@@ -60,6 +61,7 @@ def best_analytic_log_error(case) -> float:
     ],
     ids=lambda s: s.key,
 )
+@pytest.mark.slow
 def test_the_saturated_policy_beats_the_five_analytic_laws_tenfold_where_the_limit_binds(case):
     learned = log_error(learned_contender("saturated"), case)
     assert learned <= best_analytic_log_error(case) - 1.0

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 
+import pytest
+
 from fxc_env.cli import main
 
 
@@ -16,6 +18,7 @@ def rows(path):
         return [{k: v for k, v in row.items() if k != "seconds"} for row in csv.DictReader(handle)]
 
 
+@pytest.mark.slow
 def test_the_ray_quick_table_equals_the_single_machine_one(tmp_path, capsys, local_ray):
     run(tmp_path / "processes")
     single = capsys.readouterr().out

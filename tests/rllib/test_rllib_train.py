@@ -57,6 +57,7 @@ def trained(tmp_path_factory, local_ray):
     return train(rllib_args(tmp_path_factory.mktemp("rllib")))
 
 
+@pytest.mark.slow
 def test_two_iterations_with_two_env_runners_write_the_run_directory(trained):
     rows = progress(trained)
     assert [int(r["time/iterations"]) for r in rows] == [1, 2]
@@ -72,6 +73,7 @@ def test_two_iterations_with_two_env_runners_write_the_run_directory(trained):
     assert (trained / "training_curve.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_resume_restores_the_checkpoint_and_continues_its_count(trained, tmp_path, capsys):
     run_dir = shutil.copytree(trained, tmp_path / "run")
     before = RLlibPolicy(run_dir)
@@ -85,6 +87,7 @@ def test_resume_restores_the_checkpoint_and_continues_its_count(trained, tmp_pat
     assert not np.array_equal(before(obs), after(obs))  # the third iteration updated the restored module
 
 
+@pytest.mark.slow
 def test_the_checkpoint_acts_like_a_learned_policy(trained):
     config = make_config("paper_fig1", obs_slots=4)
     policy = load_learned_policy(trained, config)
@@ -98,6 +101,7 @@ def test_the_checkpoint_acts_like_a_learned_policy(trained):
         load_learned_policy(trained, make_config("paper_fig1"))
 
 
+@pytest.mark.slow
 def test_fxc_evaluate_scores_the_rllib_run_next_to_the_reference(trained, tmp_path, capsys):
     out = tmp_path / "evaluate"
     code = cli.main(["evaluate", "--policy", str(trained), "--seeds", "2", "--out", str(out), "--no-progress"])
