@@ -206,3 +206,8 @@ def test_settled_interval_counts_the_intervals_after_which_the_error_stayed_belo
 def test_bad_arguments_are_named(call, name):
     with pytest.raises(ArgumentError, match=f"^{name}:"):
         call()
+
+
+def test_a_period_of_dense_graphs_needs_one_interval_whatever_the_in_degree():
+    complete = [(j, i) for i in range(300) for j in range(300) if i != j]  # in-degree 299
+    assert propagation_bound(make_topology([complete, complete[1:]], 300)) == 1

@@ -168,7 +168,7 @@ def propagation_bound(topology: Topology) -> int:
     for k in range(topology.period * n + 1):
         if reached.all():
             return k
-        heard = (adjacency[k % topology.period] @ reached.T.astype(np.int8)).T > 0
+        heard = (adjacency[k % topology.period] @ reached.T.astype(np.int32)).T > 0
         reached |= heard
     raise AssertionError("the joint graph spans, so every root reaches every agent within m N intervals")
 
