@@ -2,7 +2,8 @@
 
 Layer 2 (above the array maths in :mod:`fxc_env.core`): :func:`make_config` turns keyword
 arguments (or a named scenario) into a frozen :class:`EnvConfig` that every engine, environment
-and policy reads.
+and policy reads. The arguments are declared once, in :mod:`fxc_env.config.arguments`; the
+signatures, the cards' Arguments tables and the ``fxc`` flags follow that table.
 """
 
 from __future__ import annotations

@@ -1,9 +1,10 @@
 """Validated environment settings: :func:`make_config` turns keyword arguments into an :class:`EnvConfig`.
 
 The engine, the PettingZoo environment, the SB3 VecEnv and the policies all read the same
-immutable config. Every argument is checked by :mod:`fxc_env.core.validation`, so a bad one
-raises an :class:`~fxc_env.core.validation.ArgumentError` that names it. Named scenarios
-(:mod:`fxc_env.config.scenarios`) are frozen presets that explicit arguments override.
+immutable config. The arguments, their defaults and allowed values are the table of
+:mod:`fxc_env.config.arguments`. Every argument is checked by :mod:`fxc_env.core.validation`,
+so a bad one raises an :class:`~fxc_env.core.validation.ArgumentError` that names it. Named
+scenarios (:mod:`fxc_env.config.scenarios`) are frozen presets that explicit arguments override.
 """
 
 from __future__ import annotations
