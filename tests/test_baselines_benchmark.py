@@ -15,6 +15,7 @@ from fxc_env.cli import main
 FIGURES = ("deadline_vs_budget.png", "energy_vs_error.png", "disagreement_vs_time.png")
 
 
+@pytest.mark.slow
 def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadline(tmp_path, capsys):
     assert main(["benchmark", "--quick", "--out", str(tmp_path), "--no-progress"]) == 0
     printed = capsys.readouterr().out
@@ -72,6 +73,7 @@ def test_every_policy_meets_the_same_initial_states():
         np.testing.assert_array_equal(values, initial[0])
 
 
+@pytest.mark.slow
 def test_a_learned_policy_runs_as_a_contender_or_says_why_not():
     contender = learned_contender("pretrained")
     ran = run_job(Job(contender, BenchmarkCase("paper_fig1", 6), 50, (0, 1), 20.0, False))
@@ -81,6 +83,7 @@ def test_a_learned_policy_runs_as_a_contender_or_says_why_not():
     assert "obs_slots" in skipped.error  # in-degree 5 does not fit the model's 4 rows
 
 
+@pytest.mark.slow
 def test_realism_suite_reports_saturation_for_the_reference_under_an_input_limit(tmp_path):
     from dataclasses import replace
 
@@ -135,6 +138,7 @@ def test_a_damaged_saved_policy_is_an_argument_error_naming_policy(tmp_path):
         learned_contender(str(tmp_path / "missing.zip"), name="--policy")
 
 
+@pytest.mark.slow
 def test_the_optimality_suite_reports_every_law_against_e_star_and_the_propagation_bound(tmp_path, capsys):
     argv = ["benchmark", "--suite", "optimality", "--quick", "--seeds", "2", "--out", str(tmp_path), "--no-progress"]
     assert main(argv) == 0

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import csv
 
+import pytest
+
 from fxc_env import cli
 from fxc_env.training.evaluate import EVALUATION_CASES
 
 
+@pytest.mark.slow
 def test_evaluate_pretrained_prints_and_writes_the_comparison(tmp_path, capsys):
     code = cli.main(["evaluate", "--policy", "pretrained", "--seeds", "3", "--out", str(tmp_path), "--no-progress"])
     out = capsys.readouterr().out
@@ -22,6 +25,7 @@ def test_evaluate_pretrained_prints_and_writes_the_comparison(tmp_path, capsys):
         assert (tmp_path / name).stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_evaluate_reference_alone_and_bad_budgets(tmp_path, capsys):
     assert cli.main(["evaluate", "--policy", "reference", "--seeds", "2", "--out", str(tmp_path), "--no-progress"]) == 0
     assert "learned" not in capsys.readouterr().out
@@ -56,6 +60,7 @@ def test_evaluate_checks_everything_before_it_runs(tmp_path, capsys, monkeypatch
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_evaluate_on_environment_flags_scores_that_one_environment(tmp_path, capsys):
     argv = ["evaluate", "--policy", "saturated", "--family", "ring", "--topology-period", "2,3", "--n-agents", "8"]
     argv += ["--u-max", "10,100", "--seeds", "2", "--out", str(tmp_path), "--no-progress"]

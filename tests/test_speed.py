@@ -206,6 +206,7 @@ def test_the_torchrl_table_names_its_extra_when_torchrl_is_missing(one_thread, c
     assert "torchrl missing" in capsys.readouterr().err and '".[torchrl]"' in command.install_hint(["torchrl"])
 
 
+@pytest.mark.slow
 def test_python_dash_m_fxc_env_speed_pins_threads_and_runs(tmp_path):
     """The module the command re-executes (``python -m fxc_env.speed``) exists and runs the same tables."""
     assert command.MODULE == "fxc_env.speed" and importlib.util.find_spec("fxc_env.speed.__main__") is not None
@@ -237,6 +238,7 @@ def test_only_out_of_memory_errors_are_skipped(monkeypatch):
         cuda.cuda_sweep_table("cpu", 1, sizes=(60,), episode_sizes=(6,), seconds=0.001)
 
 
+@pytest.mark.slow
 def test_the_models_table_compares_every_agent_model_with_the_closed_forms(one_thread):
     lines = models.models_table(n_agents=200, steps=2)
     text = "\n".join(lines)
