@@ -26,6 +26,7 @@ from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw
 from fxc_env.envs.rendering import EpisodeView
+from fxc_env.envs.small_n import SmallInterval, applies, checked_values
 from fxc_env.envs.spaces import action_space, observation_space, state_space
 
 #: The keyword arguments of :func:`fxc_env.make_config`, which every front end passes through.
@@ -243,6 +244,11 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         "render_fps": 10,
         "is_parallelizable": True,
     }
+    #: Whether a reset may take the small-N path (:mod:`fxc_env.envs.small_n`: the same numbers
+    #: for few agents, faster); False plays every interval through the engine (for comparisons).
+    small_n_path: bool = True
+    #: The small-N path of the episode, or None (set at every reset).
+    _small: SmallInterval | None = None
 
     def __init__(
         self,
@@ -334,6 +340,10 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         v0 = draw.v0 if v0 is None else v0
         topologies = None if draw.topology is None else [draw.topology]
         self.engine.reset(x0[None], v0[None], rng=self._rng, topologies=topologies, u_max=[draw.u_max])
+        if not self.small_n_path or not applies(self.config, self.engine):
+            self._small = None
+        elif self._small is None:
+            self._small = SmallInterval(self.config, self.engine)
         self.agents = self.possible_agents[:]
         self._steps = 0
         self._has_reset = True
@@ -350,7 +360,10 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         return self._observe(), infos
 
     def _observe(self) -> dict[str, Any]:
-        obs = self.engine.observations()[0].astype(self.config.observation_dtype, copy=False)
+        if self._small is not None:
+            obs = self._small.observations(self.engine)
+        else:
+            obs = self.engine.observations()[0].astype(self.config.observation_dtype, copy=False)
         if self.config.obs_format == "dict":
             layout = self.config.layout
             rows = obs[:, : layout.rows_end].reshape(len(obs), layout.slots, layout.row_size)
@@ -398,19 +411,33 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if not self.agents:
             raise RuntimeError("step: the episode has ended (or reset() was never called); call reset() first")
-        array = self._action_array(actions)
-        outcome = self.engine.step(array)
-        self._steps += 1
         engine = self.engine
-        terminated = outcome.terminated
+        small = self._small
+        played = None
+        if small is not None:
+            # The small-N path (fxc_env.envs.small_n): the same numbers without numpy's per-call cost.
+            values = checked_values(actions, self.possible_agents, self.config.action_size)
+            if values is None:
+                values = self._action_array(actions).ravel().tolist()
+            played = small.step(engine, values)
+            if played is None:  # what the small path leaves to the engine (it refuses overflow, unchanged)
+                array = np.array(values).reshape(1, self.config.n_agents, self.config.action_size)
+        else:
+            array = self._action_array(actions)
+        if played is None:
+            outcome = engine.step(array)
+            reward, terminated = float(outcome.reward[0]), outcome.terminated
+            energy, peak = outcome.energy[0].tolist(), outcome.peak_input[0].tolist()
+            saturated = outcome.saturated_fraction[0].tolist()
+        else:
+            reward, energy, peak = played
+            terminated, saturated = engine.done, [0.0] * len(energy)
+        self._steps += 1
         truncated = not terminated and self.max_cycles is not None and self._steps >= self.max_cycles
         t = engine.time
-        reward = float(outcome.reward[0])
         rewards = dict.fromkeys(self.agents, reward)
         terminations = dict.fromkeys(self.agents, terminated)
         truncations = dict.fromkeys(self.agents, truncated)
-        energy, peak = outcome.energy[0].tolist(), outcome.peak_input[0].tolist()
-        saturated = outcome.saturated_fraction[0].tolist()
         infos = {
             agent: {
                 "t": t,
@@ -426,7 +453,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             for info in infos.values():
                 info["episode"] = dict(episode)  # each agent its own copy
         observations = self._observe()
-        self._view.record(t, *positions_velocities(engine))
+        if self.render_mode is not None:
+            self._view.record(t, *positions_velocities(engine))
         if self.render_mode == "human":
             self.render()
         if terminated or truncated:
