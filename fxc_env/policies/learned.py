@@ -2,16 +2,33 @@
 
 :class:`LearnedPolicy` (SB3) and :class:`RLlibPolicy` have the calling convention of
 :class:`fxc_env.ReferencePolicy`: observations ``(..., obs_size)`` in, actions
-``(..., 2 dim)`` out, deterministic. The model must have been trained on an environment
-with the same observation layout (the same ``obs_slots``, ``dim`` and modes); a mismatch
-raises an error naming the sizes. :func:`load_learned_policy` is the one place that decides
+``(..., 2 dim)`` out, deterministic. :func:`load_learned_policy` is the one place that decides
 how a saved policy loads.
+
+**Loading runs no code from the file.** An SB3 ``.zip`` is read by
+:func:`fxc_env.policies.policy_files.read_sb3_zip` (plain JSON and ``weights_only`` tensors;
+nothing is unpickled), a torch policy loads with ``weights_only=True``. Formats that can only be
+unpickled (an RLlib checkpoint, VecNormalize's ``.pkl``, SB3's own loader for networks the
+safe reader does not rebuild) need ``trusted=True``: unpickling a file runs whatever code its
+author put in it (README, "Training learned policies").
+
+**A policy meets the settings it was trained for.** A file that records its training
+environment (SB3 ``.zip`` files saved by ``fxc train`` or
+:func:`~fxc_env.policies.policy_files.save_model`, torch policies) is refused in an environment
+whose schedule, action or observation mode, input-limit feature, agent model, dimension or
+observation slots differ (:data:`fxc_env.policies.policy_files.CHECKED_SETTINGS`), with an
+error naming the setting and both values. The one adaptation: a model trained in one dimension
+acts per axis in a ``dim > 1`` environment (:class:`PerAxisPolicy`, which says so in
+:attr:`PerAxisPolicy.adaptation`). Any model is refused when its observation or action size
+differs from the environment's.
 """
 
 from __future__ import annotations
 
+import json
 import pickle
 import re
+import warnings
 import zipfile
 import zlib
 from importlib import resources
@@ -21,6 +38,14 @@ from typing import Any
 import numpy as np
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.policy_files import (
+    TRUST_HINT,
+    check_settings,
+    describe_differences,
+    read_sb3_zip,
+    setting_differences,
+    training_settings,
+)
 
 #: The policies that ship with the package, by name (README, "Training learned policies"):
 #: ``generalist`` (one policy for every graph family), ``saturated`` (inputs bounded by a
@@ -63,8 +88,18 @@ def pretrained_path(name: str = "paper_fig1") -> Path:
     return Path(str(resources.files("fxc_env") / "pretrained" / SHIPPED[name]))
 
 
-def load_model(path: str | Path) -> Any:
-    """Load an SB3 PPO or SAC ``.zip`` on the CPU (the algorithm is read from the file)."""
+def load_model(path: str | Path, *, trusted: bool = False) -> Any:
+    """Load an SB3 PPO or SAC ``.zip`` on the CPU (the algorithm is read from the file).
+
+    By default nothing in the file is unpickled: the result is a
+    :class:`~fxc_env.policies.policy_files.SavedModel` (spaces, ``num_timesteps``, the actor
+    network, ``predict``) rebuilt from its plain JSON and ``weights_only`` tensors. With
+    ``trusted=True`` it is SB3's own ``PPO.load``/``SAC.load`` (the whole model, optimiser
+    included, for networks the safe reader does not rebuild), which unpickles the file's
+    ``data`` and so runs any code a crafted file holds: only for files you trust.
+    """
+    if not trusted:
+        return read_sb3_zip(path)
     from stable_baselines3 import PPO, SAC
 
     path = Path(path)
@@ -96,46 +131,141 @@ class LearnedPolicy:
     """A trained SB3 model acting for every agent (parameter sharing), deterministically.
 
     Args:
-        model: a loaded SB3 model, or the path of its ``.zip``.
+        model: a loaded SB3 model (or :class:`~fxc_env.policies.policy_files.SavedModel`), or
+            the path of its ``.zip`` (read without unpickling unless ``trusted``).
         env: an fxc_env environment or EnvConfig whose observations the model will see;
-            checked against the model's observation and action sizes when given.
-        vecnormalize: path of VecNormalize statistics saved with the model, if any;
-            observations are normalised with them before the model sees them.
+            checked against the model's sizes and, where the model records them, the settings
+            it was trained for (see the module) when given.
+        vecnormalize: VecNormalize statistics for the observations, if any: a ``.json`` or
+            ``.npz`` with ``mean``, ``var`` (and ``epsilon``, ``clip_obs``; SB3's defaults 1e-8
+            and 10), or VecNormalize's pickle (``.pkl``, only with ``trusted=True``). A model
+            saved with its statistics in ``fxc_policy.json`` uses those without this argument.
+        trusted: allow formats that unpickle (SB3's loader, VecNormalize's pickle); they run
+            any code a crafted file holds.
+
+    Attributes:
+        training_settings: the settings of the environment it was trained on
+            (:func:`fxc_env.policies.policy_files.training_settings`), or None when the file
+            records none.
     """
 
-    def __init__(self, model: Any, env: Any = None, vecnormalize: str | Path | None = None) -> None:
-        self.model = load_model(model) if isinstance(model, str | Path) else model
+    def __init__(
+        self, model: Any, env: Any = None, vecnormalize: str | Path | None = None, *, trusted: bool = False
+    ) -> None:
+        self.source = model if isinstance(model, str | Path) else None
+        self.model = load_model(model, trusted=trusted) if isinstance(model, str | Path) else model
         self.obs_size = int(np.prod(self.model.observation_space.shape))
         self.action_size = int(np.prod(self.model.action_space.shape))
-        self._normalizer = None
+        self.training_settings = _recorded_settings(self.model)
+        self._stats = getattr(self.model, "normalization", None)
         if vecnormalize is not None:
-            with open(vecnormalize, "rb") as handle:
-                self._normalizer = pickle.load(handle)
+            self._stats = read_normalization(vecnormalize, self.obs_size, trusted=trusted)
         if env is not None:
-            check_sizes(env, self.obs_size, self.action_size, "LearnedPolicy")
+            check_fit(self, env, "LearnedPolicy")
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
         """Actions ``(..., action_size)`` for observations ``(..., obs_size)``."""
         obs = np.asarray(observation, dtype=np.float64)
         lead = obs.shape[:-1]
         flat = obs.reshape(-1, self.obs_size)
-        if self._normalizer is not None:
-            flat = self._normalizer.normalize_obs(flat)
+        if self._stats is not None:
+            s = self._stats
+            flat = np.clip((flat - s["mean"]) / np.sqrt(s["var"] + s["epsilon"]), -s["clip_obs"], s["clip_obs"])
         actions, _ = self.model.predict(flat, deterministic=True)
         return np.asarray(actions, dtype=np.float64).reshape((*lead, self.action_size))
 
 
-def check_sizes(env: Any, obs_size: int, action_size: int, who: str) -> None:
+def _recorded_settings(model: Any) -> dict[str, Any] | None:
+    """The training settings a model records: a SavedModel's ``fxc_policy.json``, or an in-memory model's env."""
+    if hasattr(model, "training"):
+        return model.training
+    get_env = getattr(model, "get_env", None)
+    vec = get_env() if callable(get_env) else None
+    while vec is not None and hasattr(vec, "venv"):
+        vec = vec.venv
+    if vec is None:
+        return None
+    try:
+        return training_settings(vec)
+    except (ArgumentError, AttributeError):
+        return None
+
+
+def read_normalization(path: str | Path, obs_size: int, *, trusted: bool = False) -> dict[str, Any]:
+    """VecNormalize's observation statistics from ``path``: ``{"mean", "var", "epsilon", "clip_obs"}``.
+
+    A ``.json`` or ``.npz`` (``allow_pickle=False``) holds plain arrays; anything else is taken
+    for VecNormalize's pickle, read only with ``trusted=True`` (unpickling runs the file's code).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"vecnormalize: no statistics file at {path}")
+    try:
+        if path.suffix == ".json":
+            record = dict(json.loads(path.read_text()))
+        elif path.suffix == ".npz":
+            with np.load(path, allow_pickle=False) as arrays:
+                record = {key: arrays[key] for key in arrays.files}
+        elif trusted:
+            with open(path, "rb") as handle:
+                normalizer = pickle.load(handle)
+            record = {
+                "mean": normalizer.obs_rms.mean,
+                "var": normalizer.obs_rms.var,
+                "epsilon": normalizer.epsilon,
+                "clip_obs": normalizer.clip_obs,
+            }
+        else:
+            raise ArgumentError(
+                f"vecnormalize: {path} is a pickle (VecNormalize.save), and unpickling runs code from the file; "
+                f"nothing in it was run. Give the statistics as .json or .npz (mean, var, epsilon, clip_obs), or "
+                f"{TRUST_HINT}"
+            )
+        stats = {
+            "mean": np.asarray(record["mean"], dtype=np.float64),
+            "var": np.asarray(record["var"], dtype=np.float64),
+            "epsilon": float(record.get("epsilon", 1e-8)),
+            "clip_obs": float(record.get("clip_obs", 10.0)),
+        }
+    except (KeyError, TypeError, ValueError, OSError) as exc:
+        if isinstance(exc, ArgumentError):
+            raise
+        raise ArgumentError(f"vecnormalize: cannot read statistics from {path} ({_summary(exc)})") from exc
+    if stats["mean"].shape != (obs_size,) or stats["var"].shape != (obs_size,):
+        raise ArgumentError(
+            f"vecnormalize: {path} holds statistics of shape {stats['mean'].shape}; the model takes ({obs_size},)"
+        )
+    return stats
+
+
+def check_sizes(env: Any, obs_size: int, action_size: int, who: str, note: str = "") -> None:
     """Refuse an environment whose observation or action size differs from the model's."""
     from fxc_env.config import config_of
 
     config = config_of(env, who)
     if (config.layout.size, config.action_size) != (obs_size, action_size):
+        reason = f"; {note}" if note else " (train with the same obs_slots, dim and modes, or pass obs_slots)"
         raise ArgumentError(
             f"policy: the model takes observations of size {obs_size} and gives actions of size "
-            f"{action_size}; this environment has {config.layout.size} and {config.action_size} "
-            "(train with the same obs_slots, dim and modes, or pass obs_slots)"
+            f"{action_size}; this environment has {config.layout.size} and {config.action_size}{reason}"
         )
+
+
+def check_fit(policy: Any, env: Any, who: str = "policy", skip: tuple[str, ...] = ()) -> None:
+    """Refuse an environment that ``policy`` does not fit: its sizes, then its recorded training settings.
+
+    The size error names the sizes (and, where the policy records them, the settings behind
+    them); the settings error names each setting that differs and both values
+    (:func:`fxc_env.policies.policy_files.check_settings`).
+    """
+    from fxc_env.config import config_of
+
+    config = config_of(env, who)
+    trained = getattr(policy, "training_settings", None)
+    source = getattr(policy, "source", None) or "this path"
+    differences = setting_differences(trained, config, skip)
+    check_sizes(config, policy.obs_size, policy.action_size, who, describe_differences(differences))
+    check_settings(trained, config, source, skip)
 
 
 def rllib_checkpoint(path: str | Path) -> Path | None:
@@ -165,15 +295,27 @@ class RLlibPolicy:
             ``fxc train --backend rllib`` (its newest checkpoint).
         env: an fxc_env environment or EnvConfig, checked against the module's sizes.
         module_id: the module to load.
+        trusted: must be True: RLlib restores a module by unpickling its checkpoint
+            (``class_and_ctor_args.pkl`` and friends), which runs any code a crafted
+            checkpoint holds. Without it the checkpoint is refused and nothing in it is read.
     """
 
-    def __init__(self, checkpoint: str | Path, env: Any = None, module_id: str = RLLIB_MODULE) -> None:
+    def __init__(
+        self, checkpoint: str | Path, env: Any = None, module_id: str = RLLIB_MODULE, *, trusted: bool = False
+    ) -> None:
         found = rllib_checkpoint(checkpoint)
         if found is None:
             raise FileNotFoundError(
                 f"policy: no RLlib checkpoint at {checkpoint} (a directory with rllib_checkpoint.json, "
                 "or a run directory with checkpoints/rllib_<timesteps>_steps/)"
             )
+        if not trusted:
+            raise ArgumentError(
+                f"policy: {found} is an RLlib checkpoint, which loads only by unpickling (running code from the "
+                f"files); nothing in it was read. {TRUST_HINT}"
+            )
+        self.source = found
+        self.training_settings: dict[str, Any] | None = None
         module_dir = found / "learner_group" / "learner" / "rl_module" / module_id
         if not module_dir.is_dir():
             raise ArgumentError(f"policy: the RLlib checkpoint {found} has no module {module_id!r}")
@@ -196,7 +338,7 @@ class RLlibPolicy:
         self._low = np.asarray(self.module.action_space.low, dtype=np.float64)
         self._high = np.asarray(self.module.action_space.high, dtype=np.float64)
         if env is not None:
-            check_sizes(env, self.obs_size, self.action_size, "RLlibPolicy")
+            check_fit(self, env, "RLlibPolicy")
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
         """Actions ``(..., action_size)`` for observations ``(..., obs_size)``."""
@@ -221,6 +363,10 @@ class PerAxisPolicy:
     ``sigma_c`` back into the environment's units of ``s_i`` (plan and accel actions are
     linear in the scale). The input-limit feature is recomputed for the axis's scale. Only
     for ``obs_mode="normalized"`` (raw observations carry no scale to split).
+
+    Attributes:
+        adaptation: what was adapted, as text (``"trained in dim 1, acting per axis in dim 2"``).
+        obs_size, action_size: the environment's (``(2 dim + 1) slots + 3 [+ 1]`` and ``2 dim``).
     """
 
     def __init__(self, policy: Any, config: Any) -> None:
@@ -230,6 +376,11 @@ class PerAxisPolicy:
         self.config = config
         self.layout = config.layout
         self.axis_layout = ObservationLayout(self.layout.slots, 1, limit_feature=self.layout.limit_feature)
+        self.obs_size = self.layout.size
+        self.action_size = config.action_size
+        self.source = getattr(policy, "source", None)
+        self.training_settings = getattr(policy, "training_settings", None)
+        self.adaptation = f"trained in dim 1, acting per axis in dim {config.dim}"
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
         obs = self.layout.flat(observation)
@@ -252,30 +403,56 @@ class PerAxisPolicy:
         return np.moveaxis(actions, -2, -1).reshape((*lead, 2 * dim))
 
 
-def load_learned_policy(path: str | Path, env: Any = None) -> LearnedPolicy | RLlibPolicy | PerAxisPolicy:
-    """A saved policy: a torch policy (``policy.pt`` or a ``--backend torchrl`` run directory), an RLlib
-    checkpoint or run directory, else an SB3 PPO/SAC ``.zip``.
+def load_learned_policy(
+    path: str | Path, env: Any = None, *, trusted: bool = False
+) -> LearnedPolicy | RLlibPolicy | PerAxisPolicy:
+    """A saved policy: a torch policy (``policy.pt`` or a ``--backend torch`` run directory), an RLlib
+    checkpoint or run directory (only with ``trusted=True``), else an SB3 PPO/SAC ``.zip``.
 
-    A model trained in one dimension, loaded for a normalized environment with ``dim > 1``
-    and the same neighbour slots, acts on every axis alone (:class:`PerAxisPolicy`).
+    Nothing in the file is unpickled unless ``trusted`` (see the module): ``fxc evaluate``
+    and ``fxc benchmark`` should pass it only for ``--trust-policy-file``. With ``env``, the
+    policy must fit it: sizes, and the training settings the file records (schedule, modes,
+    input-limit feature, agent model, dim, obs_slots). A model trained in one dimension,
+    loaded for a normalized environment with ``dim > 1`` and otherwise the same settings,
+    acts on every axis alone (:class:`PerAxisPolicy`; it warns once, and says so in
+    ``adaptation``).
 
     Raises ``FileNotFoundError`` naming ``policy`` when nothing is saved at ``path``, and
     :class:`~fxc_env.core.validation.ArgumentError` naming ``policy`` when the file is empty,
-    damaged or not a PPO/SAC model, or the model does not fit ``env``.
+    damaged, not a PPO/SAC model, needs unpickling without ``trusted``, or does not fit
+    ``env`` (naming the sizes, or the setting and both values).
     """
     path = Path(path)
     from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
 
-    load = load_torch_policy if is_torch_policy(path) else RLlibPolicy if path.is_dir() else LearnedPolicy
+    if is_torch_policy(path):
+        policy: Any = load_torch_policy(path)
+    elif path.is_dir():
+        policy = RLlibPolicy(path, trusted=trusted)
+    else:
+        policy = LearnedPolicy(path, trusted=trusted)
     if env is None:
-        return load(path)
+        return policy
     from fxc_env.config import config_of
     from fxc_env.config.layout import ObservationLayout
 
     config = config_of(env, "policy")
-    policy = load(path)
+    trained = getattr(policy, "training_settings", None)
     axis_size = ObservationLayout(config.layout.slots, 1, limit_feature=config.layout.limit_feature).size
-    if config.dim > 1 and config.obs_mode == "normalized" and (policy.obs_size, policy.action_size) == (axis_size, 2):
-        return PerAxisPolicy(policy, config)
-    check_sizes(config, policy.obs_size, policy.action_size, "policy")
+    per_axis = (
+        config.dim > 1
+        and config.obs_mode == "normalized"
+        and (policy.obs_size, policy.action_size) == (axis_size, 2)
+        and (not trained or trained.get("dim", 1) == 1)
+    )
+    if per_axis:
+        check_settings(trained, config, path, skip=("dim",))
+        adapted = PerAxisPolicy(policy, config)
+        warnings.warn(f"policy: {path} was {adapted.adaptation} (PerAxisPolicy)", PolicyAdaptedWarning, stacklevel=2)
+        return adapted
+    check_fit(policy, config, "policy")
     return policy
+
+
+class PolicyAdaptedWarning(UserWarning):
+    """A saved policy was adapted to an environment it was not trained in (see :func:`load_learned_policy`)."""

@@ -52,10 +52,13 @@ class TorchPolicy:
     The action is the Gaussian's mean clipped to ``±action_bound`` (training clips its
     samples to the same bound). numpy in, numpy (float64) out; a torch tensor in, a tensor
     out on its device, in its floating dtype (float32 for other dtypes). ``env`` holds the
-    scenario and environment keywords it was trained on.
+    scenario and environment keywords it was trained on; :attr:`training_settings` the
+    settings they make (:func:`fxc_env.policies.policy_files.training_settings`), which
+    :func:`fxc_env.policies.learned.load_learned_policy` checks against the environment.
     """
 
-    def __init__(self, record: Mapping[str, Any]) -> None:
+    def __init__(self, record: Mapping[str, Any], source: str | Path | None = None) -> None:
+        self.source = source
         if record.get("format") != POLICY_FORMAT:
             raise ArgumentError(f"policy: expected a {POLICY_FORMAT!r} record, got format {record.get('format')!r}")
         self.obs_size = int(record["obs_size"])
@@ -67,6 +70,16 @@ class TorchPolicy:
         self.module = mlp(self.obs_size, self.action_size, hidden, str(record["activation"]), 1.0)
         self.module.load_state_dict(record["actor"])
         self.module.eval().requires_grad_(False)
+        self._settings: dict[str, Any] | None = None
+
+    @property
+    def training_settings(self) -> dict[str, Any] | None:
+        """The settings of the environment ``env`` describes (None when it records none or does not build)."""
+        if self._settings is None and self.env:
+            from fxc_env.policies.policy_files import settings_from_env_kwargs
+
+            self._settings = settings_from_env_kwargs(self.env)
+        return self._settings
 
     def __call__(self, observations: Any) -> Any:
         numpy_in = not isinstance(observations, torch.Tensor)
@@ -102,7 +115,7 @@ def load_torch_policy(path: str | Path) -> TorchPolicy:
         record = record["policy"]
     if not isinstance(record, dict):
         raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file")
-    return TorchPolicy(record)
+    return TorchPolicy(record, source=path)
 
 
 def is_torch_policy(path: str | Path) -> bool:

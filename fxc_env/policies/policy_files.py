@@ -1,0 +1,574 @@
+"""Saved SB3 policies read without running code from them, and the settings a policy was trained for.
+
+A stable-baselines3 ``.zip`` holds ``data`` (JSON, some of whose entries are cloudpickled
+objects: ``policy_class``, ``lr_schedule``, the spaces...), ``policy.pth`` (the network's state
+dict) and ``policy.optimizer.pth``. SB3's own ``load`` unpickles ``data``, so a crafted file
+runs code. :func:`read_sb3_zip` unpickles nothing: it reads the readable JSON (SB3 writes the
+readable fields of each pickled object next to it, e.g. ``observation_space``'s ``_shape``,
+``low`` and ``high``, and ``policy_kwargs`` as plain JSON when it is), rebuilds one of the
+networks it knows (:data:`KNOWN_POLICIES`) and loads the weights with
+``torch.load(..., weights_only=True)``. What only a pickle would tell (the activation when
+``policy_kwargs`` names a class, VecNormalize statistics, the training environment) is written
+as plain JSON beside the weights by :func:`save_model`: the member :data:`METADATA_MEMBER`
+(README, "Training learned policies"):
+
+    format         METADATA_FORMAT
+    algorithm      "PPO" or "SAC"
+    policy_class   "ActorCriticPolicy" (SB3's MlpPolicy for PPO), "GainScheduledPolicy",
+                   "GatedGainPolicy" (fxc_env.policies.gain_network) or "SACPolicy"
+    net_arch       SB3's net_arch (a list of widths, or {"pi": [...], "vf": [...]} / {"pi", "qf"})
+    activation     "tanh", "relu", "elu" or "leaky_relu"
+    observation    {"shape": [obs_size], "low": [...], "high": [...]}
+    action         {"shape": [action_size], "low": [...], "high": [...]}
+    normalization  null, or VecNormalize's {"mean", "var", "epsilon", "clip_obs"} (observations)
+    env            the training environment's settings (:func:`training_settings`)
+
+:func:`check_settings` compares a policy's training settings with an environment's
+(:data:`CHECKED_SETTINGS`) and refuses a mismatch, naming the setting and both values.
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+import json
+import re
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fxc_env.core.validation import ArgumentError
+
+#: The plain-JSON member :func:`save_model` adds to an SB3 ``.zip``, and its format.
+METADATA_MEMBER = "fxc_policy.json"
+METADATA_FORMAT = "fxc_env.sb3_policy/1"
+#: Policy classes whose network :func:`read_sb3_zip` rebuilds, by algorithm.
+KNOWN_POLICIES = {
+    "PPO": ("ActorCriticPolicy", "GainScheduledPolicy", "GatedGainPolicy"),
+    "SAC": ("SACPolicy",),
+}
+#: The modules those classes live in (read from ``data``'s ``policy_class.__module__``).
+KNOWN_MODULES = {
+    "stable_baselines3.common.policies": ("ActorCriticPolicy",),
+    "stable_baselines3.sac.policies": ("SACPolicy",),
+    "fxc_env.policies.gain_network": ("GainScheduledPolicy", "GatedGainPolicy"),
+}
+#: Activations by name (SB3's defaults: tanh for actor-critic policies, relu for SAC).
+ACTIVATION_NAMES = ("tanh", "relu", "elu", "leaky_relu")
+#: The settings of the training environment a loaded policy must meet (README, "Training learned
+#: policies"): schedule name, action and observation modes, whether the observation carries the
+#: input-limit (``u_max``) feature, the agent model, the dimension and the observation slots.
+CHECKED_SETTINGS = ("schedule", "action_mode", "obs_mode", "limit_feature", "agent_model", "dim", "obs_slots")
+#: How a setting is named in refusals.
+SETTING_LABELS = {"limit_feature": "the u_max feature (limit_feature)"}
+#: The keyword of :func:`fxc_env.make_config` that sets each checked setting, for the hint.
+SETTING_KEYWORDS = {
+    "schedule": "schedule",
+    "action_mode": "action_mode",
+    "obs_mode": "obs_mode",
+    "limit_feature": "u_max",
+    "agent_model": "agent_model",
+    "dim": "dim",
+    "obs_slots": "obs_slots",
+}
+TRUST_HINT = "pass trusted=True (fxc: --trust-policy-file) only if you trust whoever made the file"
+
+
+# ----------------------------------------------------------------------------- training settings
+def training_settings(config: Any) -> dict[str, Any]:
+    """The settings of an environment that a policy trained on it depends on, as plain JSON values.
+
+    ``schedule`` (its name: ``paper``, ``uniform`` or ``custom``), ``action_mode``, ``obs_mode``,
+    ``limit_feature`` (the observation's input-limit entry), ``agent_model`` (and ``model_A``,
+    ``model_B`` for a model other than the double integrator), ``dim``, ``obs_slots``,
+    ``obs_size``, ``action_size``, ``action_bound``; and, for the record, ``scenario``,
+    ``n_agents``, ``n_intervals``, ``settling_time`` (s) and ``u_max`` (m/s^2, the set drawn from).
+    """
+    from fxc_env.config import config_of
+
+    c = config_of(config, "env")
+    settings: dict[str, Any] = {
+        "scenario": c.scenario,
+        "schedule": c.schedule.name,
+        "action_mode": c.action_mode,
+        "obs_mode": c.obs_mode,
+        "limit_feature": bool(c.layout.limit_feature),
+        "agent_model": c.agent_model,
+        "dim": int(c.dim),
+        "obs_slots": int(c.layout.slots),
+        "obs_size": int(c.layout.size),
+        "action_size": int(c.action_size),
+        "action_bound": float(c.action_bound),
+        "n_agents": int(c.n_agents),
+        "n_intervals": int(c.n_intervals),
+        "settling_time": float(c.settling_time),
+        "u_max": None if c.u_max_choices is None else [float(u) for u in c.u_max_choices],
+    }
+    if c.model is not None:
+        settings["model_A"] = np.asarray(c.model.A, dtype=float).tolist()
+        settings["model_B"] = np.asarray(c.model.B, dtype=float).tolist()
+    return settings
+
+
+def settings_from_env_kwargs(env: Mapping[str, Any]) -> dict[str, Any] | None:
+    """:func:`training_settings` of ``make_config(**env)`` (a torch policy's ``env`` record); None if it fails."""
+    from fxc_env.config import make_config
+
+    try:
+        return training_settings(make_config(**dict(env)))
+    except (ArgumentError, TypeError):
+        return None
+
+
+def setting_differences(
+    trained: Mapping[str, Any] | None, config: Any, skip: tuple[str, ...] = ()
+) -> list[tuple[str, Any, Any]]:
+    """``(setting, trained value, this environment's value)`` for each checked setting that differs."""
+    if not trained:
+        return []
+    here = training_settings(config)
+    found = []
+    for key in CHECKED_SETTINGS:
+        if key in skip or key not in trained:
+            continue
+        if trained[key] != here[key]:
+            found.append((key, trained[key], here[key]))
+        elif key == "agent_model" and "model_A" in trained:
+            for matrix in ("model_A", "model_B"):
+                if not np.array_equal(np.asarray(trained[matrix]), np.asarray(here.get(matrix))):
+                    found.append((matrix, trained[matrix], here.get(matrix)))
+    return found
+
+
+def describe_differences(differences: list[tuple[str, Any, Any]]) -> str:
+    """``"schedule: trained with 'uniform', this environment has 'paper'; ..."``."""
+    return "; ".join(
+        f"{SETTING_LABELS.get(key, key)}: trained with {trained!r}, this environment has {here!r}"
+        for key, trained, here in differences
+    )
+
+
+def check_settings(trained: Mapping[str, Any] | None, config: Any, source: Any, skip: tuple[str, ...] = ()) -> None:
+    """Refuse (:class:`ArgumentError` naming ``policy``, the setting and both values) an environment
+    whose checked settings (:data:`CHECKED_SETTINGS`) differ from those ``trained`` records.
+
+    ``trained`` None or empty (a file that records no training environment) checks nothing.
+    """
+    differences = setting_differences(trained, config, skip)
+    if differences:
+        keywords = sorted({SETTING_KEYWORDS.get(key, "agent_model") for key, _, _ in differences})
+        raise ArgumentError(
+            f"policy: the model at {source} was trained for other settings: {describe_differences(differences)} "
+            f"(make the environment match: {', '.join(keywords)}; or use a policy trained for these settings)"
+        )
+
+
+# --------------------------------------------------------------------------------- reading a zip
+class SavedModel:
+    """An SB3 PPO or SAC model read by :func:`read_sb3_zip`: enough of SB3's model for acting.
+
+    Attributes:
+        path: the ``.zip`` it was read from.
+        algorithm: ``"PPO"`` or ``"SAC"``.
+        policy_class: the SB3 policy class's name (:data:`KNOWN_POLICIES`).
+        policy: the actor network (a torch module, float32): flat observations
+            ``(batch, obs_size)`` to the action mean ``(batch, action_size)`` (before SAC's tanh).
+        observation_space, action_space: gymnasium ``Box`` spaces rebuilt from plain values.
+        num_timesteps: the timesteps it was trained for.
+        normalization: VecNormalize's observation statistics, or None.
+        training: the training environment's settings (:func:`training_settings`), or None
+            for a file without :data:`METADATA_MEMBER`.
+        metadata: :data:`METADATA_MEMBER`'s record, or None.
+    """
+
+    def __init__(self, path: Path, spec: dict[str, Any], policy: Any, data: Mapping[str, Any]) -> None:
+        from gymnasium import spaces
+
+        self.path = path
+        self.algorithm = spec["algorithm"]
+        self.policy_class = spec["policy_class"]
+        self.policy = policy
+        self.squash = self.algorithm == "SAC"
+        self.observation_space = spaces.Box(
+            np.asarray(spec["observation"]["low"], dtype=np.float64).reshape(spec["observation"]["shape"]),
+            np.asarray(spec["observation"]["high"], dtype=np.float64).reshape(spec["observation"]["shape"]),
+            dtype=np.float64,
+        )
+        self.action_space = spaces.Box(
+            np.asarray(spec["action"]["low"], dtype=np.float64).reshape(spec["action"]["shape"]),
+            np.asarray(spec["action"]["high"], dtype=np.float64).reshape(spec["action"]["shape"]),
+            dtype=np.float64,
+        )
+        self.num_timesteps = int(data.get("num_timesteps", 0) or 0)
+        self.normalization = spec.get("normalization")
+        self.training = spec.get("env")
+        self.metadata = spec.get("metadata")
+
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True):
+        """SB3's ``predict`` for a Box policy, deterministic: ``(actions (batch, action_size), None)``.
+
+        The same arithmetic as SB3: the observation as float32, the actor's mean, then for
+        PPO a clip to the action space, for SAC ``tanh`` and the affine map onto it.
+        """
+        import torch
+
+        if not deterministic:
+            raise ArgumentError("deterministic: a SavedModel acts deterministically only (deterministic=True)")
+        shape = self.observation_space.shape
+        obs = np.asarray(observation).reshape((-1, *shape))
+        with torch.no_grad():
+            out = self.policy(torch.as_tensor(obs).float())
+            if self.squash:
+                out = torch.tanh(out)
+        actions = out.numpy().reshape((-1, *self.action_space.shape))
+        low, high = self.action_space.low, self.action_space.high
+        if self.squash:
+            return low + (0.5 * (actions + 1.0) * (high - low)), None
+        return np.clip(actions, low, high), None
+
+
+def read_sb3_zip(path: str | Path) -> SavedModel:
+    """Read an SB3 PPO/SAC ``.zip`` without unpickling anything (see the module).
+
+    Raises ``FileNotFoundError`` when nothing is at ``path``, and :class:`ArgumentError` naming
+    ``policy`` and the path when the file is not an SB3 model, is damaged, holds weights that
+    are not plain tensors, or uses a network this loader cannot rebuild (a custom policy
+    class or features extractor, or an activation recorded only in a pickle); such files load
+    with ``trusted=True`` (:func:`fxc_env.policies.learned.load_model`), which runs SB3's loader.
+    """
+    import torch
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"policy: no saved model at {path}")
+    if not path.is_file():
+        raise ArgumentError(f"policy: {path} is not a file (expected a saved SB3 model, .zip)")
+    if path.stat().st_size == 0:
+        raise ArgumentError(f"policy: {path} is an empty file (expected a saved SB3 model, .zip)")
+    if not zipfile.is_zipfile(path):
+        raise ArgumentError(f"policy: {path} is not a zip archive (expected a saved SB3 model, .zip)")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+            missing = [m for m in ("data", "policy.pth") if m not in names]
+            if missing:
+                raise ArgumentError(
+                    f"policy: {path} is not a saved SB3 model (no {' or '.join(missing)} in the archive)"
+                )
+            data = json.loads(archive.read("data"))
+            metadata = json.loads(archive.read(METADATA_MEMBER)) if METADATA_MEMBER in names else None
+            weights_bytes = archive.read("policy.pth")
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError, UnicodeDecodeError) as exc:
+        if isinstance(exc, ArgumentError):
+            raise
+        raise ArgumentError(f"policy: {path} is a damaged SB3 model ({_summary(exc)})") from exc
+    if not isinstance(data, dict):
+        raise ArgumentError(f"policy: {path} is not a saved SB3 model (its data is not a JSON object)")
+    try:
+        weights = torch.load(io.BytesIO(weights_bytes), map_location="cpu", weights_only=True)
+    except (
+        Exception
+    ) as exc:  # torch's UnpicklingError for anything but plain tensors, RuntimeError/EOFError when damaged
+        raise ArgumentError(
+            f"policy: {path}: policy.pth is not a plain state dict of tensors ({_summary(exc)}); "
+            f"nothing in it was run. {TRUST_HINT}"
+        ) from exc
+    if not isinstance(weights, Mapping) or not all(isinstance(v, torch.Tensor) for v in weights.values()):
+        raise ArgumentError(f"policy: {path}: policy.pth is not a state dict of tensors")
+    spec = _architecture(path, data, metadata, weights)
+    policy = _build(path, spec, weights)
+    return SavedModel(path, spec, policy, data)
+
+
+def _summary(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    text = f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+def _readable_space(path: Path, data: Mapping[str, Any], name: str) -> dict[str, Any]:
+    """A Box space's shape, low and high from the readable fields SB3 writes beside its pickle."""
+    space = data.get(name)
+    if not isinstance(space, Mapping) or "Box" not in str(space.get(":type:", "")):
+        raise ArgumentError(f"policy: {path} records no readable Box {name} (a non-Box space); {TRUST_HINT}")
+    try:
+        shape = [int(n) for n in space["_shape"]]
+        bounds = {
+            key: [float(v) for v in str(space[key]).replace("[", " ").replace("]", " ").split()]
+            for key in ("low", "high")
+        }
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ArgumentError(f"policy: {path}: cannot read the {name} from its plain fields ({_summary(exc)})") from exc
+    size = int(np.prod(shape))
+    if any(len(v) != size for v in bounds.values()):
+        raise ArgumentError(f"policy: {path}: the {name}'s bounds do not have {size} entries")
+    return {"shape": shape, **bounds}
+
+
+def _class_name(path: Path, data: Mapping[str, Any]) -> str:
+    """The policy class's name from ``policy_class``'s readable fields (``__module__`` and its methods' names)."""
+    entry = data.get("policy_class")
+    module = entry.get("__module__") if isinstance(entry, Mapping) else None
+    names = {
+        found.group(1)
+        for value in (entry.values() if isinstance(entry, Mapping) else ())
+        if isinstance(value, str) and (found := re.match(r"<function (\w+)\.\w+ at 0x", value))
+    }
+    known = KNOWN_MODULES.get(str(module), ())
+    if len(names) == 1 and next(iter(names)) in known:
+        return next(iter(names))
+    label = f"{module}.{'/'.join(sorted(names)) or '?'}" if module else "an unreadable policy class"
+    raise ArgumentError(
+        f"policy: {path} uses {label}, which this loader cannot rebuild without running code from the file "
+        f"(it rebuilds {', '.join(c for v in KNOWN_POLICIES.values() for c in v)}); {TRUST_HINT}"
+    )
+
+
+def _architecture(path: Path, data: Mapping[str, Any], metadata: Any, weights: Mapping[str, Any]) -> dict[str, Any]:
+    """What to rebuild: from :data:`METADATA_MEMBER` when the file has it, else from ``data``'s plain JSON."""
+    if metadata is not None:
+        if not isinstance(metadata, Mapping) or metadata.get("format") != METADATA_FORMAT:
+            raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} is not a {METADATA_FORMAT!r} record")
+        spec = {key: metadata.get(key) for key in ("algorithm", "policy_class", "net_arch", "activation")}
+        spec.update(
+            observation=metadata.get("observation"),
+            action=metadata.get("action"),
+            normalization=metadata.get("normalization"),
+            env=metadata.get("env"),
+            metadata=dict(metadata),
+        )
+        for key in ("observation", "action"):
+            if not isinstance(spec[key], Mapping) or not {"shape", "low", "high"} <= set(spec[key]):
+                raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} has no {key} shape and bounds")
+    else:
+        algorithm = "SAC" if any(k.startswith("actor.mu.") for k in weights) else "PPO"
+        kwargs = data.get("policy_kwargs", {})
+        if not isinstance(kwargs, Mapping) or ":serialized:" in kwargs:
+            raise ArgumentError(
+                f"policy: {path}: its policy_kwargs are recorded only as a pickle (a class such as activation_fn "
+                f"or a features extractor), and the file has no {METADATA_MEMBER}; re-save it with "
+                f"fxc_env.policies.policy_files.save_model, or {TRUST_HINT}"
+            )
+        unknown = set(kwargs) - {"net_arch", "log_std_init", "ortho_init", "squash_output", "use_expln", "n_critics"}
+        if unknown or kwargs.get("squash_output") or data.get("use_sde"):
+            extra = sorted(unknown) + (["use_sde"] if data.get("use_sde") else [])
+            raise ArgumentError(
+                f"policy: {path}: policy options {extra or ['squash_output']} are not rebuilt; {TRUST_HINT}"
+            )
+        default_arch = [256, 256] if algorithm == "SAC" else [64, 64]
+        spec = {
+            "algorithm": algorithm,
+            "policy_class": _class_name(path, data),
+            "net_arch": kwargs.get("net_arch", default_arch),
+            "activation": "relu" if algorithm == "SAC" else "tanh",
+            "observation": _readable_space(path, data, "observation_space"),
+            "action": _readable_space(path, data, "action_space"),
+            "normalization": None,
+            "env": None,
+            "metadata": None,
+        }
+    if spec["algorithm"] not in KNOWN_POLICIES or spec["policy_class"] not in KNOWN_POLICIES[spec["algorithm"]]:
+        raise ArgumentError(
+            f"policy: {path}: {spec['algorithm']} with {spec['policy_class']} is not a network this loader rebuilds "
+            f"({KNOWN_POLICIES}); {TRUST_HINT}"
+        )
+    if spec["activation"] not in ACTIVATION_NAMES:
+        raise ArgumentError(f"policy: {path}: activation {spec['activation']!r}; expected one of {ACTIVATION_NAMES}")
+    return spec
+
+
+def _actor_widths(net_arch: Any, key: str) -> list[int]:
+    """The actor's hidden widths from SB3's ``net_arch`` (a list, or a dict with ``pi``)."""
+    if isinstance(net_arch, Mapping):
+        net_arch = net_arch.get(key, [])
+    return [int(w) for w in net_arch]
+
+
+def _build(path: Path, spec: dict[str, Any], weights: Mapping[str, Any]) -> Any:
+    """The actor network of ``spec`` with ``weights`` loaded (strictly: every actor key, no other)."""
+    from torch import nn
+
+    activation = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}[spec["activation"]]
+    obs_size = int(np.prod(spec["observation"]["shape"]))
+    action_size = int(np.prod(spec["action"]["shape"]))
+
+    def mlp(widths: list[int]) -> nn.Sequential:
+        layers: list[nn.Module] = []
+        width = obs_size
+        for size in widths:
+            layers += [nn.Linear(width, size), activation()]
+            width = size
+        return nn.Sequential(*layers)
+
+    mean_actor, gain_actor = _actor_classes()
+    cls = spec["policy_class"]
+    if cls == "ActorCriticPolicy":
+        widths = _actor_widths(spec["net_arch"], "pi")
+        module: nn.Module = mean_actor(mlp(widths), nn.Linear(widths[-1] if widths else obs_size, action_size))
+        state = {
+            **{
+                k.replace("mlp_extractor.policy_net.", "latent.", 1): v
+                for k, v in weights.items()
+                if k.startswith("mlp_extractor.policy_net.")
+            },
+            **{k.replace("action_net.", "mean.", 1): v for k, v in weights.items() if k.startswith("action_net.")},
+        }
+    elif cls == "SACPolicy":
+        widths = _actor_widths(spec["net_arch"], "pi")
+        module = mean_actor(mlp(widths), nn.Linear(widths[-1] if widths else obs_size, action_size))
+        state = {
+            **{
+                k.replace("actor.latent_pi.", "latent.", 1): v
+                for k, v in weights.items()
+                if k.startswith("actor.latent_pi.")
+            },
+            **{k.replace("actor.mu.", "mean.", 1): v for k, v in weights.items() if k.startswith("actor.mu.")},
+        }
+    else:  # the gain-scheduled networks of fxc_env.policies.gain_network
+        from fxc_env.policies.gain_network import GainScheduledExtractor, GatedGainExtractor
+
+        net_arch = spec["net_arch"]
+        hidden = tuple(int(w) for w in net_arch) if isinstance(net_arch, list | tuple) else (64, 64)
+        extractor_class = GatedGainExtractor if cls == "GatedGainPolicy" else GainScheduledExtractor
+        try:
+            extractor = extractor_class(obs_size, hidden)
+        except ValueError as exc:
+            raise ArgumentError(f"policy: {path}: {exc}") from exc
+        module = gain_actor(extractor)
+        state = {
+            k.replace("mlp_extractor.", "extractor.", 1): v
+            for k, v in weights.items()
+            if k.startswith("mlp_extractor.")
+        }
+    try:
+        module.load_state_dict(state, strict=True)
+    except RuntimeError as exc:
+        raise ArgumentError(
+            f"policy: {path}: the weights in policy.pth do not fit {spec['algorithm']} {cls} with net_arch "
+            f"{spec['net_arch']} ({_summary(exc)})"
+        ) from exc
+    return module.eval().requires_grad_(False)
+
+
+@functools.cache
+def _actor_classes() -> tuple[type, type]:
+    """The two actor modules (defined on first use: torch is imported only when a policy loads)."""
+    from torch import nn
+
+    class MeanActor(nn.Module):
+        """SB3's actor mean: ``mean(latent(obs))`` (PPO's ``action_net(policy_net)``, SAC's ``mu(latent_pi)``)."""
+
+        def __init__(self, latent: nn.Module, mean: nn.Module) -> None:
+            super().__init__()
+            self.latent, self.mean = latent, mean
+
+        def forward(self, obs):
+            return self.mean(self.latent(obs))
+
+    class GainActor(nn.Module):
+        """The gain networks' action mean: the extractor's ``forward_actor`` (their ``action_net`` is the identity)."""
+
+        def __init__(self, extractor: nn.Module) -> None:
+            super().__init__()
+            self.extractor = extractor
+
+        def forward(self, obs):
+            return self.extractor.forward_actor(obs)
+
+    return MeanActor, GainActor
+
+
+# ---------------------------------------------------------------------------------------- writing
+def policy_metadata(model: Any, env: Any = None) -> dict[str, Any]:
+    """The :data:`METADATA_MEMBER` record of an SB3 ``model`` in memory (see the module).
+
+    ``env``: the training environment (an fxc_env environment or EnvConfig); by default
+    the one under ``model.get_env()`` (its VecNormalize statistics are recorded too).
+    """
+    from stable_baselines3.common.vec_env import VecNormalize
+    from torch import nn
+
+    policy = model.policy
+    names = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu", nn.LeakyReLU: "leaky_relu"}
+    activation_fn = getattr(policy, "activation_fn", None)
+    policy_class = type(policy).__name__
+    hidden = getattr(policy, "_hidden", None)  # the gain networks keep their widths here
+    net_arch = list(hidden) if hidden is not None else getattr(policy, "net_arch", None)
+    normalization = None
+    vec = model.get_env()
+    if isinstance(vec, VecNormalize) and vec.norm_obs:
+        normalization = {
+            "mean": np.asarray(vec.obs_rms.mean, dtype=float).tolist(),
+            "var": np.asarray(vec.obs_rms.var, dtype=float).tolist(),
+            "epsilon": float(vec.epsilon),
+            "clip_obs": float(vec.clip_obs),
+        }
+    source = env if env is not None else _innermost(vec)
+    settings = None
+    if source is not None:
+        try:
+            settings = training_settings(source)
+        except ArgumentError:
+            settings = None
+    return {
+        "format": METADATA_FORMAT,
+        "algorithm": type(model).__name__,
+        "policy_class": policy_class,
+        "net_arch": net_arch,
+        "activation": names.get(activation_fn, getattr(activation_fn, "__name__", None)),
+        "observation": _space_record(model.observation_space),
+        "action": _space_record(model.action_space),
+        "normalization": normalization,
+        "num_timesteps": int(model.num_timesteps),
+        "env": settings,
+    }
+
+
+def _innermost(vec: Any) -> Any:
+    """The environment under SB3's VecEnv wrappers (``venv`` chains), or None."""
+    while vec is not None and hasattr(vec, "venv"):
+        vec = vec.venv
+    return vec
+
+
+def _space_record(space: Any) -> dict[str, Any]:
+    return {
+        "shape": [int(n) for n in space.shape],
+        "low": np.asarray(space.low, dtype=float).ravel().tolist(),
+        "high": np.asarray(space.high, dtype=float).ravel().tolist(),
+    }
+
+
+def add_metadata(path: str | Path, record: Mapping[str, Any]) -> Path:
+    """Write ``record`` as :data:`METADATA_MEMBER` into the ``.zip`` at ``path``; the other members' bytes are kept."""
+    path = Path(path)
+    text = json.dumps(dict(record), indent=1, allow_nan=True)
+    with zipfile.ZipFile(path) as archive:
+        has_member = METADATA_MEMBER in archive.namelist()
+    if not has_member:
+        with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as archive:
+            archive.writestr(METADATA_MEMBER, text)
+        return path
+    temporary = path.with_name(path.name + ".tmp")
+    with zipfile.ZipFile(path) as source, zipfile.ZipFile(temporary, "w") as target:
+        for info in source.infolist():
+            if info.filename != METADATA_MEMBER:
+                target.writestr(info, source.read(info))
+        target.writestr(METADATA_MEMBER, text, compress_type=zipfile.ZIP_DEFLATED)
+    temporary.replace(path)
+    return path
+
+
+def save_model(model: Any, path: str | Path, env: Any = None) -> Path:
+    """SB3's ``model.save(path)``, plus :data:`METADATA_MEMBER` (so the file loads without unpickling).
+
+    Returns the path of the ``.zip`` (SB3 adds the suffix when it is missing).
+    """
+    path = Path(path)
+    model.save(path)
+    if path.suffix != ".zip":
+        path = path.with_name(path.name + ".zip")
+    return add_metadata(path, policy_metadata(model, env))

@@ -1,0 +1,267 @@
+"""Saved policies load without running code from them, and refuse environments they were not trained for.
+
+README, "Training learned policies": an SB3 ``.zip`` is read from its plain JSON and its
+``weights_only`` tensors; pickled formats (RLlib checkpoints, VecNormalize's ``.pkl``) need
+``trusted=True``; a policy that records its training settings refuses an environment whose
+schedule, modes, input-limit feature, agent model, dim or observation slots differ.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import pickle
+import warnings
+import zipfile
+
+import numpy as np
+import pytest
+import torch
+
+from fxc_env import make_config
+from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.learned import (
+    LearnedPolicy,
+    PerAxisPolicy,
+    PolicyAdaptedWarning,
+    RLlibPolicy,
+    load_learned_policy,
+    load_model,
+    pretrained_path,
+)
+from fxc_env.policies.policy_files import METADATA_MEMBER, read_sb3_zip, save_model
+
+SHIPPED = ("generalist", "saturated", "paper_fig1")
+
+
+class WritesMarker:
+    """Unpickling this object creates the file ``marker`` (what a crafted policy file could do instead)."""
+
+    def __init__(self, marker) -> None:
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def members(path) -> dict[str, bytes]:
+    with zipfile.ZipFile(path) as archive:
+        return {name: archive.read(name) for name in archive.namelist()}
+
+
+def write_zip(path, contents: dict[str, bytes]):
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, content in contents.items():
+            archive.writestr(name, content)
+    return path
+
+
+# ------------------------------------------------------------------------------ no code runs
+@pytest.mark.parametrize("name", SHIPPED)
+def test_the_shipped_policies_load_with_unpickling_disabled_and_act_as_sb3_does(name, monkeypatch):
+    """Bit for bit SB3's deterministic actions, with every unpickler made to fail while loading."""
+    from stable_baselines3 import PPO
+
+    sb3 = PPO.load(pretrained_path(name), device="cpu")
+    obs = np.random.default_rng(0).uniform(-1, 1, size=(64, sb3.observation_space.shape[0]))
+    expected, _ = sb3.predict(obs, deterministic=True)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a policy file was unpickled")
+
+    import cloudpickle
+
+    monkeypatch.setattr(pickle, "loads", refuse)
+    monkeypatch.setattr(pickle, "load", refuse)
+    monkeypatch.setattr(cloudpickle, "loads", refuse)
+    policy = LearnedPolicy(pretrained_path(name))
+    monkeypatch.undo()
+    assert np.array_equal(policy(obs), expected)
+
+
+def test_the_shipped_files_record_their_training_settings():
+    recorded = {name: json.loads(members(pretrained_path(name))[METADATA_MEMBER])["env"] for name in SHIPPED}
+    assert recorded["saturated"]["schedule"] == "uniform" and recorded["saturated"]["limit_feature"] is True
+    assert recorded["generalist"]["schedule"] == "paper" and recorded["paper_fig1"]["obs_slots"] == 4
+    for settings in recorded.values():
+        assert (settings["action_mode"], settings["obs_mode"], settings["dim"]) == ("plan", "normalized", 1)
+
+
+def test_a_crafted_data_entry_is_not_unpickled_and_the_model_still_loads(tmp_path):
+    marker = tmp_path / "marker"
+    contents = members(pretrained_path("paper_fig1"))
+    data = json.loads(contents["data"])
+    blob = base64.b64encode(pickle.dumps(WritesMarker(marker))).decode()
+    for key in ("policy_class", "lr_schedule", "observation_space", "action_space"):
+        data[key][":serialized:"] = blob
+    crafted = write_zip(tmp_path / "crafted.zip", {**contents, "data": json.dumps(data).encode()})
+    policy = load_learned_policy(crafted, make_config("paper_fig1", obs_slots=4))
+    assert policy(np.zeros((2, 15))).shape == (2, 2)
+    assert not marker.exists()
+    with pytest.raises(Exception):  # noqa: B017 - SB3's loader chokes on the crafted objects after running them
+        load_model(crafted, trusted=True)
+    assert marker.exists(), "the file is crafted: SB3's own loader (trusted=True) runs its code"
+
+
+def test_crafted_weights_are_refused_naming_the_file_and_nothing_runs(tmp_path):
+    marker = tmp_path / "marker"
+    contents = members(pretrained_path("paper_fig1"))
+    weights = tmp_path / "weights.pth"
+    torch.save({"mlp_extractor.policy_net.0.weight": WritesMarker(marker)}, weights)
+    crafted = write_zip(tmp_path / "crafted.zip", {**contents, "policy.pth": weights.read_bytes()})
+    with pytest.raises(ArgumentError, match=r"policy: .*crafted\.zip: policy\.pth is not a plain state dict"):
+        load_learned_policy(crafted)
+    assert not marker.exists()
+
+
+def test_a_vecnormalize_pickle_is_refused_without_trust_and_plain_statistics_are_used(tmp_path):
+    marker = tmp_path / "marker"
+    stats = tmp_path / "vecnormalize.pkl"
+    stats.write_bytes(pickle.dumps(WritesMarker(marker)))
+    with pytest.raises(ArgumentError, match=r"vecnormalize: .*vecnormalize\.pkl is a pickle"):
+        LearnedPolicy(pretrained_path("paper_fig1"), vecnormalize=stats)
+    assert not marker.exists()
+    mean, var = np.linspace(-0.5, 0.5, 15), np.linspace(1.0, 4.0, 15)
+    plain = tmp_path / "vecnormalize.json"
+    plain.write_text(json.dumps({"mean": mean.tolist(), "var": var.tolist(), "epsilon": 1e-8, "clip_obs": 10.0}))
+    normalized = LearnedPolicy(pretrained_path("paper_fig1"), vecnormalize=plain)
+    raw = LearnedPolicy(pretrained_path("paper_fig1"))
+    obs = np.random.default_rng(1).uniform(-1, 1, size=(8, 15))
+    np.testing.assert_array_equal(normalized(obs), raw(np.clip((obs - mean) / np.sqrt(var + 1e-8), -10, 10)))
+
+
+def test_an_rllib_checkpoint_is_refused_without_trust_naming_it(tmp_path):
+    marker = tmp_path / "marker"
+    checkpoint = tmp_path / "checkpoint"
+    module = checkpoint / "learner_group" / "learner" / "rl_module" / "shared"
+    module.mkdir(parents=True)
+    (checkpoint / "rllib_checkpoint.json").write_text("{}")
+    (module / "class_and_ctor_args.pkl").write_bytes(pickle.dumps(WritesMarker(marker)))
+    with pytest.raises(
+        ArgumentError, match=r"policy: .*checkpoint is an RLlib checkpoint, which loads only by unpickling"
+    ):
+        load_learned_policy(checkpoint)
+    with pytest.raises(ArgumentError, match="trusted=True"):
+        RLlibPolicy(checkpoint)
+    assert not marker.exists()
+
+
+# ------------------------------------------------------------------------- files of any origin
+def small_ppo(**policy_kwargs):
+    from stable_baselines3 import PPO
+
+    import fxc_env
+
+    venv = fxc_env.ConsensusVecEnv(1, scenario="paper_fig1", obs_slots=4, n_intervals=10)
+    return PPO("MlpPolicy", venv, n_steps=10, batch_size=60, seed=0, device="cpu", policy_kwargs=policy_kwargs)
+
+
+def test_a_plain_sb3_save_loads_from_its_readable_fields_as_sb3_acts(tmp_path):
+    model = small_ppo(net_arch=[16, 8])
+    model.save(tmp_path / "plain.zip")
+    obs = np.random.default_rng(2).uniform(-1, 1, size=(32, 15))
+    saved = read_sb3_zip(tmp_path / "plain.zip")
+    assert saved.training is None and saved.policy_class == "ActorCriticPolicy"
+    assert np.array_equal(saved.predict(obs)[0], model.predict(obs, deterministic=True)[0])
+
+
+def test_an_activation_known_only_from_a_pickle_needs_the_metadata_that_save_model_writes(tmp_path):
+    model = small_ppo(net_arch=[16], activation_fn=torch.nn.ReLU)
+    model.save(tmp_path / "plain.zip")
+    with pytest.raises(ArgumentError, match=r"policy: .*plain\.zip: its policy_kwargs are recorded only as a pickle"):
+        read_sb3_zip(tmp_path / "plain.zip")
+    path = save_model(model, tmp_path / "saved.zip")
+    record = json.loads(members(path)[METADATA_MEMBER])
+    assert record["activation"] == "relu" and record["env"]["scenario"] == "paper_fig1"
+    obs = np.random.default_rng(3).uniform(-1, 1, size=(32, 15))
+    policy = LearnedPolicy(path, make_config("paper_fig1", obs_slots=4))
+    assert np.array_equal(policy(obs), model.predict(obs, deterministic=True)[0])
+    with pytest.raises(ArgumentError, match=r"action_mode: trained with 'plan', this environment has 'accel'"):
+        LearnedPolicy(path, make_config("paper_fig1", obs_slots=4, action_mode="accel"))
+
+
+# ------------------------------------------------------------------------- training settings
+@pytest.mark.parametrize(
+    ("name", "env", "message"),
+    [
+        ("saturated", {"u_max": 10.0}, r"schedule: trained with 'uniform', this environment has 'paper'"),
+        ("paper_fig1", {"action_mode": "accel"}, r"action_mode: trained with 'plan', this environment has 'accel'"),
+        ("paper_fig1", {"obs_mode": "raw"}, r"obs_mode: trained with 'normalized', this environment has 'raw'"),
+        (
+            "paper_fig1",
+            {"agent_model": "damped"},
+            r"agent_model: trained with 'double_integrator', this environment has 'damped'",
+        ),
+        (
+            "saturated",
+            {"schedule": "uniform"},
+            r"size 16 .* has 15.*u_max feature \(limit_feature\): trained with True, this environment has False",
+        ),
+        ("paper_fig1", {"obs_slots": 2}, r"size 15 .* has 9.*obs_slots: trained with 4, this environment has 2"),
+        ("generalist", {"dim": 2, "obs_mode": "raw"}, r"dim: trained with 1, this environment has 2"),
+    ],
+    ids=["schedule", "action_mode", "obs_mode", "agent_model", "u_max_feature", "obs_slots", "dim"],
+)
+def test_a_policy_refuses_settings_it_was_not_trained_for_naming_the_setting_and_both_values(name, env, message):
+    config = make_config("paper_fig1", **{"obs_slots": 4, **env})
+    with pytest.raises(ArgumentError, match=rf"^policy: .*{message}"):
+        load_learned_policy(pretrained_path(name), config)
+    with pytest.raises(ArgumentError, match=message):
+        LearnedPolicy(pretrained_path(name), config)
+
+
+@pytest.mark.parametrize(
+    ("name", "env"),
+    [
+        ("paper_fig1", {}),
+        ("generalist", {"topology": "ring", "n_agents": 8}),
+        ("saturated", {"schedule": "uniform", "u_max": 10.0}),
+    ],
+)
+def test_matching_settings_load(name, env):
+    config = make_config("paper_fig1", **{"obs_slots": 4, **env})
+    policy = load_learned_policy(pretrained_path(name), config)
+    assert isinstance(policy, LearnedPolicy)
+    assert policy(np.zeros((3, config.n_agents, config.layout.size))).shape == (3, config.n_agents, 2)
+
+
+def test_a_one_axis_policy_in_the_plane_acts_per_axis_and_says_so():
+    config = make_config("paper_fig1", obs_slots=4, dim=2)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        policy = load_learned_policy(pretrained_path("generalist"), config)
+    assert isinstance(policy, PerAxisPolicy) and policy.adaptation == "trained in dim 1, acting per axis in dim 2"
+    assert [w.category for w in caught] == [PolicyAdaptedWarning]
+    with pytest.raises(ArgumentError, match=r"schedule: trained with 'paper', this environment has 'uniform'"):
+        load_learned_policy(
+            pretrained_path("generalist"), make_config("paper_fig1", obs_slots=4, dim=2, schedule="uniform")
+        )
+
+
+def torch_policy_file(tmp_path, env):
+    from fxc_env.policies.torch_policy import POLICY_FORMAT, mlp
+
+    actor = mlp(15, 2, (8,), "tanh", 1.0)
+    record = {
+        "format": POLICY_FORMAT,
+        "obs_size": 15,
+        "action_size": 2,
+        "action_bound": 2.0,
+        "hidden": [8],
+        "activation": "tanh",
+        "actor": actor.state_dict(),
+        "log_std": torch.zeros(2),
+        "env": env,
+        "timesteps": 0,
+    }
+    torch.save(record, tmp_path / "policy.pt")
+    return tmp_path / "policy.pt"
+
+
+def test_a_torch_policy_refuses_settings_other_than_its_recorded_env(tmp_path):
+    path = torch_policy_file(tmp_path, {"scenario": "paper_fig1", "obs_slots": 4, "action_mode": "plan"})
+    assert load_learned_policy(path, make_config("paper_fig1", obs_slots=4)).obs_size == 15
+    with pytest.raises(
+        ArgumentError, match=r"policy\.pt was trained .*action_mode: trained with 'plan', this environment has 'accel'"
+    ):
+        load_learned_policy(path, make_config("paper_fig1", obs_slots=4, action_mode="accel"))
