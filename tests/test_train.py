@@ -60,11 +60,11 @@ def test_resume_continues_from_the_newest_checkpoint_with_its_step_count_and_opt
     train(short_args(tmp_path, timesteps=4800))
     checkpoint = latest_checkpoint(tmp_path / "run")
     assert checkpoint.name == "model_4800_steps.zip"
-    saved = load_model(checkpoint)
+    saved = load_model(checkpoint, trusted=True)  # SB3's whole model (the optimiser too): our own file
     run_dir = train(short_args(tmp_path, resume=True))
     out = capsys.readouterr().out
     assert "resuming" in out and "from model_4800_steps.zip at 4800 timesteps" in out
-    resumed = load_model(run_dir / "model.zip")
+    resumed = load_model(run_dir / "model.zip", trusted=True)
     assert resumed.num_timesteps == 9600
     # The checkpoint follows the first update, and Adam's step counter goes on from it.
     step_saved = max(s["step"].item() for s in saved.policy.optimizer.state_dict()["state"].values())

@@ -25,6 +25,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecNormalize
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.policy_files import save_model
 from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.imitation import imitate_reference
 from fxc_env.training.run_dir import RunDir
@@ -86,7 +87,7 @@ def save_checkpoint(model: Any, run: RunDir) -> Path:
     """Save ``model`` (optimiser included) and any VecNormalize statistics as ``model_<steps>_steps``."""
     path = run.checkpoint_path(model.num_timesteps)
     path.parent.mkdir(parents=True, exist_ok=True)
-    model.save(path)
+    save_model(model, path)  # SB3's save plus fxc_policy.json: loads without unpickling
     env = model.get_env()
     if isinstance(env, VecNormalize):
         env.save(str(vecnormalize_path(path)))
@@ -172,7 +173,7 @@ def train_sb3(args: TrainArgs) -> Path:
 
     # -------------------------------------------------------------- artefacts
     save_checkpoint(model, run)  # a later --resume with more --timesteps goes on from here
-    model.save(run.path / "model.zip")
+    save_model(model, run.path / "model.zip")
     if isinstance(venv, VecNormalize):
         venv.save(str(run.path / "vecnormalize.pkl"))
     run.finish(model.num_timesteps, run.path / "model.zip")
