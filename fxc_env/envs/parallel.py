@@ -378,7 +378,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
                 agent: {"neighbours": rows[i], "mask": mask[i], "clock": clock[i]}
                 for agent, i in self._agent_index.items()
             }
-        return {agent: obs[i] for agent, i in self._agent_index.items()}
+        return dict(zip(self.possible_agents, obs, strict=True))
 
     # ------------------------------------------------------------------- step
     def check_action(self, agent: str, action: Any, name: str | None = None) -> np.ndarray:
@@ -416,12 +416,12 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         played = None
         if small is not None:
             # The small-N path (fxc_env.envs.small_n): the same numbers without numpy's per-call cost.
-            values = checked_values(actions, self.possible_agents, self.config.action_size)
+            values = checked_values(actions, self.possible_agents, small.action_size)
             if values is None:
                 values = self._action_array(actions).ravel().tolist()
             played = small.step(engine, values)
             if played is None:  # what the small path leaves to the engine (it refuses overflow, unchanged)
-                array = np.array(values).reshape(1, self.config.n_agents, self.config.action_size)
+                array = np.array(values).reshape(1, small.n, small.action_size)
         else:
             array = self._action_array(actions)
         if played is None:
@@ -434,19 +434,13 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             terminated, saturated = engine.done, [0.0] * len(energy)
         self._steps += 1
         truncated = not terminated and self.max_cycles is not None and self._steps >= self.max_cycles
-        t = engine.time
+        t, interval = engine.time, engine.k
         rewards = dict.fromkeys(self.agents, reward)
         terminations = dict.fromkeys(self.agents, terminated)
         truncations = dict.fromkeys(self.agents, truncated)
         infos = {
-            agent: {
-                "t": t,
-                "interval": engine.k,
-                "energy": energy[i],
-                "peak_u": peak[i],
-                "saturated_fraction": saturated[i],
-            }
-            for agent, i in self._agent_index.items()
+            agent: {"t": t, "interval": interval, "energy": e, "peak_u": p, "saturated_fraction": f}
+            for agent, e, p, f in zip(self.possible_agents, energy, peak, saturated, strict=True)
         }
         if terminated or truncated:
             episode = episode_metrics_rows(engine)[0]

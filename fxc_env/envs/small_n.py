@@ -84,6 +84,7 @@ class SmallInterval:
 
     def __init__(self, config: EnvConfig, engine: Any) -> None:
         self.n = config.n_agents
+        self.action_size = config.action_size
         self.slots = config.layout.slots
         self.size = config.layout.size
         self.normalized = config.obs_mode == "normalized" and self.slots > 0
@@ -99,9 +100,8 @@ class SmallInterval:
         #: ``[1, T_s]``: the weights of ``D = e_x + T_s e_v`` (as the engine's agents hold them).
         self.weights = np.array([1.0, config.settling_time])
         self._topology: Any = None
-        #: Per graph of the topology, over every (agent, slot) pair, agent major: the agent and its
-        #: neighbour in that slot (itself when padded); and the mask, one column per slot.
-        self._pairs: list[list[tuple[int, int]]] = []
+        #: Per graph of the topology, per agent: the neighbour in each slot (itself when padded) and the mask.
+        self._neighbours: list[list[list[int]]] = []
         self._masks: list[list[list[float]]] = []
         #: ``(instant, the trackers' D(t_k) array, local scales)`` of the last measurement: made once
         #: per instant as the engine does (every reset and step assigns a new ``D(t_k)`` array).
@@ -111,58 +111,53 @@ class SmallInterval:
         """The neighbour slots of the episode's topology (a family draws a new one at every reset)."""
         if topology is self._topology:
             return
-        n, slots, extra = self.n, self.slots, self.slots - topology.max_in_degree
+        extra = self.slots - topology.max_in_degree
         index, mask = topology.neighbour_index.tolist(), topology.neighbour_mask.tolist()
-        self._pairs = [[(i, j) for i, row in enumerate(graph) for j in row + [i] * extra] for graph in index]
-        self._masks = [
-            [[1.0 if row[s] else 0.0 for row in graph] if s < len(graph[0]) else [0.0] * n for s in range(slots)]
-            for graph in mask
-        ]
+        self._neighbours = [[row + [i] * extra for i, row in enumerate(graph)] for graph in index]
+        self._masks = [[[1.0 if m else 0.0 for m in row] + [0.0] * extra for row in graph] for graph in mask]
         self._topology = topology
         self._measured = (-1, None, [])
-
-    def _scales(self, k: int, xs: list[float], vs: list[float], dx: list[float], dv: list[float]) -> list[float]:
-        """``s_i = max(max_slots |x_j - x_i|, T max_slots |v_j - v_i|)`` per agent (0 without rows)."""
-        n, slots = self.n, self.slots
-        if slots == 1:
-            largest_x, largest_v = list(map(abs, dx)), list(map(abs, dv))
-        elif slots:
-            ax, av = list(map(abs, dx)), list(map(abs, dv))
-            largest_x = [max(ax[a : a + slots]) for a in range(0, n * slots, slots)]
-            largest_v = [max(av[a : a + slots]) for a in range(0, n * slots, slots)]
-        else:
-            largest_x = largest_v = [0.0] * n
-        T = self.next_interval[k]
-        return [b if b > a else a for a, b in zip(largest_x, [T * b for b in largest_v], strict=True)]
 
     def observations(self, engine: Any) -> np.ndarray:
         """Every agent's flat observation at ``t_k``, ``(N, obs_size)`` in ``obs_dtype`` (``engine.observations()[0]``)."""
         self._graphs(engine.graphs.topologies[0])
-        k, n, slots, size = engine.clock.k, self.n, self.slots, self.size
+        k = engine.clock.k
         flat = engine.state.ravel().tolist()
         xs, vs = flat[0::2], flat[1::2]
-        graph = k % len(self._pairs)
-        pairs = self._pairs[graph]
-        # rows -= state[i]: x_j - x_i and v_j - v_i per (agent, slot).
-        dx = [xs[j] - xs[i] for i, j in pairs]
-        dv = [vs[j] - vs[i] for i, j in pairs]
-        scales = self._scales(k, xs, vs, dx, dv)
+        graph = k % len(self._neighbours)
+        T = self.next_interval[k]
+        f_x, f_v = self.factors[k]
+        features = self.features[k]
+        normalized = self.normalized
+        values: list[float] = []
+        scales: list[float] = []
+        for neighbours, mask, x_i, v_i in zip(self._neighbours[graph], self._masks[graph], xs, vs, strict=True):
+            # rows -= state[i]: x_j - x_i and v_j - v_i per slot (padded slots: i itself, exact zeros);
+            # s_i = max(max_slots |x_j - x_i|, T max_slots |v_j - v_i|), 0 without rows.
+            rows: list[float] = []
+            largest_x = largest_v = 0.0
+            for j in neighbours:
+                dx, dv = xs[j] - x_i, vs[j] - v_i
+                rows += (dx, dv)
+                if abs(dx) > largest_x:
+                    largest_x = abs(dx)
+                if abs(dv) > largest_v:
+                    largest_v = abs(dv)
+            scale = T * largest_v
+            if not scale > largest_x:
+                scale = largest_x
+            scales.append(scale)
+            if normalized:
+                # (x part times 1, v part times T_{k+1}) over max(s_i, tiny), divided as the engine divides.
+                floor = scale if scale > _TINY else _TINY
+                for position in range(0, len(rows), 2):
+                    values += (rows[position] * f_x / floor, rows[position + 1] * f_v / floor)
+            else:
+                values += rows
+            values += mask
+            values += features
         self._measured = (k, engine.trackers.current_disagreement, scales)
-        if self.normalized:
-            # (x part times 1, v part times T_{k+1}) over max(s_i, tiny), divided as the engine divides.
-            f_x, f_v = self.factors[k]
-            floors = [s if s > _TINY else _TINY for s in scales]
-            dx = [d * f_x / floors[i] for d, (i, _) in zip(dx, pairs, strict=True)]
-            dv = [d * f_v / floors[i] for d, (i, _) in zip(dv, pairs, strict=True)]
-        values = [0.0] * (n * size)
-        masks = self._masks[graph]
-        for s in range(slots):
-            values[2 * s :: size] = dx[s::slots]
-            values[2 * s + 1 :: size] = dv[s::slots]
-            values[2 * slots + s :: size] = masks[s]
-        for c, entry in enumerate(self.features[k]):
-            values[3 * slots + c :: size] = [entry] * n
-        return np.array(values, dtype=self.dtype).reshape(n, size)
+        return np.array(values, dtype=self.dtype).reshape(self.n, self.size)
 
     def step(self, engine: Any, actions: list[float]) -> tuple[float, list[float], list[float]] | None:
         """Play one interval with the ``2 N`` checked action entries (agent major): ``(reward, energies, peaks)``.
@@ -174,55 +169,52 @@ class SmallInterval:
         k = clock.k
         if clock.per_episode or k >= self.n_intervals:
             return None
-        flat = engine.state.ravel().tolist()
+        trackers = engine.trackers
         measured = self._measured
         if (
             measured[0] != k
-            or measured[1] is not engine.trackers.current_disagreement
+            or measured[1] is not trackers.current_disagreement
             or engine.graphs.topologies[0] is not self._topology
         ):
             self.observations(engine)
-        scales = self._measured[2]
-        xs, vs = flat[0::2], flat[1::2]
+        flat = engine.state.ravel().tolist()
         T = self.next_interval[k]
-        first, second = actions[0::2], actions[1::2]
-        # Action -> the affine input's ends (u(t_k+), u(t_{k+1}-)), as the engine's agents and
-        # core.dynamics.input_from_plan form them.
-        if self.plan:
-            inv_t = 1.0 / T
-            position_gain, velocity_gain = 6.0 * inv_t * inv_t, 2.0 * inv_t
-            if self.scaled:
-                position = [position_gain * (s * a) for s, a in zip(scales, first, strict=True)]
-                velocity = [velocity_gain * ((s / T) * a) for s, a in zip(scales, second, strict=True)]
+        inv_t = 1.0 / T
+        # input_from_plan's gains, the accel gain's T^2, and the closed forms' coefficients.
+        position_gain, velocity_gain, square = 6.0 * inv_t * inv_t, 2.0 * inv_t, T * T
+        cubic, half, third = square / 6.0, 0.5 * T, T / 3.0
+        scaled, plan = self.scaled, self.plan
+        following: list[float] = []
+        energies: list[float] = []
+        peaks: list[float] = []
+        for i, s in enumerate(self._measured[2]):
+            first, second = actions[2 * i], actions[2 * i + 1]
+            # The action's input ends (u(t_k+), u(t_{k+1}-)), as the engine's agents form them.
+            if plan:
+                if scaled:
+                    first, second = s * first, (s / T) * second
+                position, velocity = position_gain * first, velocity_gain * second
+                u0, u1 = position - velocity, 2.0 * velocity - position
+            elif scaled:
+                gain = s / square
+                u0, u1 = gain * first, gain * second
             else:
-                position = [position_gain * a for a in first]
-                velocity = [velocity_gain * a for a in second]
-            u0 = [p - q for p, q in zip(position, velocity, strict=True)]
-            u1 = [2.0 * q - p for p, q in zip(position, velocity, strict=True)]
-        elif self.scaled:
-            gains = [s / (T * T) for s in scales]
-            u0 = [g * a for g, a in zip(gains, first, strict=True)]
-            u1 = [g * a for g, a in zip(gains, second, strict=True)]
-        else:
-            u0, u1 = first, second
-        # The closed forms of core.dynamics.advance_into (paper eq. 10 under an affine input).
-        cubic, half, third = T * T / 6.0, 0.5 * T, T / 3.0
-        total = [a + b for a, b in zip(u0, u1, strict=True)]
-        x_next = [x + (T * v + cubic * (a + t)) for x, v, a, t in zip(xs, vs, u0, total, strict=True)]
-        v_next = [v + half * t for v, t in zip(vs, total, strict=True)]
-        energies = [(a * t + b * b) * third for a, t, b in zip(u0, total, u1, strict=True)]
-        peaks = list(map(max, map(abs, u0), map(abs, u1)))
-        if not sum(map(abs, x_next)) + sum(map(abs, v_next)) + sum(energies) <= _LARGE:  # false for nan too
+                u0, u1 = first, second
+            # core.dynamics.advance_into (paper eq. 10 under an affine input).
+            x, v = flat[2 * i], flat[2 * i + 1]
+            total = u0 + u1
+            following += (x + (T * v + cubic * (u0 + total)), v + half * total)
+            energies.append((u0 * total + u1 * u1) * third)
+            peaks.append(max(abs(u0), abs(u1)))
+        if not sum(map(abs, following)) + sum(energies) <= _LARGE:  # false for nan too
             return None
         # D = e_x + T_s e_v at dim = 1: the ranges (exact in any order), weighted by numpy.
+        x_next, v_next = following[0::2], following[1::2]
         disagreement = np.array([[max(x_next) - min(x_next), max(v_next) - min(v_next)]]) @ self.weights
         if not float(disagreement[0]) <= _LARGE:
             return None
-        following = [0.0] * (2 * self.n)
-        following[0::2], following[1::2] = x_next, v_next
         engine.state.flat[:] = following
         # The trackers, clock, measurements and graph, as ConsensusEngine.step leaves them.
-        trackers = engine.trackers
         trackers.current_disagreement = disagreement
         previous = trackers.log_disagreement
         trackers.log_disagreement = np.log(disagreement + trackers.floor)
