@@ -1,4 +1,7 @@
-"""fxc_env.policies.learned: a saved SB3 model as a policy, and the shipped pretrained policy's result."""
+"""fxc_env.policies.learned: a saved SB3 model as a policy, and the shipped pretrained policy's result.
+
+Loading without unpickling and the training-settings checks: tests/test_policy_files.py.
+"""
 
 from __future__ import annotations
 
@@ -44,8 +47,11 @@ def test_a_model_for_another_layout_is_refused_with_both_sizes():
     config = make_config("paper_fig1")  # obs_slots 1: 6 numbers, the model expects 15
     with pytest.raises(ValueError, match=r"policy: the model takes observations of size 15 .* this environment has 6"):
         LearnedPolicy(pretrained_path(), config)
+    with pytest.raises(ValueError, match=r"obs_slots: trained with 4, this environment has 1"):
+        LearnedPolicy(pretrained_path(), config)  # the file records the slots it was trained with
 
 
 def test_missing_file_is_named():
-    with pytest.raises(FileNotFoundError, match="policy: no saved model at"):
-        load_model("no/such/model.zip")
+    for trusted in (False, True):
+        with pytest.raises(FileNotFoundError, match="policy: no saved model at"):
+            load_model("no/such/model.zip", trusted=trusted)

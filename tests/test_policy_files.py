@@ -265,3 +265,27 @@ def test_a_torch_policy_refuses_settings_other_than_its_recorded_env(tmp_path):
         ArgumentError, match=r"policy\.pt was trained .*action_mode: trained with 'plan', this environment has 'accel'"
     ):
         load_learned_policy(path, make_config("paper_fig1", obs_slots=4, action_mode="accel"))
+
+
+def test_vecnormalize_statistics_travel_as_plain_json_in_the_saved_model(tmp_path):
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    import fxc_env
+
+    venv = VecNormalize(
+        fxc_env.ConsensusVecEnv(1, scenario="paper_fig1", obs_slots=4, n_intervals=10), norm_reward=False
+    )
+    model = PPO("MlpPolicy", venv, n_steps=10, batch_size=60, n_epochs=1, seed=0, device="cpu")
+    model.learn(120)  # the running statistics move off (0, 1)
+    path = save_model(model, tmp_path / "normalized.zip")
+    obs = np.random.default_rng(4).uniform(-1, 1, size=(16, 15))
+    expected, _ = model.predict(venv.normalize_obs(obs), deterministic=True)
+    assert not np.allclose(venv.obs_rms.mean, 0.0)
+    np.testing.assert_array_equal(LearnedPolicy(path)(obs), expected)
+
+
+def test_a_trusted_load_still_checks_the_recorded_settings():
+    config = make_config("paper_fig1", obs_slots=4, obs_mode="raw")
+    with pytest.raises(ArgumentError, match=r"obs_mode: trained with 'normalized', this environment has 'raw'"):
+        LearnedPolicy(pretrained_path("paper_fig1"), config, trusted=True)

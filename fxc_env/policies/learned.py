@@ -42,6 +42,7 @@ from fxc_env.policies.policy_files import (
     TRUST_HINT,
     check_settings,
     describe_differences,
+    read_metadata,
     read_sb3_zip,
     setting_differences,
     training_settings,
@@ -158,6 +159,12 @@ class LearnedPolicy:
         self.action_size = int(np.prod(self.model.action_space.shape))
         self.training_settings = _recorded_settings(self.model)
         self._stats = getattr(self.model, "normalization", None)
+        if self.source is not None and trusted:  # SB3's loader: the plain record still says how it was trained
+            record = read_metadata(self.source) or {}
+            self.training_settings = self.training_settings or record.get("env")
+            self._stats = self._stats or record.get("normalization")
+        if self._stats is not None:
+            self._stats = normalization_stats(self._stats, self.obs_size, self.source)
         if vecnormalize is not None:
             self._stats = read_normalization(vecnormalize, self.obs_size, trusted=trusted)
         if env is not None:
@@ -221,19 +228,27 @@ def read_normalization(path: str | Path, obs_size: int, *, trusted: bool = False
                 f"nothing in it was run. Give the statistics as .json or .npz (mean, var, epsilon, clip_obs), or "
                 f"{TRUST_HINT}"
             )
+    except (KeyError, TypeError, ValueError, OSError) as exc:
+        if isinstance(exc, ArgumentError):
+            raise
+        raise ArgumentError(f"vecnormalize: cannot read statistics from {path} ({_summary(exc)})") from exc
+    return normalization_stats(record, obs_size, path)
+
+
+def normalization_stats(record: Any, obs_size: int, source: Any) -> dict[str, Any]:
+    """VecNormalize's statistics as float64 arrays ``mean``, ``var`` ``(obs_size,)`` and floats ``epsilon``, ``clip_obs``."""
+    try:
         stats = {
             "mean": np.asarray(record["mean"], dtype=np.float64),
             "var": np.asarray(record["var"], dtype=np.float64),
             "epsilon": float(record.get("epsilon", 1e-8)),
             "clip_obs": float(record.get("clip_obs", 10.0)),
         }
-    except (KeyError, TypeError, ValueError, OSError) as exc:
-        if isinstance(exc, ArgumentError):
-            raise
-        raise ArgumentError(f"vecnormalize: cannot read statistics from {path} ({_summary(exc)})") from exc
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ArgumentError(f"vecnormalize: cannot read statistics from {source} ({_summary(exc)})") from exc
     if stats["mean"].shape != (obs_size,) or stats["var"].shape != (obs_size,):
         raise ArgumentError(
-            f"vecnormalize: {path} holds statistics of shape {stats['mean'].shape}; the model takes ({obs_size},)"
+            f"vecnormalize: {source} holds statistics of shape {stats['mean'].shape}; the model takes ({obs_size},)"
         )
     return stats
 

@@ -230,6 +230,18 @@ class SavedModel:
         return np.clip(actions, low, high), None
 
 
+def read_metadata(path: str | Path) -> dict[str, Any] | None:
+    """The :data:`METADATA_MEMBER` record of the ``.zip`` at ``path`` (plain JSON), or None if it has none or is unreadable."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            if METADATA_MEMBER not in archive.namelist():
+                return None
+            record = json.loads(archive.read(METADATA_MEMBER))
+    except (zipfile.BadZipFile, OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) and record.get("format") == METADATA_FORMAT else None
+
+
 def read_sb3_zip(path: str | Path) -> SavedModel:
     """Read an SB3 PPO/SAC ``.zip`` without unpickling anything (see the module).
 
