@@ -289,3 +289,29 @@ def test_a_trusted_load_still_checks_the_recorded_settings():
     config = make_config("paper_fig1", obs_slots=4, obs_mode="raw")
     with pytest.raises(ArgumentError, match=r"obs_mode: trained with 'normalized', this environment has 'raw'"):
         LearnedPolicy(pretrained_path("paper_fig1"), config, trusted=True)
+
+
+def test_a_sac_model_loads_from_its_plain_fields_as_sb3_acts(tmp_path):
+    from stable_baselines3 import SAC
+
+    import fxc_env
+
+    venv = fxc_env.ConsensusVecEnv(1, scenario="paper_fig1", obs_slots=4, n_intervals=10)
+    model = SAC(
+        "MlpPolicy", venv, learning_starts=10, batch_size=16, seed=0, device="cpu", policy_kwargs={"net_arch": [16]}
+    )
+    model.learn(30)
+    model.save(tmp_path / "plain.zip")
+    obs = np.random.default_rng(5).uniform(-1, 1, size=(32, 15))
+    expected, _ = model.predict(obs, deterministic=True)
+    for path in (tmp_path / "plain.zip", save_model(model, tmp_path / "saved.zip")):
+        assert np.array_equal(LearnedPolicy(path, make_config("paper_fig1", obs_slots=4))(obs), expected)
+
+
+def test_a_malformed_description_is_refused_naming_the_file(tmp_path):
+    contents = members(pretrained_path("paper_fig1"))
+    record = json.loads(contents[METADATA_MEMBER])
+    record["net_arch"] = "wide"
+    crafted = write_zip(tmp_path / "odd.zip", {**contents, METADATA_MEMBER: json.dumps(record).encode()})
+    with pytest.raises(ArgumentError, match=r"policy: .*odd\.zip"):
+        load_learned_policy(crafted)

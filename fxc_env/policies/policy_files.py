@@ -290,9 +290,13 @@ def read_sb3_zip(path: str | Path) -> SavedModel:
         ) from exc
     if not isinstance(weights, Mapping) or not all(isinstance(v, torch.Tensor) for v in weights.values()):
         raise ArgumentError(f"policy: {path}: policy.pth is not a state dict of tensors")
-    spec = _architecture(path, data, metadata, weights)
-    policy = _build(path, spec, weights)
-    return SavedModel(path, spec, policy, data)
+    try:
+        spec = _architecture(path, data, metadata, weights)
+        return SavedModel(path, spec, _build(path, spec, weights), data)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        if isinstance(exc, ArgumentError):
+            raise
+        raise ArgumentError(f"policy: {path}: its model description is malformed ({_summary(exc)})") from exc
 
 
 def _summary(exc: BaseException) -> str:
@@ -364,12 +368,22 @@ def _architecture(path: Path, data: Mapping[str, Any], metadata: Any, weights: M
                 f"or a features extractor), and the file has no {METADATA_MEMBER}; re-save it with "
                 f"fxc_env.policies.policy_files.save_model, or {TRUST_HINT}"
             )
-        unknown = set(kwargs) - {"net_arch", "log_std_init", "ortho_init", "squash_output", "use_expln", "n_critics"}
-        if unknown or kwargs.get("squash_output") or data.get("use_sde"):
-            extra = sorted(unknown) + (["use_sde"] if data.get("use_sde") else [])
-            raise ArgumentError(
-                f"policy: {path}: policy options {extra or ['squash_output']} are not rebuilt; {TRUST_HINT}"
-            )
+        plain_options = {
+            "net_arch",
+            "log_std_init",
+            "ortho_init",
+            "squash_output",
+            "use_expln",
+            "n_critics",
+            "use_sde",
+            "clip_mean",
+        }
+        unknown = sorted(set(kwargs) - plain_options)
+        unknown += [key for key in ("squash_output", "use_sde") if kwargs.get(key)]
+        if data.get("use_sde"):
+            unknown.append("use_sde")
+        if unknown:
+            raise ArgumentError(f"policy: {path}: policy options {unknown} are not rebuilt; {TRUST_HINT}")
         default_arch = [256, 256] if algorithm == "SAC" else [64, 64]
         spec = {
             "algorithm": algorithm,
