@@ -76,12 +76,12 @@ def test_two_iterations_with_two_env_runners_write_the_run_directory(trained):
 @pytest.mark.slow
 def test_resume_restores_the_checkpoint_and_continues_its_count(trained, tmp_path, capsys):
     run_dir = shutil.copytree(trained, tmp_path / "run")
-    before = RLlibPolicy(run_dir)
+    before = RLlibPolicy(run_dir, trusted=True)  # RLlib restores by unpickling: our own checkpoint
     train(rllib_args(tmp_path, timesteps=3 * PER_ITERATION, resume=True))
     out = capsys.readouterr().out
     assert f"resuming {run_dir} from rllib_{2 * PER_ITERATION}_steps at iteration 2" in out
     assert [int(r["time/env_steps"]) for r in progress(run_dir)] == [BATCH, 2 * BATCH, 3 * BATCH]
-    after = RLlibPolicy(run_dir)
+    after = RLlibPolicy(run_dir, trusted=True)
     assert after.checkpoint.name == f"rllib_{3 * PER_ITERATION}_steps"
     obs = np.random.default_rng(0).uniform(-1, 1, size=(8, before.obs_size))
     assert not np.array_equal(before(obs), after(obs))  # the third iteration updated the restored module
@@ -90,7 +90,7 @@ def test_resume_restores_the_checkpoint_and_continues_its_count(trained, tmp_pat
 @pytest.mark.slow
 def test_the_checkpoint_acts_like_a_learned_policy(trained):
     config = make_config("paper_fig1", obs_slots=4)
-    policy = load_learned_policy(trained, config)
+    policy = load_learned_policy(trained, config, trusted=True)
     assert isinstance(policy, RLlibPolicy) and policy.obs_size == config.layout.size and policy.action_size == 2
     obs = np.random.default_rng(1).uniform(-1, 1, size=(3, 6, config.layout.size))
     actions = policy(obs)
@@ -98,7 +98,7 @@ def test_the_checkpoint_acts_like_a_learned_policy(trained):
     np.testing.assert_allclose(actions[2, 5], policy(obs[2, 5]), rtol=1e-5, atol=1e-6)  # float32 network
     np.testing.assert_array_equal(actions, policy(obs))  # deterministic: the Gaussian's mean
     with pytest.raises(ValueError, match=r"observations of size 15 .* this environment has 6"):
-        load_learned_policy(trained, make_config("paper_fig1"))
+        load_learned_policy(trained, make_config("paper_fig1"), trusted=True)
 
 
 @pytest.mark.slow
