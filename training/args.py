@@ -47,7 +47,9 @@ class TrainArgs:
     algo: str = arg("ppo", "``ppo`` or ``sac``.")
     timesteps: int = arg(2_000_000, "Total agent-steps (SB3 timesteps: one per agent per environment step).")
     seed: int = arg(0, "Seeds the policy, SB3 and the episodes' initial states.")
-    run_dir: str | None = arg(None, "Run directory; default ``runs/<scenario>-<algo>-seed<seed>``.")
+    run_dir: str | None = arg(
+        None, "Run directory; default ``runs/<scenario>-[<backend>-]<algo>-seed<seed>`` (no back-end part for sb3)."
+    )
     checkpoint_every: int = arg(
         100_000, "Save a checkpoint every this many timesteps (rounded to whole environment steps)."
     )
