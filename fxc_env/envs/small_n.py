@@ -131,6 +131,21 @@ class SmallInterval:
         normalized = self.normalized
         values: list[float] = []
         scales: list[float] = []
+        if self.slots == 1 and normalized:
+            # One in-neighbour slot (paper_fig1, rings, paths): the loop below without its inner loops.
+            for (j,), mask, x_i, v_i in zip(self._neighbours[graph], self._masks[graph], xs, vs, strict=True):
+                dx, dv = xs[j] - x_i, vs[j] - v_i
+                largest_x = abs(dx)
+                scale = T * abs(dv)
+                if not scale > largest_x:
+                    scale = largest_x
+                scales.append(scale)
+                floor = scale if scale > _TINY else _TINY
+                values += (dx * f_x / floor, dv * f_v / floor)
+                values += mask
+                values += features
+            self._measured = (k, engine.trackers.current_disagreement, scales)
+            return np.array(values, dtype=self.dtype).reshape(self.n, self.size)
         for neighbours, mask, x_i, v_i in zip(self._neighbours[graph], self._masks[graph], xs, vs, strict=True):
             # rows -= state[i]: x_j - x_i and v_j - v_i per slot (padded slots: i itself, exact zeros);
             # s_i = max(max_slots |x_j - x_i|, T max_slots |v_j - v_i|), 0 without rows.
@@ -187,25 +202,38 @@ class SmallInterval:
         following: list[float] = []
         energies: list[float] = []
         peaks: list[float] = []
-        for i, s in enumerate(self._measured[2]):
-            first, second = actions[2 * i], actions[2 * i + 1]
-            # The action's input ends (u(t_k+), u(t_{k+1}-)), as the engine's agents form them.
-            if plan:
-                if scaled:
-                    first, second = s * first, (s / T) * second
-                position, velocity = position_gain * first, velocity_gain * second
+        scales = self._measured[2]
+        if plan and scaled:
+            # The default modes (plan, normalized): the loop below with its branches taken.
+            for s, first, second, x, v in zip(
+                scales, actions[0::2], actions[1::2], flat[0::2], flat[1::2], strict=True
+            ):
+                position, velocity = position_gain * (s * first), velocity_gain * ((s / T) * second)
                 u0, u1 = position - velocity, 2.0 * velocity - position
-            elif scaled:
-                gain = s / square
-                u0, u1 = gain * first, gain * second
-            else:
-                u0, u1 = first, second
-            # core.dynamics.advance_into (paper eq. 10 under an affine input).
-            x, v = flat[2 * i], flat[2 * i + 1]
-            total = u0 + u1
-            following += (x + (T * v + cubic * (u0 + total)), v + half * total)
-            energies.append((u0 * total + u1 * u1) * third)
-            peaks.append(max(abs(u0), abs(u1)))
+                total = u0 + u1
+                following += (x + (T * v + cubic * (u0 + total)), v + half * total)
+                energies.append((u0 * total + u1 * u1) * third)
+                peaks.append(max(abs(u0), abs(u1)))
+        else:
+            for i, s in enumerate(scales):
+                first, second = actions[2 * i], actions[2 * i + 1]
+                # The action's input ends (u(t_k+), u(t_{k+1}-)), as the engine's agents form them.
+                if plan:
+                    if scaled:
+                        first, second = s * first, (s / T) * second
+                    position, velocity = position_gain * first, velocity_gain * second
+                    u0, u1 = position - velocity, 2.0 * velocity - position
+                elif scaled:
+                    gain = s / square
+                    u0, u1 = gain * first, gain * second
+                else:
+                    u0, u1 = first, second
+                # core.dynamics.advance_into (paper eq. 10 under an affine input).
+                x, v = flat[2 * i], flat[2 * i + 1]
+                total = u0 + u1
+                following += (x + (T * v + cubic * (u0 + total)), v + half * total)
+                energies.append((u0 * total + u1 * u1) * third)
+                peaks.append(max(abs(u0), abs(u1)))
         if not sum(map(abs, following)) + sum(energies) <= _LARGE:  # false for nan too
             return None
         # D = e_x + T_s e_v at dim = 1: the ranges (exact in any order), weighted by numpy.
