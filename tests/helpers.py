@@ -9,6 +9,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pytest
 
 # The paper's example (Section 5).
 PAPER_X0 = np.array([1.0, -1.0, 2.0, 4.0, -4.0, -2.0])
@@ -24,6 +25,10 @@ PAPER_GRAPHS = [[(j - 1, i - 1) for j, i in graph] for graph in PAPER_GRAPHS_ONE
 ACTION_MODES = ("plan", "accel")
 OBS_MODES = ("normalized", "raw")
 MODES = list(itertools.product(ACTION_MODES, OBS_MODES))
+#: ``MODES`` as parameters: the default mode (plan, normalized) in ``make check``, the other three marked slow.
+MODES_DEFAULT_FAST = [
+    pytest.param(*mode, id="-".join(mode), marks=() if mode == MODES[0] else pytest.mark.slow) for mode in MODES
+]
 
 
 def adjacency_by_hand(n: int, edges) -> np.ndarray:

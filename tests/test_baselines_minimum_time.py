@@ -142,6 +142,7 @@ def test_a_refused_case_is_reported_as_not_run_in_the_benchmark():
     assert result.error is not None and result.error.startswith("topology:")
 
 
+@pytest.mark.slow
 def test_fxc_evaluate_with_baselines_scores_it(tmp_path):
     import csv
 

@@ -125,6 +125,7 @@ def test_simulate_random_switching_topology(tmp_path):
     assert sum(record["xi"]) == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_simulate_a_scenario_in_the_plane(tmp_path):
     # --dim overrides the scenario; its fixed 1-D initial state cannot apply and gives way
     # to seeded random draws (make_config's documented behaviour).

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from helpers import (
     MODES,
+    MODES_DEFAULT_FAST,
     PAPER_V0,
     PAPER_V_STAR,
     PAPER_X0,
@@ -109,7 +110,7 @@ def test_fixed_ring_reaches_the_average_through_the_parallel_env(action_mode, ob
     np.testing.assert_allclose(state[:, 1], PAPER_V0.mean(), rtol=0, atol=1e-8)
 
 
-@pytest.mark.parametrize(("action_mode", "obs_mode"), MODES)
+@pytest.mark.parametrize(("action_mode", "obs_mode"), MODES_DEFAULT_FAST)
 def test_reference_stays_inside_the_action_box(action_mode, obs_mode):
     # The action Boxes are wide enough for the reference in every mode; checked
     # along whole episodes from several random initial states (the documented ranges).

@@ -67,6 +67,7 @@ def test_the_saturated_policy_beats_the_five_analytic_laws_tenfold_where_the_lim
     assert learned <= best_analytic_log_error(case) - 1.0
 
 
+@pytest.mark.slow
 def test_the_saturated_policy_stays_within_a_decade_of_the_reference_where_the_limit_does_not_bind():
     case = BenchmarkCase("random", 20, conditions=(("u_max", 100.0),))
     reference = log_error(builtin_contenders(["reference"])[0], case)

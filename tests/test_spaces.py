@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import MODES
+from helpers import MODES_DEFAULT_FAST
 
 import fxc_env
 from fxc_env.config import make_config
@@ -12,7 +12,7 @@ from fxc_env.engine import ConsensusEngine
 from fxc_env.envs.spaces import action_space, observation_space, state_space
 
 
-@pytest.mark.parametrize(("action_mode", "obs_mode"), MODES)
+@pytest.mark.parametrize(("action_mode", "obs_mode"), MODES_DEFAULT_FAST)
 def test_reference_actions_fit_the_action_box_in_normalized_mode_for_any_state(action_mode, obs_mode):
     """The action Box is wide enough for the reference (eq. 11); in normalised units for every state."""
     config = make_config(

@@ -115,6 +115,7 @@ def test_torchrl_table_prints_every_contender_and_both_goals():
     assert "PettingZoo wrapper" in goals[0] and "numpy engine at 30 agents" in goals[1]
 
 
+@pytest.mark.slow
 def test_cuda_tables_run_on_the_cpu_at_tiny_sizes():
     """The CUDA tables' code path, on torch's CPU device (this machine has no GPU)."""
     printed: list[str] = []
@@ -194,6 +195,7 @@ def test_table_selection_defaults_to_the_cpu_tables_and_skip_contenders_trains_n
     assert set(command.TABLE_RUNNERS) == set(command.CPU_TABLES)
 
 
+@pytest.mark.slow
 def test_only_runs_the_named_table(one_thread, capsys):
     assert command.main(["--only", "scaling", "--largest", "100", "--rounds", "1"]) == 0
     out = capsys.readouterr().out
