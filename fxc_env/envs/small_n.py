@@ -10,7 +10,8 @@ engine's shapes: the disagreement's weighted sum ``[e_x, e_v] @ [1, T_s]`` (a fu
 multiply-add in BLAS) and the reward's logarithm. Every result is written back into the
 :class:`~fxc_env.engine.ConsensusEngine` at once (state, clock, graph, trackers), so the
 engine is up to date whenever anyone reads it; the state is read from it at every call, so
-code that sets the engine's state directly is followed.
+code that sets the engine's state directly is followed (with the local scales measured at
+the instant, as the engine measures once per instant).
 
 It covers the double integrator's closed forms (paper eqs. 10-11) at ``dim = 1`` with
 periodic switching in lock step, without input limit, observation noise or link dropout,
