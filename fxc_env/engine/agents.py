@@ -1,0 +1,267 @@
+"""The agents' dynamics over one sampling interval, chosen once at construction (:func:`make_agents`).
+
+- :class:`DoubleIntegratorAgents`: ``x' = v``, ``v' = u`` (paper eq. 10) under the affine input
+  the action names, integrated by the closed forms of :mod:`fxc_env.core.dynamics`;
+- :class:`LimitedDoubleIntegratorAgents`: the same input clipped to ``±u_max`` (one limit per
+  episode), integrated piece by piece in closed form;
+- :class:`LinearAgents`: a general ``z' = A z + B u`` per axis (README, "Agent models"): the
+  action is a plan ``Delta`` and the input the minimum-energy one (:mod:`fxc_env.core.linear`).
+
+Every part maps ``(state, actions)`` at ``t_k`` to an :class:`Interval` (the state at
+``t_{k+1}``, the energy, peak and end values of the input) without touching the engine's
+state: on numpy the new state is written into the spare buffer ``out`` and adopted only
+once it is known to be finite (:meth:`~fxc_env.engine.backend.NumpyBackend.commit_if_finite`).
+States are ``(B, N, n, dim)``: component ``z[:, :, l]`` (position, velocity, ...) major,
+space axis last, the engine's one axis order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fxc_env.config import EnvConfig
+from fxc_env.core import dynamics, slots
+from fxc_env.core.metrics import disagreement, spread
+
+#: Action entries (``B N 2 dim``) from which the numpy fast path of a step in blocks pays.
+BLOCKED_FROM = 8192
+#: Agents per block of that fast path (its temporaries, about 1 MiB, stay in the cache).
+BLOCK_AGENTS = 16384
+
+
+@dataclass(slots=True)
+class Interval:
+    """One interval's result, per episode ``(B,)`` or per agent ``(B, N)``.
+
+    Attributes:
+        state: the state at ``t_{k+1}``, ``(B, N, n, dim)`` (numpy: the spare buffer).
+        energy: ``integral |u_i|^2 dt`` over the interval, ``(B, N)``.
+        peak: peak ``|u_i|`` (largest component), ``(B, N)``.
+        u_start, u_end: the commanded input at ``t_k+`` and ``t_{k+1}-``.
+        saturated_fraction: share of the interval spent saturated, mean over components, ``(B, N)``.
+        saturated_time: seconds saturated, mean over components, ``(B, N)``; None without a limit.
+        plan: general agents' plans ``Delta`` per axis ``(B, N, dim, n)``; None otherwise.
+        disagreement: ``D(t_{k+1})`` of :attr:`state`, ``(B,)``.
+    """
+
+    state: Any
+    energy: Any
+    peak: Any
+    u_start: Any
+    u_end: Any
+    saturated_fraction: Any
+    saturated_time: Any = None
+    plan: Any = None
+    disagreement: Any = None
+
+
+def state_disagreement(states: np.ndarray, config: EnvConfig) -> np.ndarray:
+    """``D = sum_l T_s^l e_{z_l}`` of states ``(..., N, n, dim)`` in the engine's coordinates: ``(...)``.
+
+    ``e_x + T_s e_v`` for the double integrator (and any model with n = 2); a chain of order 3
+    adds ``T_s^2 e_a``; a single integrator has ``e_x`` alone.
+    """
+    total = None
+    for component in range(states.shape[-2]):
+        term = (config.settling_time**component) * spread(states[..., component, :])
+        total = term if total is None else total + term
+    return total
+
+
+class DoubleIntegratorAgents:
+    """Double integrators under the affine input of the action (closed forms, paper eqs. 10-11).
+
+    Args:
+        config: the environment's settings (action and observation modes, ``T_s``, dim).
+        backend: the engine's array backend.
+    """
+
+    def __init__(self, config: EnvConfig, backend: Any) -> None:
+        self.config = config
+        self.backend = backend
+        self.dim = config.dim
+        self.normalized = config.obs_mode == "normalized"
+        self.plans = config.action_mode == "plan"
+        #: Each episode's input limit ``u_max`` (m/s^2), ``(B,)``; None without a limit.
+        self.u_max: Any = None
+        self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
+        self._range_weights = np.array([1.0, config.settling_time])
+
+    def inputs(self, actions: Any, T: Any, local_scale: Callable[[], Any]) -> tuple[Any, Any]:
+        """The affine input's end values ``(u(t_k+), u(t_{k+1}-))`` of actions (the card's Action Space).
+
+        ``T`` is the interval (a number, or ``(B, 1, 1)``); ``local_scale()`` gives ``s_i``
+        ``(B, N)``, read in normalized mode only.
+        """
+        dim = self.dim
+        first, second = actions[..., :dim], actions[..., dim:]
+        if self.normalized:
+            s = local_scale()[..., None]
+            if self.plans:
+                return dynamics.input_from_plan(s * first, (s / T) * second, T)
+            gain = s / (T * T)
+            return gain * first, gain * second
+        if self.plans:
+            return dynamics.input_from_plan(first, second, T)
+        return first, second
+
+    def advance(self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any) -> Interval:
+        """Play the coming interval of ``clock`` from ``state`` under ``actions``; numpy writes into ``out``."""
+        T = clock.interval(2)
+        with np.errstate(over="ignore", invalid="ignore"):
+            x, v = state[:, :, 0], state[:, :, 1]
+            if out is not None and isinstance(T, float) and actions.size >= BLOCKED_FROM:
+                # numpy fast path: block by block (in the cache), into the spare buffer (2x at N = 1e6).
+                u0, u1, energy, peak = self._advance_blocked(state, actions, T, local_scale, out)
+                following = out
+            elif out is not None:
+                # numpy fast path: the closed forms written into the spare buffer (no temporaries).
+                u0, u1 = self.inputs(actions, T, local_scale)
+                energy, peak = dynamics.advance_into(x, v, u0, u1, T, out[:, :, 0], out[:, :, 1])
+                following = out
+            else:
+                u0, u1 = self.inputs(actions, T, local_scale)
+                x_next, v_next, energy, peak = dynamics.advance_with_costs(x, v, u0, u1, T)
+                following = self.backend.xp.stack([x_next, v_next], axis=2)
+            return Interval(
+                following, energy, peak, u0, u1, self._no_saturation, None, None, self.disagreement(following)
+            )
+
+    def _advance_blocked(
+        self, state: Any, actions: Any, T: float, local_scale: Callable[[], Any], out: Any
+    ) -> tuple[Any, ...]:
+        """numpy fast path of :meth:`advance` in lock step: :meth:`inputs` and the closed forms per block of agents.
+
+        Every operation is element-wise, so the episodes' agents are taken as one run of
+        ``B N`` and cut in blocks of :data:`BLOCK_AGENTS`, each played with the very lines of
+        the generic path (the same values) while its temporaries stay in the cache.
+        Returns ``u0, u1`` ``(B, N, dim)`` and the energy and peak ``(B, N)``.
+        """
+        b, n, dim = actions.shape[0], actions.shape[1], self.dim
+        rows = b * n
+        flat_actions = actions.reshape(rows, 1, -1)
+        flat_state = state.reshape(rows, 2, dim)
+        flat_out = out.reshape(rows, 2, dim)
+        flat_scale = local_scale().reshape(rows, 1) if self.normalized else None
+        u0, u1 = np.empty((rows, 1, dim)), np.empty((rows, 1, dim))
+        energy, peak = np.empty((rows, 1)), np.empty((rows, 1))
+        for start in range(0, rows, BLOCK_AGENTS):
+            part = slice(start, start + BLOCK_AGENTS)
+            block_scale = None if flat_scale is None else flat_scale[part]
+            u0[part], u1[part] = self.inputs(flat_actions[part], T, lambda: block_scale)  # noqa: B023 (called at once)
+            x, v = flat_state[part, None, 0], flat_state[part, None, 1]
+            energy[part], peak[part] = dynamics.advance_into(
+                x, v, u0[part], u1[part], T, flat_out[part, None, 0], flat_out[part, None, 1]
+            )
+        return u0.reshape(b, n, dim), u1.reshape(b, n, dim), energy.reshape(b, n), peak.reshape(b, n)
+
+    def disagreement(self, state: Any) -> Any:
+        """``D = e_x + T_s e_v`` per episode ``(B,)``; for ``dim = 1`` from one max and one min over agents."""
+        xp = self.backend.xp
+        if self.dim == 1:
+            values = state[..., 0]  # (B, N, 2)
+            if self.backend.is_numpy:
+                if values.size > slots.SMALL:
+                    # numpy fast path: reducing over a middle axis is slow in numpy (10x at
+                    # N = 1e6); agents last is not.
+                    values = np.ascontiguousarray(np.swapaxes(values, 1, 2))  # (B, 2, N)
+                    ranges = values.max(axis=-1) - values.min(axis=-1)
+                else:
+                    ranges = values.max(axis=1) - values.min(axis=1)
+                return ranges @ self._range_weights  # e_x + T_s e_v
+            ranges = xp.max(values, axis=1) - xp.min(values, axis=1)
+            return ranges[:, 0] + self.config.settling_time * ranges[:, 1]
+        return disagreement(state[:, :, 0], state[:, :, 1], self.config.settling_time)
+
+
+class LimitedDoubleIntegratorAgents(DoubleIntegratorAgents):
+    """Double integrators whose input is clipped to ``±u_max`` per component (one limit per episode)."""
+
+    def advance(self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any) -> Interval:
+        T = clock.interval(2)
+        with np.errstate(over="ignore", invalid="ignore"):
+            u0, u1 = self.inputs(actions, T, local_scale)
+            x_next, v_next, energy, peak, saturated_time = dynamics.advance_clipped(
+                state[:, :, 0], state[:, :, 1], u0, u1, T, self.u_max[:, None, None]
+            )
+            if out is not None:
+                out[:, :, 0] = x_next
+                out[:, :, 1] = v_next
+                following = out
+            else:
+                following = self.backend.xp.stack([x_next, v_next], axis=2)
+            per_agent = self.backend.xp.mean(saturated_time, axis=-1)
+            fraction = per_agent / (T[..., 0] if clock.per_episode else T)
+            return Interval(following, energy, peak, u0, u1, fraction, per_agent, None, self.disagreement(following))
+
+
+class LinearAgents:
+    """General linear agents ``z' = A z + B u`` per axis, steered by plans (numpy; README, "Agent models").
+
+    Args:
+        config: the environment's settings (its model and interval maps).
+        backend: the engine's array backend (numpy).
+    """
+
+    def __init__(self, config: EnvConfig, backend: Any) -> None:
+        self.config = config
+        self.backend = backend
+        self.normalized = config.obs_mode == "normalized"
+        self.u_max: Any = None
+        self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
+        self._row_scales = backend.array(config.row_scales)
+
+    def advance(self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any) -> Interval:
+        """The plan's minimum-energy input over interval k (:mod:`fxc_env.core.linear`).
+
+        ``actions`` ``(B, N, n dim)`` are plans ``Delta`` (terminal change relative to free
+        motion, component-major like the state), in normalized mode ``alpha`` with
+        ``Delta_l = s_i alpha_l / row_scales_l``. The input at both ends is ``(B, N, dim)``
+        (``(B, N, dim, m)`` for m > 1 inputs).
+        """
+        c, k = self.config, clock.k
+        b, n_agents, n, dim = actions.shape[0], c.n_agents, c.n_states, c.dim
+        with np.errstate(over="ignore", invalid="ignore"):
+            plan = actions.reshape(b, n_agents, n, dim)
+            if self.normalized:
+                plan = plan * (local_scale()[:, :, None, None] / self._row_scales[k][:, None])
+            maps = c.interval_maps
+            per_axis = np.swapaxes(state, -1, -2)  # (B, N, dim, n), the axis order of core.linear
+            delta = np.swapaxes(plan, -1, -2)
+            following, energy, peak = maps.steer(k, per_axis, delta)
+            # The input at both ends: u(0+) = B^T F^T lambda, u(T-) = B^T lambda.
+            costate = maps.costate(k, delta)  # (B, N, dim, n)
+            model = c.model
+            u_end = costate @ model.B
+            u_start = costate @ (maps.motion[k] @ model.B)
+            if model.n_inputs == 1:
+                u_start, u_end = u_start[..., 0], u_end[..., 0]
+            out[...] = np.swapaxes(following, -1, -2)
+            return Interval(
+                out,
+                energy.sum(axis=-1),
+                peak.max(axis=-1),
+                u_start,
+                u_end,
+                self._no_saturation,
+                None,
+                delta,
+                state_disagreement(out, c),
+            )
+
+    def disagreement(self, state: Any) -> Any:
+        """``D = sum_l T_s^l e_{z_l}`` per episode ``(B,)`` (:func:`state_disagreement`)."""
+        return state_disagreement(state, self.config)
+
+
+def make_agents(config: EnvConfig, backend: Any) -> DoubleIntegratorAgents | LinearAgents:
+    """The agents' part for ``config``: general ``(A, B)``, clipped or plain double integrators."""
+    if config.model is not None:
+        return LinearAgents(config, backend)
+    if config.u_max_choices is not None:
+        return LimitedDoubleIntegratorAgents(config, backend)
+    return DoubleIntegratorAgents(config, backend)

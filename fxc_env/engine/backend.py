@@ -1,0 +1,242 @@
+"""The engine's array backend: numpy arrays or torch tensors, chosen once at construction.
+
+A backend owns what differs between the two: how arrays are made (dtype, device), how
+random numbers are drawn, how actions are checked, and how a bad step is reported.
+
+- :class:`NumpyBackend` refuses a bad step at once: :meth:`~NumpyBackend.commit_if_finite`
+  raises :class:`~fxc_env.core.validation.ArgumentError` before the new state is adopted, so
+  a refused step changes nothing (the interval is played into a spare buffer).
+- :class:`TorchBackend` never reads a value back to the host on the stepping path: a
+  non-finite action or result (or an episode stepped past ``T_s``) sets a per-episode flag
+  on the device, :attr:`TorchBackend.invalid`, read by :meth:`TorchBackend.raise_if_invalid`.
+
+Everything else the engine computes is written once against the Python array API
+(:mod:`fxc_env.core.arrays`, ``backend.xp``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from fxc_env.core import validation
+from fxc_env.core.arrays import namespace
+from fxc_env.core.validation import ArgumentError
+
+#: The smallest positive float64: floors a division by a scale that may be 0.
+TINY = np.finfo(np.float64).tiny
+#: Array dtypes the engine computes in (float32: see the TorchRL environment's card for its floor).
+DTYPES = ("float64", "float32")
+
+
+def to_host(array: Any) -> np.ndarray:
+    """A numpy copy (or the array itself) of a numpy array or a torch tensor: a read off the device."""
+    if isinstance(array, np.ndarray):
+        return array
+    return array.detach().cpu().numpy()
+
+
+class NumpyBackend:
+    """numpy arrays (``device=None``); a bad step is refused at once, nothing is flagged.
+
+    Args:
+        dtype: ``"float64"`` or ``"float32"``.
+        n_episodes: the batch size B.
+    """
+
+    is_numpy = True
+    device = None
+
+    def __init__(self, dtype: str, n_episodes: int) -> None:
+        self.n_episodes = n_episodes
+        self.dtype = getattr(np, validation.choice("dtype", dtype, DTYPES))
+        #: The dtype's smallest positive number (the floor of a division by a scale).
+        self.tiny = float(np.finfo(dtype).tiny)
+        self.xp = namespace(np.empty(0))
+        #: No device flags on numpy (:meth:`commit_if_finite` raises instead).
+        self.invalid = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        del state["xp"]  # a module: found again on unpickling
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.xp = self._namespace()
+
+    def _namespace(self) -> Any:
+        return namespace(np.empty(0))
+
+    # ------------------------------------------------------------- arrays
+    def array(self, values: Any, dtype: Any = None) -> Any:
+        """``values`` (numpy or a number) as an array of this backend's dtype (or ``dtype``)."""
+        return np.asarray(values, dtype=self.dtype if dtype is None else dtype)
+
+    def zeros(self, shape: tuple[int, ...]) -> Any:
+        return self.xp.zeros(shape, dtype=self.dtype, device=self.device)
+
+    def full(self, shape: Any, value: float) -> Any:
+        return self.xp.full(shape, value, dtype=self.dtype, device=self.device)
+
+    def spare(self, shape: tuple[int, ...]) -> Any:
+        """The second state buffer of double buffering (numpy), or None (torch makes a new tensor)."""
+        return self.zeros(shape)
+
+    # --------------------------------------------------------------- draws
+    def generator(self, seed: int | None) -> Any:
+        """A fresh generator of noise, dropout and switching: ``np.random.default_rng(seed)``."""
+        return np.random.default_rng(seed)
+
+    def uniform(self, rng: Any, shape: tuple[int, ...]) -> Any:
+        """Uniform draws on ``[0, 1)``."""
+        return rng.random(shape)
+
+    def normal(self, rng: Any, shape: tuple[int, ...]) -> Any:
+        """Standard normal draws."""
+        return rng.standard_normal(shape)
+
+    # ------------------------------------------------------------- actions
+    def checked(self, actions: object, expected: tuple[int, ...], name: str = "actions") -> Any:
+        """A ``(B, N, 2 dim)`` real, finite action array, checked in full; raise naming ``name`` otherwise."""
+        return validation.action_array(name, actions, expected)
+
+    def commit_if_finite(self, current: Any, following: Any, refusal: Callable[[], ArgumentError]) -> tuple[Any, Any]:
+        """The ``(state, spare)`` pair after an interval played into the spare buffer ``following.state``.
+
+        One scalar decides (a sum overflowing past 1.8e308 is refused too: such energies
+        would overflow the episode's totals); a step that is not finite raises
+        ``refusal()`` and the state is unchanged.
+        """
+        if not math.isfinite(following.disagreement.sum() + following.energy.sum()):
+            raise refusal()
+        return following.state, current
+
+    def flag(self, mask: Any) -> None:
+        """Nothing to flag on numpy (a step past ``T_s`` or a bad value was refused at once)."""
+
+    def clear_flags(self, episodes: Any = None) -> None:
+        """Nothing to clear on numpy."""
+
+    def raise_if_invalid(self) -> None:
+        """Nothing to read on numpy: bad steps were refused when played."""
+
+
+class TorchBackend(NumpyBackend):
+    """torch tensors on ``device``; a bad step sets :attr:`invalid` on the device (no host read).
+
+    Args:
+        device: a torch device (``"cpu"``, ``"cuda"``, ``"cuda:1"``, ``"meta"``).
+        dtype: ``"float64"`` or ``"float32"``.
+        n_episodes: the batch size B.
+    """
+
+    is_numpy = False
+
+    def __init__(self, device: Any, dtype: str, n_episodes: int) -> None:
+        import torch  # the torch backend only: a numpy user never imports torch here
+
+        try:
+            chosen = torch.device(device)
+        except (RuntimeError, TypeError) as error:
+            raise ArgumentError(
+                f"device: expected None (numpy) or a torch device such as 'cpu' or 'cuda', got {device!r}"
+            ) from error
+        if chosen.type == "cuda" and not torch.cuda.is_available():
+            raise ArgumentError(
+                f"device: {device!r} asks for CUDA, but torch.cuda.is_available() is False on this machine"
+            )
+        self.device = chosen
+        self.n_episodes = n_episodes
+        self.xp = self._namespace()
+        self.dtype = getattr(self.xp, validation.choice("dtype", dtype, DTYPES))
+        self.tiny = float(np.finfo(dtype).tiny)
+        #: Per episode: a non-finite action or result, or a step past ``T_s``, was seen since
+        #: its last reset. Read by :meth:`raise_if_invalid`.
+        self.invalid = self.xp.zeros(n_episodes, dtype=self.xp.bool, device=chosen)
+
+    def _namespace(self) -> Any:
+        import torch
+
+        return namespace(torch.empty(0, device=self.device))
+
+    def array(self, values: Any, dtype: Any = None) -> Any:
+        return self.xp.asarray(np.array(values), dtype=self.dtype if dtype is None else dtype, device=self.device)
+
+    def spare(self, shape: tuple[int, ...]) -> None:
+        return None
+
+    def generator(self, seed: int | None) -> Any:
+        """A ``torch.Generator`` on the device (None on ``meta``, which draws shapes only)."""
+        import torch
+
+        if self.device.type == "meta":
+            return None
+        generator = torch.Generator(device=self.device)
+        if seed is None:
+            generator.seed()
+        else:
+            generator.manual_seed(int(seed))
+        return generator
+
+    def uniform(self, rng: Any, shape: tuple[int, ...]) -> Any:
+        import torch
+
+        return torch.rand(shape, generator=rng, dtype=self.dtype, device=self.device)
+
+    def normal(self, rng: Any, shape: tuple[int, ...]) -> Any:
+        import torch
+
+        return torch.randn(shape, generator=rng, dtype=self.dtype, device=self.device)
+
+    def checked(self, actions: object, expected: tuple[int, ...], name: str = "actions") -> Any:
+        """Shape and dtype checked at once (known on the host); a non-finite entry sets :attr:`invalid`."""
+        xp = self.xp
+        if not hasattr(actions, "shape") or not hasattr(actions, "device"):
+            raise ArgumentError(f"{name}: expected a torch tensor of shape {expected}, got {type(actions).__name__}")
+        if tuple(actions.shape) != expected:
+            raise ArgumentError(f"{name}: expected shape {expected}, got {tuple(actions.shape)}")
+        if not xp.isdtype(actions.dtype, ("real floating", "integral")):
+            raise ArgumentError(f"{name}: expected real numbers, got dtype {actions.dtype}")
+        actions = xp.astype(actions, self.dtype)
+        self.flag(~xp.all(xp.isfinite(actions), axis=(1, 2)))
+        return actions
+
+    def commit_if_finite(self, current: Any, following: Any, refusal: Callable[[], ArgumentError]) -> tuple[Any, Any]:
+        """Adopt the new state; episodes whose disagreement or energy is not finite are flagged."""
+        xp = self.xp
+        finite = xp.isfinite(following.disagreement) & xp.all(xp.isfinite(following.energy), axis=-1)
+        self.flag(~finite)
+        return following.state, None
+
+    def flag(self, mask: Any) -> None:
+        """Mark the episodes of the ``(B,)`` boolean ``mask`` (None: none) as not to be trusted."""
+        if mask is not None:
+            self.invalid = self.invalid | mask
+
+    def clear_flags(self, episodes: Any = None) -> None:
+        """Clear the flags of the restarted ``episodes`` (a ``(B,)`` mask; None: all)."""
+        xp = self.xp
+        if episodes is None:
+            self.invalid = xp.zeros_like(self.invalid)
+        else:
+            self.invalid = xp.where(episodes, xp.zeros_like(self.invalid), self.invalid)
+
+    def raise_if_invalid(self) -> None:
+        """Raise :class:`ArgumentError` if any episode was flagged (one read off the device)."""
+        bad = np.flatnonzero(to_host(self.invalid))
+        if len(bad):
+            raise ArgumentError(
+                f"actions: episodes {bad[:10].tolist()} received a non-finite action, overflowed float64 or were "
+                "stepped past T_s since their last reset; reset them (their states are not to be trusted)"
+            )
+
+
+def make_backend(device: Any, dtype: str, n_episodes: int) -> NumpyBackend:
+    """:class:`NumpyBackend` for ``device=None``, else :class:`TorchBackend` on ``device``."""
+    if device is None:
+        return NumpyBackend(dtype, n_episodes)
+    return TorchBackend(device, dtype, n_episodes)

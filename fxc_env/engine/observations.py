@@ -1,0 +1,277 @@
+"""What the agents measure at ``t_k`` and the observations built from it (the card's Observation Space).
+
+Agent i receives from every in-neighbour j of the coming interval's graph the relative state
+``[x_j - x_i, v_j - v_i]`` (paper Section 2), with measurement noise and link dropout where
+the config asks; its local scale is ``s_i = max(|x_j - x_i|, T |v_j - v_i|)`` over the rows
+(README, "Observations"). A flat observation is the rows (divided by ``s_i`` in normalized
+mode, velocities times ``T``), the slot mask, the clock and, with an input limit, the limit
+feature (:func:`limit_feature`). Each instant's measurements are drawn once and cached
+until the engine moves (:meth:`Observer.invalidate`).
+
+**numpy fast path.** Without noise or dropout, on one shared graph in lock step, the flat
+observation is built agent block by agent block (:data:`BLOCK_AGENTS`), gather to output, so
+that each block's rows and output stay in the cache; the same element-wise operations in
+the same order as the generic lines, so the values are identical (measured: 3-4x at
+N = 10^6, see :mod:`fxc_env.speed`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from fxc_env.config import EnvConfig
+from fxc_env.core import slots
+from fxc_env.core.arrays import namespace
+
+from .backend import TINY
+
+#: Agents per episode from which the numpy fast path pays (it loops over episodes, then blocks).
+BLOCKED_FROM = 2048
+#: Agents per block of the numpy fast path (a block's buffers, about 5 MiB at 4 slots, stay in the L3 cache).
+BLOCK_AGENTS = 16384
+
+
+def limit_feature(u_max: Any, interval: Any, scale: Any) -> Any:
+    """How far the input limit binds on the coming interval, scale-free, in ``[-1, 1]``.
+
+    ``rho = u_max T^2 / s_i`` compares the limit with the input a plan at agent i's scale
+    needs: the paper's controller starts an interval at about ``6 e / T^2`` (eq. 11), at
+    most ``10 s_i / T^2``, so ``rho`` below about 10 means the limit cuts the planned
+    input and ``rho >> 10`` that it is out of reach. The feature is ``l / (1 + |l|)`` with
+    ``l = log10(rho)``: decades spread evenly (0 at ``rho = 1``, ±0.5 one decade either
+    side, ±0.75 three), bounded without a hard clip; ``s_i = 0`` (nothing to correct) gives
+    1. Scaling the state and ``u_max`` by the same factor leaves it unchanged. Shape of
+    ``scale``, e.g. ``(B, N)``; numpy arrays or torch tensors.
+    """
+    xp = namespace(scale)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        decades = xp.log10(u_max * interval * interval) - xp.log10(scale)
+        return xp.where(xp.isfinite(decades), decades / (1.0 + xp.abs(decades)), xp.ones_like(decades))
+
+
+class Observer:
+    """The engine's measurements and observations (cached per instant).
+
+    Args:
+        config: the environment's settings (modes, noise, dropout, layout).
+        backend: the engine's array backend.
+        tables: the engine's per-instant tables (:class:`~fxc_env.engine.clock.InstantTables`).
+    """
+
+    def __init__(self, config: EnvConfig, backend: Any, tables: Any) -> None:
+        self.config = config
+        self.layout = config.layout
+        self.backend = backend
+        self.tables = tables
+        self.normalized = bool(config.obs_mode == "normalized" and self.layout.slots)
+        #: The numpy fast path applies (noise-free, dropout-free double integrators, some slots,
+        #: episodes of at least :data:`BLOCKED_FROM` agents).
+        self.blocked = bool(
+            backend.is_numpy
+            and config.n_agents >= BLOCKED_FROM
+            and config.model is None
+            and config.obs_noise == 0
+            and config.link_dropout == 0
+            and self.layout.slots
+        )
+        self._measured: tuple | None = None
+        self._scale: Any = None
+        self._buffers: tuple | None = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_buffers"] = None  # scratch space, made again on first use
+        return state
+
+    def invalidate(self) -> None:
+        """The state or the instant changed: measurements are drawn anew on next use."""
+        self._measured = None
+        self._scale = None
+
+    def measure(self, state: Any, clock: Any, graphs: Any, uniform: Callable, normal: Callable) -> tuple[Any, Any, Any]:
+        """Rows ``(B, N, slots, n, dim)``, mask ``(B, N, slots)`` or ``(N, slots)``, local scale ``(B, N)``.
+
+        Rows are ``[z_j - z_i]`` per in-neighbour slot (padded slots point at i itself and
+        hold exact zeros), with noise (``normal``) and dropout (``uniform``); the mask is 1 for
+        a row received; the scale is in metres.
+        """
+        if self._measured is not None:
+            return self._measured
+        c, xp, backend = self.config, self.backend.xp, self.backend
+        # Gather [x_j, v_j] together (one random access per edge).
+        rows, mask = graphs.gather(state)
+        rows -= state[:, :, None]
+        if c.link_dropout > 0:
+            mask = mask * xp.astype(uniform((backend.n_episodes, *mask.shape[-2:])) >= c.link_dropout, backend.dtype)
+            rows *= mask[..., None, None]
+        if c.obs_noise > 0:
+            rows += (c.obs_noise * mask[..., None, None]) * normal(tuple(rows.shape))
+        if c.model is not None:
+            # General agents: the largest |z_j - z_i| per component in position units (row_scales).
+            largest = (
+                xp.max(xp.abs(rows), axis=(-3, -1))
+                if self.layout.slots
+                else backend.zeros((*rows.shape[:-3], c.n_states))
+            )
+            scale = xp.max(largest * clock.per_instant(self.tables.row_scales), axis=-1)
+        else:
+            if backend.is_numpy:  # numpy fast path: a loop over the few slot columns (3x, see core.slots)
+                largest = slots.max_abs_rows(rows)
+            elif self.layout.slots:
+                largest = xp.max(xp.abs(rows), axis=(-3, -1))
+            else:
+                largest = backend.zeros((*rows.shape[:-3], 2))
+            scale = xp.maximum(largest[..., 0], clock.interval(1) * largest[..., 1])
+        self._measured = (rows, mask, scale)
+        self._scale = scale
+        return self._measured
+
+    def local_scale(self, state: Any, clock: Any, graphs: Any, uniform: Callable, normal: Callable) -> Any:
+        """Each agent's local scale ``s_i`` at ``t_k`` (metres), ``(B, N)``; 0 if it sees no disagreement."""
+        if self._scale is not None:
+            return self._scale
+        return self.measure(state, clock, graphs, uniform, normal)[2]
+
+    def observe(
+        self, state: Any, clock: Any, graphs: Any, u_max: Any, uniform: Callable, normal: Callable, out: Any = None
+    ) -> Any:
+        """Every agent's flat observation ``(B, N, obs_size)`` at ``t_k``; ``out`` (numpy) is filled if given.
+
+        In normalized mode the rows are divided by the local scale; division (not
+        multiplication by ``1/s``) keeps every entry within [-1, 1].
+        """
+        layout, xp, backend = self.layout, self.backend.xp, self.backend
+        b, n = backend.n_episodes, self.config.n_agents
+        if self.blocked and graphs.same_graph and self._measured is None:
+            obs = np.empty((b, n, layout.size)) if out is None else out
+            self._scale = self._observe_blocked(obs, state, clock, graphs)
+            if layout.limit_feature:
+                obs[..., layout.clock_end] = limit_feature(u_max[:, None], clock.interval(), self._scale)
+            return obs
+        raw, mask, scale = self.measure(state, clock, graphs, uniform, normal)
+        if backend.is_numpy and not clock.per_episode:
+            obs = np.empty((b, n, layout.size)) if out is None else out
+            if self.normalized:
+                # numpy fast path: whole rows at once into the output, x parts times 1 and v parts
+                # times T, then over s (numpy's inner loops over an agent's whole row: 3x at dim = 2).
+                np.multiply(
+                    raw.reshape(b, n, -1), clock.per_instant(self.tables.row_factors), out=obs[..., : layout.rows_end]
+                )
+                obs[..., : layout.rows_end] /= np.maximum(scale, TINY)[:, :, None]
+            else:
+                obs[..., : layout.rows_end] = raw.reshape(b, n, -1)
+            obs[..., layout.rows_end : layout.mask_end] = mask
+            obs[..., layout.mask_end : layout.clock_end] = clock.per_instant(self.tables.features)
+            if layout.limit_feature:
+                obs[..., layout.clock_end] = limit_feature(u_max[:, None], clock.interval(), scale)
+            return obs
+        rows = xp.reshape(raw, (b, n, -1))
+        if self.normalized:
+            # s = 0 only when every row is 0; the floor keeps 0 / s at 0 without a branch.
+            rows = (
+                rows
+                * clock.per_instant(self.tables.row_factors)
+                / xp.maximum(scale, backend.full((), backend.tiny))[..., None]
+            )
+        zeros = backend.zeros((b, n, 1))
+        parts = [rows, mask + zeros, clock.per_instant(self.tables.features) + zeros]
+        if layout.limit_feature:
+            parts.append(limit_feature(u_max[:, None], clock.interval(1), scale)[..., None])
+        return xp.concat(parts, axis=-1)
+
+    def _observe_blocked(self, obs: np.ndarray, state: np.ndarray, clock: Any, graphs: Any) -> np.ndarray:
+        """numpy fast path of :meth:`observe`: observations built block by block; returns the scale ``(B, N)``.
+
+        Per block of agents (:class:`_Block`): gather ``[x_j, v_j]`` of every slot at once (one
+        random access per edge), subtract the agent's own into a slot-major buffer
+        ``(2 dim, slots, block)`` so that every later operation runs over a contiguous run of
+        agents, take the largest ``|x_j - x_i|`` and ``|v_j - v_i|`` for ``s_i``, write the rows
+        (velocities times ``T``, all over ``max(s, tiny)`` when normalized) and the mask into a
+        block buffer holding the clock, and copy it out at once. A handful of array operations
+        per block (no per-block Python objects beyond a few views); the same operations per
+        entry as the generic path, so the same values.
+        """
+        b, n = obs.shape[:2]
+        T = clock.interval()
+        features = clock.per_instant(self.tables.features)
+        pieces = graphs.blocks(graphs.graph, min(BLOCK_AGENTS, n))
+        if self._buffers is None:
+            self._buffers = {}
+        scale = np.empty((b, n))
+        for episode in range(b):
+            source = state[episode].reshape(n, -1)  # [x, v] of every agent, side by side
+            own = source.T[:, None, :]  # (2 dim, 1, N)
+            for start, index, mask in pieces:
+                m = index.shape[1]
+                kernel = self._buffers.get(m)
+                if kernel is None:
+                    kernel = self._buffers[m] = _Block(m, self.layout, state.shape[-1])
+                if kernel.instant != clock.k:  # the clock columns, written once per instant
+                    kernel.clock[...] = features
+                    kernel.instant = clock.k
+                stop = start + m
+                kernel.fill(source, index, own[:, :, start:stop], mask, T, self.normalized)
+                scale[episode, start:stop] = kernel.scale
+                obs[episode, start:stop, : self.layout.clock_end] = kernel.output
+        return scale
+
+
+class _Block:
+    """Buffers and fixed views of :meth:`Observer._observe_blocked` for blocks of ``m`` agents (312 bytes an agent at 4 slots)."""
+
+    def __init__(self, m: int, layout: Any, dim: int) -> None:
+        width = 2 * dim
+        self.gathered = np.empty((layout.slots, m, width))
+        self.by_column = self.gathered.transpose(2, 0, 1)  # (2 dim, slots, m)
+        self.difference = np.empty((width, layout.slots, m))
+        self.absolute = np.empty_like(self.difference)
+        self.largest = np.empty((2, m))
+        self.scale = np.empty(m)
+        self.floored = np.empty(m)
+        self.output = np.empty((m, layout.clock_end))
+        self.rows = self.output[:, : layout.rows_end].reshape(m, layout.slots, width).transpose(2, 1, 0)
+        self.mask = self.output[:, layout.rows_end : layout.mask_end].T
+        self.clock = self.output[:, layout.mask_end : layout.clock_end]
+        self.dim = dim
+        #: The instant whose clock features :attr:`clock` holds (-1: none yet).
+        self.instant = -1
+
+    def fill(self, source: Any, index: Any, own: Any, mask: Any, T: float, normalized: bool) -> None:
+        """One block: :attr:`output` ``(m, clock_end)`` and :attr:`scale` ``(m,)`` from the gathered rows."""
+        d = self.dim
+        np.take(source, index, axis=0, out=self.gathered, mode="clip")
+        np.subtract(self.by_column, own, out=self.difference)  # z_j - z_i, slot-major
+        np.abs(self.difference, out=self.absolute)
+        np.maximum.reduce(self.absolute[:d], axis=(0, 1), out=self.largest[0])
+        np.maximum.reduce(self.absolute[d:], axis=(0, 1), out=self.largest[1])
+        np.multiply(T, self.largest[1], out=self.scale)
+        np.maximum(self.largest[0], self.scale, out=self.scale)  # s_i = max(|x_j - x_i|, T |v_j - v_i|)
+        if normalized:
+            np.maximum(self.scale, TINY, out=self.floored)
+            velocities = self.difference[d:]
+            np.multiply(velocities, T, out=velocities)  # the row factor T of velocities
+            np.divide(self.difference, self.floored, out=self.rows)
+        else:
+            np.copyto(self.rows, self.difference)
+        np.copyto(self.mask, mask)
+
+
+def normalized_state(
+    state: Any, current_disagreement: Any, clock: Any, tables: Any, backend: Any, config: EnvConfig
+) -> Any:
+    """The scale-free global state of every episode, ``(B, N * n dim + 3)`` (see :meth:`ConsensusEngine.normalized_state`)."""
+    xp = backend.xp
+    components = [
+        (config.settling_time**i) * (state[:, :, i] - xp.mean(state[:, :, i], axis=1, keepdims=True))
+        for i in range(config.n_states)
+    ]
+    rows = xp.concat(components, axis=-1) / xp.reshape(
+        xp.maximum(current_disagreement, backend.full((), backend.tiny)), (-1, 1, 1)
+    )
+    rows = xp.reshape(xp.clip(rows, -1.0, 1.0), (backend.n_episodes, -1))
+    features = clock.per_instant(tables.features)
+    features = xp.reshape(features, (-1, features.shape[-1])) + backend.zeros((backend.n_episodes, 1))
+    return xp.concat([rows, features], axis=-1)

@@ -1,0 +1,181 @@
+"""The episode trackers: rewards and the running figures behind the episode metrics.
+
+Per episode, from its last reset: the initial state (kept whole, for metrics that need it),
+the disagreement ``D(t_k) = e_x + T_s e_v`` (paper eq. 7's figure of merit) at the start
+and now, the reward's floor and logarithm, the energy and peak input per agent, the last
+instant above each settling threshold, and the time spent saturated. :meth:`EpisodeTrackers.update`
+folds one :class:`~fxc_env.engine.agents.Interval` in; :meth:`EpisodeTrackers.batch_metrics`
+turns them into the README's metrics ("Baselines and the deadline benchmark"), the
+predicted consensus value by :func:`fxc_env.core.linear.final_value` (Theorems 1-2).
+
+To add a metric: override or extend :meth:`EpisodeTrackers.extra_metrics` (it sees the
+trackers, whose :attr:`~EpisodeTrackers.z0` is every episode's initial state, and the
+engine's current state) and its columns join :meth:`~EpisodeTrackers.batch_metrics`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from fxc_env.config import EnvConfig
+from fxc_env.core.graphs import DENSE_LIMIT
+from fxc_env.core.linear import LinearModel, final_value, model_matrices
+from fxc_env.core.metrics import SETTLING_THRESHOLDS, reward_floor, spread
+
+from .backend import TINY, to_host
+
+
+class EpisodeTrackers:
+    """Running figures of B episodes, reset per episode (partial resets included).
+
+    Args:
+        config: the environment's settings.
+        backend: the engine's array backend.
+
+    Attributes:
+        x0, v0: each episode's initial positions and velocities, ``(B, N, dim)``.
+        z0: each episode's initial state in the engine's coordinates ``(B, N, n, dim)``
+            (the formation error with formation offsets).
+        initial_disagreement, current_disagreement: ``D(0)`` and ``D(t_k)``, ``(B,)``.
+        energy_total, peak_total: ``integral |u_i|^2`` so far and the peak ``|u_i|``, ``(B, N)``.
+        last_above: per settling threshold, the last instant with ``D(t_k) / D(0) >= eps``,
+            ``(len(SETTLING_THRESHOLDS), B)``.
+        saturated_time: seconds saturated per agent (mean over components), ``(B, N)``.
+    """
+
+    def __init__(self, config: EnvConfig, backend: Any) -> None:
+        self.config = config
+        self.backend = backend
+        b, n, n_states, dim = backend.n_episodes, config.n_agents, config.n_states, config.dim
+        self.x0 = backend.zeros((b, n, dim))
+        self.v0 = backend.zeros((b, n, dim))
+        self.z0 = backend.zeros((b, n, n_states, dim))
+        #: Settling thresholds as a column, ``(len(SETTLING_THRESHOLDS), 1)``.
+        self._thresholds = backend.array(np.array(SETTLING_THRESHOLDS)[:, None])
+        model = config.model if config.model is not None else LinearModel(*model_matrices("double_integrator"))
+        self._model = model
+
+    def restart(self, x0: Any, v0: Any, fresh: Any, disagreement: Any, episodes: Any = None) -> None:
+        """Start the trackers of ``episodes`` (a ``(B,)`` mask; None: all) from ``x0, v0`` and state ``fresh``.
+
+        ``disagreement`` is ``D(0)`` of ``fresh`` per episode, ``(B,)``.
+        """
+        xp, backend = self.backend.xp, self.backend
+        b, n = backend.n_episodes, self.config.n_agents
+        floor = reward_floor(disagreement, self.config.reward_floor)
+        inverse_d0 = 1.0 / xp.where(disagreement > 0, disagreement, xp.ones_like(disagreement))
+        inverse_d0 = xp.where(disagreement > 0, inverse_d0, xp.zeros_like(disagreement))
+        log_disagreement = xp.log(disagreement + floor)
+        last_above = xp.zeros((len(SETTLING_THRESHOLDS), b), dtype=xp.int64, device=backend.device)
+        if episodes is None:
+            self.z0[...] = fresh
+            self.x0[...] = x0
+            self.v0[...] = v0
+            self.initial_disagreement = disagreement
+            self.current_disagreement = xp.asarray(disagreement, copy=True)
+            self.floor = floor
+            self.log_disagreement = log_disagreement
+            self.inverse_d0 = inverse_d0
+            self.energy_total = backend.zeros((b, n))
+            self.peak_total = backend.zeros((b, n))
+            self.last_above = last_above
+            self.saturated_time = backend.zeros((b, n))
+            return
+        keep = xp.reshape(episodes, (-1, 1, 1))
+        self.x0 = xp.where(keep, x0, self.x0)
+        self.v0 = xp.where(keep, v0, self.v0)
+        self.z0 = xp.where(xp.reshape(episodes, (-1, 1, 1, 1)), fresh, self.z0)
+        per_agent = xp.reshape(episodes, (-1, 1))
+        self.initial_disagreement = xp.where(episodes, disagreement, self.initial_disagreement)
+        self.current_disagreement = xp.where(episodes, disagreement, self.current_disagreement)
+        self.floor = xp.where(episodes, floor, self.floor)
+        self.log_disagreement = xp.where(episodes, log_disagreement, self.log_disagreement)
+        self.inverse_d0 = xp.where(episodes, inverse_d0, self.inverse_d0)
+        self.energy_total = xp.where(per_agent, xp.zeros_like(self.energy_total), self.energy_total)
+        self.peak_total = xp.where(per_agent, xp.zeros_like(self.peak_total), self.peak_total)
+        self.last_above = xp.where(episodes, last_above, self.last_above)
+        self.saturated_time = xp.where(per_agent, xp.zeros_like(self.saturated_time), self.saturated_time)
+
+    def update(self, interval: Any, reached: Any) -> Any:
+        """Fold one interval in; ``reached`` is the instant now reached (an int, or ``(B,)``). Returns the reward ``(B,)``.
+
+        The reward is ``log(D(t_k) + f) - log(D(t_{k+1}) + f)`` with the floor ``f``.
+        """
+        xp = self.backend.xp
+        if interval.saturated_time is not None:
+            self.saturated_time += interval.saturated_time
+        self.current_disagreement = interval.disagreement
+        log_previous = self.log_disagreement
+        self.log_disagreement = xp.log(self.current_disagreement + self.floor)
+        self.energy_total += interval.energy
+        self.peak_total = xp.maximum(self.peak_total, interval.peak)
+        above = self.current_disagreement * self.inverse_d0 >= self._thresholds
+        if self.backend.is_numpy and isinstance(reached, int):
+            np.copyto(self.last_above, reached, where=above)  # numpy fast path: in place, lock step
+        else:
+            self.last_above = xp.where(above, reached + xp.zeros_like(self.last_above), self.last_above)
+        return log_previous - self.log_disagreement
+
+    def batch_metrics(self, state: Any, steps: np.ndarray, topologies: list, shared: bool) -> dict[str, np.ndarray]:
+        """The metrics of every episode so far, one ``(B,)`` numpy array per :class:`~fxc_env.core.metrics.EpisodeMetrics` field.
+
+        ``state`` ``(B, N, n, dim)`` is the engine's now, ``steps`` ``(B,)`` each episode's instant
+        (host), ``topologies`` one per episode (``shared``: all the same object). On torch this
+        reads off the device.
+        """
+        c = self.config
+        state = to_host(state)
+        x = state[:, :, 0]
+        v = state[:, :, 1] if c.n_states > 1 else np.zeros_like(x)
+        times = np.concatenate([c.schedule.times, [np.inf]])
+        t_eps = times[to_host(self.last_above) + 1]  # (thresholds, B)
+        predicted = self.predicted_final_state(topologies, shared)  # (B, 2)
+        elapsed = np.maximum(c.schedule.times[steps], TINY)
+        metrics = {
+            "final_position_spread": spread(x),
+            "final_velocity_spread": spread(v),
+            "relative_deadline_error": to_host(self.current_disagreement * self.inverse_d0),
+            "t_eps_1e_2": t_eps[0],
+            "t_eps_1e_6": t_eps[1],
+            "energy": to_host(self.energy_total).sum(axis=1),
+            "peak_input": to_host(self.peak_total).max(axis=1, initial=0.0),
+            "sampling_instants": steps.astype(np.int64),
+            "predicted_final_position": predicted[:, 0],
+            "achieved_final_position": x[:, :, 0].mean(axis=1),
+            "predicted_final_velocity": predicted[:, 1],
+            "achieved_final_velocity": v[:, :, 0].mean(axis=1),
+            "saturated_fraction": to_host(self.saturated_time).mean(axis=1) / elapsed,
+        }
+        metrics.update(self.extra_metrics(state, steps))
+        return metrics
+
+    def predicted_final_state(self, topologies: list, shared: bool) -> np.ndarray:
+        """Position and velocity of ``z*(T_s)`` on the first space axis per episode, ``(B, 2)`` (NaN where not known).
+
+        Theorems 1-2 (generalised, :func:`fxc_env.core.linear.final_value`): ``z*(T_s) =
+        e^{A T_s} sum_j xi_j z_j(0)`` in the engine's coordinates, with the consensus weights
+        ``xi`` of each episode's periodic topology (dense, so only for N up to ``DENSE_LIMIT``;
+        computed on first use, never on the stepping path). Random switching has no such value.
+        A single integrator's velocity is 0.
+        """
+        c = self.config
+        if c.n_agents > DENSE_LIMIT or c.switching != "periodic":
+            return np.full((self.backend.n_episodes, 2), np.nan)
+        if shared:
+            xi = topologies[0].consensus_weights()  # (N,)
+        else:
+            xi = np.stack([topology.consensus_weights() for topology in topologies])  # (B, N)
+        z0 = np.swapaxes(to_host(self.z0)[:, :, :, :1], -1, -2)  # (B, N, 1, n): the first axis, core.linear's order
+        final = final_value(self._model, xi, z0, c.settling_time)[:, 0, :]  # (B, n)
+        return final[:, :2] if c.n_states > 1 else np.concatenate([final, np.zeros_like(final)], axis=1)
+
+    def extra_metrics(self, state: np.ndarray, steps: np.ndarray) -> dict[str, np.ndarray]:
+        """Further ``(B,)`` metric columns for :meth:`batch_metrics` (none here): the place to add metrics.
+
+        ``state`` is the engine's state now (host, ``(B, N, n, dim)``), ``steps`` each
+        episode's instant; :attr:`z0`, :attr:`initial_disagreement` and the running totals
+        are on ``self``.
+        """
+        return {}
