@@ -235,7 +235,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     For machines that have the package but not every dependency of the ``fxc`` command (a
     GPU box with ``pip install --no-deps -e .``). Usage errors print as one line (exit 2).
     """
-    parser = add_arguments(argparse.ArgumentParser(prog="fxc speed", description=__doc__.splitlines()[0]))
+    import fxc_env.speed
+
+    description = fxc_env.speed.__doc__.splitlines()[0]  # the package's: what fxc speed measures
+    parser = add_arguments(argparse.ArgumentParser(prog="fxc speed", description=description))
     arguments = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(arguments)
     try:
