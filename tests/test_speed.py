@@ -17,6 +17,7 @@ from fxc_env.core.validation import ArgumentError
 from fxc_env.speed import command, cuda, models, scaling, training
 from fxc_env.speed import parallel as speed_parallel
 from fxc_env.speed import torchrl as speed_torchrl
+from fxc_env.speed import vecenv as speed_vecenv
 from fxc_env.utils.threads import THREAD_VARIABLES
 
 
@@ -93,6 +94,19 @@ def test_parallel_table_prints_both_sizes_and_the_mpe2_goal_at_n6():
     goals = _goal_lines(lines)
     assert len(goals) == 1 and "MPE2 simple_spread_v3 at N=6" in goals[0]
     assert goals[0].endswith(("(goal >= 20x: met)", "(goal >= 20x: not met)"))
+
+
+def test_vecenv_table_prints_ours_and_both_vmas_scenarios_at_the_same_agent_count():
+    pytest.importorskip("vmas")
+    lines = speed_vecenv.vec_table(60, 1)
+    rows = [line for line in lines[2:] if line.startswith("|")]
+    assert [row.split("|")[1].strip() for row in rows] == [
+        "fxc_env ConsensusVecEnv + ReferencePolicy (paper_fig1)",
+        "VMAS navigation (CPU, random actions)",
+        "VMAS simple_spread (CPU, random actions)",
+    ]
+    assert {int(row.split("|")[2].replace(",", "")) for row in rows} == {60}
+    assert all(math.isfinite(rate) and rate > 0 for rate in _rates_of(rows, 3))
 
 
 def test_torchrl_rates_on_tiny_sizes_are_positive_and_finite():
