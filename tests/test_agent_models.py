@@ -187,6 +187,7 @@ def test_position_offsets_of_a_chain_stay_constant_and_are_reached():
     assert np.ptp(gaps) <= 1e-9 * np.ptp(config.initial_state[0])
 
 
+@pytest.mark.slow
 def test_full_state_offsets_of_an_oscillator_move_with_the_free_motion():
     # Agents agree on z_i - e^{A t} h_i: with velocity offsets the targets rotate with the oscillator.
     offsets = np.zeros((6, 1, 2))

@@ -52,6 +52,7 @@ def test_ppo_trains_a_few_hundred_steps_through_supersuit():
     assert all(isinstance(info, dict) for info in infos)
 
 
+@pytest.mark.slow
 def test_torchrl_collector_with_a_float32_policy():
     env = torchrl_wrapper(scenario="paper_fig1", n_intervals=K, obs_dtype="float32", global_state="normalized")
     observation = env.observation_spec["agents", "observation"]

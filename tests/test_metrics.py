@@ -132,7 +132,8 @@ def test_spread_in_the_plane_and_space_is_the_all_pairs_diameter(dim, n):
     assert_exact_diameter(rng.uniform(-5.0, 5.0, size=(3, n, dim)))  # the engine's initial states
 
 
-@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("dim", [2, 3])
 def test_spread_of_large_batches_and_state_views(dim):
     rng = np.random.default_rng(dim)
     assert_exact_diameter(rng.normal(size=(40, 300, dim)) * rng.uniform(0.1, 10.0, size=(40, 1, dim)))
@@ -218,6 +219,7 @@ def test_spread_beyond_three_dimensions_compares_every_pair():
     assert_exact_diameter(rng.normal(size=(2, 700, 4)))
 
 
+@pytest.mark.slow
 def test_spread_of_a_cloud_with_an_outlier_and_of_two_clusters():
     rng = np.random.default_rng(7)
     cloud = rng.normal(size=(5000, 3))

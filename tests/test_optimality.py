@@ -49,6 +49,7 @@ def test_the_bound_is_the_closed_form_at_the_mean_of_the_coasted_states_batched_
         assert bound[b] == pytest.approx(expected, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_no_common_final_state_is_cheaper_a_numerical_minimisation_for_three_agents():
     x0, v0, T = np.array([0.3, -2.0, 4.1]), np.array([1.5, -0.7, 0.2]), 3.0
     # The Gramian integral G(T) = int_0^T e^{As} B B^T e^{A^T s} ds by quadrature, for each agent's cost.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
@@ -55,6 +56,7 @@ def run(config, x0, v0, policy=None):
     return engine, np.array(states), outcomes, observations
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(data=st.data(), kwargs=scenarios(), u_max=st.sampled_from([None, 0.5, 5.0]))
 def test_each_interval_matches_solve_ivp(data, kwargs, u_max):

@@ -55,6 +55,7 @@ def test_the_interval_goal_line_gives_the_ratio_to_a_tenth_of_a_second(seconds, 
     assert f"{seconds / 0.1:.2f}x the goal" in line and line.endswith(f"(goal <= 0.1 s: {verdict})")
 
 
+@pytest.mark.slow
 def test_speed_command_states_machine_threads_tables_and_goals_without_training(one_thread, capsys, monkeypatch):
     """The smoke test: --skip-contenders runs our own tables (scaling, agent models), never a training."""
     monkeypatch.setattr(models, "MODELS_N", 300)
