@@ -181,3 +181,29 @@ def test_the_training_curve_is_drawn_from_the_rows_with_a_return(tmp_path, capsy
         capsys.readouterr().out
         == f"fxc train: 1300 timesteps; wrote {tmp_path / 'policy.pt'} and {tmp_path / 'training_curve.png'}\n"
     )
+
+
+def test_a_resumed_sb3_log_keeps_the_rows_up_to_the_checkpoint_and_grows_its_columns(tmp_path):
+    run = RunDir(tmp_path, "sb3")
+    (tmp_path / "progress.csv").write_text(
+        "time/total_timesteps,rollout/ep_rew_mean\n4800,1.5\n9600,2.5\n14400,3.5\n"  # 14400: after the checkpoint
+    )
+    logger = run.sb3_logger(resumed_at=9600)
+    logger.record("time/total_timesteps", 14400)
+    logger.record("rollout/ep_rew_mean", 4.0)
+    logger.record("train/approx_kl", 0.01)  # a column the earlier rows did not have
+    logger.dump(14400)
+    logger.close()
+    with (tmp_path / "progress.csv").open(newline="") as handle:
+        logged = list(csv.DictReader(handle))
+    assert [(r["time/total_timesteps"], r["rollout/ep_rew_mean"], r["train/approx_kl"]) for r in logged] == [
+        ("4800", "1.5", ""),
+        ("9600", "2.5", ""),
+        ("14400", "4.0", "0.01"),
+    ]
+    assert list(tmp_path.glob("events.out.tfevents.*")), "TensorBoard events beside it"
+    fresh = RunDir(tmp_path / "fresh", "sb3").sb3_logger()
+    fresh.record("time/total_timesteps", 4800)
+    fresh.dump(4800)
+    fresh.close()
+    assert (tmp_path / "fresh" / "progress.csv").read_text() == "time/total_timesteps\n4800\n"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import signal
 
@@ -66,6 +67,10 @@ def test_resume_continues_from_the_newest_checkpoint_with_its_step_count_and_opt
     assert "resuming" in out and "from model_4800_steps.zip at 4800 timesteps" in out
     resumed = load_model(run_dir / "model.zip", trusted=True)
     assert resumed.num_timesteps == 9600
+    # The log reads as one run: the first run's row, then the resumed run's (SB3 alone would start it afresh).
+    with (run_dir / "progress.csv").open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [row["time/total_timesteps"] for row in rows] == ["4800", "9600"]
     # The checkpoint follows the first update, and Adam's step counter goes on from it.
     step_saved = max(s["step"].item() for s in saved.policy.optimizer.state_dict()["state"].values())
     step_resumed = max(s["step"].item() for s in resumed.policy.optimizer.state_dict()["state"].values())

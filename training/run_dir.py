@@ -3,7 +3,8 @@
     runs/<name>/config.json             the exact arguments and resolved hyperparameters (:meth:`RunDir.start`)
     runs/<name>/versions.json           Python and library versions (:func:`versions`)
     runs/<name>/progress.csv            one row per rollout or iteration (:class:`Progress`; SB3's own
-                                        logger for sb3, :meth:`RunDir.sb3_logger`), SB3's column names
+                                        logger for sb3, :meth:`RunDir.sb3_logger`), SB3's column names;
+                                        a resumed run keeps the rows up to its checkpoint
     runs/<name>/events.out.tfevents.*   the same scalars for TensorBoard (sb3 and torch)
     runs/<name>/checkpoints/            one per save, named with its step count (:data:`CHECKPOINT_NAMES`)
     runs/<name>/training_curve.png      mean episode return against timesteps (:func:`write_training_curve`)
@@ -113,11 +114,21 @@ class RunDir:
         """The log of this run (see :class:`Progress`); use it as a context manager."""
         return Progress(self.path, columns, tensorboard=tensorboard, resumed_at=resumed_at)
 
-    def sb3_logger(self) -> Any:
-        """SB3's logger writing ``progress.csv`` and TensorBoard events here (SB3 picks the columns)."""
-        from stable_baselines3.common.logger import configure
+    def sb3_logger(self, resumed_at: int | None = None) -> Any:
+        """SB3's logger writing ``progress.csv`` and TensorBoard events here (SB3 picks the columns).
 
-        return configure(str(self.path), ["csv", "tensorboard"])
+        Resumed from a checkpoint at ``resumed_at`` timesteps, ``progress.csv`` keeps the
+        earlier run's rows up to it (SB3's own CSV log would start the file afresh).
+        """
+        from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoardOutputFormat
+
+        self.path.mkdir(parents=True, exist_ok=True)
+        progress = self.path / "progress.csv"
+        if resumed_at is None:
+            csv_log = CSVOutputFormat(str(progress))
+        else:
+            csv_log = _resumed_sb3_csv(progress, resumed_at)
+        return Logger(folder=str(self.path), output_formats=[csv_log, TensorBoardOutputFormat(str(self.path))])
 
     @contextmanager
     def interruptible(self, unit: str, save: Callable[[], Path]) -> Iterator[list[bool]]:
@@ -188,6 +199,32 @@ class Progress:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _resumed_sb3_csv(path: Path, timesteps: int) -> Any:
+    """SB3's ``CSVOutputFormat`` on ``path``, holding the rows logged up to ``timesteps`` under their header.
+
+    SB3 opens the file afresh; the kept rows are written back and the header becomes the
+    writer's keys, so that SB3 extends both the way it does for a column it has not seen.
+    """
+    from stable_baselines3.common.logger import CSVOutputFormat
+
+    lines = path.read_text().splitlines(keepends=True) if path.exists() else []
+    writer = CSVOutputFormat(str(path))
+    if lines:
+        header = next(csv.reader([lines[0]]))
+        if "time/total_timesteps" in header:
+            column = header.index("time/total_timesteps")
+            kept = [line for line in lines[1:] if _number(next(csv.reader([line]), []), column) <= timesteps]
+            writer.keys = header
+            writer.file.write(lines[0] + "".join(kept))
+            writer.file.flush()
+    return writer
+
+
+def _number(cells: Sequence[str], column: int) -> float:
+    text = cells[column] if column < len(cells) else ""
+    return int(text) if text.isdigit() else float("inf")  # a damaged row goes
 
 
 def _iteration(row: Mapping[str, str]) -> float:

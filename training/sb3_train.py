@@ -159,7 +159,7 @@ def train_sb3(args: TrainArgs) -> Path:
                 f"(relative action error {fit['relative_action_rms_error']:.2e}); PPO goes on from there"
             )
         run.start(record)
-    model.set_logger(run.sb3_logger())
+    model.set_logger(run.sb3_logger(resumed_at=None if checkpoint is None else model.num_timesteps))
 
     # ------------------------------------------------------------------- loop
     callback = RolloutCheckpoint(run, args.checkpoint_every)
