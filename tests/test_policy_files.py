@@ -265,6 +265,11 @@ def test_a_torch_policy_refuses_settings_other_than_its_recorded_env(tmp_path):
         ArgumentError, match=r"policy\.pt was trained .*action_mode: trained with 'plan', this environment has 'accel'"
     ):
         load_learned_policy(path, make_config("paper_fig1", obs_slots=4, action_mode="accel"))
+    from fxc_env.policies.torch_policy import load_torch_policy
+
+    with pytest.raises(ArgumentError, match=r"schedule: trained with 'paper', this environment has 'uniform'"):
+        load_torch_policy(path, make_config("paper_fig1", obs_slots=4, schedule="uniform"))
+    assert load_torch_policy(path, make_config("paper_fig1", obs_slots=4)).training_settings["obs_slots"] == 4
 
 
 def test_vecnormalize_statistics_travel_as_plain_json_in_the_saved_model(tmp_path):

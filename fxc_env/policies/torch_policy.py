@@ -96,11 +96,14 @@ class TorchPolicy:
         return actions.to(x.dtype) if x.is_floating_point() else actions
 
 
-def load_torch_policy(path: str | Path) -> TorchPolicy:
+def load_torch_policy(path: str | Path, env: Any = None) -> TorchPolicy:
     """The deterministic policy of ``path``: a run directory (its ``policy.pt``), a ``policy.pt`` or a checkpoint.
 
     Returns a :class:`TorchPolicy`: ``policy(obs)`` maps ``[..., obs_size]`` (numpy or torch)
-    to actions ``[..., action_size]``, the clipped mean of the trained Gaussian.
+    to actions ``[..., action_size]``, the clipped mean of the trained Gaussian. With ``env``
+    (an fxc_env environment or EnvConfig) the policy must fit it: its sizes and the settings
+    its ``env`` record makes (:func:`fxc_env.policies.learned.check_fit`, an
+    :class:`ArgumentError` naming the setting and both values otherwise).
     """
     path = Path(path)
     if path.is_dir():
@@ -115,7 +118,12 @@ def load_torch_policy(path: str | Path) -> TorchPolicy:
         record = record["policy"]
     if not isinstance(record, dict):
         raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file")
-    return TorchPolicy(record, source=path)
+    policy = TorchPolicy(record, source=path)
+    if env is not None:
+        from fxc_env.policies.learned import check_fit
+
+        check_fit(policy, env, "policy")
+    return policy
 
 
 def is_torch_policy(path: str | Path) -> bool:
