@@ -457,3 +457,46 @@ def test_bad_arguments_of_the_operations():
         final_value(model, np.ones(4) / 4, np.zeros((3, 2, 2)), 1.0)
     with pytest.raises(ArgumentError, match=r"^Z0: "):
         final_value(model, np.ones(3) / 3, np.zeros((3, 2, 3)), 1.0)
+
+
+def _gramian_by_quadrature(model: LinearModel, T: float) -> np.ndarray:
+    """``int_0^T e^{A s} B B^T e^{A^T s} ds`` by adaptive quadrature (independent of Van Loan)."""
+
+    def integrand(s: float) -> np.ndarray:
+        F = expm(model.A * s)
+        return (F @ model.B @ model.B.T @ F.T).ravel()
+
+    n = model.n_states
+    return quad_vec(integrand, 0.0, T, epsabs=0.0, epsrel=1e-13)[0].reshape(n, n)
+
+
+@pytest.mark.parametrize("damping", [4.0, 50.0, 1e3])
+def test_a_heavily_damped_gramian_over_the_paper_s_first_interval_is_accurate(damping):
+    """Over T_1 = 12.16 s a damping of 4 /s or more made Van Loan's block exponential lose every digit."""
+    model = LinearModel.named("damped", damping=damping)
+    T = schedules.make_schedule(20.0, 200, "paper").intervals[0]
+    reference = _gramian_by_quadrature(model, T)
+    assert np.allclose(model.gramian(T), reference, rtol=1e-11, atol=0.0)
+    maps = model.interval_maps(schedules.make_schedule(20.0, 200, "paper").intervals)
+    assert np.all(maps.scaled_condition < 1e3)
+
+
+@pytest.mark.slow
+def test_a_damped_agent_reaches_consensus_on_the_paper_schedule():
+    import fxc_env
+
+    trajectory = fxc_env.simulate(scenario="paper_fig1", agent_model="damped", damping=4.0, seed=0)
+    assert trajectory.metrics.relative_deadline_error < 1e-9
+
+
+@pytest.mark.slow
+def test_a_model_that_outgrows_float64_within_the_horizon_is_refused_at_construction():
+    import fxc_env
+
+    unstable = ([[20.0, 1.0], [0.0, 20.0]], [[0.0], [1.0]])
+    with pytest.raises(ArgumentError, match=r"agent_model: .*growth rate 20 1/s.*settling_time = 20 s.*e\^400"):
+        fxc_env.make_config(agent_model=unstable)
+    # The same model over a horizon it can span runs, and a slowly growing one over the default horizon too.
+    assert fxc_env.make_config(agent_model=unstable, settling_time=4.0).model.growth_rate == pytest.approx(20.0)
+    slow = fxc_env.simulate(agent_model=([[0.2, 1.0], [0.0, 0.2]], [[0.0], [1.0]]), seed=0)
+    assert slow.metrics.relative_deadline_error < 1e-6

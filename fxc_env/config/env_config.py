@@ -31,7 +31,7 @@ from fxc_env.config.scenarios import scenario_preset
 from fxc_env.core import validation
 from fxc_env.core.families import AnyFamily, is_family_spec, make_family
 from fxc_env.core.graphs import Topology, make_topology
-from fxc_env.core.linear import IntervalMaps, LinearModel, formation_offsets, model_matrices
+from fxc_env.core.linear import IntervalMaps, LinearModel, check_horizon, formation_offsets, model_matrices
 from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 
@@ -347,6 +347,7 @@ def make_config(
     model_name, model = _agent_model(merged)
     u_max_choices = _input_limits(merged.get("u_max"))
     if model is not None:
+        check_horizon(model, sched.settling_time)
         if action_mode != "plan":
             raise ArgumentError(
                 f"action_mode: {model_name!r} agents take plans only (the minimum-energy input); 'accel' is the "

@@ -82,6 +82,10 @@ CHAIN_ORDERS = (1, 2, 3, 4)
 DEFAULT_DAMPING = 0.5
 #: Default angular frequency ``omega`` of the ``"oscillator"`` model (rad/s): ``v' = -omega^2 x + u``.
 DEFAULT_FREQUENCY = 1.0
+#: The largest ``growth_rate * T_s`` an episode may span: free motion grows by up to ``e^100 ~ 3e43``
+#: over the horizon, so states (<= 1e100 by the environment's own limit) stay finite and their
+#: energies (quadratic in the state) below float64's 1.8e308. Past it an episode cannot finish.
+MAX_HORIZON_GROWTH = 100.0
 #: Points of normalised time ``sigma`` on which the peak input of a non-polynomial model is evaluated.
 PEAK_GRID_POINTS = 65
 #: Rows per chunk when a peak is evaluated on the grid (bounds the temporary memory).
@@ -205,6 +209,8 @@ class LinearModel:
         A: ``(n, n)`` read-only copy. B: ``(n, m)`` read-only copy.
         levels: ``(n,)`` structural levels of the states (module docstring, "The scaled frame").
         time_scale: ``1 / rho`` in seconds with rho the spectral radius of A (``inf`` if rho = 0).
+        growth_rate: the largest real part of A's eigenvalues in 1/s, or 0 for a model whose free
+            motion does not grow exponentially (see :func:`check_horizon`).
         polynomial_input: True when A is nilpotent (exactly) and n <= 4: the minimum-energy input
             is then a polynomial of degree <= n - 1 in time and its peak is computed exactly.
     """
@@ -240,6 +246,7 @@ class LinearModel:
         self.levels.setflags(write=False)
         rho = float(np.max(np.abs(np.linalg.eigvals(a))))
         self.time_scale = 1.0 / rho if rho > 0 and math.isfinite(1.0 / rho) else math.inf
+        self.growth_rate = max(0.0, float(np.max(np.linalg.eigvals(a).real)))
         nilpotent = bool(np.all(np.linalg.matrix_power(a, n) == 0))
         self.polynomial_input = nilpotent and n <= 4
         self._gain = b @ b.T
@@ -294,15 +301,31 @@ class LinearModel:
         return h, a_hat
 
     def _van_loan(self, a_hat: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``e^{Ahat sigma}`` and ``V(sigma) = int_0^sigma e^{Ahat r} B B^T e^{Ahat^T r} dr``, both ``(K, n, n)``."""
+        """``e^{Ahat sigma}`` and ``V(sigma) = int_0^sigma e^{Ahat r} B B^T e^{Ahat^T r} dr``, both ``(K, n, n)``.
+
+        Van Loan's block exponential holds ``e^{-Ahat^T sigma}`` beside the Gramian, which for a
+        strongly stable model over a long interval (a heavy damping over the paper's first 12 s) is
+        astronomically large, and reading ``V`` back multiplies it by the tiny ``e^{Ahat^T sigma}``:
+        all digits lost. So the block is exponentiated only over ``sigma / 2^m`` with
+        ``|Ahat sigma| / 2^m <= 1`` and the result doubled m times,
+        ``V(2 s) = V(s) + e^{Ahat s} V(s) e^{Ahat^T s}``, ``e^{Ahat 2 s} = (e^{Ahat s})^2``:
+        every term is a positive semi-definite sum, so no cancellation, for any stable or unstable A.
+        """
         n = self.n_states
+        scaled = a_hat * sigma[..., None, None]
+        norms = np.max(np.sum(np.abs(scaled), axis=-1), axis=-1) if scaled.size else np.zeros(0)
+        largest = float(np.max(norms, initial=0.0, where=np.isfinite(norms)))
+        doublings = min(60, math.ceil(math.log2(largest))) if largest > 1.0 else 0
         block = np.zeros((*a_hat.shape[:-2], 2 * n, 2 * n))
-        block[..., :n, :n] = a_hat
-        block[..., :n, n:] = self._gain
-        block[..., n:, n:] = -np.swapaxes(a_hat, -1, -2)
-        exp = scipy.linalg.expm(block * sigma[..., None, None])
+        block[..., :n, :n] = scaled
+        block[..., :n, n:] = self._gain * sigma[..., None, None]
+        block[..., n:, n:] = -np.swapaxes(scaled, -1, -2)
+        exp = scipy.linalg.expm(block / 2.0**doublings)
         motion = exp[..., :n, :n]
         gramian = exp[..., :n, n:] @ np.swapaxes(motion, -1, -2)
+        for _ in range(doublings):
+            gramian = gramian + motion @ gramian @ np.swapaxes(motion, -1, -2)
+            motion = motion @ motion
         return motion, 0.5 * (gramian + np.swapaxes(gramian, -1, -2))
 
     def free_motion_matrix(self, t: Any) -> np.ndarray:
@@ -342,6 +365,27 @@ class LinearModel:
             that is numerically singular in the scaled frame: a nearly uncontrollable pair).
         """
         return IntervalMaps(self, intervals)
+
+
+def check_horizon(model: LinearModel, settling_time: float) -> None:
+    """Refuse a model whose free motion outgrows float64 within the horizon ``T_s`` (seconds).
+
+    Consensus does not stabilise the agents: for ``t >= T_s`` they follow ``e^{A t}`` of the
+    weighted initial state (README, "Agent models and formations"), so an unstable ``A`` grows
+    like ``e^{growth_rate t}`` whatever the controller does. Up to :data:`MAX_HORIZON_GROWTH`
+    (``growth_rate * T_s``) every state and energy of an episode stays finite.
+
+    Raises:
+        ArgumentError naming ``agent_model``, its growth rate and ``settling_time``.
+    """
+    growth = model.growth_rate * settling_time
+    if growth > MAX_HORIZON_GROWTH:
+        raise ArgumentError(
+            f"agent_model: its free motion grows like e^({model.growth_rate:g} t) (growth rate {model.growth_rate:g} 1/s, "
+            f"the largest real part of A's eigenvalues), so over settling_time = {settling_time:g} s it grows by "
+            f"e^{growth:.4g}, past float64's range for states and their energies; expected growth rate x "
+            f"settling_time <= {MAX_HORIZON_GROWTH:g} (a shorter settling_time, or a model that grows more slowly)"
+        )
 
 
 def _times(name: str, value: Any) -> np.ndarray:
