@@ -320,3 +320,25 @@ def test_a_malformed_description_is_refused_naming_the_file(tmp_path):
     crafted = write_zip(tmp_path / "odd.zip", {**contents, METADATA_MEMBER: json.dumps(record).encode()})
     with pytest.raises(ArgumentError, match=r"policy: .*odd\.zip"):
         load_learned_policy(crafted)
+
+
+def test_a_custom_features_extractor_is_not_silently_dropped(tmp_path):
+    from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+
+    class Scaled(BaseFeaturesExtractor):
+        def __init__(self, observation_space):
+            super().__init__(observation_space, 15)
+            self.linear = torch.nn.Linear(15, 15)
+
+        def forward(self, obs):
+            return self.linear(obs)
+
+    model = small_ppo(net_arch=[8], features_extractor_class=Scaled)
+    path = save_model(model, tmp_path / "custom.zip")
+    with pytest.raises(ArgumentError, match=r"policy: .*custom\.zip: features extractor 'Scaled' is not rebuilt"):
+        read_sb3_zip(path)
+    record = json.loads(members(path)[METADATA_MEMBER])
+    del record["features_extractor"]  # a record that does not name it: the extractor's weights give it away
+    crafted = write_zip(tmp_path / "unnamed.zip", {**members(path), METADATA_MEMBER: json.dumps(record).encode()})
+    with pytest.raises(ArgumentError, match=r"unnamed\.zip: policy\.pth holds parameters .*features_extractor"):
+        read_sb3_zip(crafted)

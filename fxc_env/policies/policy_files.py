@@ -18,6 +18,7 @@ as plain JSON beside the weights by :func:`save_model`: the member :data:`METADA
                    "GatedGainPolicy" (fxc_env.policies.gain_network) or "SACPolicy"
     net_arch       SB3's net_arch (a list of widths, or {"pi": [...], "vf": [...]} / {"pi", "qf"})
     activation     "tanh", "relu", "elu" or "leaky_relu"
+    features_extractor  "FlattenExtractor" (the only one rebuilt; absent means it)
     observation    {"shape": [obs_size], "low": [...], "high": [...]}
     action         {"shape": [action_size], "low": [...], "high": [...]}
     normalization  null, or VecNormalize's {"mean", "var", "epsilon", "clip_obs"} (observations)
@@ -55,6 +56,19 @@ KNOWN_MODULES = {
     "stable_baselines3.common.policies": ("ActorCriticPolicy",),
     "stable_baselines3.sac.policies": ("SACPolicy",),
     "fxc_env.policies.gain_network": ("GainScheduledPolicy", "GatedGainPolicy"),
+}
+#: The parameters each policy class's ``policy.pth`` may hold (a Flatten features extractor has none).
+PARAMETER_PREFIXES = {
+    "ActorCriticPolicy": (
+        "mlp_extractor.policy_net.",
+        "mlp_extractor.value_net.",
+        "action_net.",
+        "value_net.",
+        "log_std",
+    ),
+    "GainScheduledPolicy": ("mlp_extractor.", "value_net.", "log_std"),
+    "GatedGainPolicy": ("mlp_extractor.", "value_net.", "log_std"),
+    "SACPolicy": ("actor.latent_pi.", "actor.mu.", "actor.log_std.", "critic.", "critic_target."),
 }
 #: Activations by name (SB3's defaults: tanh for actor-critic policies, relu for SAC).
 ACTIVATION_NAMES = ("tanh", "relu", "elu", "leaky_relu")
@@ -359,6 +373,9 @@ def _architecture(path: Path, data: Mapping[str, Any], metadata: Any, weights: M
         for key in ("observation", "action"):
             if not isinstance(spec[key], Mapping) or not {"shape", "low", "high"} <= set(spec[key]):
                 raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} has no {key} shape and bounds")
+        extractor = metadata.get("features_extractor", "FlattenExtractor")
+        if extractor != "FlattenExtractor":
+            raise ArgumentError(f"policy: {path}: features extractor {extractor!r} is not rebuilt; {TRUST_HINT}")
     else:
         algorithm = "SAC" if any(k.startswith("actor.mu.") for k in weights) else "PPO"
         kwargs = data.get("policy_kwargs", {})
@@ -377,6 +394,8 @@ def _architecture(path: Path, data: Mapping[str, Any], metadata: Any, weights: M
             "n_critics",
             "use_sde",
             "clip_mean",
+            "share_features_extractor",
+            "normalize_images",
         }
         unknown = sorted(set(kwargs) - plain_options)
         unknown += [key for key in ("squash_output", "use_sde") if kwargs.get(key)]
@@ -400,6 +419,13 @@ def _architecture(path: Path, data: Mapping[str, Any], metadata: Any, weights: M
         raise ArgumentError(
             f"policy: {path}: {spec['algorithm']} with {spec['policy_class']} is not a network this loader rebuilds "
             f"({KNOWN_POLICIES}); {TRUST_HINT}"
+        )
+    allowed = PARAMETER_PREFIXES[spec["policy_class"]]
+    foreign = sorted(k for k in weights if not k.startswith(allowed))
+    if foreign:
+        raise ArgumentError(
+            f"policy: {path}: policy.pth holds parameters {foreign[:4]} that {spec['policy_class']} does not have "
+            f"(a custom features extractor or network?); {TRUST_HINT}"
         )
     if spec["activation"] not in ACTIVATION_NAMES:
         raise ArgumentError(f"policy: {path}: activation {spec['activation']!r}; expected one of {ACTIVATION_NAMES}")
@@ -545,12 +571,22 @@ def policy_metadata(model: Any, env: Any = None) -> dict[str, Any]:
         "policy_class": policy_class,
         "net_arch": net_arch,
         "activation": names.get(activation_fn, getattr(activation_fn, "__name__", None)),
+        "features_extractor": _extractor_name(policy),
         "observation": _space_record(model.observation_space),
         "action": _space_record(model.action_space),
         "normalization": normalization,
         "num_timesteps": int(model.num_timesteps),
         "env": settings,
     }
+
+
+def _extractor_name(policy: Any) -> str | None:
+    """The class name of the actor's features extractor (the policy's own, or SAC's actor's)."""
+    for owner in (policy, getattr(policy, "actor", None)):
+        extractor = getattr(owner, "features_extractor", None)
+        if extractor is not None:
+            return type(extractor).__name__
+    return None
 
 
 def _innermost(vec: Any) -> Any:
