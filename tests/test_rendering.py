@@ -24,7 +24,7 @@ def assert_picture(frame):
     assert np.mean(np.all(frame == 255, axis=-1)) < 0.995  # not (almost) all white
 
 
-@pytest.mark.parametrize("scenario", ["paper_fig1", "random_20_planar"])
+@pytest.mark.parametrize("scenario", ["paper_fig1", pytest.param("random_20_planar", marks=pytest.mark.slow)])
 def test_rgb_array_frames(scenario):
     env = fxc_env.parallel_env(scenario=scenario, render_mode="rgb_array", n_intervals=20)
     policy = ReferencePolicy(env)
