@@ -4,7 +4,7 @@
   the action names, integrated by the closed forms of :mod:`fxc_env.core.dynamics`;
 - :class:`LimitedDoubleIntegratorAgents`: the same input clipped to ``±u_max`` (one limit per
   episode), integrated piece by piece in closed form;
-- :class:`LinearAgents`: a general ``z' = A z + B u`` per axis (README, "Agent models"): the
+- :class:`LinearAgents`: a general ``z' = A z + B u`` per axis (README, "Agent models and formations"): the
   action is a plan ``Delta`` and the input the minimum-energy one (:mod:`fxc_env.core.linear`).
 
 Every part maps ``(state, actions)`` at ``t_k`` to an :class:`Interval` (the state at
@@ -200,7 +200,7 @@ class LimitedDoubleIntegratorAgents(DoubleIntegratorAgents):
 
 
 class LinearAgents:
-    """General linear agents ``z' = A z + B u`` per axis, steered by plans (numpy; README, "Agent models").
+    """General linear agents ``z' = A z + B u`` per axis, steered by plans (numpy; README, "Agent models and formations").
 
     Args:
         config: the environment's settings (its model and interval maps).
@@ -256,6 +256,43 @@ class LinearAgents:
     def disagreement(self, state: Any) -> Any:
         """``D = sum_l T_s^l e_{z_l}`` per episode ``(B,)`` (:func:`state_disagreement`)."""
         return state_disagreement(state, self.config)
+
+
+class Formation:
+    """Formation offsets ``h`` ``(N, n, dim)`` (README, "Agent models and formations"): the engine plays ``zeta = z - e^{A t} h``.
+
+    The offsets' trajectory ``e^{A t} h`` is a free motion (no input), so ``zeta`` obeys the
+    same dynamics under the same inputs, and consensus of ``zeta`` is the formation. Without
+    offsets both maps are the identity.
+    """
+
+    def __init__(self, config: EnvConfig, backend: Any) -> None:
+        self.backend = backend
+        self.n_states = config.n_states
+        self.n_intervals = config.n_intervals
+        self.offsets = None if config.formation is None else backend.array(config.formation)
+        #: ``e^{A t_k}`` per instant ``(K + 1, n, n)`` (``config.formation_motion``), or None.
+        self.motion = None if config.formation is None else backend.array(config.formation_motion)
+
+    def initial_state(self, x0: Any, v0: Any) -> Any:
+        """The engine's state ``(B, N, n, dim)`` for initial positions and velocities ``(B, N, dim)``.
+
+        Higher state components (a chain's acceleration, ...) start at 0; a single integrator
+        has no velocity (``v0`` is not used). With offsets, ``h`` is subtracted (t = 0).
+        """
+        xp, n = self.backend.xp, self.n_states
+        parts = [x0, v0][:n] + [xp.zeros_like(x0)] * (n - 2)
+        fresh = xp.stack(parts, axis=2)
+        return fresh if self.offsets is None else fresh - self.offsets
+
+    def absolute(self, state: Any, clock: Any) -> Any:
+        """The agents' states ``z = zeta + e^{A t_k} h`` ``(B, N, n, dim)`` at the clock's instant."""
+        if self.offsets is None:
+            return state
+        xp, n = self.backend.xp, self.n_states
+        motion = clock.per_instant(xp.reshape(self.motion, (self.n_intervals + 1, -1)))
+        motion = xp.reshape(motion, (*motion.shape[:-1], n, n))  # (n, n) or (B, 1, n, n)
+        return state + motion @ self.offsets
 
 
 def make_agents(config: EnvConfig, backend: Any) -> DoubleIntegratorAgents | LinearAgents:

@@ -115,6 +115,23 @@ class NumpyBackend:
             raise refusal()
         return following.state, current
 
+    def refusal(self, actions: np.ndarray, following: Any, k: int, interval: float) -> ArgumentError:
+        """The error of a step whose result (``following``, an :class:`~fxc_env.engine.agents.Interval`)
+        would not be finite in float64 at instant ``k`` (interval ``T`` seconds), naming what caused it."""
+        energy, disagreement_next = following.energy, following.disagreement
+        bad_episodes = np.flatnonzero(~np.isfinite(disagreement_next) | ~np.isfinite(energy).all(axis=-1))
+        b = int(bad_episodes[0])
+        agents = np.flatnonzero(~np.isfinite(energy[b]) | ~np.isfinite(following.state[b]).all(axis=(-2, -1)))
+        shown = [int(a) for a in agents[:10]]
+        episode = f" in episode {b}" if self.n_episodes > 1 else ""
+        largest = float(np.max(np.abs(actions[b])))
+        return ArgumentError(
+            f"actions: the interval k = {k} (T = {interval:g} s) would overflow float64{episode} "
+            f"(agents {shown}: a non-finite state, energy or disagreement); the largest action entry is {largest:g}. "
+            "The step was refused and the state is unchanged; smaller actions (or a smaller obs_noise / state "
+            "scale) keep it finite"
+        )
+
     def flag(self, mask: Any) -> None:
         """Nothing to flag on numpy (a step past ``T_s`` or a bad value was refused at once)."""
 

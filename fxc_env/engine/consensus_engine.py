@@ -52,7 +52,7 @@ from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError
 
 from . import draws
-from .agents import Interval, make_agents, state_disagreement
+from .agents import Formation, make_agents, state_disagreement
 from .backend import DTYPES, TINY, make_backend, to_host
 from .clock import EpisodeClock, InstantTables, LockStepClock
 from .draws import EpisodeDraw
@@ -129,9 +129,7 @@ class ConsensusEngine:
         self.agents = make_agents(config, backend)
         if config.u_max_choices is not None:
             self.agents.u_max = backend.full(b, config.u_max_choices[0])
-        #: Formation offsets ``h`` ``(N, n, dim)`` (the engine plays ``zeta = z - e^{A t} h``), or None.
-        self._formation = None if config.formation is None else backend.array(config.formation)
-        self._formation_motion = None if config.formation is None else backend.array(config.formation_motion)
+        self.formation = Formation(config, backend)
         self.trackers = EpisodeTrackers(config, backend)
         self.observer = Observer(config, backend, self.tables)
         #: Generator of measurement noise, link dropout and random switching.
@@ -275,7 +273,7 @@ class ConsensusEngine:
         if not self.is_numpy:
             x0 = self.backend.array(x0) if isinstance(x0, np.ndarray) else x0
             v0 = self.backend.array(v0) if isinstance(v0, np.ndarray) else v0
-        fresh = self._initial_coordinates(x0, v0)
+        fresh = self.formation.initial_state(x0, v0)
         if episodes is None:
             self.state[...] = fresh
             self.clock = LockStepClock(self.tables)
@@ -292,30 +290,13 @@ class ConsensusEngine:
         self.observer.invalidate()
         self.graphs.draw(self.clock, self._switching_draw)
 
-    def _initial_coordinates(self, x0: Any, v0: Any) -> Any:
-        """The engine's state ``(B, N, n, dim)`` for initial positions and velocities ``(B, N, dim)``.
-
-        Higher state components (a chain's acceleration, ...) start at 0; a single integrator
-        has no velocity (``v0`` is not used). With formation offsets, ``h`` is subtracted (t = 0).
-        """
-        xp, n = self.xp, self.config.n_states
-        parts = [x0, v0][:n] + [xp.zeros_like(x0)] * (n - 2)
-        fresh = xp.stack(parts, axis=2)
-        return fresh if self._formation is None else fresh - self._formation
-
     def absolute_state(self) -> Any:
         """The agents' states ``(B, N, n, dim)`` at ``t_k``: :attr:`state` plus ``e^{A t_k} h`` with formation offsets.
 
-        The engine plays the formation error ``zeta_i = z_i - e^{A t} h_i``: the offsets'
-        trajectory is a free motion (no input), so ``zeta`` obeys the same dynamics under the
-        same inputs, and consensus of ``zeta`` is the formation. Without offsets this is :attr:`state`.
+        The engine plays the formation error ``zeta_i = z_i - e^{A t} h_i`` (:class:`~fxc_env.engine.agents.Formation`);
+        without offsets this is :attr:`state`.
         """
-        if self._formation is None:
-            return self.state
-        xp, n = self.xp, self.config.n_states
-        motion = self.clock.per_instant(xp.reshape(self._formation_motion, (self.config.n_intervals + 1, -1)))
-        motion = xp.reshape(motion, (*motion.shape[:-1], n, n))  # (n, n) or (B, 1, n, n)
-        return self.state + motion @ self._formation
+        return self.formation.absolute(self.state, self.clock)
 
     # ------------------------------------------------------------ observation
     def measurements(self) -> tuple[Any, Any, Any]:
@@ -373,7 +354,7 @@ class ConsensusEngine:
         self.clock.check_can_step()
         interval = self.agents.advance(self.state, actions, self.clock, self.local_scale, self._spare)
         self.state, self._spare = self.backend.commit_if_finite(
-            self.state, interval, lambda: self._overflow_error(actions, interval)
+            self.state, interval, lambda: self.backend.refusal(actions, interval, self.k, self.current_interval())
         )
         self.backend.flag(self.clock.past_deadline())
         reached = self.clock.advance()
@@ -390,22 +371,6 @@ class ConsensusEngine:
             interval.saturated_fraction,
             terminated,
             interval.plan,
-        )
-
-    def _overflow_error(self, actions: np.ndarray, interval: Interval) -> ArgumentError:
-        """The error of a step whose result would not be finite in float64, naming what caused it."""
-        energy, disagreement_next = interval.energy, interval.disagreement
-        bad_episodes = np.flatnonzero(~np.isfinite(disagreement_next) | ~np.isfinite(energy).all(axis=-1))
-        b = int(bad_episodes[0])
-        agents = np.flatnonzero(~np.isfinite(energy[b]) | ~np.isfinite(interval.state[b]).all(axis=(-2, -1)))
-        shown = [int(a) for a in agents[:10]]
-        episode = f" in episode {b}" if self.n_episodes > 1 else ""
-        largest = float(np.max(np.abs(actions[b])))
-        return ArgumentError(
-            f"actions: the interval k = {self.k} (T = {self.current_interval():g} s) would overflow float64{episode} "
-            f"(agents {shown}: a non-finite state, energy or disagreement); the largest action entry is {largest:g}. "
-            "The step was refused and the state is unchanged; smaller actions (or a smaller obs_noise / state "
-            "scale) keep it finite"
         )
 
     # ---------------------------------------------------------------- metrics

@@ -3,7 +3,7 @@
 Agent i receives from every in-neighbour j of the coming interval's graph the relative state
 ``[x_j - x_i, v_j - v_i]`` (paper Section 2), with measurement noise and link dropout where
 the config asks; its local scale is ``s_i = max(|x_j - x_i|, T |v_j - v_i|)`` over the rows
-(README, "Observations"). A flat observation is the rows (divided by ``s_i`` in normalized
+(the environment card's Observation Space). A flat observation is the rows (divided by ``s_i`` in normalized
 mode, velocities times ``T``), the slot mask, the clock and, with an input limit, the limit
 feature (:func:`limit_feature`). Each instant's measurements are drawn once and cached
 until the engine moves (:meth:`Observer.invalidate`).
