@@ -160,8 +160,12 @@ class ConsensusEngine:
 
     @property
     def u_max(self) -> Any:
-        """Each episode's input limit ``u_max`` (m/s^2), ``(B,)``, or None without a limit."""
+        """Each episode's input limit ``u_max`` (m/s^2), ``(B,)``, or None without a limit (held by the agents' part)."""
         return self.agents.u_max
+
+    @u_max.setter
+    def u_max(self, value: Any) -> None:
+        self.agents.u_max = value
 
     @property
     def x(self) -> Any:
