@@ -266,12 +266,12 @@ def test_the_models_table_compares_every_agent_model_with_the_closed_forms(one_t
 @pytest.mark.slow
 def test_the_training_table_times_every_back_end_in_this_environment(one_thread, monkeypatch):
     """Trains SB3 and the torch back end end to end (small rollouts): slow, so left out of ``make check``."""
-    monkeypatch.setattr(training, "TRAINING_TIMESTEPS", {"sb3": 16 * 6 * 200, "torchrl": 64 * 6 * 200})
+    monkeypatch.setattr(training, "TRAINING_TIMESTEPS", {"sb3": 16 * 6 * 200, "torch": 64 * 6 * 200})
     lines = training.training_table(threads=1)
     rows = {line.split("|")[1].strip(): line for line in lines if line.startswith("| ") and "---" not in line}
-    assert {"sb3", "torchrl", "rllib"} <= set(rows)
+    assert {"sb3", "torch", "rllib"} <= set(rows)
     assert any(name.startswith("TorchRL Collector + ClipPPOLoss") for name in rows)
-    for backend in ("sb3", "torchrl"):
+    for backend in ("sb3", "torch"):
         rate = float(rows[backend].split("|")[4].replace(",", ""))
         assert rate > 0 and math.isfinite(rate)
     assert "goal >= 100,000" in lines[-1]

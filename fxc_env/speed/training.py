@@ -13,7 +13,7 @@ import time
 from fxc_env.speed.timing import importable, met
 
 #: Agent-steps each back end trains for in the training table (whole PPO rollouts on paper_fig1).
-TRAINING_TIMESTEPS = {"sb3": 2 * 16 * 6 * 200, "torchrl": 8 * 64 * 6 * 200}
+TRAINING_TIMESTEPS = {"sb3": 2 * 16 * 6 * 200, "torch": 8 * 64 * 6 * 200}
 
 #: The torch back end's goal: agent-steps per second of PPO (collection and updates) on the CPU.
 TRAINING_GOAL = 1e5
@@ -50,7 +50,7 @@ def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 
     ``Collector`` + ``ClipPPOLoss`` (GAE, a replay buffer of one rollout, TanhNormal actor)
     with the torch back end's settings on paper_fig1 (B = ``episodes``, one whole episode a
     rollout, ``epochs`` passes in minibatches of ``minibatch`` agent-steps, 64 x 64 tanh
-    networks): the alternative ``--backend torchrl`` was measured against. The first
+    networks): the alternative ``--backend torch`` was measured against. The first
     rollout (warm-up) is not timed.
     """
     import torch
@@ -176,7 +176,7 @@ def training_table(threads: int | None = None) -> list[str]:
         lines.append("| rllib | | | (run `fxc train --backend rllib`: it prints its rate) | |")
     else:
         lines.append("| rllib | | | not in this environment (Ray lives in .venv-rllib) | |")
-    rate = rates["torchrl"]
+    rate = rates["torch"]
     lines += [
         "",
         f"torch back end: {rate:,.0f} agent-steps/s with {threads} threads "
