@@ -166,6 +166,12 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         "for the one shipped with fxc_env, to score as well; repeatable",
     )
     parser.add_argument(
+        "--trust-policy-file",
+        action="store_true",
+        help="allow saved policies whose format must unpickle (RLlib checkpoints, SB3 zips without fxc_policy.json, "
+        "VecNormalize .pkl): unpickling runs code from the file, so only for files you made or trust",
+    )
+    parser.add_argument(
         "--learned-schedule",
         choices=("paper", "uniform"),
         help="schedule of learned policies (default: the one a shipped policy was trained on, else paper)",
@@ -224,6 +230,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
                 action_mode=args.learned_action_mode,
                 obs_mode=args.learned_obs_mode,
                 name="--policy",
+                trusted=args.trust_policy_file,
             )
         )
     command = "fxc benchmark " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["benchmark"] else None

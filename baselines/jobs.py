@@ -92,7 +92,7 @@ def run_job(job: Job) -> JobResult:
     result = JobResult(job)
     try:
         config = contender_config(job.contender, job.case, job.n_intervals, job.settling_time)
-        policy = load_policy(job.contender.spec, config)
+        policy = load_policy(job.contender.spec, config, trusted=job.contender.trusted)
     except ArgumentError as exc:
         result.error = str(exc)
         return result

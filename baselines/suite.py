@@ -139,6 +139,8 @@ class Contender:
         schedule, action_mode, obs_mode: environment settings.
         obs_slots: neighbour rows of the observation (a learned model's input width), or
             None for the topology's largest in-degree.
+        trusted: load a saved policy whose format must unpickle (``--trust-policy-file``; see
+            :func:`fxc_env.policies.learned.load_learned_policy`).
     """
 
     name: str
@@ -148,6 +150,7 @@ class Contender:
     action_mode: str
     obs_mode: str
     obs_slots: int | None = None
+    trusted: bool = False
 
     def settings(self) -> str:
         """The environment settings (but K) as text."""
@@ -171,6 +174,7 @@ def learned_contender(
     action_mode: str = "plan",
     obs_mode: str = "normalized",
     name: str = "policy",
+    trusted: bool = False,
 ) -> Contender:
     """A saved policy (``pretrained``, an SB3 ``.zip``, an RLlib checkpoint or run directory) as a
     sampled contender, named after its file or directory.
@@ -180,11 +184,12 @@ def learned_contender(
     in-neighbours than that, or without an input limit for a policy that expects one, are
     reported as not run. In ``dim > 1`` it acts per axis (:class:`fxc_env.policies.learned.PerAxisPolicy`). The model is loaded
     here, so a missing, empty or corrupt file raises :class:`ArgumentError` naming ``name``
-    (``--policy`` on the command line) before any job runs.
+    (``--policy`` on the command line) before any job runs. ``trusted`` allows formats that
+    unpickle (RLlib checkpoints, pickled SB3 entries); without it they are refused by name.
     """
     path = model_path(spec)
     try:
-        obs_size = load_learned_policy(path).obs_size
+        obs_size = load_learned_policy(path, trusted=trusted).obs_size
     except (FileNotFoundError, ArgumentError) as exc:
         raise ArgumentError(_renamed(str(exc), name)) from exc
     slots, remainder = divmod(obs_size - CLOCK_SIZE, 3)  # remainder 1: the input-limit feature
@@ -192,7 +197,7 @@ def learned_contender(
         raise ArgumentError(f"{name}: the model at {path} takes observations of size {obs_size}, not a dim-1 layout")
     label = path.name if path.is_dir() else path.stem
     schedule = SHIPPED_SCHEDULES.get(spec, "paper") if schedule is None else schedule
-    return Contender(f"learned:{label}", str(path), True, schedule, action_mode, obs_mode, slots)
+    return Contender(f"learned:{label}", str(path), True, schedule, action_mode, obs_mode, slots, trusted)
 
 
 def _renamed(message: str, name: str) -> str:
@@ -423,14 +428,15 @@ def contender_config(contender: Contender, case: BenchmarkCase, n_intervals: int
     )
 
 
-def load_policy(spec: str, config: EnvConfig) -> Policy:
+def load_policy(spec: str, config: EnvConfig, trusted: bool = False) -> Policy:
     """A policy for ``config``: ``reference``, a baseline name, ``pretrained`` or a saved policy's path.
 
     Saved policies (an SB3 PPO or SAC ``.zip``, an RLlib checkpoint or run directory) load
     through :func:`fxc_env.policies.learned.load_learned_policy`, which checks that the model's
     observation and action sizes fit ``config``. Raises :class:`ArgumentError` (a
     ``ValueError``) naming ``policy`` when the spec is unknown, nothing is saved at the path,
-    the file is not a readable model, or the model does not fit.
+    the file is not a readable model, or the model does not fit; ``trusted`` as in
+    :func:`learned_contender`.
     """
     if spec == "reference":
         return ReferencePolicy(config)
@@ -439,7 +445,7 @@ def load_policy(spec: str, config: EnvConfig) -> Policy:
     path = model_path(spec)
     if spec in SHIPPED or path.suffix == ".zip" or path.exists():
         try:
-            return load_learned_policy(path, config)
+            return load_learned_policy(path, config, trusted=trusted)
         except FileNotFoundError as exc:
             raise ArgumentError(str(exc)) from exc
     raise ArgumentError(

@@ -68,6 +68,12 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
         "a torch policy (policy.pt or its run directory: fxc train --backend torch), "
         "or an RLlib checkpoint or run directory (fxc train --backend rllib)",
     )
+    parser.add_argument(
+        "--trust-policy-file",
+        action="store_true",
+        help="allow saved policies whose format must unpickle (RLlib checkpoints, SB3 zips without fxc_policy.json, "
+        "VecNormalize .pkl): unpickling runs code from the file, so only for files you made or trust",
+    )
     parser.add_argument("--suite", choices=SUITES, help="a named suite (default 'evaluate' without environment flags)")
     parser.add_argument("--seeds", type=int, default=20, help="seeded episodes per case")
     parser.add_argument("--budgets", default="200", help="comma-separated K values (default 200)")
@@ -134,7 +140,7 @@ def evaluate_command(args: argparse.Namespace) -> int:
         suite = evaluation_suite(seeds, budgets)
     contenders = builtin_contenders(None if args.baselines else ["reference"])
     if args.policy != "reference":
-        contenders.append(learned_contender(args.policy, name="--policy", **learned))
+        contenders.append(learned_contender(args.policy, name="--policy", trusted=args.trust_policy_file, **learned))
     command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["evaluate"] else None
     output = run_benchmark(
         suite,

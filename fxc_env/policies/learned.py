@@ -57,6 +57,7 @@ SHIPPED = {
     "generalist": "generalist.zip",
     "saturated": "saturated.zip",
     "paper_fig1": "paper_fig1_ppo.zip",
+    "rings": "rings.npz",  # a gain schedule (fxc_env.policies.interval_gains), not an SB3 model
 }
 #: The schedule a shipped policy was trained on, where it is not the paper's.
 SHIPPED_SCHEDULES = {"saturated": "uniform"}
@@ -437,9 +438,13 @@ def load_learned_policy(
     damaged, not a PPO/SAC model, needs unpickling without ``trusted``, or does not fit
     ``env`` (naming the sizes, or the setting and both values).
     """
-    path = Path(path)
+    path = pretrained_path(str(path)) if str(path) in SHIPPED and not Path(path).exists() else Path(path)
     from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
 
+    if path.suffix == ".npz":
+        from fxc_env.policies.interval_gains import load_interval_gains
+
+        return load_interval_gains(path, env)  # type: ignore[return-value]
     if is_torch_policy(path):
         policy: Any = load_torch_policy(path)
     elif path.is_dir():

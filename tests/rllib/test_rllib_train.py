@@ -104,7 +104,12 @@ def test_the_checkpoint_acts_like_a_learned_policy(trained):
 @pytest.mark.slow
 def test_fxc_evaluate_scores_the_rllib_run_next_to_the_reference(trained, tmp_path, capsys):
     out = tmp_path / "evaluate"
-    code = cli.main(["evaluate", "--policy", str(trained), "--seeds", "2", "--out", str(out), "--no-progress"])
+    arguments = ["evaluate", "--policy", str(trained), "--seeds", "2", "--out", str(out), "--no-progress"]
+    # RLlib restores its modules by unpickling: refused by name unless the user trusts the file.
+    assert cli.main(arguments) == 2
+    refusal = capsys.readouterr().err
+    assert "--policy" in refusal and "trust" in refusal and not out.exists()
+    code = cli.main([*arguments, "--trust-policy-file"])
     printed = capsys.readouterr().out
     assert code == 0
     name = f"learned:{trained.name}"

@@ -1,0 +1,223 @@
+"""A learned gain schedule: one 2 x 2 gain per sampling interval on the agent's aggregated relative row.
+
+:class:`IntervalGainPolicy` is the network of the shipped ``rings`` policy (README, "Training
+learned policies"). Agent i reads its in-neighbour rows through the observation layout
+(:class:`fxc_env.config.layout.ObservationLayout`; masked rows are ignored), forms the aggregated
+relative row
+
+    r_i = (1 / (d_i + 1)) sum_{j in N_i} (z_j - z_i),    z = (x, v)    (normalized units: 1, T_{k+1}),
+
+and plans ``(alpha_x, alpha_v) = G_k r_i`` with ``k`` the interval index read off the clock
+(``k / K``, the observation's last clock entry) and ``G_k`` a learned ``(K, 2, 2)`` table in
+float64 (the units of the normalized observation and plan: ``alpha_x = a_x / s_i``,
+``alpha_v = T_{k+1} a_v / s_i``). The paper's controller (eq. 11) is the table ``G_k = I`` in these
+units; the minimum-time law (:mod:`fxc_env.baselines.minimum_time`) is another table, one factor
+per eigenvalue of ``(D + I)^{-1} L``. A table is tied to the graph's spectrum and to the schedule,
+``K`` and ``N`` it was learned on, and the policy refuses any other, by name.
+
+**File format** (``.npz``, read with ``allow_pickle=False``: nothing in it runs): ``gains``
+``(K, 2, 2)`` float64 and ``header``, a JSON string: ``format`` (:data:`FORMAT`), ``name``,
+``env`` (:func:`fxc_env.policies.policy_files.training_settings` of the training environment:
+schedule, modes, ``dim``, ``obs_slots``, ``n_agents``, ``n_intervals``, ``settling_time``,
+``u_max``), ``topology`` (the graph family, e.g. ``{"family": "ring", "relabel": true}``),
+``eigenvalues`` (the spectrum of ``(D + I)^{-1} L`` it was trained on, ``[[re, im], ...]``, 0 included)
+and ``training`` (how it was made: command, method, wall time, figures).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fxc_env.core.validation import ArgumentError
+
+#: The ``format`` entry of a gain-schedule file's header.
+FORMAT = "fxc_env.interval_gains/1"
+#: Settings of the environment a gain schedule must meet exactly, with the keyword that sets each.
+MATCHED_SETTINGS = {
+    "n_agents": "n_agents",
+    "n_intervals": "n_intervals",
+    "settling_time": "settling_time",
+    "schedule": "schedule",
+    "action_mode": "action_mode",
+    "obs_mode": "obs_mode",
+    "dim": "dim",
+    "obs_slots": "obs_slots",
+    "limit_feature": "u_max",
+    "agent_model": "agent_model",
+}
+
+
+class IntervalGainPolicy:
+    """The plan ``G_k r_i`` of a learned ``(K, 2, 2)`` gain table, every agent alike, deterministic.
+
+    Args:
+        gains: ``(K, 2, 2)`` gains in normalized units (see the module), float64.
+        header: the file's header (see the module); ``env`` must hold the training settings.
+        source: where it was read from, for messages.
+
+    Attributes:
+        gains, header, source; ``obs_size`` and ``action_size`` of the training environment;
+        ``training_settings`` (the header's ``env``), as the other learned policies.
+    """
+
+    def __init__(self, gains: np.ndarray, header: Mapping[str, Any], source: str | Path | None = None) -> None:
+        gains = np.asarray(gains, dtype=np.float64)
+        settings = dict(header.get("env", {}))
+        if gains.ndim != 3 or gains.shape[1:] != (2, 2):
+            raise ArgumentError(f"gains: expected a (K, 2, 2) table, got shape {gains.shape}")
+        if int(settings.get("n_intervals", -1)) != len(gains):
+            raise ArgumentError(
+                f"gains: the table has {len(gains)} intervals; the header's env records "
+                f"n_intervals={settings.get('n_intervals')!r}"
+            )
+        if not np.all(np.isfinite(gains)):
+            raise ArgumentError("gains: the table holds non-finite entries")
+        from fxc_env.config.layout import ObservationLayout
+
+        self.gains = gains
+        self.header = dict(header)
+        self.source = source
+        self.training_settings: dict[str, Any] = settings
+        self.layout = ObservationLayout(int(settings["obs_slots"]), int(settings["dim"]))
+        self.obs_size = self.layout.size
+        self.action_size = 2 * int(settings["dim"])
+
+    @property
+    def n_intervals(self) -> int:
+        return len(self.gains)
+
+    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
+        """Plans ``(..., 2 dim)`` (``alpha_x`` then ``alpha_v``) for observations ``(..., obs_size)`` (flat or dict)."""
+        obs = self.layout.flat(observation)
+        if obs.shape[-1] != self.obs_size:
+            raise ArgumentError(f"observations: expected shape (..., {self.obs_size}), got {obs.shape}")
+        rows, mask, clock = self.layout.split(obs)  # rows (..., slots, 2, dim)
+        real = mask[..., None, None] > 0.5
+        r = np.sum(np.where(real, rows, 0.0), axis=-3) / (np.sum(mask > 0.5, axis=-1)[..., None, None] + 1.0)
+        k = np.clip(np.rint(clock[..., 2] * self.n_intervals).astype(np.int64), 0, self.n_intervals - 1)
+        plan = self.gains[k] @ r  # (..., 2, dim)
+        return np.concatenate([plan[..., 0, :], plan[..., 1, :]], axis=-1)
+
+    def save(self, path: str | Path) -> Path:
+        """Write the table and its header to ``path`` (``.npz``, no pickled objects)."""
+        path = Path(path)
+        header = {**self.header, "format": FORMAT}
+        np.savez_compressed(path, gains=self.gains, header=np.array(json.dumps(header, sort_keys=True)))
+        return path
+
+    def check(self, env: Any) -> None:
+        """Refuse an environment this table was not trained for, naming the setting and both values.
+
+        Checks every setting of :data:`MATCHED_SETTINGS`, the ideal agents (no ``obs_noise``,
+        ``link_dropout`` or random switching) and the graph: a family must be the trained one
+        (kind and switching period), a fixed graph must have the trained spectrum of
+        ``(D + I)^{-1} L`` (the gains cancel those modes and no others).
+        """
+        from fxc_env.config import config_of
+        from fxc_env.policies.policy_files import training_settings
+
+        config = config_of(env, "IntervalGainPolicy")
+        here = training_settings(config)
+        name = self.header.get("name", "this gain schedule")
+        for key, keyword in MATCHED_SETTINGS.items():
+            trained, got = self.training_settings.get(key), here.get(key)
+            if trained != got:
+                raise ArgumentError(
+                    f"{keyword}: the {name} policy was trained with {key}={trained!r}; this environment has "
+                    f"{key}={got!r} (its gain table fits only the setting it was learned on)"
+                )
+        for key in ("obs_noise", "link_dropout"):
+            if getattr(config, key) != 0:
+                raise ArgumentError(
+                    f"{key}: the {name} policy was trained on ideal agents ({key}=0); got {key}={getattr(config, key)!r}"
+                )
+        if config.switching != "periodic":
+            raise ArgumentError(f"switching: the {name} policy was trained on fixed graphs; got {config.switching!r}")
+        self._check_topology(config, name)
+
+    def _check_topology(self, config: Any, name: str) -> None:
+        family = dict(self.header.get("topology", {}))
+        if config.family is not None:
+            kind = getattr(config.family, "kind", None)
+            period = tuple(getattr(config.family, "period", (0, 0)))
+            got = f"{config.family.name!r}" if kind is None else f"family {kind!r} with period {period}"
+            if kind != family.get("family") or period != (1, 1):
+                raise ArgumentError(
+                    f"topology: the {name} policy was trained on fixed graphs of family {family.get('family')!r}; "
+                    f"this environment draws {got}"
+                )
+            return
+        if config.topology.period != 1:
+            raise ArgumentError(
+                f"topology: the {name} policy was trained on one fixed graph per episode; this environment switches "
+                f"between {config.topology.period} graphs"
+            )
+        trained = np.asarray(self.header["eigenvalues"], dtype=np.float64)
+        trained = trained[:, 0] + 1j * trained[:, 1]
+        got = spectrum(config.topology)
+        if len(got) != len(trained) or _distance(got, trained) > 1e-6 or _distance(trained, got) > 1e-6:
+            raise ArgumentError(
+                f"topology: the {name} policy's gains cancel the modes of the graph it was trained on "
+                f"({family.get('family')!r}); this environment's {config.topology.name!r} has another spectrum of "
+                "(D + I)^-1 L"
+            )
+
+
+def spectrum(topology: Any) -> np.ndarray:
+    """The eigenvalues of ``(D + I)^{-1} L`` of a fixed topology, ``(N,)`` complex (dense; consensus mode 0 included)."""
+    laplacian = topology.laplacian(0)
+    laplacian = laplacian.toarray() if hasattr(laplacian, "toarray") else np.asarray(laplacian)
+    w_hat = laplacian / (np.asarray(topology.in_degree[0], dtype=np.float64)[:, None] + 1.0)
+    return np.linalg.eigvals(w_hat)
+
+
+def _distance(points: np.ndarray, targets: np.ndarray) -> float:
+    """The largest distance from a point to its nearest target (one side of the Hausdorff distance)."""
+    return float(np.max(np.min(np.abs(points[:, None] - targets[None, :]), axis=1))) if len(points) else 0.0
+
+
+def read_interval_gains(path: str | Path) -> IntervalGainPolicy:
+    """The policy saved at ``path`` (``.npz``), read with ``allow_pickle=False``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"policy: no gain-schedule file at {path}")
+    try:
+        with np.load(path, allow_pickle=False) as arrays:
+            gains = np.array(arrays["gains"], dtype=np.float64)
+            header = json.loads(str(arrays["header"]))
+    except (KeyError, ValueError, OSError) as exc:
+        raise ArgumentError(f"policy: {path} is not a gain-schedule file ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise ArgumentError(f"policy: {path} is not a {FORMAT!r} file")
+    return IntervalGainPolicy(gains, header, source=path)
+
+
+def load_interval_gains(path: str | Path, env: Any = None, *, check: bool = True) -> IntervalGainPolicy:
+    """Read the policy at ``path``; with ``env``, refuse it (:meth:`IntervalGainPolicy.check`) unless it fits.
+
+    ``check=False`` skips the settings and graph checks (the observation size must still fit): for
+    measuring how a table transfers to settings it was not trained for.
+    """
+    policy = read_interval_gains(path)
+    if env is not None:
+        from fxc_env.config import config_of
+
+        config = config_of(env, "policy")
+        if check:
+            policy.check(config)
+        elif (config.layout.size, config.action_size) != (policy.obs_size, policy.action_size):
+            raise ArgumentError(
+                f"policy: the table takes observations of size {policy.obs_size}; this environment has "
+                f"{config.layout.size}"
+            )
+    return policy
+
+
+def is_interval_gains(path: str | Path) -> bool:
+    """Whether ``path`` names a gain-schedule file (``.npz``)."""
+    return Path(path).suffix == ".npz"
