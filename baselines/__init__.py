@@ -15,7 +15,10 @@ source paper, the graph class it is proven for, and its parameters:
   where it fits under the input limit, a held linear law where it does not;
 - :class:`MinimumTimePolicy` (:mod:`fxc_env.baselines.minimum_time`): this project's minimum-time law
   for a known fixed digraph, exact after one interval per eigenvalue of ``(D + I)^{-1} L`` (a ring of
-  N: N - 1), in ``plan`` or ``accel`` mode, raw or normalized.
+  N: N - 1), in ``plan`` or ``accel`` mode, raw or normalized;
+- :class:`SignallingPolicy` (:mod:`fxc_env.baselines.signalling`): this project's law on the
+  energy-accuracy frontier: agents agree on the mean of the free-motion predictions by signalling
+  numbers through small motions, then steer once with the minimum-energy input (a few × ``E*``).
 
 :mod:`fxc_env.core.optimality` gives the bounds every law is measured against: the least energy
 ``E*`` of an exact consensus at ``T_s`` and the fewest intervals (the propagation bound).
@@ -37,6 +40,7 @@ from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
 from fxc_env.baselines.sampled import SampledLinearPolicy
 from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
+from fxc_env.baselines.signalling import SignallingPolicy
 from fxc_env.baselines.suite import load_policy
 
 __all__ = [
@@ -46,5 +50,6 @@ __all__ = [
     "PrescribedTimePolicy",
     "SampledLinearPolicy",
     "SaturationAwarePolicy",
+    "SignallingPolicy",
     "load_policy",
 ]

@@ -140,7 +140,7 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         help="'full': topologies x sizes x budgets; 'realism': input limits, noise and dropout; 'models': every "
         "agent model (single, double, triple, quadruple integrators, damped, oscillator) at K = 200, 400; "
         "'optimality': error, energy / E* and intervals used against the propagation bound (rings and random "
-        "digraphs N = 20, 100, paper_fig1, K = 200, reference and minimum_time on both schedules)",
+        "digraphs N = 20, 100, paper_fig1, K = 200, reference, minimum_time and signalling on both schedules)",
     )
     parser.add_argument("--out", default="out/benchmark", help="directory for table.md, CSVs and PNGs")
     parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per case")
@@ -219,7 +219,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
     if names is None and args.suite == "models":
         names = ["reference"]  # the analytic baselines are the double integrator's laws
     if names is None and args.suite == "optimality":
-        contenders = optimality_contenders()  # the reference and minimum_time on both schedules
+        contenders = optimality_contenders()  # the reference, minimum_time and signalling on both schedules
     else:
         contenders = builtin_contenders(names)
     for spec in args.policy:

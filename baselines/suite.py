@@ -27,6 +27,7 @@ from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
 from fxc_env.baselines.sampled import SampledLinearPolicy
 from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
+from fxc_env.baselines.signalling import SignallingPolicy
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core.families import AnyFamily, TopologyFamily
@@ -47,6 +48,7 @@ BASELINES = {
         PrescribedTimePolicy,
         SaturationAwarePolicy,
         MinimumTimePolicy,
+        SignallingPolicy,
     )
 }
 
@@ -59,6 +61,7 @@ BUILTIN_SETTINGS = {
     "prescribed_time": (False, "uniform", "accel", "raw"),
     "saturation_aware": (True, "uniform", "accel", "raw"),
     "minimum_time": (True, "uniform", "plan", "normalized"),
+    "signalling": (True, "uniform", "plan", "raw"),
 }
 
 
@@ -404,14 +407,16 @@ def quick_optimality_suite(n_seeds: int = 5, fine_intervals: int = 1000) -> Suit
 
 
 def optimality_contenders() -> list[Contender]:
-    """The reference and the minimum-time law on both schedules, and the other analytic laws with their settings."""
+    """The reference, the minimum-time and signalling laws on both schedules, and the other analytic laws with their settings."""
     both = [
         Contender("reference", "reference", True, "paper", "plan", "normalized"),
         Contender("reference/uniform", "reference", True, "uniform", "plan", "normalized"),
         Contender("minimum_time", "minimum_time", True, "uniform", "plan", "normalized"),
         Contender("minimum_time/paper", "minimum_time", True, "paper", "plan", "normalized"),
+        Contender("signalling", "signalling", True, "uniform", "plan", "raw"),
+        Contender("signalling/paper", "signalling", True, "paper", "plan", "raw"),
     ]
-    others = [name for name in BUILTIN_SETTINGS if name not in ("reference", "minimum_time")]
+    others = [name for name in BUILTIN_SETTINGS if name not in ("reference", "minimum_time", "signalling")]
     return both + builtin_contenders(others)
 
 
