@@ -17,8 +17,10 @@ RLLIB_STAMP := $(RLLIB_VENV)/.installed
 # tests/rllib/ (TorchRL included); .venv-rllib tests/rllib/ and, on its gymnasium 1.2.2, the
 # environment's own tests.
 RLLIB_TESTS := tests/rllib tests/test_fxc_consensus_v0.py tests/test_consensus_env.py tests/test_vec_env.py
+# `make check` runs its tests as these two shares, side by side (see check below).
+CHECK_SHARDS := check-shard-1 check-shard-2
 
-.PHONY: demo test check lint format clean
+.PHONY: demo test check $(CHECK_SHARDS) lint format clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -45,10 +47,15 @@ test: $(TORCHRL_STAMP) $(RLLIB_STAMP)
 
 # The fast loop: the end-to-end tests (whole trainings, solve_ivp sweeps, shipped-policy
 # evaluations, wheel builds, big benchmark runs) are marked slow and left to `make test`.
+# The rest runs as two pytest processes at once, one per core: `--shard 1/2` and `--shard 2/2`
+# (tests/conftest.py) each take every second selected test; their reports print one after the other.
 check: $(TORCHRL_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	MPLBACKEND=Agg $(BIN)/python -m pytest -q -m "not slow" --ignore=tests/rllib
+	$(MAKE) --no-print-directory -j2 --output-sync=target $(CHECK_SHARDS)
+
+$(CHECK_SHARDS): check-shard-%:
+	MPLBACKEND=Agg $(BIN)/python -m pytest -q -m "not slow" --ignore=tests/rllib --shard $*/2
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
