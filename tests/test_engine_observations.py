@@ -61,3 +61,17 @@ def test_measurements_are_drawn_once_per_instant():
 def test_the_limit_feature_spreads_decades_evenly():
     scale = np.array([1.0, 10.0, 0.1, 0.0])
     np.testing.assert_allclose(limit_feature(1.0, 1.0, scale), [0.0, -0.5, 0.5, 1.0])
+
+
+def test_an_engine_on_the_fast_path_pickles_mid_episode_and_continues_bit_for_bit():
+    import pickle
+
+    engine = engine_at(5000)
+    engine.observations(np.empty((2, 5000, engine.layout.size)))  # the fast path's buffers exist
+    twin = pickle.loads(pickle.dumps(engine))
+    for _ in range(4):
+        actions = np.tanh(engine.observations()[..., :2])
+        engine.step(actions)
+        twin.step(np.tanh(twin.observations()[..., :2]))
+    np.testing.assert_array_equal(twin.state, engine.state)
+    np.testing.assert_array_equal(twin.observations(), engine.observations())

@@ -71,6 +71,11 @@ class GraphTable:
         self._episode_index = xp.reshape(xp.arange(len(offsets), device=backend.device), (-1, 1, 1))
         self._blocks: dict[tuple[int, int], list] = {}
 
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_blocks"] = {}  # the fast path's slot-major copies, made again on first use
+        return state
+
     def draw(self, clock: Any, switching_draw: Callable[[Any], Any]) -> None:
         """Each episode's graph on the coming interval: ``G_{k mod m}``, or ``switching_draw(periods)``.
 
