@@ -54,9 +54,11 @@ energy for accuracy: the reading error of a register is the rounding of a measur
   first measurement by σ, its velocity part coasting to ``σ T_s`` in the prediction), and the exact
   factors amplify those errors; measured on a directed ring N = 20 at σ = 1e-6 (K = 200, uniform):
   deadline error 3e-2 at 16 x E* (ε = 1e-4), 3e-3 at 1.4e3 x E* (ε = 1e-3), 3e-4 at 1.4e5 x E*
-  (ε = 1e-2). That is off the frontier, so the law refuses ``obs_noise``.
+  (ε = 1e-2): the error falls like ``1/ε`` while the energy grows like ``ε²``. That is off the
+  frontier, so the law refuses ``obs_noise`` unless the caller chooses ``amplitude`` explicitly.
 - It refuses what it cannot honour, by name: a graph (or period union) without a directed spanning
-  tree, topology families, ``switching='random'``, ``u_max``, ``obs_noise``, ``link_dropout``, agent models
+  tree, topology families, ``switching='random'``, ``u_max``, ``obs_noise`` (without an explicit
+  ``amplitude``), ``link_dropout``, agent models
   other than the double integrator, ``obs_mode='normalized'``, and too few intervals.
 """
 
@@ -159,7 +161,8 @@ class SignallingPolicy:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with a
             directed spanning tree, or a periodic set whose union has one, with ideal double-integrator
             agents, ``obs_mode="raw"`` and K at least the agreement's intervals.
-        amplitude: the signalling amplitude ε (dimensionless, > 0, default :data:`DEFAULT_AMPLITUDE`).
+        amplitude: the signalling amplitude ε (dimensionless, > 0; None: :data:`DEFAULT_AMPLITUDE`). Under
+            ``obs_noise`` the law runs only with an explicit amplitude (the frontier point is the user's choice).
 
     Raises:
         ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``, ``agent_model``,
@@ -178,10 +181,19 @@ class SignallingPolicy:
         "unweighted mean of the predictions (all agents' when strongly connected), up to rounding / ε"
     )
 
-    def __init__(self, env: Any, amplitude: float = DEFAULT_AMPLITUDE) -> None:
+    def __init__(self, env: Any, amplitude: float | None = None) -> None:
         config = config_of(env, type(self).__name__)
         _refuse_what_it_cannot_honour(config)
-        self.amplitude = validation.real("amplitude", amplitude, positive=True)
+        if config.obs_noise != 0 and amplitude is None:
+            raise ArgumentError(
+                f"obs_noise: {type(self).__name__} reads numbers from exact relative measurements; with noise σ each "
+                "read is off by σ / ε, amplified by the exact-consensus factors (a directed ring N = 20 at σ = 1e-6: "
+                "deadline error 3e-2 at 16 x E*, 3e-4 at 1.4e5 x E*); give amplitude=ε to run it anyway, "
+                f"got obs_noise={config.obs_noise!r}"
+            )
+        self.amplitude = validation.real(
+            "amplitude", DEFAULT_AMPLITUDE if amplitude is None else amplitude, positive=True
+        )
         topology = config.topology
         n, m = config.n_agents, topology.period
         #: ``ξ`` ``(N,)``: the weights of the first stage's consensus value ``ξᵀ q(0)``.
@@ -391,13 +403,6 @@ def _refuse_what_it_cannot_honour(config: Any) -> None:
         )
     if config.u_max_choices is not None:
         raise ArgumentError(f"u_max: {name} plans exact changes and cannot honour an input limit")
-    if config.obs_noise != 0:
-        raise ArgumentError(
-            f"obs_noise: {name} reads numbers from exact relative measurements; with noise σ each read is off by "
-            "σ / ε, amplified by the exact-consensus factors (measured on a directed ring N = 20 at σ = 1e-6: "
-            "deadline error 3e-2 at 16 x E*, 3e-4 at 1.4e5 x E*), worse than not signalling; "
-            f"got obs_noise={config.obs_noise!r}"
-        )
     if config.link_dropout != 0:
         raise ArgumentError(
             f"link_dropout: {name} reads numbers from every link of its graph; got link_dropout={config.link_dropout!r}"

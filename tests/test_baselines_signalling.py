@@ -105,6 +105,20 @@ def test_it_refuses_by_name_what_it_cannot_honour(kwargs, name):
         SignallingPolicy(make_config(scenario=None, topology="ring", n_agents=6, obs_mode="raw"), amplitude=0.0)
 
 
+def test_under_measurement_noise_it_runs_only_with_a_chosen_amplitude_and_loses_accuracy_like_one_over_it():
+    config = make_config(scenario=None, topology="ring", n_agents=6, obs_mode="raw", schedule="uniform", obs_noise=1e-6)
+    errors = []
+    for amplitude in (1e-4, 1e-2):
+        policy = SignallingPolicy(config, amplitude=amplitude)
+        engine = ConsensusEngine(config, n_episodes=5)
+        draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in range(5)]
+        engine.reset(np.stack([d.x0 for d in draws]), np.stack([d.v0 for d in draws]), rng=np.random.default_rng(7))
+        while not engine.done:
+            engine.step(np.asarray(policy(engine.observations()), dtype=np.float64))
+        errors.append(np.median(engine.batch_metrics()["relative_deadline_error"]))
+    assert errors[1] < errors[0] / 10  # 100 x the amplitude: reading errors 100 x smaller
+
+
 def test_its_memory_needs_every_agent_at_once_from_the_first_instant():
     config = make_config(scenario=None, topology="ring", n_agents=6, obs_mode="raw")
     policy = SignallingPolicy(config)
