@@ -125,3 +125,26 @@ def test_training_from_the_teacher_meets_the_goal():
     assert record["regression_max_rms_residual"] < 1e-9
     result = evaluate(policy, 20, SEEDS)
     assert result["median"] <= 3.4e-4 and result["ratio"] >= 100
+
+
+def test_the_closed_form_interval_map_of_the_training_is_the_engine_episode():
+    """Direct refinement scores a table through the exact map ``z_i(t_{k+1}) = P_k z_i + G_k r_i``."""
+    import torch
+
+    from fxc_env.training.rings import PAPER_GAIN, episode_log_errors, run_episodes, spectrum_matrix
+
+    config = task_config()
+    engine = ConsensusEngine(config, n_episodes=1)
+    shipped = load_learned_policy("rings", config)
+    paper = IntervalGainPolicy(np.broadcast_to(PAPER_GAIN, (200, 2, 2)), shipped.header)
+    for policy, rtol in ((paper, 1e-9), (shipped, None)):
+        engine_errors = run_episodes(config, lambda _config, policy=policy: policy, SEEDS[:2])["deadline_error"]
+        for seed, expected in zip(SEEDS[:2], engine_errors, strict=True):
+            draw = engine.draw_episode(np.random.default_rng(seed))
+            log_error = episode_log_errors(
+                config, torch.tensor(policy.gains), draw.x0.T, draw.v0.T, spectrum_matrix(draw.topology)
+            )
+            if rtol is None:  # both at the float64 floor
+                assert np.exp(float(log_error[0])) < 1e-13 and expected < 1e-13
+            else:
+                np.testing.assert_allclose(np.exp(float(log_error[0])), expected, rtol=rtol)

@@ -21,7 +21,7 @@ The network is :class:`fxc_env.policies.interval_gains.IntervalGainPolicy`: each
    of the plan (the minimum-energy input of Remark 1 realises ``z_i(t_{k+1}) = P_k z_i + G_k r_i``
    exactly, so an episode is a product of K 2N x 2N matrices, differentiable in the table). From
    the teacher's table it has nothing left to gain on rings of 20; ``--init paper`` starts it
-   from the paper's table ``G_k = I`` instead, to see how far plain minimisation gets alone.
+   from the paper's table (eq. 11: ``G_k = [[1, 1], [0, 1]]`` in normalized units) instead, to see how far plain minimisation gets alone.
 
 Run (the shipped file; about a minute on one core)::
 
@@ -67,6 +67,9 @@ TASK: dict[str, Any] = {
 }
 #: Seeds of the demonstration episodes, and of the evaluation episodes (disjoint).
 DEMONSTRATION_SEED = 1_000
+#: The paper's plan (eq. 11) as a gain in normalized units: ``G_k = P_k`` physically, ``S P_k S^{-1}``
+#: with ``S = diag(1, T_{k+1})``.
+PAPER_GAIN = np.array([[1.0, 1.0], [0.0, 1.0]])
 EVALUATION_SEED = 0
 
 
@@ -135,7 +138,7 @@ def physical_map(config: EnvConfig, gains: Any) -> Any:
     """The table in physical units ``S^{-1} G_k S``, ``S = diag(1, T_{k+1})`` (torch, ``(K, 2, 2)``)."""
     import torch
 
-    tau = torch.as_tensor(np.asarray(config.schedule.intervals, dtype=np.float64))
+    tau = torch.as_tensor(np.array(config.schedule.intervals, dtype=np.float64))
     scale = torch.ones(len(tau), 2, 2, dtype=torch.float64)
     scale[:, 0, 1] = tau
     scale[:, 1, 0] = 1.0 / tau
@@ -151,7 +154,7 @@ def episode_log_errors(config: EnvConfig, gains: Any, x0: np.ndarray, v0: np.nda
     import torch
 
     g = physical_map(config, gains)
-    tau = torch.as_tensor(np.asarray(config.schedule.intervals, dtype=np.float64))
+    tau = torch.as_tensor(np.array(config.schedule.intervals, dtype=np.float64))
     w = torch.as_tensor(w_hat)
     z = torch.stack([torch.as_tensor(x0), torch.as_tensor(v0)], dim=-1)  # (B, N, 2)
 
@@ -183,12 +186,12 @@ def refine(
         v0 = np.stack([d.v0[:, 0] for d in draws])
         w_hat = spectrum_matrix(draws[0].topology)  # one relabelled ring: D is invariant to the labels
         loss = episode_log_errors(config, table, x0, v0, w_hat).mean()
+        curve.append(float(loss.detach()))
+        if curve[-1] < best_loss:  # the table this batch was scored with, before the step
+            best_loss, best = curve[-1], table.detach().numpy().copy()
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
-        curve.append(float(loss))
-        if curve[-1] < best_loss:
-            best_loss, best = curve[-1], table.detach().numpy().copy()
     return best, curve
 
 
@@ -214,7 +217,7 @@ def train(
         record["teacher_median_deadline_error"] = float(np.median(demos["deadline_error"]))
         record["regression_max_rms_residual"] = float(residuals.max())
     elif init == "paper":
-        gains = np.broadcast_to(np.eye(2), (config.n_intervals, 2, 2)).copy()  # eq. 11 in normalized units
+        gains = np.broadcast_to(PAPER_GAIN, (config.n_intervals, 2, 2)).copy()
     else:
         raise ArgumentError(f"init: expected 'teacher' or 'paper', got {init!r}")
     if refine_steps:

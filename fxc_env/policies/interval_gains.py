@@ -10,8 +10,8 @@ relative row
 and plans ``(alpha_x, alpha_v) = G_k r_i`` with ``k`` the interval index read off the clock
 (``k / K``, the observation's last clock entry) and ``G_k`` a learned ``(K, 2, 2)`` table in
 float64 (the units of the normalized observation and plan: ``alpha_x = a_x / s_i``,
-``alpha_v = T_{k+1} a_v / s_i``). The paper's controller (eq. 11) is the table ``G_k = I`` in these
-units; the minimum-time law (:mod:`fxc_env.baselines.minimum_time`) is another table, one factor
+``alpha_v = T_{k+1} a_v / s_i``). The paper's controller (eq. 11) is the table
+``G_k = [[1, 1], [0, 1]]`` in these units (the coasting matrix ``P_k``, scaled); the minimum-time law (:mod:`fxc_env.baselines.minimum_time`) is another table, one factor
 per eigenvalue of ``(D + I)^{-1} L``. A table is tied to the graph's spectrum and to the schedule,
 ``K`` and ``N`` it was learned on, and the policy refuses any other, by name.
 
