@@ -98,6 +98,8 @@ def test_masked_rows_are_ignored():
         ({"schedule": "uniform"}, "schedule", "'paper'", "'uniform'"),
         ({"action_mode": "accel"}, "action_mode", "'plan'", "'accel'"),
         ({"obs_mode": "raw"}, "obs_mode", "'normalized'", "'raw'"),
+        ({"dim": 2}, "dim", "dim=1", "dim=2"),
+        ({"u_max": 10.0}, "u_max", "limit_feature=False", "limit_feature=True"),
         ({"topology": {"family": "path"}}, "topology", "'ring'", "'path'"),
         ({"topology": {"family": "ring", "period": (2, 3)}}, "topology", "'ring'", "period (2, 3)"),
     ],
