@@ -470,6 +470,7 @@ def _gramian_by_quadrature(model: LinearModel, T: float) -> np.ndarray:
     return quad_vec(integrand, 0.0, T, epsabs=0.0, epsrel=1e-13)[0].reshape(n, n)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damping", [4.0, 50.0, 1e3])
 def test_a_heavily_damped_gramian_over_the_paper_s_first_interval_is_accurate(damping):
     """Over T_1 = 12.16 s a damping of 4 /s or more made Van Loan's block exponential lose every digit."""
