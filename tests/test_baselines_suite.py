@@ -44,7 +44,13 @@ def test_contender_settings_reach_the_environment():
         assert (config.schedule.name, config.action_mode, config.obs_mode) == BUILTIN_SETTINGS[contender.name][1:]
         assert config.n_intervals == 50
     sampled = {c.name for c in builtin_contenders() if c.sampled}
-    assert sampled == {"reference", "linear_sampled", "saturation_aware", "minimum_time", "signalling"}  # the budget sweep
+    assert sampled == {
+        "reference",
+        "linear_sampled",
+        "saturation_aware",
+        "minimum_time",
+        "signalling",
+    }  # the budget sweep
 
 
 def test_load_policy_by_name():
