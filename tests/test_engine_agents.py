@@ -8,6 +8,7 @@ import pytest
 from fxc_env import ConsensusEngine, make_config
 from fxc_env.core import dynamics
 from fxc_env.core.metrics import disagreement
+from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import agents
 from fxc_env.engine.backend import NumpyBackend
 from fxc_env.engine.clock import InstantTables, LockStepClock
@@ -70,3 +71,11 @@ def test_formation_offsets_are_added_back_at_the_start():
     engine.reset(x0, v0)
     np.testing.assert_allclose(engine.state[0, :, 0], 1.0 - offsets)  # the formation error zeta = z - h
     np.testing.assert_allclose(engine.absolute_state()[0, :, 0], x0[0])
+
+
+def test_general_agents_have_no_input_end_values_to_map_from_actions():
+    config = make_config("paper_fig1", agent_model="integrator_chain", order=3)
+    engine = ConsensusEngine(config)
+    engine.reset(np.ones((1, 6, 1)), np.zeros((1, 6, 1)))
+    with pytest.raises(ArgumentError, match="plans"):
+        engine.inputs_from_actions(np.zeros((1, 6, 3)))

@@ -26,6 +26,7 @@ import numpy as np
 from fxc_env.config import EnvConfig
 from fxc_env.core import dynamics, slots
 from fxc_env.core.metrics import disagreement, spread
+from fxc_env.core.validation import ArgumentError
 
 #: Action entries (``B N 2 dim``) from which the numpy fast path of a step in blocks pays.
 BLOCKED_FROM = 8192
@@ -214,6 +215,13 @@ class LinearAgents:
         self.u_max: Any = None
         self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
         self._row_scales = backend.array(config.row_scales)
+
+    def inputs(self, actions: Any, T: Any, local_scale: Callable[[], Any]) -> tuple[Any, Any]:
+        """General agents' actions are plans, not input end values: the input is found by :meth:`advance`."""
+        raise ArgumentError(
+            f"actions: {self.config.agent_model!r} agents take plans (the minimum-energy input follows from them); "
+            "the input's end values are StepOutcome.u_start and u_end"
+        )
 
     def advance(self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any) -> Interval:
         """The plan's minimum-energy input over interval k (:mod:`fxc_env.core.linear`).
