@@ -204,11 +204,11 @@ def spectrum_matrix(topology: Any) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------- training
 def train(
-    episodes: int = 8, refine_steps: int = 0, init: str = "teacher", seed: int = DEMONSTRATION_SEED
+    episodes: int = 8, refine_steps: int = 0, init: str = "teacher", seed: int = DEMONSTRATION_SEED, lr: float = 1e-4
 ) -> tuple[IntervalGainPolicy, dict[str, Any]]:
     """The ``rings`` policy and a record of how it was made (see the module)."""
     config = task_config()
-    record: dict[str, Any] = {"init": init, "demonstration_episodes": episodes, "refine_steps": refine_steps}
+    record: dict[str, Any] = {"init": init, "demonstration_episodes": episodes, "refine_steps": refine_steps, "lr": lr}
     began = time.perf_counter()
     if init == "teacher":
         demos = run_episodes(config, MinimumTimePolicy, range(seed, seed + episodes), record=True)
@@ -221,7 +221,7 @@ def train(
     else:
         raise ArgumentError(f"init: expected 'teacher' or 'paper', got {init!r}")
     if refine_steps:
-        gains, curve = refine(config, gains, refine_steps, seed + episodes)
+        gains, curve = refine(config, gains, refine_steps, seed + episodes, lr=lr)
         record["refine_first_loss"], record["refine_best_loss"] = curve[0], min(curve)
     record["wall_s"] = round(time.perf_counter() - began, 2)
     ring = config.family.draw(config.n_agents, np.random.default_rng(0))
@@ -258,6 +258,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", default=None, help="where to save the policy (.npz)")
     parser.add_argument("--episodes", type=int, default=8, help="demonstration episodes of the teacher")
     parser.add_argument("--refine-steps", type=int, default=0, help="direct-minimisation steps after the start")
+    parser.add_argument("--lr", type=float, default=1e-4, help="Adam's learning rate of the refinement")
     parser.add_argument("--init", default="teacher", choices=("teacher", "paper"), help="the table to start from")
     parser.add_argument("--evaluate", default=None, help="only measure the policy saved at this path")
     parser.add_argument("--n-agents", type=int, default=20, help="ring size to measure on")
@@ -268,7 +269,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.evaluate is not None:
         policy = load_interval_gains(args.evaluate)
     else:
-        policy, record = train(args.episodes, args.refine_steps, args.init)
+        policy, record = train(args.episodes, args.refine_steps, args.init, lr=args.lr)
         policy.header["training"]["command"] = "python -m fxc_env.training.rings " + " ".join(sys.argv[1:])
         print("trained:", json.dumps(record))
         if args.out:
