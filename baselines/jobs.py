@@ -16,14 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fxc_env.baselines.suite import BenchmarkCase, Contender, Suite, contender_config, load_policy
-from fxc_env.config import EnvConfig
-from fxc_env.core.graphs import Topology
-from fxc_env.core.optimality import energy_bound, linear_energy_bound, propagation_bound, settled_interval
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
-
-#: Relative error below which an episode counts as settled (the intervals a law used).
-SETTLED_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -51,10 +45,9 @@ class JobResult:
     Attributes:
         metrics: the episode metrics, one ``(B,)`` array per name of
             :class:`fxc_env.core.metrics.EpisodeMetrics`, plus ``final_value_gap``
-            (``|achieved - predicted|`` mean position at ``T_s``, m), the bounds of
-            :func:`optimality_bounds` (``energy_bound``, ``propagation_bound``), ``energy_ratio``
-            (energy / ``E*``), ``settled_interval`` (the interval after which ``D(t_k)/D(0)`` stayed
-            below :data:`SETTLED_TOLERANCE`; inf if not by ``T_s``) and ``initial_disagreement``.
+            (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``;
+            the optimality columns (``energy_bound``, ``energy_ratio``, ``settled_interval``,
+            ``propagation_bound``) come with the engine's metrics.
         trace_times, trace: sampling instants and the median over seeds of ``D(t_k) / D(0)``
             (only for the suite's trace case).
         description: the policy's law, source, graph class and parameters (as text).
@@ -113,7 +106,6 @@ def run_job(job: Job) -> JobResult:
         u_max=[d.u_max for d in draws],
     )
     d0 = engine.initial_disagreement.copy()
-    bounds = optimality_bounds(config, engine.z0, engine.topologies)
     trace = [np.ones(len(job.seeds))]
     obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
     with np.errstate(all="ignore"):  # a diverging law overflows; its metrics say so
@@ -125,9 +117,6 @@ def run_job(job: Job) -> JobResult:
     relative = metrics["relative_deadline_error"]
     metrics["relative_deadline_error"] = np.where(np.isfinite(relative), relative, np.inf)
     metrics["final_value_gap"] = np.abs(metrics["achieved_final_position"] - metrics["predicted_final_position"])
-    metrics.update(bounds)
-    metrics["energy_ratio"] = metrics["energy"] / bounds["energy_bound"]
-    metrics["settled_interval"] = settled_interval(np.array(trace).T, SETTLED_TOLERANCE)
     metrics["initial_disagreement"] = d0
     result.metrics = metrics
     if job.record_trace:
@@ -135,27 +124,6 @@ def run_job(job: Job) -> JobResult:
         result.trace = np.median(np.array(trace), axis=1)
     result.seconds = time.perf_counter() - start
     return result
-
-
-def optimality_bounds(config: EnvConfig, z0: np.ndarray, topologies: list[Topology]) -> dict[str, np.ndarray]:
-    """Per episode, what no law can beat (:mod:`fxc_env.core.optimality`), each ``(B,)``.
-
-    ``energy_bound``: ``E*`` of the initial state ``z0`` ``(B, N, n, dim)`` (the formation error with
-    offsets) at ``T_s``, in the units of ``energy``. ``propagation_bound``: the fewest intervals after
-    which every agent can have heard from every root of the episode's topology.
-    """
-    if config.model is None:
-        energy = energy_bound(z0[:, :, 0], z0[:, :, 1], config.settling_time)
-    else:
-        energy = linear_energy_bound(config.model, z0, config.settling_time)
-    hops: dict[int, int] = {}
-    for topology in topologies:
-        if id(topology) not in hops:
-            hops[id(topology)] = propagation_bound(topology)
-    return {
-        "energy_bound": np.asarray(energy, dtype=np.float64),
-        "propagation_bound": np.array([float(hops[id(t)]) for t in topologies]),
-    }
 
 
 def _reference_guarantee(job: Job) -> str:

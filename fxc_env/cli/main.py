@@ -101,6 +101,16 @@ def simulate_command(args: argparse.Namespace) -> int:
     ]
     for name, value in singles:
         print(f"| {name:<38} | {'':>22} | {_format(value):>22} |")
+    # How far from optimal (README): what no controller can beat, beside what the reference did.
+    print()
+    print(f"| {'how far from optimal':<38} | {'lower bound (any law)':>22} | {'reference':>22} |")
+    print(f"|{'-' * 40}|{'-' * 24}|{'-' * 24}|")
+    print(f"| {'energy (m²/s³)':<38} | {_format(m.energy_bound):>22} | {_format(m.energy):>22} |")
+    print(f"| {'energy / E*':<38} | {_format(1.0):>22} | {_format(m.energy_ratio):>22} |")
+    print(
+        f"| {'intervals until D/D(0) < 1e-9':<38} | {_format(m.propagation_bound):>22} | "
+        f"{_format(m.settled_interval):>22} |"
+    )
     print()
     print("wrote " + ", ".join(str(f) for f in files))
     return 0

@@ -22,6 +22,10 @@ from fxc_env.core.arrays import is_numpy, namespace
 
 #: Thresholds of the settling-time metric ``t_eps``.
 SETTLING_THRESHOLDS = (1e-2, 1e-6)
+#: ``settled_interval``: the interval after which ``D(t_k) / D(0)`` stayed below this.
+SETTLED_TOLERANCE = 1e-9
+#: Every threshold an episode's trackers follow (the last instant at or above each).
+TRACKED_THRESHOLDS = (*SETTLING_THRESHOLDS, SETTLED_TOLERANCE)
 
 #: ``dim > 1``: :func:`spread` compares every pair, vectorised over the batch, up to this many
 #: agents, or up to :data:`PAIRWISE_PAIRS` pairs over the whole batch (measured crossovers).
@@ -422,6 +426,14 @@ class EpisodeMetrics:
     agents' means at the end. ``saturated_fraction`` is the share of agent-time spent at
     the input limit ``u_max`` (mean over components; 0 without a limit).
     For ``dim > 1`` the predicted and achieved values are the first component.
+
+    How far from optimal (README, "How far from optimal"): ``energy_bound`` is ``E*``, the least
+    energy any controller needs for exact consensus at ``T_s`` from this initial state (for
+    formations, of reaching the formation), and ``energy_ratio`` is ``energy / E*`` (NaN where
+    ``E* = 0``). ``settled_interval`` is the number of intervals after which ``D(t_k) / D(0)`` stayed
+    below :data:`SETTLED_TOLERANCE` (``inf`` if it is not below by now), to compare with
+    ``propagation_bound``, the fewest intervals in which every agent can have heard from every root
+    of the episode's graph (NaN for random switching, and above 2000 agents, where it is not computed).
     """
 
     final_position_spread: float
@@ -437,6 +449,10 @@ class EpisodeMetrics:
     predicted_final_velocity: float
     achieved_final_velocity: float
     saturated_fraction: float
+    energy_bound: float
+    energy_ratio: float
+    settled_interval: float
+    propagation_bound: float
 
     def as_dict(self) -> dict[str, float | int | None]:
         """Plain dict for JSON (non-finite values become ``None``)."""

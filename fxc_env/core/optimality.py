@@ -37,7 +37,14 @@ from fxc_env.core.graphs import Topology
 from fxc_env.core.linear import LinearModel
 from fxc_env.core.validation import ArgumentError
 
-__all__ = ["energy_bound", "linear_energy_bound", "propagation_bound", "root_set", "settled_interval"]
+__all__ = [
+    "energy_bound",
+    "episode_energy_bound",
+    "linear_energy_bound",
+    "propagation_bound",
+    "root_set",
+    "settled_interval",
+]
 
 
 def _states(name: str, value: Any, minimum_ndim: int) -> np.ndarray:
@@ -113,6 +120,19 @@ def linear_energy_bound(model: LinearModel, z0: Any, settling_time: Any, offsets
     delta = predicted - predicted.mean(axis=-3, keepdims=True)
     _, y = maps._solve(0, delta)  # y = L^{-1} S D^{-1} delta: |y|^2 / T = delta^T G^{-1} delta
     return np.einsum("...i,...i->...", y, y).sum(axis=(-2, -1)) / T
+
+
+def episode_energy_bound(model: LinearModel | None, z0: Any, settling_time: Any) -> np.ndarray:
+    """``E*`` of every episode from its initial state ``z0`` ``(B, N, n, dim)`` (engine coordinates), ``(B,)``.
+
+    ``model`` None is the double integrator (``z = (x, v)``, :func:`energy_bound`'s closed form);
+    otherwise :func:`linear_energy_bound` with that model's Gramian. With formation offsets ``z0``
+    is the formation error, so the bound is that of reaching the formation.
+    """
+    z = np.asarray(z0, dtype=np.float64)
+    if model is None:
+        return np.asarray(energy_bound(z[:, :, 0], z[:, :, 1], settling_time), dtype=np.float64)
+    return np.asarray(linear_energy_bound(model, z, settling_time), dtype=np.float64)
 
 
 def root_set(topology: Topology) -> np.ndarray:

@@ -22,7 +22,8 @@ import numpy as np
 from fxc_env.config import EnvConfig
 from fxc_env.core.graphs import DENSE_LIMIT
 from fxc_env.core.linear import LinearModel, final_value, model_matrices
-from fxc_env.core.metrics import SETTLING_THRESHOLDS, reward_floor, spread
+from fxc_env.core.metrics import TRACKED_THRESHOLDS, reward_floor, spread
+from fxc_env.core.optimality import episode_energy_bound, propagation_bound
 
 from .backend import TINY, to_host
 
@@ -41,7 +42,7 @@ class EpisodeTrackers:
         initial_disagreement, current_disagreement: ``D(0)`` and ``D(t_k)``, ``(B,)``.
         energy_total, peak_total: ``integral |u_i|^2`` so far and the peak ``|u_i|``, ``(B, N)``.
         last_above: per settling threshold, the last instant with ``D(t_k) / D(0) >= eps``,
-            ``(len(SETTLING_THRESHOLDS), B)``.
+            ``(len(TRACKED_THRESHOLDS), B)``.
         saturated_time: seconds saturated per agent (mean over components), ``(B, N)``.
     """
 
@@ -52,10 +53,12 @@ class EpisodeTrackers:
         self.x0 = backend.zeros((b, n, dim))
         self.v0 = backend.zeros((b, n, dim))
         self.z0 = backend.zeros((b, n, n_states, dim))
-        #: Settling thresholds as a column, ``(len(SETTLING_THRESHOLDS), 1)``.
-        self._thresholds = backend.array(np.array(SETTLING_THRESHOLDS)[:, None])
+        #: Settling thresholds as a column, ``(len(TRACKED_THRESHOLDS), 1)``.
+        self._thresholds = backend.array(np.array(TRACKED_THRESHOLDS)[:, None])
         model = config.model if config.model is not None else LinearModel(*model_matrices("double_integrator"))
         self._model = model
+        #: ``(topology, propagation_bound)`` by the topology's id (a graph's bound is computed once).
+        self._propagation: dict[int, tuple[Any, float]] = {}
 
     def restart(self, x0: Any, v0: Any, fresh: Any, disagreement: Any, episodes: Any = None) -> None:
         """Start the trackers of ``episodes`` (a ``(B,)`` mask; None: all) from ``x0, v0`` and state ``fresh``.
@@ -68,7 +71,7 @@ class EpisodeTrackers:
         inverse_d0 = 1.0 / xp.where(disagreement > 0, disagreement, xp.ones_like(disagreement))
         inverse_d0 = xp.where(disagreement > 0, inverse_d0, xp.zeros_like(disagreement))
         log_disagreement = xp.log(disagreement + floor)
-        last_above = xp.zeros((len(SETTLING_THRESHOLDS), b), dtype=xp.int64, device=backend.device)
+        last_above = xp.zeros((len(TRACKED_THRESHOLDS), b), dtype=xp.int64, device=backend.device)
         if episodes is None:
             self.z0[...] = fresh
             self.x0[...] = x0
@@ -148,8 +151,40 @@ class EpisodeTrackers:
             "achieved_final_velocity": v[:, :, 0].mean(axis=1),
             "saturated_fraction": to_host(self.saturated_time).mean(axis=1) / elapsed,
         }
+        metrics.update(self.optimality_metrics(metrics["energy"], topologies))
         metrics.update(self.extra_metrics(state, steps))
         return metrics
+
+    def optimality_metrics(self, energy: np.ndarray, topologies: list) -> dict[str, np.ndarray]:
+        """``energy_bound`` (E*), ``energy_ratio``, ``settled_interval`` and ``propagation_bound``, each ``(B,)``.
+
+        E* from each episode's initial state (:func:`fxc_env.core.optimality.episode_energy_bound`);
+        the settled interval from the trackers' last instant at or above the tolerance; the
+        propagation bound of each episode's graph (:func:`fxc_env.core.optimality.propagation_bound`,
+        cached per topology; NaN for random switching and above ``DENSE_LIMIT`` agents).
+        """
+        c = self.config
+        bound = episode_energy_bound(c.model, to_host(self.z0), c.settling_time)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(bound > 0, energy / np.where(bound > 0, bound, 1.0), np.nan)
+        below = to_host(self.current_disagreement * self.inverse_d0) < TRACKED_THRESHOLDS[-1]
+        settled = np.where(below, to_host(self.last_above[-1]) + 1.0, np.inf)
+        return {
+            "energy_bound": bound,
+            "energy_ratio": ratio,
+            "settled_interval": settled,
+            "propagation_bound": np.array([self._propagation_bound(topology) for topology in topologies]),
+        }
+
+    def _propagation_bound(self, topology: Any) -> float:
+        if self.config.switching != "periodic" or topology.n_agents > DENSE_LIMIT:
+            return np.nan
+        cached = self._propagation.get(id(topology))
+        if cached is None or cached[0] is not topology:  # an id is only unique while its object lives
+            if len(self._propagation) >= 64:  # families draw a graph per episode: keep the cache small
+                self._propagation.clear()
+            cached = self._propagation[id(topology)] = (topology, float(propagation_bound(topology)))
+        return cached[1]
 
     def predicted_final_state(self, topologies: list, shared: bool) -> np.ndarray:
         """Position and velocity of ``z*(T_s)`` on the first space axis per episode, ``(B, 2)`` (NaN where not known).

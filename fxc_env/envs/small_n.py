@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig
-from fxc_env.core.metrics import SETTLING_THRESHOLDS
+from fxc_env.core.metrics import TRACKED_THRESHOLDS
 
 #: Largest N the small path takes (beyond, the engine's vectorised step is as fast).
 SMALL_N = 16
@@ -254,7 +254,7 @@ class SmallInterval:
         highest.flat[:] = list(map(max, highest.ravel().tolist(), peaks))
         reached = clock.advance()
         relative = float(disagreement[0]) * float(trackers.inverse_d0[0])
-        for row, threshold in enumerate(SETTLING_THRESHOLDS):
+        for row, threshold in enumerate(TRACKED_THRESHOLDS):
             if relative >= threshold:
                 trackers.last_above[row, 0] = reached
         engine.observer.invalidate()
