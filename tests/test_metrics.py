@@ -115,9 +115,14 @@ def test_episode_metrics_as_dict_is_json_safe():
         predicted_final_velocity=-0.125,
         achieved_final_velocity=-0.125,
         saturated_fraction=0.0,
+        energy_bound=0.5,
+        energy_ratio=2.0,
+        settled_interval=math.inf,
+        propagation_bound=math.nan,
     )
     d = m.as_dict()
     assert d["t_eps_1e_6"] is None and d["predicted_final_position"] is None
+    assert d["settled_interval"] is None and d["propagation_bound"] is None and d["energy_ratio"] == 2.0
     assert d["sampling_instants"] == 200 and d["achieved_final_position"] == -1.875
     import json
 
