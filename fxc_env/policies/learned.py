@@ -41,6 +41,7 @@ from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.policy_files import (
     TRUST_HINT,
     check_settings,
+    checked_zip_path,
     describe_differences,
     read_metadata,
     read_sb3_zip,
@@ -104,15 +105,7 @@ def load_model(path: str | Path, *, trusted: bool = False) -> Any:
         return read_sb3_zip(path)
     from stable_baselines3 import PPO, SAC
 
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"policy: no saved model at {path}")
-    if not path.is_file():
-        raise ArgumentError(f"policy: {path} is not a file (expected a saved SB3 model, .zip)")
-    if path.stat().st_size == 0:
-        raise ArgumentError(f"policy: {path} is an empty file (expected a saved SB3 model, .zip)")
-    if not zipfile.is_zipfile(path):
-        raise ArgumentError(f"policy: {path} is not a zip archive (expected a saved SB3 model, .zip)")
+    path = checked_zip_path(path)
     errors = []
     for algo in (PPO, SAC):
         try:

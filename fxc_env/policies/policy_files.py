@@ -256,6 +256,20 @@ def read_metadata(path: str | Path) -> dict[str, Any] | None:
     return record if isinstance(record, dict) and record.get("format") == METADATA_FORMAT else None
 
 
+def checked_zip_path(path: str | Path) -> Path:
+    """``path`` as a Path once it names a non-empty zip archive; else the error naming ``policy``."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"policy: no saved model at {path}")
+    if not path.is_file():
+        raise ArgumentError(f"policy: {path} is not a file (expected a saved SB3 model, .zip)")
+    if path.stat().st_size == 0:
+        raise ArgumentError(f"policy: {path} is an empty file (expected a saved SB3 model, .zip)")
+    if not zipfile.is_zipfile(path):
+        raise ArgumentError(f"policy: {path} is not a zip archive (expected a saved SB3 model, .zip)")
+    return path
+
+
 def read_sb3_zip(path: str | Path) -> SavedModel:
     """Read an SB3 PPO/SAC ``.zip`` without unpickling anything (see the module).
 
@@ -267,15 +281,7 @@ def read_sb3_zip(path: str | Path) -> SavedModel:
     """
     import torch
 
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"policy: no saved model at {path}")
-    if not path.is_file():
-        raise ArgumentError(f"policy: {path} is not a file (expected a saved SB3 model, .zip)")
-    if path.stat().st_size == 0:
-        raise ArgumentError(f"policy: {path} is an empty file (expected a saved SB3 model, .zip)")
-    if not zipfile.is_zipfile(path):
-        raise ArgumentError(f"policy: {path} is not a zip archive (expected a saved SB3 model, .zip)")
+    path = checked_zip_path(path)
     try:
         with zipfile.ZipFile(path) as archive:
             names = set(archive.namelist())
