@@ -98,13 +98,7 @@ def run_job(job: Job) -> JobResult:
     # Each seed draws its episode (topology of a family, input limit of a set, initial state);
     # noise, dropout and random switching draw from the job's own seeded stream.
     draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in job.seeds]
-    engine.reset(
-        np.stack([d.x0 for d in draws]),
-        np.stack([d.v0 for d in draws]),
-        rng=job_generator(job),
-        topologies=[d.topology for d in draws],
-        u_max=[d.u_max for d in draws],
-    )
+    engine.reset_from_draws(draws, rng=job_generator(job))
     d0 = engine.initial_disagreement.copy()
     trace = [np.ones(len(job.seeds))]
     obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))

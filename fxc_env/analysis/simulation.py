@@ -13,7 +13,7 @@ from fxc_env.core.dynamics import advance_clipped, state_inside
 from fxc_env.core.graphs import Topology
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
-from fxc_env.engine import ConsensusEngine, state_disagreement
+from fxc_env.engine import ConsensusEngine, state_disagreement, with_initial_state
 from fxc_env.policies.reference import ReferencePolicy
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -88,12 +88,15 @@ def simulate(
     # then measurement noise, link dropout and random switching go on from it.
     rng = np.random.default_rng(seed)
     draw = engine.draw_episode(rng)
-    x_start = draw.x0 if x0 is None else engine.validate_state("x0", x0)
-    v_start = draw.v0 if v0 is None else engine.validate_state("v0", v0)
+    draw = with_initial_state(
+        draw,
+        None if x0 is None else engine.validate_state("x0", x0),
+        None if v0 is None else engine.validate_state("v0", v0),
+    )
     act = ReferencePolicy(config) if isinstance(policy, str) and policy == "reference" else policy
     if isinstance(act, str):
         raise ArgumentError(f"policy: expected 'reference' or a callable, got {policy!r}")
-    engine.reset(x_start[None], v_start[None], rng=rng, topologies=[draw.topology], u_max=[draw.u_max])
+    engine.reset_from_draws([draw], rng=rng)
     u_max = None if engine.u_max is None else float(engine.u_max[0])
     states = [engine.state[0].copy()]  # (N, n, dim) in the engine's coordinates (formation error)
     u_start, u_end, plans = [], [], []

@@ -19,5 +19,14 @@ from fxc_env.engine.consensus_engine import (
     state_disagreement,
     to_host,
 )
+from fxc_env.engine.draws import with_initial_state
 
-__all__ = ["ConsensusEngine", "EpisodeDraw", "StepOutcome", "limit_feature", "state_disagreement", "to_host"]
+__all__ = [
+    "ConsensusEngine",
+    "EpisodeDraw",
+    "StepOutcome",
+    "limit_feature",
+    "state_disagreement",
+    "to_host",
+    "with_initial_state",
+]

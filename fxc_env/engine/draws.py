@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -78,6 +78,11 @@ def draw_episode(config: EnvConfig, rng: np.random.Generator) -> EpisodeDraw:
     u_max = None if choices is None else choices[0] if len(choices) == 1 else float(rng.choice(choices))
     x0, v0 = sample_initial_state(config, rng)
     return EpisodeDraw(x0, v0, topology, u_max)
+
+
+def with_initial_state(draw: EpisodeDraw, x0: np.ndarray | None, v0: np.ndarray | None) -> EpisodeDraw:
+    """``draw`` with a user's (already validated) initial positions and/or velocities in place of the drawn ones."""
+    return replace(draw, x0=draw.x0 if x0 is None else x0, v0=draw.v0 if v0 is None else v0)
 
 
 def stack_draws(draws: Sequence[EpisodeDraw], config: EnvConfig) -> BatchDraw:

@@ -24,7 +24,7 @@ from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-from fxc_env.engine import ConsensusEngine, EpisodeDraw
+from fxc_env.engine import ConsensusEngine, EpisodeDraw, with_initial_state
 from fxc_env.envs.rendering import EpisodeView
 from fxc_env.envs.small_n import SmallInterval, applies, checked_values
 from fxc_env.envs.spaces import action_space, observation_space, state_space
@@ -336,10 +336,9 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         if seed is not None or self._rng is None:
             self._rng = np.random.default_rng(seed)
         draw = self.engine.draw_episode(self._rng)  # the family's topology and u_max when drawn, x0, v0
-        x0 = draw.x0 if x0 is None else x0
-        v0 = draw.v0 if v0 is None else v0
-        topologies = None if draw.topology is None else [draw.topology]
-        self.engine.reset(x0[None], v0[None], rng=self._rng, topologies=topologies, u_max=[draw.u_max])
+        draw = with_initial_state(draw, x0, v0)
+        x0, v0 = draw.x0, draw.v0
+        self.engine.reset_from_draws([draw], rng=self._rng)
         if not self.small_n_path or not applies(self.config, self.engine):
             self._small = None
         elif self._small is None:

@@ -30,7 +30,7 @@ from fxc_env.config.arguments import (
 )
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome
+from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome, with_initial_state
 from fxc_env.envs.parallel import (
     ConsensusParallelEnv,
     episode_draw_info,
@@ -233,19 +233,16 @@ class ConsensusVecEnv(VecEnv):
             self._reset_options()  # bad options are used (refused) once, so later resets work
             raise
         seeds = self._seeds[::n]
-        x0, v0, draws = self._draw_episodes(seeds)
+        draws = self._draw_episodes(seeds)
         for b, (given_x, given_v) in overrides.items():
-            if given_x is not None:
-                x0[b] = given_x
-            if given_v is not None:
-                v0[b] = given_v
+            draws[b] = with_initial_state(draws[b], given_x, given_v)
         self._reset_seeds()
         self._reset_options()
         # Noise, dropout and random switching draw from one batch generator, seeded with the
         # first episode's seed (its own stream: (seed, 1)); they make episodes differ from
         # separate ParallelEnv runs, which the initial states alone do not.
         rng = None if seeds[0] is None else np.random.default_rng((seeds[0], 1))
-        self._start(x0, v0, draws, rng)
+        self._start(draws, rng)
         return self._observe()
 
     def _initial_state_options(self, options: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -256,11 +253,9 @@ class ConsensusVecEnv(VecEnv):
         v0 = validate("options['v0']", options["v0"]) if "v0" in options else None
         return x0, v0
 
-    def _draw_episodes(
-        self, seeds: Sequence[int | None] | None = None
-    ) -> tuple[np.ndarray, np.ndarray, list[EpisodeDraw]]:
-        """Each episode's draw (``x0``, ``v0`` stacked; topology, input limit) from its own
-        generator, re-seeded where ``seeds[b]`` is given (:meth:`ConsensusEngine.draw_episode`)."""
+    def _draw_episodes(self, seeds: Sequence[int | None] | None = None) -> list[EpisodeDraw]:
+        """Each episode's draw (initial state, topology, input limit) from its own generator,
+        re-seeded where ``seeds[b]`` is given (:meth:`ConsensusEngine.draw_episode`)."""
         if self._rngs is None:
             self._rngs = [np.random.default_rng(s) for s in np.random.SeedSequence().spawn(self.n_envs)]
         draws = []
@@ -268,24 +263,15 @@ class ConsensusVecEnv(VecEnv):
             if seeds is not None and seeds[b] is not None:
                 self._rngs[b] = np.random.default_rng(seeds[b])
             draws.append(self.engine.draw_episode(self._rngs[b]))
-        return np.stack([d.x0 for d in draws]), np.stack([d.v0 for d in draws]), draws
+        return draws
 
-    def _start(
-        self, x0: np.ndarray, v0: np.ndarray, draws: Sequence[EpisodeDraw], rng: np.random.Generator | None = None
-    ) -> None:
-        topologies = [d.topology for d in draws]
-        self.engine.reset(
-            x0,
-            v0,
-            rng,
-            topologies=None if all(t is None for t in topologies) else topologies,
-            u_max=[d.u_max for d in draws],
-        )
+    def _start(self, draws: Sequence[EpisodeDraw], rng: np.random.Generator | None = None) -> None:
+        self.engine.reset_from_draws(draws, rng)
         self._steps = 0
         self._needs_reset = False
         n = self.config.n_agents
         self.reset_infos = [episode_draw_info(draws[i // n]) for i in range(self.num_envs)]
-        self._view.start(x0[0], v0[0])
+        self._view.start(draws[0].x0, draws[0].v0)
 
     def _empty_infos(self) -> list[dict[str, Any]]:
         """One empty dict per sub-environment, reused across steps while they stay empty.
@@ -336,7 +322,7 @@ class ConsensusVecEnv(VecEnv):
             {"terminal_observation": row, "TimeLimit.truncated": truncated, "episode_metrics": dict(episode)}
             for row, episode in zip(obs, per_agent, strict=True)
         ]
-        self._start(*self._draw_episodes())
+        self._start(self._draw_episodes())
         return self._observe(), rewards, np.ones(self.num_envs, dtype=bool), infos
 
     # ------------------------------------------------------------ attributes
