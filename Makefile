@@ -27,8 +27,9 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test]"
 	touch $(STAMP)
 
+# The tests need TorchRL (the native env) and the bench contenders (MPE2, VMAS: fxc speed's tables).
 $(TORCHRL_STAMP): $(STAMP)
-	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test,torchrl]"
+	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test,torchrl,bench]"
 	touch $(TORCHRL_STAMP)
 
 $(RLLIB_STAMP): pyproject.toml constraints-rllib.txt
