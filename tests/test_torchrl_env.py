@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs, step_mdp
 
 from fxc_env import ConsensusEngine, ReferencePolicy, make_config
@@ -143,3 +144,62 @@ def test_reference_module_equals_the_numpy_reference():
     obs[..., config.layout.rows_end : config.layout.mask_end] = 1.0
     expected = ReferencePolicy(config).act(obs)
     np.testing.assert_allclose(ReferenceModule(config)(torch.as_tensor(obs)).numpy(), expected, rtol=1e-15, atol=1e-15)
+
+
+def _one_step_with(env, td, action):
+    td.set((GROUP, "action"), action)
+    return step_mdp(env.step(td))
+
+
+def test_a_reported_bad_value_is_reported_once_and_the_next_reset_starts_clean_episodes():
+    env = ConsensusTorchEnv(scenario="paper_fig1", batch_size=2, n_intervals=2, seed=0)
+    td = env.reset()
+    action = torch.zeros((2, env.n_agents, 2), dtype=torch.float64)
+    bad = action.clone()
+    bad[0, 0, 0] = float("nan")
+    td = _one_step_with(env, td, bad)
+    with pytest.raises(ArgumentError, match=r"actions: episodes \[0\]"):
+        _one_step_with(env, td, action)  # the episode end reports it
+    td = env.reset()  # once: the next reset starts clean episodes
+    assert torch.isfinite(env.engine.state).all() and not env.engine.invalid.any()
+    for _ in range(2):
+        td = _one_step_with(env, td, action)  # a clean episode plays to its end without an error
+    env.reset()
+
+
+def test_a_step_past_the_deadline_after_a_partial_reset_is_reported_once():
+    env = ConsensusTorchEnv(scenario="paper_fig1", batch_size=2, n_intervals=2, seed=0)
+    td = env.reset()
+    action = torch.zeros((2, env.n_agents, 2), dtype=torch.float64)
+    td = _one_step_with(env, td, action)
+    td.set("_reset", torch.tensor([[True], [False]]))
+    td = env.reset(td)  # the clocks part: episode 1 is one step from T_s
+    for _ in range(2):
+        td = _one_step_with(env, td, action)  # the second steps episode 1 past T_s (flagged on the device)
+    with pytest.raises(ArgumentError, match=r"actions: episodes \[1\].*past T_s"):
+        env.reset()
+    env.reset()
+    assert env.engine.steps is None and env.engine.k == 0 and not env.engine.invalid.any()
+
+
+@pytest.mark.parametrize(
+    "mask",
+    [
+        torch.tensor([[1.0], [0.0], [1.0], [0.0]]),
+        torch.tensor([[1], [0], [1], [0]]),
+        torch.tensor([True, False, True]),
+    ],
+    ids=["float", "int", "wrong-shape"],
+)
+def test_a_bad_reset_mask_is_refused_by_name_and_changes_nothing(mask):
+    env = ConsensusTorchEnv(scenario="generalist", batch_size=4, seed=0)
+    module = reference_policy(env)
+    td = env.reset()
+    for _ in range(3):
+        td = step_mdp(env.step(module(td)))
+    state, k, topologies = env.engine.state.clone(), env.engine.k, list(env.engine.topologies)
+    graphs = env.engine.graphs
+    with pytest.raises(ArgumentError, match=r"_reset: expected a torch\.bool mask of shape \(4, 1\)"):
+        env._reset(TensorDict({"_reset": mask}, batch_size=[]))
+    assert torch.equal(env.engine.state, state) and env.engine.k == k and env.engine.steps is None
+    assert env.engine.graphs is graphs and all(a is b for a, b in zip(env.engine.topologies, topologies, strict=True))

@@ -243,9 +243,12 @@ class TorchBackend(NumpyBackend):
             self.invalid = xp.where(episodes, xp.zeros_like(self.invalid), self.invalid)
 
     def raise_if_invalid(self) -> None:
-        """Raise :class:`ArgumentError` if any episode was flagged (one read off the device)."""
+        """Raise :class:`ArgumentError` if any episode was flagged (one read off the device), clearing the flags."""
         bad = np.flatnonzero(to_host(self.invalid))
         if len(bad):
+            # Reported once: the flags are cleared, so the next reset starts clean episodes
+            # (a flag left set would make every later reset raise the same error).
+            self.clear_flags()
             raise ArgumentError(
                 f"actions: episodes {bad[:10].tolist()} received a non-finite action, overflowed float64 or were "
                 "stepped past T_s since their last reset; reset them (their states are not to be trusted)"

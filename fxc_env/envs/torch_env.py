@@ -250,7 +250,7 @@ class ConsensusTorchEnv(EnvBase):
         engine = self.engine
         episodes = None
         if tensordict is not None and "_reset" in tensordict.keys():
-            episodes = tensordict.get("_reset").reshape(-1)
+            episodes = self._reset_mask(tensordict.get("_reset"))
             if self.engine.device.type != "meta" and bool(episodes.all()):
                 episodes = None  # one read of a [B] flag: a full reset keeps the lock-step fast path
         if self.check_values:
@@ -312,6 +312,20 @@ class ConsensusTorchEnv(EnvBase):
         return out
 
     # ------------------------------------------------------------ helpers
+    def _reset_mask(self, mask: Any) -> torch.Tensor:
+        """TorchRL's ``"_reset"`` entry as a ``(B,)`` boolean mask, checked before anything changes."""
+        b = self.batch_size[0]
+        if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool or tuple(mask.shape) not in ((b, 1), (b,)):
+            got = (
+                f"dtype {mask.dtype}, shape {tuple(mask.shape)}"
+                if isinstance(mask, torch.Tensor)
+                else type(mask).__name__
+            )
+            raise validation.ArgumentError(
+                f"_reset: expected a torch.bool mask of shape ({b}, 1) (or ({b},)), one entry per episode, got {got}"
+            )
+        return mask.reshape(-1).to(self.engine.device)
+
     def _observations(self) -> torch.Tensor:
         return self.engine.observations().to(self._observation_dtype)
 
