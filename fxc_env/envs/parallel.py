@@ -38,13 +38,18 @@ def episode_metrics_rows(engine: ConsensusEngine) -> list[dict[str, float | int]
 
     The keys are the fields of :class:`fxc_env.core.metrics.EpisodeMetrics`. Unlike
     ``EpisodeMetrics.as_dict()`` (made for JSON), nothing is ``None``: a threshold never
-    reached stays ``inf`` and a prediction that does not apply stays ``nan``, so replay
-    buffers that stack infos into arrays (Tianshou, TorchRL) accept them.
-    ``sampling_instants`` is an ``int``, every other value a ``float``.
+    reached stays ``inf``, and a metric that does not apply to the episode (``nan`` in
+    :meth:`ConsensusEngine.batch_metrics`: Theorem 2's ``predicted_*`` and ``propagation_bound``
+    with random switching, ``propagation_bound`` above 2000 agents, ``energy_ratio`` where
+    ``E* = 0``) is left out. NaN never equals itself, so leaving it out keeps two identically
+    seeded runs' infos equal (PettingZoo's ``seed_test``) and replay buffers free of NaN
+    (Tianshou refuses NaN in its buffer). ``sampling_instants`` is an ``int``, every other
+    value a ``float``.
     """
     columns = engine.batch_metrics()
     names = [field.name for field in dataclasses.fields(EpisodeMetrics)]
-    return [dict(zip(names, row, strict=True)) for row in zip(*(columns[n].tolist() for n in names), strict=True)]
+    rows = zip(*(columns[n].tolist() for n in names), strict=True)
+    return [{n: v for n, v in zip(names, row, strict=True) if v == v} for row in rows]  # v != v only for NaN
 
 
 def episode_draw_info(draw: EpisodeDraw) -> dict[str, Any]:
@@ -176,7 +181,11 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     ``fxc_env.core.metrics.EpisodeMetrics``: deadline error ``D(T_s)/D(0)``, spreads,
     settling times ``t_eps``, energy, peak input, Theorem 2's predicted and the achieved
     final values; README, "Quick start"). Numbers only, each agent its own dict:
-    ``inf`` for a threshold never reached, ``nan`` where a prediction does not apply.
+    ``inf`` for a threshold never reached; a metric that does not apply to the episode
+    (``predicted_*`` and ``propagation_bound`` with random switching, ``propagation_bound``
+    above 2000 agents, ``energy_ratio`` where ``E* = 0``) is left out of the dict rather
+    than ``nan``, so no info value is ever NaN and two identically seeded runs give equal
+    infos.
 
     ## State
     ``state()`` with ``global_state="raw"`` (default): ``(N, 2 dim)`` float64 rows

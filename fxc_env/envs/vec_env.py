@@ -92,8 +92,9 @@ class ConsensusVecEnv(VecEnv):
     dicts during an episode; at its end each carries ``terminal_observation`` (the last
     observation before the reset), ``TimeLimit.truncated`` (True only for a ``max_cycles``
     cut; the deadline is a termination) and ``episode_metrics`` (its episode's metrics, as
-    the parallel env's ``infos[agent]["episode"]``: numbers only, ``inf``/``nan`` rather than
-    None, each sub-environment its own copy). Per-agent energy and peak input of the last
+    the parallel env's ``infos[agent]["episode"]``: numbers only, ``inf`` rather than
+    None, a metric that does not apply left out rather than ``nan``, each sub-environment its
+    own copy). Per-agent energy and peak input of the last
     step are in :attr:`last_outcome` (arrays ``(n_envs, N)``).
 
     Seeding follows SB3: :meth:`seed` sets ``seed + i`` for sub-environment i, used at the
