@@ -76,3 +76,33 @@ def test_evaluate_refuses_a_suite_and_environment_flags_together(tmp_path, capsy
     argv = ["evaluate", "--policy", "reference", "--suite", "realism", "--n-agents", "8", "--out", str(tmp_path)]
     assert cli.main(argv) == 2
     assert "--suite" in capsys.readouterr().err
+
+
+def test_a_policy_refused_on_every_case_is_a_usage_error(tmp_path, capsys, monkeypatch):
+    from types import SimpleNamespace
+
+    import fxc_env.training.evaluate as evaluate
+
+    def every_case_refused(suite, contenders, out, **kwargs):
+        results = [
+            SimpleNamespace(
+                job=SimpleNamespace(contender=c), error=None if c.name == "reference" else "obs size 30, not 12"
+            )
+            for c in contenders
+            for _ in suite.cases
+        ]
+        return SimpleNamespace(markdown="Not run", files=[], results=results)
+
+    monkeypatch.setattr(evaluate, "run_benchmark", every_case_refused)
+    argv = ["evaluate", "--policy", "saturated", "--seeds", "1", "--out", str(tmp_path / "out"), "--no-progress"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fxc evaluate: error: --policy: ") and "(obs size 30, not 12)" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_an_output_directory_that_cannot_be_created_is_a_usage_error(tmp_path, capsys):
+    argv = ["evaluate", "--policy", "reference", "--seeds", "1", "--out", "/proc/fxc-evaluate/out", "--no-progress"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fxc evaluate: error: --out: ") and "/proc" in err

@@ -207,3 +207,35 @@ def test_a_resumed_sb3_log_keeps_the_rows_up_to_the_checkpoint_and_grows_its_col
     fresh.dump(4800)
     fresh.close()
     assert (tmp_path / "fresh" / "progress.csv").read_text() == "time/total_timesteps\n4800\n"
+
+
+def started_run(tmp_path, steps: int, **args) -> RunDir:
+    """A torch run directory as a run of ``args`` leaves it, with one (empty) checkpoint at ``steps``."""
+    run = RunDir(tmp_path / "run", "torch")
+    run.start({"args": {"scenario": "paper_fig1", "critic": "local", **args}})
+    run.checkpoints.mkdir()
+    run.checkpoint_path(steps).write_bytes(b"")
+    return run
+
+
+def test_resume_keeps_the_scenario_and_critic_the_run_was_started_with(tmp_path):
+    run = started_run(tmp_path, 100)
+    assert run.resume_checkpoint(True, TrainArgs(timesteps=200)) == run.checkpoint_path(100)
+    with pytest.raises(ArgumentError, match=r"^scenario: .*started with scenario 'paper_fig1'.*not 'ring'"):
+        run.resume_checkpoint(True, TrainArgs(scenario="ring", timesteps=200))
+    with pytest.raises(ArgumentError, match=r"^critic: .*started with critic 'local'.*not 'central'"):
+        run.resume_checkpoint(True, TrainArgs(critic="central", timesteps=200))
+
+
+def test_resume_to_a_target_already_reached_is_refused(tmp_path):
+    run = started_run(tmp_path, 100)
+    for timesteps in (50, 100):
+        with pytest.raises(ArgumentError, match=r"^timesteps: .* already at 100 timesteps .*nothing to train"):
+            run.resume_checkpoint(True, TrainArgs(timesteps=timesteps))
+
+
+def test_a_run_directory_that_cannot_be_created_is_a_usage_error_naming_it(tmp_path):
+    (tmp_path / "notes.txt").write_text("a file\n")
+    run = RunDir(tmp_path / "notes.txt" / "run", "torch")
+    with pytest.raises(ArgumentError, match=r"^run_dir: cannot create '.*notes.txt/run'"):
+        run.start({"args": {}})

@@ -261,3 +261,48 @@ def test_a_run_of_the_old_backend_name_resumes_and_loads(tmp_path, monkeypatch, 
     assert not (tmp_path / "runs" / "paper_fig1-torch-ppo-seed0").exists()
     assert [int(row["time/total_timesteps"]) for row in progress_rows(old)] == [PER_ROLLOUT, 2 * PER_ROLLOUT]
     assert load_torch_policy(old)(np.zeros((3, 15))).shape == (3, 2)
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated"])
+def test_resume_from_a_damaged_checkpoint_is_a_usage_error_naming_it(tmp_path, damage):
+    checkpoint = tmp_path / "run" / "checkpoints" / "model_1_steps.pt"
+    checkpoint.parent.mkdir(parents=True)
+    if damage == "garbage":
+        checkpoint.write_bytes(b"not a checkpoint\n" * 8)
+    else:
+        torch.save({"format": "x", "weights": torch.zeros(4096)}, checkpoint)
+        checkpoint.write_bytes(checkpoint.read_bytes()[:2000])  # a save cut short
+    with pytest.raises(ArgumentError, match=r"^resume: cannot read the checkpoint '.*model_1_steps.pt'"):
+        train(short_args(tmp_path, resume=True))
+
+
+@pytest.mark.parametrize(
+    ("flag", "value"), [("--num-env-runners", "4"), ("--envs-per-runner", "2"), ("--address", "auto")]
+)
+def test_rllib_only_flags_are_refused_by_the_torch_backend(tmp_path, capsys, flag, value):
+    from fxc_env.cli import main
+
+    argv = ["train", "--backend", "torch", "--run-dir", str(tmp_path / "run"), flag, value]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"fxc train: error: {flag}: only the rllib backend reads it; the torch backend")
+    assert not (tmp_path / "run").exists()
+
+
+def test_resume_to_a_reached_target_exits_2_saying_so(tmp_path, capsys):
+    from fxc_env.cli import main
+
+    checkpoint = tmp_path / "run" / "checkpoints" / f"model_{PER_ROLLOUT}_steps.pt"
+    checkpoint.parent.mkdir(parents=True)
+    checkpoint.write_bytes(b"")
+    argv = ["train", "--backend", "torch", "--run-dir", str(tmp_path / "run"), "--resume", "--n-envs", "2"]
+    assert main([*argv, "--timesteps", str(PER_ROLLOUT), "--no-progress-bar"]) == 2
+    assert f"already at {PER_ROLLOUT} timesteps" in capsys.readouterr().err
+
+
+def test_a_run_directory_in_an_unwritable_place_is_a_usage_error(capsys):
+    from fxc_env.cli import main
+
+    assert main(["train", "--backend", "torch", "--run-dir", "/proc/fxc-train/run", "--timesteps", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fxc train: error: ") and "/proc" in err and len(err.strip().splitlines()) == 1

@@ -179,3 +179,12 @@ def test_hyperparameter_files_are_read_with_care(tmp_path):
         with pytest.raises(ArgumentError, match=message):
             load_hyperparams(path, "paper_fig1", "ppo")
     assert load_hyperparams(TrainArgs().hyperparams, "paper_fig1", "ppo")["algo"]["n_steps"] == 200
+
+
+def test_resume_from_a_garbage_sb3_checkpoint_is_a_usage_error_naming_it(tmp_path):
+    checkpoint = tmp_path / "run" / "checkpoints" / "model_1_steps.zip"
+    checkpoint.parent.mkdir(parents=True)
+    checkpoint.write_bytes(b"PK not really a zip\n" * 8)
+    (checkpoint.parent / "model_vecnormalize_1_steps.pkl").write_bytes(b"not a pickle")
+    with pytest.raises(ArgumentError, match=r"^resume: cannot read the checkpoint '.*model_(vecnormalize_)?1_steps"):
+        train(short_args(tmp_path, resume=True))

@@ -30,6 +30,8 @@ BACKENDS = ("sb3", "rllib", "torch")
 BACKEND_ALIASES = {"torchrl": "torch"}
 #: ``--critic`` of the torch back end: per-agent values, or one value per episode from the global state.
 CRITICS = ("local", "central")
+#: Fields only ``--backend rllib`` reads: another back end refuses a value other than the default.
+RLLIB_ONLY = ("num_env_runners", "envs_per_runner", "address")
 
 
 def arg(default: Any, doc: str) -> Any:
@@ -166,6 +168,14 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
         integer(name("n_envs"), args.n_envs, 1)
     integer(name("num_env_runners"), args.num_env_runners, 0)
     integer(name("envs_per_runner"), args.envs_per_runner, 1)
+    if args.backend != "rllib":
+        for field in RLLIB_ONLY:
+            value, default = getattr(args, field), TrainArgs.__dataclass_fields__[field].default
+            if value != default:
+                raise ArgumentError(
+                    f"{name(field)}: only the rllib backend reads it; the {args.backend} backend would ignore "
+                    f"{value!r} (use --backend rllib, or leave it out)"
+                )
     algo_key = f"{args.backend}_{args.algo}" if args.backend in ("rllib", "torch") else args.algo
     params = load_hyperparams(args.hyperparams, args.scenario, algo_key, name=name("hyperparams"))
     if args.backend == "rllib":

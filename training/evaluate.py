@@ -142,6 +142,10 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if args.policy != "reference":
         contenders.append(learned_contender(args.policy, name="--policy", trusted=args.trust_policy_file, **learned))
     command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["evaluate"] else None
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a read-only file system, which os.access does not see for root
+        raise ArgumentError(f"--out: cannot create {str(out)!r} ({exc.strerror or exc})") from exc
     output = run_benchmark(
         suite,
         contenders,
@@ -152,4 +156,13 @@ def evaluate_command(args: argparse.Namespace) -> int:
     )
     print(output.markdown)
     print("wrote " + ", ".join(str(f) for f in output.files))
+    if args.policy != "reference":
+        refuse_unrun_policy("--policy", contenders[-1].name, output.results)
     return 0
+
+
+def refuse_unrun_policy(flag: str, contender: str, results: list[Any]) -> None:
+    """Refuse (naming ``flag`` and the first reason) a learned ``contender`` that every case of the suite refused."""
+    own = [result for result in results if result.job.contender.name == contender]
+    if own and all(result.error is not None for result in own):
+        raise ArgumentError(f"{flag}: {contender} could not run on any case of the suite ({own[0].error})")

@@ -87,15 +87,42 @@ class RunDir:
         ]
         return max(found)[1] if found else None
 
-    def resume_checkpoint(self, resume: bool) -> Path | None:
-        """The checkpoint a run goes on from: the newest with ``resume``, None without; ``resume`` and none is refused."""
+    def resume_checkpoint(self, resume: bool, args: TrainArgs | None = None) -> Path | None:
+        """The checkpoint a run goes on from: the newest with ``resume``, None without; ``resume`` and none is refused.
+
+        With ``args``, a resumed run must keep the scenario and the critic that ``config.json``
+        records (``scenario``, ``critic``: both values named), and its ``timesteps`` must lie
+        beyond the checkpoint's (a target already reached would train nothing).
+        """
         if not resume:
             return None
         checkpoint = self.newest_checkpoint()
         if checkpoint is None:
             expected = self.checkpoint_name.format("<timesteps>")
             raise ArgumentError(f"resume: no checkpoint in {self.checkpoints} (expected {expected})")
+        if args is not None:
+            self._check_resumed_args(checkpoint, args)
         return checkpoint
+
+    def _check_resumed_args(self, checkpoint: Path, args: TrainArgs) -> None:
+        config = self.path / "config.json"
+        try:
+            started = json.loads(config.read_text()).get("args", {}) if config.is_file() else {}
+        except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+            started = {}  # a damaged config.json: the checkpoint's own checks still apply
+        for field in ("scenario", "critic"):
+            before, now = started.get(field), getattr(args, field)
+            if before is not None and before != now:
+                raise ArgumentError(
+                    f"{field}: the run in {self.path} was started with {field} {before!r}, "
+                    f"so --resume goes on with {before!r}, not {now!r}"
+                )
+        steps = self.checkpoint_steps(checkpoint)
+        if steps is not None and steps >= args.timesteps:
+            raise ArgumentError(
+                f"timesteps: the run in {self.path} is already at {steps} timesteps ({checkpoint.name}), "
+                f"so --resume to {args.timesteps} has nothing to train; ask for more timesteps"
+            )
 
     def announce_resume(self, checkpoint: Path, position: str) -> None:
         """``fxc train: resuming <run> from <checkpoint> at <position>`` on stdout."""
@@ -104,9 +131,20 @@ class RunDir:
     # -------------------------------------------------------------------- the files
     def start(self, record: Mapping[str, Any]) -> None:
         """A fresh run: create the directory, write ``config.json`` (``record``) and ``versions.json``."""
-        self.path.mkdir(parents=True, exist_ok=True)
+        self.create()
         (self.path / "config.json").write_text(json.dumps(record, indent=2) + "\n")
         (self.path / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
+
+    def create(self) -> None:
+        """Create the run directory (``mkdir -p``).
+
+        A place this process cannot write (a read-only file system, say, which ``os.access``
+        does not see for root) is refused as ``run_dir``, naming the path.
+        """
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ArgumentError(f"run_dir: cannot create {str(self.path)!r} ({exc.strerror or exc})") from exc
 
     def progress(
         self, columns: Sequence[str], *, tensorboard: bool, resumed_at: tuple[int, int] | None = None
@@ -122,7 +160,7 @@ class RunDir:
         """
         from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoardOutputFormat
 
-        self.path.mkdir(parents=True, exist_ok=True)
+        self.create()
         progress = self.path / "progress.csv"
         if resumed_at is None:
             csv_log = CSVOutputFormat(str(progress))

@@ -18,6 +18,8 @@ TensorBoard events from SB3's logger, training_curve.png), plus:
 from __future__ import annotations
 
 import dataclasses
+import pickle
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +96,24 @@ def save_checkpoint(model: Any, run: RunDir) -> Path:
     return path
 
 
+def load_checkpoint(algo_class: Any, checkpoint: Path, venv: Any) -> tuple[Any, Any]:
+    """The model saved at ``checkpoint`` on ``venv`` (with its VecNormalize statistics when ``venv`` normalizes).
+
+    A damaged or truncated file (not a zip, a zip without SB3's entries, statistics that do not
+    unpickle) is refused as ``resume``, naming the path.
+    """
+    path = checkpoint
+    try:
+        if isinstance(venv, VecNormalize):
+            path = vecnormalize_path(checkpoint)
+            venv = VecNormalize.load(str(path), venv.venv)
+            path = checkpoint
+        return algo_class.load(checkpoint, env=venv, device="cpu"), venv
+    except (OSError, EOFError, KeyError, ValueError, RuntimeError, zipfile.BadZipFile, pickle.UnpicklingError) as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise ArgumentError(f"resume: cannot read the checkpoint {str(path)!r} ({first})") from exc
+
+
 class RolloutCheckpoint(BaseCallback):
     """Save a checkpoint every ``every`` timesteps, at the start of a rollout; after Ctrl-C, save there and stop.
 
@@ -135,15 +155,13 @@ def train_sb3(args: TrainArgs) -> Path:
     params = check_train_args(args)  # every argument, before any work
     torch.set_num_threads(args.torch_threads)
     run = RunDir.of(args)
-    checkpoint = run.resume_checkpoint(args.resume)
+    checkpoint = run.resume_checkpoint(args.resume, args)
 
     # ------------------------------------------------------------------ set-up
     venv = build_env(args, params)
     algo_class = {"ppo": PPO, "sac": SAC}[args.algo]
     if checkpoint is not None:
-        if isinstance(venv, VecNormalize):
-            venv = VecNormalize.load(str(vecnormalize_path(checkpoint)), venv.venv)
-        model = algo_class.load(checkpoint, env=venv, device="cpu")
+        model, venv = load_checkpoint(algo_class, checkpoint, venv)
         run.announce_resume(checkpoint, f"{model.num_timesteps} timesteps")
     else:
         kwargs = dict(params["algo"])

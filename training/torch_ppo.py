@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pickle
 import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -411,7 +412,11 @@ class Trainer:
         return path
 
     def load_checkpoint(self, path: Path) -> None:
-        record = torch.load(path, map_location="cpu", weights_only=True)
+        try:
+            record = torch.load(path, map_location="cpu", weights_only=True)
+        except (OSError, EOFError, RuntimeError, ValueError, pickle.UnpicklingError) as exc:  # garbage or cut short
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            raise ArgumentError(f"resume: cannot read the checkpoint {str(path)!r} ({first})") from exc
         if not isinstance(record, dict) or record.get("format") != CHECKPOINT_FORMAT:
             raise ArgumentError(f"resume: {str(path)!r} is not a torch back-end checkpoint")
         try:
@@ -439,7 +444,7 @@ def train_torch(args: TrainArgs) -> Path:
     torch.set_num_threads(args.torch_threads)
     device = torch.device(args.device)
     run = RunDir.of(args)
-    checkpoint = run.resume_checkpoint(args.resume)
+    checkpoint = run.resume_checkpoint(args.resume, args)
 
     # ------------------------------------------------------------------ set-up
     trainer = Trainer(args, params, settings, device)
