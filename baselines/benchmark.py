@@ -234,6 +234,10 @@ def benchmark_command(args: argparse.Namespace) -> int:
             )
         )
     command = "fxc benchmark " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["benchmark"] else None
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a read-only file system, which os.access does not see for root
+        raise ArgumentError(f"--out: cannot create {str(out)!r} ({exc.strerror or exc})") from exc
     output = run_benchmark(
         suite,
         contenders,
@@ -247,4 +251,8 @@ def benchmark_command(args: argparse.Namespace) -> int:
     print(output.markdown)
     print("wrote " + ", ".join(str(f) for f in output.files))
     print(f"benchmark wall time: {output.seconds:.1f} s")
+    for learned in contenders[len(contenders) - len(args.policy) :]:  # a --policy no case could run
+        own = [r for r in output.results if r.job.contender.name == learned.name]
+        if own and all(r.error is not None for r in own):
+            raise ArgumentError(f"--policy: {learned.name} could not run on any case of the suite ({own[0].error})")
     return 0

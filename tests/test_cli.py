@@ -366,3 +366,32 @@ def test_output_directory_helper(tmp_path):
     (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
     with pytest.raises(ArgumentError, match="dangling"):
         output_directory("--out", tmp_path / "dangling" / "sub")
+
+
+def test_benchmark_of_a_policy_refused_on_every_case_exits_2_naming_it(tmp_path, capsys, monkeypatch):
+    from types import SimpleNamespace
+
+    import fxc_env.baselines.benchmark as benchmark
+
+    def every_case_refused(suite, contenders, out, **kwargs):
+        results = [
+            SimpleNamespace(
+                job=SimpleNamespace(contender=c), error="obs size 30, not 12" if "learned" in c.name else None
+            )
+            for c in contenders
+            for _ in suite.cases
+        ]
+        return SimpleNamespace(markdown="Not run", files=[], results=results, seconds=0.0)
+
+    monkeypatch.setattr(benchmark, "run_benchmark", every_case_refused)
+    argv = ["benchmark", "--quick", "--seeds", "1", "--policy", "saturated", "--out", str(tmp_path), "--no-progress"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fxc benchmark: error: --policy: ") and "(obs size 30, not 12)" in err
+
+
+def test_benchmark_out_that_cannot_be_created_is_a_usage_error(capsys):
+    argv = ["benchmark", "--quick", "--seeds", "1", "--out", "/proc/fxc-benchmark/out", "--no-progress"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fxc benchmark: error: --out: ") and "/proc" in err
