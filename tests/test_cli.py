@@ -395,3 +395,9 @@ def test_benchmark_out_that_cannot_be_created_is_a_usage_error(capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("fxc benchmark: error: --out: ") and "/proc" in err
+
+
+def test_simulate_out_that_cannot_be_created_is_a_usage_error(capsys):
+    assert main(["simulate", "--out", "/proc/fxc-simulate/out"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fxc simulate: error: --out: ") and "/proc" in err and len(err.strip().splitlines()) == 1

@@ -44,6 +44,10 @@ def simulate_command(args: argparse.Namespace) -> int:
     scenario = kwargs.pop("scenario")
     trajectory = simulate("reference", scenario, seed=args.seed, points_per_interval=args.points_per_interval, **kwargs)
     c, m, topology = trajectory.config, trajectory.metrics, trajectory.topology
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a read-only file system, which os.access does not see for root
+        raise UsageError(f"--out: cannot create {str(out)!r} ({exc.strerror or exc})") from exc
     files = write_figures(trajectory, out)
     xi = topology.consensus_weights() if c.n_agents <= 2000 and c.switching == "periodic" else None
     record = {
