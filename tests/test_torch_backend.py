@@ -253,3 +253,64 @@ def test_step_reset_and_reference_run_on_the_meta_device(kwargs):
         for _ in range(3):
             outcome = engine.step(engine.validate_actions(policy.act(engine.observations())))
         assert outcome.reward.shape == (8,) and outcome.terminated.device.type == "meta"
+
+
+# -------------------------------------------------------------- arguments checked like numpy's
+@pytest.mark.parametrize("n_episodes", [0, -1, 2.0, True, "2"])
+def test_n_episodes_is_a_positive_integer(n_episodes):
+    with pytest.raises(ArgumentError, match="n_episodes: expected an integer"):
+        ConsensusEngine(make_config("paper_fig1"), n_episodes, device="cpu")
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, True, 2**64])
+def test_a_torch_seed_is_an_integer_in_0_to_2_to_the_64(seed):
+    engine = ConsensusEngine(make_config("paper_fig1"), 1, device="cpu")
+    rng = engine.rng
+    with pytest.raises(ArgumentError, match=r"seed: expected an integer in \[0, 2\*\*64 - 1\]"):
+        engine.seed(seed)
+    assert engine.rng is rng
+    engine.seed(2**64 - 1)  # the largest torch.Generator seed is taken
+
+
+def test_an_unsupported_torch_device_type_is_refused_by_name():
+    with pytest.raises(ArgumentError, match=r"device: expected None .* of type cpu / cuda / meta, got 'mps'"):
+        ConsensusEngine(make_config("paper_fig1"), 1, device="mps")
+
+
+def test_numpy_actions_are_checked_in_full_and_converted_to_the_device():
+    engine = ConsensusEngine(make_config("paper_fig1"), 2, device="cpu")
+    engine.reset(*engine.draw_batch()[:2])
+    actions = np.zeros((2, 6, 2))
+    checked = engine.validate_actions(actions)
+    assert isinstance(checked, torch.Tensor) and checked.dtype == torch.float64
+    actions[0, 0, 0] = np.nan
+    with pytest.raises(ArgumentError, match="actions: every entry must be finite"):
+        engine.validate_actions(actions)  # on the host already: refused at once, like numpy's
+
+
+def _bad_states(x0):
+    nan, inf, big = x0.clone(), x0.clone(), x0.clone()
+    nan[0, 0, 0], inf[1, 2, 0], big[0, 1, 0] = float("nan"), float("inf"), 1e101
+    return [
+        (nan, "finite entries"),
+        (inf, "finite entries"),
+        (big, "finite entries within"),
+        (x0.to(torch.complex128), "real numbers"),
+        (x0[:, :3], r"expected shape \(2, 6, 1\), got \(2, 3, 1\)"),
+        (np.full((2, 6, 1), np.nan), "finite entries"),
+        ("x", "expected a torch tensor"),
+    ]
+
+
+@pytest.mark.parametrize("which", ["x0", "v0"])
+def test_a_torch_reset_checks_x0_and_v0_and_changes_nothing_on_refusal(which):
+    engine = ConsensusEngine(make_config("paper_fig1"), 2, device="cpu")
+    x0, v0 = engine.draw_batch()[:2]
+    engine.reset(x0, v0)
+    engine.step(engine.validate_actions(torch.zeros((2, 6, 2), dtype=torch.float64)))
+    state = engine.state.clone()
+    for bad, message in _bad_states(x0 if which == "x0" else v0):
+        args = (bad, v0) if which == "x0" else (x0, bad)
+        with pytest.raises(ArgumentError, match=f"{which}: .*{message}"):
+            engine.reset(*args)
+        assert torch.equal(engine.state, state) and engine.k == 1

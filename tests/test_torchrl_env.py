@@ -203,3 +203,35 @@ def test_a_bad_reset_mask_is_refused_by_name_and_changes_nothing(mask):
         env._reset(TensorDict({"_reset": mask}, batch_size=[]))
     assert torch.equal(env.engine.state, state) and env.engine.k == k and env.engine.steps is None
     assert env.engine.graphs is graphs and all(a is b for a, b in zip(env.engine.topologies, topologies, strict=True))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        (dict(batch_size=-1), "batch_size: expected an integer"),
+        (dict(batch_size=2.0), "batch_size: expected an integer"),
+        (dict(batch_size=True), "batch_size: expected an integer"),
+        (dict(batch_size="2"), "batch_size: expected an integer"),
+        (dict(seed=-1), "seed: expected an integer"),
+        (dict(seed=1.5), "seed: expected an integer"),
+        (dict(seed=True), "seed: expected an integer"),
+        (dict(seed=2**64), "seed: expected an integer"),
+        (dict(check_values=1), "check_values: expected True or False"),
+        (dict(check_values="yes"), "check_values: expected True or False"),
+        (dict(obs_format="dict"), "obs_format: the TorchRL environment gives flat observations"),
+        (dict(device="mps"), "device: "),
+    ],
+    ids=lambda value: repr(value)[:40],
+)
+def test_the_batch_arguments_are_checked_like_the_pettingzoo_envs(kwargs, message):
+    with pytest.raises(ArgumentError, match=message):
+        ConsensusTorchEnv(scenario="paper_fig1", **kwargs)
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, True, 2**64])
+def test_set_seed_refuses_a_bad_seed_and_keeps_the_generators(seed):
+    env = ConsensusTorchEnv(scenario="paper_fig1", batch_size=2, seed=0)
+    rng, host_rng = env.engine.rng, env._host_rng
+    with pytest.raises(ArgumentError, match="seed: expected an integer"):
+        env.set_seed(seed)
+    assert env.engine.rng is rng and env._host_rng is host_rng

@@ -30,6 +30,17 @@ from fxc_env.core.validation import ArgumentError
 TINY = np.finfo(np.float64).tiny
 #: Array dtypes the engine computes in (float32: see the TorchRL environment's card for its floor).
 DTYPES = ("float64", "float32")
+#: The torch device types the engine runs on (``meta``: shapes only, for the no-host-read checks).
+TORCH_DEVICE_TYPES = ("cpu", "cuda", "meta")
+#: Largest seed a ``torch.Generator`` takes (``manual_seed`` reads an unsigned 64-bit integer).
+MAX_TORCH_SEED = 2**64 - 1
+
+
+def torch_seed(name: str, value: Any) -> int | None:
+    """None or a seed of a ``torch.Generator``: an integer in ``[0, 2**64)`` (bools and floats refused)."""
+    if value is None:
+        return None
+    return validation.integer(name, value, 0, MAX_TORCH_SEED)
 
 
 def to_host(array: Any) -> np.ndarray:
@@ -162,6 +173,11 @@ class TorchBackend(NumpyBackend):
             raise ArgumentError(
                 f"device: expected None (numpy) or a torch device such as 'cpu' or 'cuda', got {device!r}"
             ) from error
+        if chosen.type not in TORCH_DEVICE_TYPES:
+            raise ArgumentError(
+                f"device: expected None (numpy) or a torch device of type {' / '.join(TORCH_DEVICE_TYPES)}, "
+                f"got {device!r}"
+            )
         if chosen.type == "cuda" and not torch.cuda.is_available():
             raise ArgumentError(
                 f"device: {device!r} asks for CUDA, but torch.cuda.is_available() is False on this machine"
@@ -187,8 +203,10 @@ class TorchBackend(NumpyBackend):
         return None
 
     def generator(self, seed: int | None) -> Any:
-        """A ``torch.Generator`` on the device (None on ``meta``, which draws shapes only)."""
+        """A ``torch.Generator`` on the device (None on ``meta``, which draws shapes only); ``seed`` in ``[0, 2**64)``."""
         import torch
+
+        seed = torch_seed("seed", seed)
 
         if self.device.type == "meta":
             return None
@@ -210,9 +228,17 @@ class TorchBackend(NumpyBackend):
         return torch.randn(shape, generator=rng, dtype=self.dtype, device=self.device)
 
     def checked(self, actions: object, expected: tuple[int, ...], name: str = "actions") -> Any:
-        """Shape and dtype checked at once (known on the host); a non-finite entry sets :attr:`invalid`."""
+        """Shape and dtype checked at once (known on the host); a non-finite entry sets :attr:`invalid`.
+
+        A numpy array (already on the host) is checked in full at once, like numpy's, and
+        converted to a tensor on the device.
+        """
+        import torch
+
         xp = self.xp
-        if not hasattr(actions, "shape") or not hasattr(actions, "device"):
+        if isinstance(actions, np.ndarray):
+            return self.array(validation.action_array(name, actions, expected))
+        if not isinstance(actions, torch.Tensor):
             raise ArgumentError(f"{name}: expected a torch tensor of shape {expected}, got {type(actions).__name__}")
         if tuple(actions.shape) != expected:
             raise ArgumentError(f"{name}: expected shape {expected}, got {tuple(actions.shape)}")
@@ -242,6 +268,34 @@ class TorchBackend(NumpyBackend):
         else:
             self.invalid = xp.where(episodes, xp.zeros_like(self.invalid), self.invalid)
 
+    def checked_state(self, name: str, value: Any, shape: tuple[int, ...]) -> Any:
+        """A ``shape`` real state on the device, entries finite and within ``±STATE_LIMIT``; raise naming ``name``.
+
+        numpy input is checked in full and copied to the device; a tensor's shape and dtype
+        are checked on the host and its values with one read off the device (none on ``meta``).
+        """
+        import torch
+
+        if isinstance(value, np.ndarray | list | tuple):
+            array = validation.real_array(name, value, f"an array of shape {shape}")
+            if array.shape != shape:
+                raise ArgumentError(f"{name}: expected shape {shape}, got {array.shape}")
+            if not np.all(np.isfinite(array) & (np.abs(array) <= validation.STATE_LIMIT)):
+                raise ArgumentError(_state_entries_error(name))
+            return self.array(array)
+        if not isinstance(value, torch.Tensor):
+            raise ArgumentError(f"{name}: expected a torch tensor of shape {shape}, got {type(value).__name__}")
+        if tuple(value.shape) != shape:
+            raise ArgumentError(f"{name}: expected shape {shape}, got {tuple(value.shape)}")
+        if not self.xp.isdtype(value.dtype, ("real floating", "integral")):
+            raise ArgumentError(f"{name}: expected real numbers, got dtype {value.dtype}")
+        value = self.xp.astype(value.to(self.device), self.dtype)
+        if self.device.type != "meta" and not bool(
+            (torch.isfinite(value) & (value.abs() <= validation.STATE_LIMIT)).all()
+        ):
+            raise ArgumentError(_state_entries_error(name))
+        return value
+
     def raise_if_invalid(self) -> None:
         """Raise :class:`ArgumentError` if any episode was flagged (one read off the device), clearing the flags."""
         bad = np.flatnonzero(to_host(self.invalid))
@@ -253,6 +307,13 @@ class TorchBackend(NumpyBackend):
                 f"actions: episodes {bad[:10].tolist()} received a non-finite action, overflowed float64 or were "
                 "stepped past T_s since their last reset; reset them (their states are not to be trusted)"
             )
+
+
+def _state_entries_error(name: str) -> str:
+    return (
+        f"{name}: expected finite entries within ±{validation.STATE_LIMIT:g} (metres, m/s; float64 headroom), "
+        "got a NaN, an infinity or a larger entry"
+    )
 
 
 def make_backend(device: Any, dtype: str, n_episodes: int) -> NumpyBackend:

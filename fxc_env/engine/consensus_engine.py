@@ -111,7 +111,7 @@ class ConsensusEngine:
 
     def __init__(self, config: EnvConfig, n_episodes: int = 1, *, device: Any = None, dtype: str = "float64") -> None:
         self.config = config
-        self.n_episodes = b = int(n_episodes)
+        self.n_episodes = b = validation.integer("n_episodes", n_episodes, 1, validation.MAX_AGENTS)
         self.layout = config.layout
         self.backend = backend = make_backend(device, dtype, b)
         if config.model is not None and not backend.is_numpy:
@@ -259,8 +259,15 @@ class ConsensusEngine:
         ``episodes`` (a ``(B,)`` boolean array on the device) restarts only those episodes
         (TorchRL's partial reset): their rows of ``x0, v0, u_max`` and ``topologies`` are used,
         the others go on where they are; from then on every episode keeps its own clock.
+
+        On torch, ``x0`` and ``v0`` (tensors, or numpy arrays copied to the device) are checked
+        before anything changes: shape ``(B, N, dim)``, real, finite, within ``±1e100`` (one
+        read off the device; none on ``meta``); a bad one raises :class:`ArgumentError` naming it.
         """
         xp, c = self.xp, self.config
+        if not self.is_numpy:  # checked before anything changes (numpy: the front ends check a user's state)
+            shape = (self.n_episodes, c.n_agents, c.dim)
+            x0, v0 = self.backend.checked_state("x0", x0, shape), self.backend.checked_state("v0", v0, shape)
         if episodes is not None and c.model is not None:
             raise ArgumentError(f"episodes: partial resets are for the double integrator, not {c.agent_model!r} agents")
         if topologies is not None:
@@ -274,9 +281,6 @@ class ConsensusEngine:
             self.agents.u_max = given if episodes is None else xp.where(episodes, given, self.u_max)
         if rng is not None:
             self.rng = rng
-        if not self.is_numpy:
-            x0 = self.backend.array(x0) if isinstance(x0, np.ndarray) else x0
-            v0 = self.backend.array(v0) if isinstance(v0, np.ndarray) else v0
         fresh = self.formation.initial_state(x0, v0)
         if episodes is None:
             self.state[...] = fresh
@@ -346,7 +350,7 @@ class ConsensusEngine:
         return self.backend.checked(actions, expected, name)
 
     def raise_if_invalid(self) -> None:
-        """Raise :class:`ArgumentError` if any episode saw a non-finite action or result (torch: one read off the device)."""
+        """Raise :class:`ArgumentError` if any episode saw a non-finite action or result (torch: one read off the device; the flags are then cleared, so it is reported once)."""
         self.backend.raise_if_invalid()
 
     def inputs_from_actions(self, actions: Any) -> tuple[Any, Any]:

@@ -25,6 +25,7 @@ from fxc_env.config.arguments import ARGUMENTS, ENV_ARGUMENTS, Argument, env_arg
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core import validation
 from fxc_env.engine import ConsensusEngine
+from fxc_env.engine.backend import torch_seed
 
 #: The one agent group of the TensorDicts.
 GROUP = "agents"
@@ -127,7 +128,10 @@ class ConsensusTorchEnv(EnvBase):
     stepping path: a non-finite action or result, or a step past ``T_s``, sets a flag per
     episode on the device, and with ``check_values=True`` the environment raises
     :class:`fxc_env.core.validation.ArgumentError` (naming ``actions``) at the next reset or
-    episode end. On numpy (the PettingZoo and SB3 front ends) such a step is refused at once.
+    episode end, once: the flags are then cleared, so the next reset starts clean episodes.
+    A ``"_reset"`` mask must be ``torch.bool`` of shape ``[B, 1]`` (or ``[B]``); any other is
+    refused (naming ``_reset``) before anything changes. On numpy (the PettingZoo and SB3
+    front ends) such a step is refused at once.
 
     ## Version history
     * v0: first release.
@@ -178,7 +182,15 @@ class ConsensusTorchEnv(EnvBase):
     ) -> None:
         arguments = env_arguments(locals())
         size = _batch_size(batch_size)
+        seed = torch_seed("seed", seed)
+        if not isinstance(check_values, bool | np.bool_):
+            raise validation.ArgumentTypeError(f"check_values: expected True or False, got {check_values!r}")
         self.config = make_config(**arguments) if config is None else _prebuilt(config, arguments)
+        if self.config.obs_format != "flat":
+            raise validation.ArgumentError(
+                f"obs_format: the TorchRL environment gives flat observations ('flat'), got "
+                f"{self.config.obs_format!r} (the PettingZoo env's dict observations)"
+            )
         self.max_cycles = _OWN_ARGUMENTS["max_cycles"].check(max_cycles)
         self.check_values = bool(check_values)
         self.engine = ConsensusEngine(self.config, size, device=device, dtype=dtype)
@@ -242,6 +254,10 @@ class ConsensusTorchEnv(EnvBase):
         self.done_spec = Composite({"done": flag, "terminated": flag.clone(), "truncated": flag.clone()}, shape=(b,))
 
     # ------------------------------------------------------------ EnvBase
+    def set_seed(self, seed: int | None = None, static_seed: bool = False) -> int | None:
+        """Seed the device and host generators (``seed``: None or an integer in ``[0, 2**64)``); TorchRL's next seed."""
+        return super().set_seed(torch_seed("seed", seed), static_seed)
+
     def _set_seed(self, seed: int | None) -> None:
         self.engine.seed(seed)
         self._host_rng = np.random.default_rng(seed)
