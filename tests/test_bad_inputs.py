@@ -85,7 +85,42 @@ CONSTRUCTOR_CASES = [
     ({"initial_state": ([float("nan")] * N, [0.0] * N)}, "initial_state"),
     ({"render_mode": "ansi"}, "render_mode"),
     ({"max_cycles": 0}, "max_cycles"),
+    # float32 holds at most 3.4e38: a raw float32 observation of a larger state would be inf
+    ({"obs_dtype": "float32", "obs_mode": "raw", "position_range": 1e100}, "position_range"),
+    ({"obs_dtype": "float32", "obs_mode": "raw", "velocity_range": (1.0, 1e50)}, "velocity_range"),
+    ({"obs_dtype": "float32", "obs_mode": "raw", "initial_state": ([1e50] * N, [0.0] * N)}, "initial_state"),
+    ({"agent_model": "oscillator", "frequency": 1e300}, "frequency"),
+    ({"agent_model": "damped", "damping": 1e300}, "damping"),
+    ({"n_agents": np.array([1, 2]), "topology": "ring"}, "n_agents"),
+    ({"topology": np.array(4)}, "topology"),
+    ({"schedule": [10.0, 10.0, 1e-15]}, "schedule"),  # the last interval is lost to rounding at t = 20 s
+    ({"schedule": [True] * 20}, "schedule"),
+    ({"topology": "ring", "topology_period": 3}, "topology_period"),
+    ({"topology": "ring", "mean_in_degree": 3.0}, "mean_in_degree"),
+    ({"reward_floor": 1e308}, "reward_floor"),  # f = 1e308 D(0) overflows: every reward would be NaN
+    ({"topology": {"mixture": [({"family": "ring"}, 1e308), ({"family": "path"}, 1e308)]}}, "topology"),
 ]
+
+
+def test_float32_raw_observations_refuse_states_beyond_float32_naming_both():
+    with pytest.raises(ArgumentError, match=r'^position_range: .*obs_dtype="float32", obs_mode="raw"'):
+        fxc_env.parallel_env(obs_dtype="float32", obs_mode="raw", position_range=1e100)
+    env = fxc_env.parallel_env(obs_dtype="float32", obs_mode="raw")
+    with pytest.raises(ArgumentError, match=r"^options\['x0'\]: .*obs_dtype=\"float32\", obs_mode=\"raw\""):
+        env.reset(seed=0, options={"x0": np.full(N, 1e100)})
+    observations, _ = env.reset(seed=0, options={"x0": np.full(N, 1e30), "v0": np.full(N, -1e30)})
+    assert all(np.isfinite(o).all() for o in observations.values())
+    # float64 observations (or normalized ones) keep the float64 range
+    env64 = fxc_env.parallel_env(obs_mode="raw", position_range=1e100)
+    assert all(np.isfinite(o).all() for o in env64.reset(seed=0)[0].values())
+
+
+def test_intervals_of_exactly_the_documented_minimum_are_accepted():
+    for k in (3, 59, 100):  # T_s = K * 1e-30 s: rounding leaves some intervals a few ulps below 1e-30 s
+        env = fxc_env.parallel_env(settling_time=k * 1e-30, n_intervals=k, schedule="uniform")
+        assert env.unwrapped.config.schedule.intervals.min() == pytest.approx(1e-30, rel=1e-9)
+    env = fxc_env.parallel_env(schedule=[1e-30, 20.0 - 1e-30], settling_time=20.0)
+    assert env.unwrapped.config.n_intervals == 2
 
 
 @pytest.mark.parametrize(("kwargs", "name"), CONSTRUCTOR_CASES, ids=[str(c[0])[:60] for c in CONSTRUCTOR_CASES])

@@ -333,9 +333,10 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         "reward_floor",
         "float",
         1e-12,
-        help="f / D(0), the floor in the log reward",
-        card="``f / D(0)`` in the reward",
+        help="f / D(0), the floor in the log reward (at most 1: a floor above D(0) leaves every reward 0)",
+        card="``f / D(0)`` in the reward, in (0, 1]",
         kind="real",
+        maximum=1.0,
         positive=True,
     ),
     Argument(

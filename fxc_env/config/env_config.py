@@ -150,6 +150,12 @@ class EnvConfig:
         return self.n_states * self.dim
 
     @property
+    def state_limit(self) -> float:
+        """Largest accepted position or velocity magnitude (m, m/s): float32's range for raw float32 observations."""
+        raw32 = (self.obs_dtype, self.obs_mode) == ("float32", "raw")
+        return validation.FLOAT32_STATE_LIMIT if raw32 else validation.STATE_LIMIT
+
+    @property
     def observation_dtype(self) -> type[np.floating]:
         """numpy dtype of observations (and of the normalized global state)."""
         return np.float32 if self.obs_dtype == "float32" else np.float64
@@ -185,6 +191,9 @@ def _merged_settings(scenario: str | None, given: dict[str, Any], initial_state:
     (it has the scenario's shape) or when ``initial_state="random"``.
     """
     merged = scenario_preset(scenario)
+    for name in ("n_agents", "dim"):  # checked first: they are compared with the preset's below
+        if given[name] is not None:
+            given[name] = ARGUMENTS[name].check(given[name])
     preset_shape = {"n_agents": merged.get("n_agents"), "dim": merged.get("dim", 1)}
     resized = any(given[k] is not None and given[k] != preset_shape[k] for k in preset_shape)
     if resized and initial_state is None:
@@ -211,14 +220,16 @@ _CONDITIONAL_FALLBACKS = ("n_intervals", "n_agents")
 _FROM_SCENARIO = tuple(argument.name for argument in ENV_ARGUMENTS if argument.from_scenario)
 
 
-def _initial_state(value: Any, n_agents: int, dim: int) -> tuple[np.ndarray, np.ndarray] | None:
+def _initial_state(
+    value: Any, n_agents: int, dim: int, limit: float = validation.STATE_LIMIT
+) -> tuple[np.ndarray, np.ndarray] | None:
     if value is None:
         return None
     if isinstance(value, str | bytes) or not isinstance(value, tuple | list) or len(value) != 2:
         raise ArgumentError(f"initial_state: expected a pair (x0, v0) of arrays of shape ({n_agents}, {dim})")
     return (
-        validation.state_array("initial_state[0] (x0)", value[0], n_agents, dim),
-        validation.state_array("initial_state[1] (v0)", value[1], n_agents, dim),
+        validation.state_array("initial_state[0] (x0)", value[0], n_agents, dim, limit),
+        validation.state_array("initial_state[1] (v0)", value[1], n_agents, dim, limit),
     )
 
 
@@ -233,17 +244,42 @@ def _obs_slots(value: Any, topology: Topology, family: AnyFamily | None) -> int:
     return slots
 
 
-def _scale_range(name: str, value: Any) -> tuple[float, float]:
-    """A half-width (m or m/s) or a ``(low, high)`` range of half-widths drawn log-uniformly per episode."""
+def _scale_range(name: str, value: Any, limit: float = validation.STATE_LIMIT) -> tuple[float, float]:
+    """A half-width (m or m/s) or a ``(low, high)`` range of half-widths drawn log-uniformly per episode.
+
+    ``limit`` is :data:`~fxc_env.core.validation.FLOAT32_STATE_LIMIT` for raw float32 observations.
+    """
     if isinstance(value, tuple | list):
         if len(value) != 2:
             raise ArgumentError(f"{name}: expected a number or a (low, high) pair, got {value!r}")
-        low, high = (validation.real(name, v, maximum=validation.STATE_LIMIT, positive=True) for v in value)
+        low, high = (_half_width(name, v, limit) for v in value)
         if low > high:
             raise ArgumentError(f"{name}: expected low <= high, got {value!r}")
         return low, high
-    number = validation.real(name, value, maximum=validation.STATE_LIMIT, positive=True)
+    number = _half_width(name, value, limit)
     return number, number
+
+
+def _half_width(name: str, value: Any, limit: float) -> float:
+    number = validation.real(name, value, positive=True)
+    if number > limit:
+        raise ArgumentError(
+            f"{name}: expected a positive finite number <= {limit:g}, got {value!r}"
+            + ("" if limit == validation.STATE_LIMIT else ' (float32 range with obs_dtype="float32", obs_mode="raw")')
+        )
+    return number
+
+
+def _check_random_only(given: dict[str, Any], topology: Any) -> None:
+    """``mean_in_degree`` and ``topology_period`` shape only ``topology="random"``: refuse them elsewhere."""
+    if isinstance(topology, str) and topology == "random":
+        return
+    shown = repr(topology) if isinstance(topology, str) else type(topology).__name__
+    for name in ("mean_in_degree", "topology_period"):
+        if given[name] is not None:
+            raise ArgumentError(
+                f"{name}: applies to topology='random' only (a family takes it in its spec), got topology {shown}"
+            )
 
 
 def _input_limits(value: Any) -> tuple[float, ...] | None:
@@ -260,6 +296,11 @@ def _input_limits(value: Any) -> tuple[float, ...] | None:
 def _topology(merged: dict[str, Any], topology_seed: Any) -> tuple[Topology, AnyFamily | None]:
     """The fixed topology, or for a family its draw from ``topology_seed`` (shown in tables) and the family."""
     spec = merged["topology"]
+    if isinstance(spec, np.ndarray) and spec.ndim < 2:  # an edge list is (E, 2); a 0-d or 1-d array is none
+        raise ArgumentTypeError(
+            f"topology: expected a name, an edge list of (j, i) pairs, a list of edge lists, a family or networkx "
+            f"DiGraph(s); got an array of shape {spec.shape}"
+        )
     if is_family_spec(spec):
         family = make_family(spec)
         n_agents = ARGUMENTS["n_agents"].check(merged.get("n_agents", ARGUMENTS["n_agents"].fallback))
@@ -336,6 +377,7 @@ def make_config(
     arguments = env_arguments(locals())
     given = {name: arguments[name] for name in _FROM_SCENARIO}
     merged = _merged_settings(scenario, given, initial_state)
+    _check_random_only(given, merged["topology"])
     dim_value = ARGUMENTS["dim"].check(merged["dim"])
     topo, family = _topology(merged, topology_seed)
     sched = make_schedule(merged["settling_time"], merged.get("n_intervals"), merged["schedule"])
@@ -359,6 +401,8 @@ def make_config(
             )
     n_states = 2 if model is None else model.n_states
     formation = _formation(merged.get("formation_offsets"), topo.n_agents, dim_value, n_states)
+    dtype = ARGUMENTS["obs_dtype"].check(obs_dtype)
+    limit = validation.FLOAT32_STATE_LIMIT if (dtype, obs_mode) == ("float32", "raw") else validation.STATE_LIMIT
     return EnvConfig(
         topology=topo,
         family=family,
@@ -368,13 +412,13 @@ def make_config(
         action_mode=action_mode,
         obs_mode=obs_mode,
         obs_format=ARGUMENTS["obs_format"].check(obs_format),
-        obs_dtype=ARGUMENTS["obs_dtype"].check(obs_dtype),
+        obs_dtype=dtype,
         global_state=ARGUMENTS["global_state"].check(global_state),
         action_bound=bound,
         reward_floor=ARGUMENTS["reward_floor"].check(reward_floor),
-        initial_state=_initial_state(merged.get("initial_state"), topo.n_agents, dim_value),
-        position_range=_scale_range("position_range", merged["position_range"]),
-        velocity_range=_scale_range("velocity_range", merged["velocity_range"]),
+        initial_state=_initial_state(merged.get("initial_state"), topo.n_agents, dim_value, limit),
+        position_range=_scale_range("position_range", merged["position_range"], limit),
+        velocity_range=_scale_range("velocity_range", merged["velocity_range"], limit),
         u_max_choices=u_max_choices,
         obs_noise=ARGUMENTS["obs_noise"].check(obs_noise),
         link_dropout=ARGUMENTS["link_dropout"].check(link_dropout),
@@ -396,7 +440,17 @@ def _agent_model(merged: dict[str, Any]) -> tuple[str, LinearModel | None]:
                 raise ArgumentError(f"{key}: the double integrator takes no {key}; give agent_model too")
         return "double_integrator", None
     if isinstance(value, str):
-        return value, LinearModel.named(value, **parameters)
+        try:
+            return value, LinearModel.named(value, **parameters)
+        except ArgumentError as error:  # a parameter that passes its own check can still break the matrices
+            named = [key for key, given in parameters.items() if given is not None]
+            if not named or str(error).startswith(tuple(named)):
+                raise
+            shown = ", ".join(f"{key} = {parameters[key]!r}" for key in named)
+            raise ArgumentError(
+                f"{'/'.join(named)}: expected a value that gives {value!r} finite, controllable matrices; "
+                f"{shown} gives {error}"
+            ) from None
     if isinstance(value, tuple | list) and len(value) == 2:
         for key, given in parameters.items():
             if given is not None:

@@ -178,7 +178,9 @@ def make_family(spec: Any, argument: str = "topology") -> AnyFamily:
             if isinstance(family, TopologyMixture):
                 raise ArgumentError(f"{argument}: a mixture's members must be families, not mixtures")
             families.append(family)
-            weights.append(validation.real(f"{argument} mixture weight", member[1], positive=True))
+            weights.append(
+                validation.real(f"{argument} mixture weight", member[1], maximum=validation.STATE_LIMIT, positive=True)
+            )
         name = spec.get("name", "mixture")
         if not isinstance(name, str):
             raise ArgumentError(f"{argument}: a mixture's 'name' must be a string, got {name!r}")

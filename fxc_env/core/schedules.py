@@ -105,7 +105,13 @@ def make_schedule(settling_time: Any = 20.0, n_intervals: Any = 200, schedule: A
         times = np.concatenate(([0.0], np.cumsum(lengths[:-1]), [t_s]))
         name = "custom"
     intervals = np.diff(times)
-    if np.any(intervals < validation.MIN_INTERVAL):
+    if np.any(intervals < validation.MIN_INTERVAL * (1 - 1e-9)):  # rounding of the times is not a shorter interval
+        if name == "custom":  # every given length passed the check: summing into times lost one
+            raise validation.ArgumentError(
+                f"schedule: interval {int(intervals.argmin())} is lost to float64 rounding once the lengths are "
+                f"summed into sampling times (it is {intervals.min():g} s next to t = {times[intervals.argmin()]:g} "
+                f"s); expected every interval >= {validation.MIN_INTERVAL:g} s relative to t"
+            )
         raise validation.ArgumentError(
             f"n_intervals: {len(intervals)} intervals over settling_time = {t_s!r} s leave an interval of "
             f"{intervals.min():g} s; expected every interval >= {validation.MIN_INTERVAL:g} s (float64 range)"

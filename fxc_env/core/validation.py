@@ -30,6 +30,10 @@ import numpy as np
 STATE_LIMIT = 1e100
 #: Shortest accepted sampling interval (s).
 MIN_INTERVAL = 1e-30
+#: Largest state magnitude with ``obs_dtype="float32"`` and ``obs_mode="raw"`` (m, m/s): float32's
+#: largest number is 3.4e38, and a raw observation holds differences of two states (relative
+#: positions), so 1e37 leaves a factor 17 for those and for growth within an episode.
+FLOAT32_STATE_LIMIT = 1e37
 #: Longest accepted deadline ``T_s`` (s).
 MAX_SETTLING_TIME = 1e30
 #: Most sampling intervals K (the engine keeps per-instant arrays of K + 1 rows).
@@ -115,15 +119,16 @@ def optional_seed(name: str, value: Any) -> int | None:
     return integer(name, value, 0, MAX_SEED - 1)
 
 
-def state_array(name: str, value: Any, n_agents: int, dim: int) -> np.ndarray:
-    """``value`` as a float64 ``(N, dim)`` array (``(N,)`` accepted when ``dim = 1``), entries within ±STATE_LIMIT."""
+def state_array(name: str, value: Any, n_agents: int, dim: int, limit: float = STATE_LIMIT) -> np.ndarray:
+    """``value`` as a float64 ``(N, dim)`` array (``(N,)`` accepted when ``dim = 1``), entries within ±``limit``
+    (:data:`STATE_LIMIT`, or :data:`FLOAT32_STATE_LIMIT` for raw float32 observations)."""
     accepted = f"({n_agents}, {dim})" + (f" or ({n_agents},)" if dim == 1 else "")
     array = real_array(name, value, f"an array of shape {accepted}")
     if dim == 1 and array.shape == (n_agents,):
         array = array[:, None]
     if array.shape != (n_agents, dim):
         raise ArgumentError(f"{name}: expected shape {accepted}, got {array.shape}")
-    _check_entries(name, array, STATE_LIMIT)
+    _check_entries(name, array, limit)
     return array
 
 
@@ -141,6 +146,8 @@ def interval_lengths(name: str, value: Any) -> np.ndarray:
     if isinstance(value, str | bytes):
         raise ArgumentTypeError(f"{name}: expected 'paper', 'uniform' or an array of interval lengths, got {value!r}")
     lengths = real_array(name, value, "an array of interval lengths")
+    if lengths.dtype.kind == "b" or np.asarray(value).dtype.kind == "b":
+        raise ArgumentTypeError(f"{name}: expected an array of interval lengths in seconds, got booleans")
     if lengths.ndim != 1 or lengths.size < 1:
         raise ArgumentError(f"{name}: expected a 1-D array of K >= 1 interval lengths, got shape {lengths.shape}")
     if not np.all(np.isfinite(lengths)) or np.any(lengths < MIN_INTERVAL):
@@ -170,7 +177,9 @@ def _check_entries(name: str, array: np.ndarray, limit: float | None) -> None:
         raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
     if limit is not None and array.size and np.max(np.abs(array)) > limit:
         raise ArgumentError(
-            f"{name}: entries must lie within ±{limit:g} (float64 headroom), got {np.max(np.abs(array)):g}"
+            f"{name}: entries must lie within ±{limit:g} ("
+            + ("float64 headroom" if limit == STATE_LIMIT else 'float32 range, obs_dtype="float32", obs_mode="raw"')
+            + f"), got {np.max(np.abs(array)):g}"
         )
 
 
