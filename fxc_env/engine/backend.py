@@ -272,7 +272,7 @@ class TorchBackend(NumpyBackend):
         """A ``shape`` real state on the device, entries finite and within ``±STATE_LIMIT``; raise naming ``name``.
 
         numpy input is checked in full and copied to the device; a tensor's shape and dtype
-        are checked on the host and its values with one read off the device (none on ``meta``).
+        are checked on the host, its values by :meth:`check_state_values`.
         """
         import torch
 
@@ -289,12 +289,21 @@ class TorchBackend(NumpyBackend):
             raise ArgumentError(f"{name}: expected shape {shape}, got {tuple(value.shape)}")
         if not self.xp.isdtype(value.dtype, ("real floating", "integral")):
             raise ArgumentError(f"{name}: expected real numbers, got dtype {value.dtype}")
-        value = self.xp.astype(value.to(self.device), self.dtype)
-        if self.device.type != "meta" and not bool(
-            (torch.isfinite(value) & (value.abs() <= validation.STATE_LIMIT)).all()
-        ):
-            raise ArgumentError(_state_entries_error(name))
-        return value
+        return self.xp.astype(value.to(self.device), self.dtype)
+
+    def check_state_values(self, named: dict[str, Any]) -> None:
+        """Raise naming the first of ``named``'s tensors with a NaN, an infinity or an entry beyond ``±STATE_LIMIT``.
+
+        One read off the device for all of them (none on ``meta``): a NaN propagates through
+        the largest magnitude, which then fails the comparison like an infinity does.
+        """
+        import torch
+
+        if self.device.type == "meta":
+            return
+        within = torch.stack([value.abs().amax() for value in named.values()]) <= validation.STATE_LIMIT
+        if not bool(within.all()):
+            raise ArgumentError(_state_entries_error(list(named)[int(to_host(~within).argmax())]))
 
     def raise_if_invalid(self) -> None:
         """Raise :class:`ArgumentError` if any episode was flagged (one read off the device), clearing the flags."""

@@ -268,6 +268,7 @@ class ConsensusEngine:
         if not self.is_numpy:  # checked before anything changes (numpy: the front ends check a user's state)
             shape = (self.n_episodes, c.n_agents, c.dim)
             x0, v0 = self.backend.checked_state("x0", x0, shape), self.backend.checked_state("v0", v0, shape)
+            self.backend.check_state_values({"x0": x0, "v0": v0})
         if episodes is not None and c.model is not None:
             raise ArgumentError(f"episodes: partial resets are for the double integrator, not {c.agent_model!r} agents")
         if topologies is not None:
