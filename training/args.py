@@ -138,9 +138,12 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
     name (``n_envs``), or with ``flags`` the command-line flag (``--n-envs``). Checked: the
     back end (``torchrl`` is read as ``torch``) and algorithm, the counts and thresholds, the
     seed, the hyperparameter file (a YAML mapping with an entry for the scenario and
-    algorithm), the environment it describes, and that the run directory can be created.
-    ``--resume`` without a checkpoint is refused by the back end, which knows its checkpoint
-    layout.
+    algorithm), the environment it describes, that the run directory can be created, and that
+    the RLlib-only flags (:data:`RLLIB_ONLY`) keep their defaults on another back end, which
+    would ignore them. ``--resume`` without a checkpoint, from a damaged one, with another
+    scenario or critic than the run's ``config.json``, or to a target already reached is refused
+    by the back end (:meth:`~fxc_env.training.run_dir.RunDir.resume_checkpoint`), which knows
+    its checkpoint layout.
     """
     from fxc_env.config import make_config
     from fxc_env.utils.cli_checks import output_directory
