@@ -113,7 +113,7 @@ def train_rllib(args: TrainArgs) -> Path:
     per_iteration = int(params["algo"]["train_batch_size_per_learner"]) * n_agents
     iterations = math.ceil(args.timesteps / per_iteration)
     save_every = max(1, math.ceil(args.checkpoint_every / per_iteration))
-    checkpoint = run.resume_checkpoint(args.resume)
+    checkpoint = run.resume_checkpoint(args.resume, args)
 
     with ray_session("--backend rllib", args.address) as ray:
         # ------------------------------------------------------------------ set-up
