@@ -106,3 +106,17 @@ def test_an_output_directory_that_cannot_be_created_is_a_usage_error(tmp_path, c
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("fxc evaluate: error: --out: ") and "/proc" in err
+
+
+def test_environment_flags_carry_the_agent_model_into_the_case_and_refuse_formations():
+    from fxc_env import make_config
+    from fxc_env.training.evaluate import custom_case
+
+    case, settling_time = custom_case({"scenario": "paper_fig1", "agent_model": "oscillator", "frequency": 1000.0})
+    assert ("agent_model", "oscillator") in case.conditions and ("frequency", 1000.0) in case.conditions
+    config = make_config(**case.config_kwargs(), n_intervals=200, settling_time=settling_time)
+    assert config.agent_model == "oscillator" and config.model.A[1, 0] == -1e6  # omega^2 = 1e6
+    plain, _ = custom_case({"scenario": "paper_fig1", "dim": 2})
+    assert not any(name == "agent_model" for name, _ in plain.conditions)
+    with pytest.raises(ValueError, match=r"--scenario: .*formation"):
+        custom_case({"scenario": "formation_hexagon"})

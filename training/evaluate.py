@@ -99,6 +99,15 @@ def custom_case(env_kwargs: dict[str, Any]) -> tuple[BenchmarkCase, float]:
             }.get(name, getattr(config, name))
             if name != "dim":
                 conditions.append((name, value[0] if isinstance(value, tuple) and len(set(value)) == 1 else value))
+    if config.formation is not None:
+        raise ArgumentError(
+            "--scenario: fxc evaluate scores consensus cases; formation offsets (formation scenarios) are not "
+            "carried into its cases, so a formation is refused rather than scored as plain consensus"
+        )
+    if config.agent_model != "double_integrator":
+        # The agent model and its parameter, as the models suite carries them (README, "Agent models").
+        conditions.append(("agent_model", config.agent_model))
+        conditions += [(name, given[name]) for name in ("order", "damping", "frequency") if given.get(name) is not None]
     topology = config.family if config.family is not None else config.topology
     case = BenchmarkCase(topology, config.n_agents, conditions=tuple(conditions), dim=config.dim)
     return case, config.settling_time
