@@ -671,3 +671,32 @@ def test_seed_tests_pass_and_no_info_is_nan(switching):
             seen += [v for v in info.values() if isinstance(v, float)]
             seen += [v for v in info.get("episode", {}).values()]
     assert seen and not any(math.isnan(v) for v in seen)
+
+
+def test_random_box_actions_over_a_long_episode_are_refused_before_they_overflow_and_a_smaller_box_finishes():
+    """The card's "Exploring policies": at K = 2000 box-uniform actions with b = 2 overflow (refused,
+    state unchanged, reset works); with ``action_bound=0.25`` the episode reaches T_s."""
+
+    def play(**kwargs):
+        env = fxc_env.parallel_env(scenario="paper_fig1", n_intervals=2000, **kwargs)
+        env.reset(seed=0)
+        space = env.action_space("agent_0")
+        space.seed(0)
+        steps = 0
+        while env.agents:
+            actions = {a: space.sample() for a in env.agents}
+            before = env.state().copy()
+            try:
+                env.step(actions)
+            except ValueError as error:
+                assert str(error).startswith("actions:") and np.array_equal(env.state(), before)
+                return env, steps
+            steps += 1
+        return env, steps
+
+    env, steps = play()
+    assert steps < 2000
+    env.reset(seed=1)  # still usable
+    assert np.isfinite(env.state()).all()
+    _, steps = play(action_bound=0.25)
+    assert steps == 2000

@@ -117,6 +117,15 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     they hold it from the documented initial ranges on the built-in topologies up to
     N = 100 (``action_bound`` overrides them). Any real dtype is accepted.
 
+    Exploring policies: uniform random actions over the whole normalised box can multiply the
+    disagreement by up to about ``1 + 2 b`` per interval, and the paper schedule's energies grow
+    like ``T^-3`` as the intervals shrink, so over long episodes they overflow float64 and the step
+    is refused (``actions``: the state is unchanged and ``reset`` starts afresh). Measured on
+    ``paper_fig1`` at K = 2000 with seeded box-uniform actions: refused near step 630 with
+    ``b = 2``, near 1,900 with ``b = 0.5``; ``action_bound=0.25`` finishes. Explore with a smaller
+    ``action_bound``, the uniform schedule, or a policy that starts near the reference (as the
+    shipped gain networks do).
+
     ## Observation Space
     Flat ``Box`` of size ``d_max * 2 dim + d_max + 3`` (``+ 1`` with ``u_max``) per agent,
     measured at ``t_k``, in ``obs_dtype`` (float64 by default):
