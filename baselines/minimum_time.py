@@ -49,6 +49,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
+from fxc_env.baselines.policy import describe_law
 from fxc_env.config import config_of
 from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.graphs import Topology
@@ -280,14 +281,7 @@ class MinimumTimePolicy:
 
     def describe(self) -> dict[str, str]:
         """Law, source, proven graph class and parameters, for tables and logs."""
-        params = ", ".join(f"{k} = {v:.4g}" for k, v in self.parameters().items())
-        return {
-            "name": self.NAME,
-            "law": self.LAW,
-            "source": self.SOURCE,
-            "graph_class": self.GRAPH_CLASS,
-            "parameters": params,
-        }
+        return describe_law(self)
 
     def guarantee(self) -> str:
         if self.factor_intervals < self.needed_intervals:

@@ -27,6 +27,19 @@ from fxc_env.config import config_of
 from fxc_env.core.validation import ArgumentError
 
 
+def describe_law(policy: Any) -> dict[str, str]:
+    """A law's name, law, source, proven graph class and parameters (its ``NAME``, ``LAW``, ``SOURCE``,
+    ``GRAPH_CLASS`` and ``parameters()``), as the benchmark's tables and logs show them."""
+    params = ", ".join(f"{k} = {v:.4g}" for k, v in policy.parameters().items())
+    return {
+        "name": policy.NAME,
+        "law": policy.LAW,
+        "source": policy.SOURCE,
+        "graph_class": policy.GRAPH_CLASS,
+        "parameters": params,
+    }
+
+
 class HoldPolicy:
     """Base class: a feedback law on the local observation, held over each interval (ZOH).
 
@@ -79,14 +92,7 @@ class HoldPolicy:
 
     def describe(self) -> dict[str, str]:
         """Law, source, proven graph class and parameters, for tables and logs."""
-        params = ", ".join(f"{k} = {v:.4g}" for k, v in self.parameters().items())
-        return {
-            "name": self.NAME,
-            "law": self.LAW,
-            "source": self.SOURCE,
-            "graph_class": self.GRAPH_CLASS,
-            "parameters": params,
-        }
+        return describe_law(self)
 
     def time_features(self, clock: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``t_k`` and ``T_{k+1}`` in seconds from the clock, each ``(..., 1)``."""
