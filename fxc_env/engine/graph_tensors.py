@@ -1,0 +1,158 @@
+"""The coming interval's graph of every episode as edge tensors, for graph neural networks (README, "Graph tensors").
+
+Agent i of episode b measures, on the interval after ``t_k``, every in-neighbour j of that
+episode's current graph ``G_{sigma(k)}`` (paper Section 2; ``sigma(k) = k mod m`` for periodic
+switching): one message ``j -> i`` per edge. :func:`graph_tensors` lists those edges in PyTorch
+Geometric's convention, batched first, on the engine's backend (numpy arrays, or torch tensors
+on the engine's device, no read off the device):
+
+==============  ================  ================================================================
+name            shape, dtype      meaning
+==============  ================  ================================================================
+``edge_index``  ``(B, 2, E)``     int64; row 0 the source j, row 1 the target i (i measures j),
+                                  agents numbered ``0 .. N-1`` within each episode
+``edge_mask``   ``(B, E)``        bool; True for an edge, False for padding (whose indices are 0)
+``n_edges``     ``(B,)``          int64; the edges of each episode: entries ``0 .. n_edges - 1``
+``edge_attr``   ``(B, E, F)``     the observation's row of that edge: ``z_j - z_i`` as agent i
+                                  observes it at ``t_k`` (``F = n dim``, see below)
+==============  ================  ================================================================
+
+``E`` is the largest edge count of any graph in the engine's graph table (the same at every
+step of an episode set, so shapes never change between resets with one topology). Edges come
+first in each episode, sorted by target then source (the topology's order,
+:attr:`fxc_env.core.graphs.Topology.edges`); padding follows. With ``link_dropout`` an edge lost
+at ``t_k`` (its observation mask is 0) is not listed: the tensors hold what the agents receive.
+
+**Edge features.** ``edge_attr[b, e]`` is the row of slot ``r`` of agent i's flat observation
+(:class:`fxc_env.config.layout.ObservationLayout`), read out of the observation itself, so it
+is exactly what the agent sees: ``F = n dim`` numbers, component major, ``[x_j - x_i (dim),
+v_j - v_i (dim)]`` for the double integrator; in ``obs_mode="normalized"`` ``(x_j - x_i) / s_i``
+and ``T (v_j - v_i) / s_i`` (the target's local scale ``s_i``, in [-1, 1]), in ``"raw"``
+metres and m/s; measurement noise included. Its dtype is the observation's.
+"""
+
+from __future__ import annotations
+
+import weakref
+from typing import Any, NamedTuple
+
+import numpy as np
+
+#: The names of :class:`GraphTensors`, in order (the TorchRL environment's root keys).
+GRAPH_TENSOR_KEYS = ("edge_index", "edge_mask", "n_edges", "edge_attr")
+
+
+class GraphTensors(NamedTuple):
+    """Every episode's current graph as edge tensors (see the module docstring for shapes and meaning)."""
+
+    #: ``(B, 2, E)`` int64: row 0 source j, row 1 target i.
+    edge_index: Any
+    #: ``(B, E)`` bool: True for a real edge.
+    edge_mask: Any
+    #: ``(B,)`` int64: the number of real edges (they come first).
+    n_edges: Any
+    #: ``(B, E, F)``: the measured relative rows ``z_j - z_i`` in the observation's scaling.
+    edge_attr: Any
+
+
+def edge_feature_size(config: Any) -> int:
+    """``F``, the numbers per edge in ``edge_attr``: the observation's row size ``n dim``."""
+    return int(config.layout.row_size)
+
+
+def max_edges(topologies: Any) -> int:
+    """``E``, the largest edge count over every graph of ``topologies`` (distinct :class:`Topology` objects)."""
+    return max((len(edges) for topology in topologies for edges in topology.edges), default=0)
+
+
+class _EdgeTable:
+    """One graph table's edges, one row per graph of the table, made once on the host and copied to the device.
+
+    ``index`` ``(G, 2, E)``, ``mask`` ``(G, E)``, ``count`` ``(G,)`` and ``slot`` ``(G, E)``: the
+    position ``i * slots + r`` of each edge in the flat ``(N * slots)`` rows of an observation.
+    """
+
+    def __init__(self, graphs: Any, slots: int) -> None:
+        rows: dict[int, Any] = {}
+        for offset, topology in zip(graphs.offset_host.tolist(), graphs.topologies, strict=True):
+            rows.setdefault(int(offset), topology)
+        blocks = [edges for _, topology in sorted(rows.items()) for edges in topology.edges]
+        width = max((len(edges) for edges in blocks), default=0)
+        g = len(blocks)
+        index = np.zeros((g, 2, width), dtype=np.int64)
+        mask = np.zeros((g, width), dtype=bool)
+        count = np.zeros(g, dtype=np.int64)
+        slot = np.zeros((g, width), dtype=np.int64)
+        for row, edges in enumerate(blocks):
+            e = len(edges)
+            sources, targets = edges[:, 0], edges[:, 1]
+            # Edges are sorted by target then source, as the slots are (core.graphs): the slot of
+            # an edge is its rank among the target's edges.
+            first = np.searchsorted(targets, targets, side="left")
+            index[row, 0, :e], index[row, 1, :e] = sources, targets
+            mask[row, :e] = True
+            count[row] = e
+            slot[row, :e] = targets * slots + (np.arange(e) - first)
+        backend, xp = graphs.backend, graphs.backend.xp
+        self.width = width
+        self.index = backend.array(index, dtype=xp.int64)
+        self.mask = backend.array(mask, dtype=xp.bool)
+        self.count = backend.array(count, dtype=xp.int64)
+        self.slot = backend.array(slot, dtype=xp.int64)
+        self.episodes = xp.reshape(xp.arange(backend.n_episodes, dtype=xp.int64, device=backend.device), (-1, 1))
+
+
+#: Each live graph table's edges (made at its first use; dropped with the table).
+_TABLES: weakref.WeakKeyDictionary[Any, _EdgeTable] = weakref.WeakKeyDictionary()
+
+
+def _edge_table(engine: Any) -> _EdgeTable:
+    table = _TABLES.get(engine.graphs)
+    if table is None:
+        table = _TABLES[engine.graphs] = _EdgeTable(engine.graphs, engine.layout.slots)
+    return table
+
+
+def graph_tensors(engine: Any, observations: Any = None) -> GraphTensors:
+    """Every episode's graph on the coming interval as :class:`GraphTensors`, on the engine's backend.
+
+    Args:
+        engine: a :class:`~fxc_env.engine.ConsensusEngine` after its reset (its current graphs,
+            which follow the switching schedule, and after a partial reset each episode's clock).
+        observations: the engine's flat observations at ``t_k``, ``(B, N, obs_size)``, as the
+            caller already holds them (any dtype: ``edge_attr`` takes it); None computes them
+            (:meth:`~fxc_env.engine.ConsensusEngine.observations`).
+
+    The edge lists of the engine's graph table are made once (on the host, at the first call
+    after a reset that changed the topologies) and indexed by each episode's current graph;
+    ``edge_attr`` is a gather of the observation's rows. Nothing is read off the device.
+    """
+    table = _edge_table(engine)
+    layout, xp = engine.layout, engine.xp
+    ids = engine.graphs.graph_ids
+    if not engine.is_numpy:
+        ids = xp.asarray(ids, dtype=xp.int64, device=engine.device)
+    edge_index, edge_mask, n_edges, slot = table.index[ids], table.mask[ids], table.count[ids], table.slot[ids]
+    if observations is None:
+        observations = engine.observations()
+    b, n = observations.shape[0], engine.config.n_agents
+    rows = xp.reshape(observations[..., : layout.rows_end], (b, n * layout.slots, layout.row_size))
+    if engine.config.link_dropout > 0:
+        # Links lost at t_k (observation mask 0) are not received: drop them, keep the rest first.
+        received = xp.reshape(observations[..., layout.rows_end : layout.mask_end], (b, n * layout.slots))
+        edge_mask = edge_mask & (received[table.episodes, slot] > 0)
+        order = xp.argsort(xp.astype(~edge_mask, xp.int8), axis=1, stable=True)
+        edge_mask = xp.take_along_axis(edge_mask, order, axis=1)
+        slot = xp.take_along_axis(slot, order, axis=1)
+        edge_index = xp.take_along_axis(edge_index, xp.stack([order, order], axis=1), axis=2)
+        edge_index = xp.where(edge_mask[:, None, :], edge_index, xp.zeros_like(edge_index))
+        n_edges = xp.sum(xp.astype(edge_mask, xp.int64), axis=1)
+    edge_attr = rows[table.episodes, slot]
+    edge_attr = xp.where(edge_mask[..., None], edge_attr, xp.zeros_like(edge_attr))
+    return GraphTensors(edge_index, edge_mask, n_edges, edge_attr)
+
+
+def episode_graph(tensors: GraphTensors, episode: int = 0) -> tuple[Any, Any]:
+    """One episode's ``edge_index`` ``(2, E_b)`` and ``edge_attr`` ``(E_b, F)`` without padding (a host read on torch)."""
+    count = int(tensors.n_edges[episode])
+    return tensors.edge_index[episode, :, :count], tensors.edge_attr[episode, :count]

@@ -1,0 +1,165 @@
+"""The graph as edge tensors (README, "Graph tensors"): edges, features, padding, switching, backends."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from fxc_env import ConsensusEngine, ReferencePolicy, make_config
+from fxc_env.engine.graph_tensors import GRAPH_TENSOR_KEYS, edge_feature_size, episode_graph, graph_tensors
+
+FAMILY = {"family": "random", "mean_in_degree": (1.5, 3.0), "period": (1, 3)}
+
+
+def started(config, b=3, device=None, seed=0):
+    engine = ConsensusEngine(config, b, device=device)
+    x0, v0, u_max, topologies = engine.draw_batch(np.random.default_rng(seed))
+    engine.reset(x0, v0, u_max=u_max, topologies=topologies)
+    return engine
+
+
+def host(tensors):
+    return [np.asarray(t) if isinstance(t, np.ndarray) else t.cpu().numpy() for t in tensors]
+
+
+def dense(edge_index, n_edges, n):
+    """``A[i, j] = 1`` for every listed edge j -> i (duplicates counted)."""
+    a = np.zeros((n, n))
+    np.add.at(a, (edge_index[1, :n_edges], edge_index[0, :n_edges]), 1.0)
+    return a
+
+
+def check_against_graphs(engine, tensors):
+    """Edges are the adjacency of each episode's current graph; features are its observation rows."""
+    edge_index, edge_mask, n_edges, edge_attr = host(tensors)
+    obs = np.asarray(engine.observations())
+    rows, _, _ = engine.layout.split(obs)
+    rows = rows.reshape(*rows.shape[:3], -1)  # (B, N, slots, F)
+    graphs = engine.graph_indices()
+    for b, topology in enumerate(engine.topologies):
+        g = int(graphs[b])
+        n = topology.n_agents
+        assert n_edges[b] == len(topology.edges[g])
+        np.testing.assert_array_equal(dense(edge_index[b], n_edges[b], n), topology.adjacency(g).toarray())
+        for e in range(n_edges[b]):
+            j, i = edge_index[b, :, e]
+            slot = list(topology.neighbour_index[g, i][topology.neighbour_mask[g, i]]).index(j)
+            np.testing.assert_array_equal(edge_attr[b, e], rows[b, i, slot])
+        assert edge_mask[b].sum() == n_edges[b] and edge_mask[b, : n_edges[b]].all()
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"scenario": "paper_fig1"},
+        {"scenario": "paper_fig1", "obs_mode": "raw", "dim": 2},
+        {"topology": FAMILY, "n_agents": 7, "obs_slots": 6},
+        {"topology": "random", "n_agents": 9, "topology_period": 3, "switching": "random", "obs_noise": 0.05},
+        {"topology": "complete", "n_agents": 5, "agent_model": "integrator_chain", "order": 3},
+    ],
+)
+def test_edges_are_the_current_graph_and_features_are_its_observation_rows(settings):
+    config = make_config(**settings)
+    engine = started(config)
+    policy = ReferencePolicy(config)
+    for _ in range(7):
+        tensors = graph_tensors(engine)
+        assert tensors.edge_attr.shape[-1] == edge_feature_size(config) == config.n_states * config.dim
+        check_against_graphs(engine, tensors)
+        engine.step(policy.act(engine.observations()))
+
+
+def test_edge_index_follows_pyg_convention_source_then_target():
+    # A path 0 -> 1 -> 2: agent 1 measures 0, agent 2 measures 1.
+    engine = started(make_config(topology=[(0, 1), (1, 2)], n_agents=3), b=1)
+    edge_index, _, n_edges, edge_attr = host(graph_tensors(engine))
+    assert n_edges.tolist() == [2]
+    np.testing.assert_array_equal(edge_index[0], [[0, 1], [1, 2]])
+    x, v = np.asarray(engine.x)[0, :, 0], np.asarray(engine.v)[0, :, 0]
+    raw = started(make_config(topology=[(0, 1), (1, 2)], n_agents=3, obs_mode="raw"), b=1)
+    raw.reset(engine.x, engine.v)
+    _, _, _, raw_attr = host(graph_tensors(raw))
+    np.testing.assert_allclose(raw_attr[0], [[x[0] - x[1], v[0] - v[1]], [x[1] - x[2], v[1] - v[2]]], rtol=0, atol=0)
+    assert np.abs(edge_attr).max() <= 1.0  # normalized rows
+
+
+def test_switching_follows_the_schedule_s_period():
+    config = make_config("paper_fig1")  # three graphs, G_{k mod 3}
+    topology = config.topology
+    engine = started(config, b=2)
+    policy = ReferencePolicy(config)
+    for k in range(2 * topology.period + 1):
+        edge_index, _, n_edges, _ = host(graph_tensors(engine))
+        for b in range(2):
+            np.testing.assert_array_equal(edge_index[b, :, : n_edges[b]].T, topology.edges[k % topology.period])
+        engine.step(policy.act(engine.observations()))
+
+
+def test_padding_is_masked_with_zero_indices_and_features():
+    config = make_config(topology=FAMILY, n_agents=8)
+    engine = started(config, b=6, seed=3)
+    edge_index, edge_mask, n_edges, edge_attr = host(graph_tensors(engine))
+    width = max(len(edges) for topology in engine.topologies for edges in topology.edges)
+    assert edge_index.shape == (6, 2, width) and edge_mask.shape == (6, width) and n_edges.shape == (6,)
+    assert len(set(n_edges.tolist())) > 1  # the episodes' graphs differ in size: some rows are padded
+    for b in range(6):
+        assert not edge_mask[b, n_edges[b] :].any()
+        assert (edge_index[b, :, n_edges[b] :] == 0).all() and (edge_attr[b, n_edges[b] :] == 0).all()
+    assert edge_index.dtype == np.int64 and edge_mask.dtype == bool and n_edges.dtype == np.int64
+
+
+def test_dropped_links_are_not_listed():
+    config = make_config(topology="complete", n_agents=6, link_dropout=0.4)
+    engine = started(config, b=4, seed=1)
+    edge_index, edge_mask, n_edges, edge_attr = host(graph_tensors(engine))
+    _, mask, _ = engine.layout.split(np.asarray(engine.observations()))
+    assert (n_edges == mask.reshape(4, -1).sum(axis=1)).all() and (n_edges < 30).any()
+    for b in range(4):
+        received = {
+            (int(j), i)
+            for i in range(6)
+            for j, m in zip(engine.topologies[b].neighbour_index[0, i], mask[b, i], strict=True)
+            if m
+        }
+        assert {tuple(pair) for pair in edge_index[b, :, : n_edges[b]].T.tolist()} == received
+        assert edge_mask[b].sum() == n_edges[b] and (edge_index[b, :, n_edges[b] :] == 0).all()
+        assert (edge_attr[b, n_edges[b] :] == 0).all()
+
+
+@pytest.mark.parametrize("settings", [{"scenario": "paper_fig1", "dim": 2}, {"topology": FAMILY, "n_agents": 6}])
+def test_numpy_and_torch_give_the_same_tensors(settings):
+    config = make_config(**settings)
+    numpy_engine = started(config, b=4, seed=2)
+    torch_engine = ConsensusEngine(config, 4, device="cpu")
+    torch_engine.reset(
+        torch.as_tensor(np.asarray(numpy_engine.x)),
+        torch.as_tensor(np.asarray(numpy_engine.v)),
+        topologies=numpy_engine.topologies,
+    )
+    policy = ReferencePolicy(config)
+    for _ in range(4):
+        a, b = graph_tensors(numpy_engine), graph_tensors(torch_engine)
+        assert all(isinstance(t, torch.Tensor) for t in b)
+        for name, left, right in zip(GRAPH_TENSOR_KEYS, host(a), host(b), strict=True):
+            assert left.dtype == right.dtype, name
+            np.testing.assert_allclose(left, right, rtol=1e-12, atol=1e-15, err_msg=name)
+        numpy_engine.step(policy.act(numpy_engine.observations()))
+        torch_engine.step(policy.act(torch_engine.observations()))
+
+
+def test_torch_tensors_stay_on_the_device_without_host_reads():
+    config = make_config(topology=FAMILY, n_agents=6, link_dropout=0.2)
+    engine = started(config, b=5, device="meta")  # meta: any read of a value would fail
+    tensors = graph_tensors(engine)
+    assert all(t.device.type == "meta" for t in tensors)
+    assert tensors.edge_attr.shape[:2] == tensors.edge_mask.shape
+
+
+def test_given_observations_set_the_feature_dtype():
+    engine = started(make_config("paper_fig1"), b=2)
+    obs = engine.observations().astype(np.float32)
+    tensors = graph_tensors(engine, obs)
+    assert tensors.edge_attr.dtype == np.float32
+    edge_index, edge_attr = episode_graph(tensors, 1)
+    assert edge_index.shape == (2, int(tensors.n_edges[1])) and edge_attr.shape == (int(tensors.n_edges[1]), 2)
