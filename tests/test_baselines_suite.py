@@ -72,5 +72,5 @@ def test_learned_policy_plugs_in_with_its_observation_width():
     assert isinstance(policy, LearnedPolicy)
     obs = np.zeros((3, config.n_agents, config.layout.size))
     assert policy(obs).shape == (3, config.n_agents, 2)
-    with pytest.raises(ValueError, match="observations of size"):
-        load_policy(contender.spec, make_config())  # paper_fig1 without padding: one slot, not four
+    unpadded = make_config()  # paper_fig1 without padding: one slot, which the gain network reads too
+    assert load_policy(contender.spec, unpadded)(np.zeros((6, unpadded.layout.size))).shape == (6, 2)

@@ -197,7 +197,8 @@ def test_an_activation_known_only_from_a_pickle_needs_the_metadata_that_save_mod
             {"schedule": "uniform"},
             r"size 16 .* has 15.*u_max feature \(limit_feature\): trained with True, this environment has False",
         ),
-        ("paper_fig1", {"obs_slots": 2}, r"size 15 .* has 9.*obs_slots: trained with 4, this environment has 2"),
+        # An MLP reads a fixed 4 rows: fewer are padded exactly, an in-degree of 5 is refused.
+        ("paper_fig1", {"topology": "complete", "obs_slots": 5}, r"obs_slots: trained with 4, this environment has 5"),
         ("generalist", {"dim": 2, "obs_mode": "raw"}, r"dim: trained with 1, this environment has 2"),
     ],
     ids=["schedule", "action_mode", "obs_mode", "agent_model", "u_max_feature", "obs_slots", "dim"],

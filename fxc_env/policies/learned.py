@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.policy_files import (
     TRUST_HINT,
@@ -362,6 +363,138 @@ class RLlibPolicy:
         return actions.reshape((*lead, self.action_size))
 
 
+#: SB3 policy classes whose action is linear in each neighbour row (:mod:`fxc_env.policies.gain_network`):
+#: they act on any number of rows (:class:`SlotAdaptedPolicy`). Every other network reads a fixed width.
+ROW_WISE_POLICIES = ("GainScheduledPolicy", "GatedGainPolicy")
+
+
+def trained_slots(obs_size: int, layout: Any) -> int | None:
+    """The neighbour slots of an observation of ``obs_size`` in ``layout``'s form (its dim, model, limit entry).
+
+    ``(obs_size - 3 - limit) / (row_size + 1)`` when that is a whole number of at least 1, else None
+    (the observation is not that layout with another number of slots).
+    """
+    slots, remainder = divmod(obs_size - CLOCK_SIZE - int(layout.limit_feature), layout.row_size + 1)
+    return slots if remainder == 0 and slots >= 1 else None
+
+
+def largest_in_degree(config: Any) -> int:
+    """The largest in-degree an agent of ``config`` can have (over its topology set or family's draws)."""
+    if config.family is not None:
+        return int(config.family.max_in_degree(config.n_agents))
+    return int(config.topology.max_in_degree)
+
+
+def architecture_of(policy: Any) -> tuple[str, bool]:
+    """``(name, reads any number of rows)`` of a loaded policy's network, for messages and :class:`SlotAdaptedPolicy`."""
+    model = getattr(policy, "model", None)
+    if model is not None:  # LearnedPolicy: a SavedModel, or SB3's own model (trusted)
+        cls = getattr(model, "policy_class", None) or type(getattr(model, "policy", model)).__name__
+        if cls in ROW_WISE_POLICIES:
+            return f"the gain-scheduled network {cls}", True
+        arch = getattr(model, "metadata", None) or {}
+        widths = arch.get("net_arch") if isinstance(arch, dict) else None
+        return f"an MLP ({cls}{'' if widths is None else f', net_arch {widths}'})", False
+    describe = getattr(policy, "architecture", None)
+    if isinstance(describe, str):
+        return describe, bool(getattr(policy, "reads_any_rows", False))
+    return f"a fixed-width network ({type(policy).__name__})", False
+
+
+class SlotAdaptedPolicy:
+    """A policy trained on ``W`` neighbour slots acting on an environment's observations of ``S`` slots.
+
+    The observation (README, "Observation"; :class:`fxc_env.config.layout.ObservationLayout`) is
+    rebuilt in the trained layout, row by row, and the policy (with any VecNormalize statistics
+    it records, which are per slot of the trained layout) acts on that:
+
+    * an agent whose real rows all sit in the first ``W`` slots (always when ``S <= W``, and
+      when its in-degree is at most ``W``) gets the first ``W`` slots as they are, padded with
+      zero rows and mask 0 up to ``W``: exactly the observation an environment built with
+      ``obs_slots=W`` writes (rows are zero padded at the end, masked rows are zero), so the
+      action is the same bit for bit. This is the only case a fixed-width network (an MLP) meets:
+      :func:`load_learned_policy` refuses it for an environment whose in-degree exceeds ``W``.
+    * an agent with more than ``W`` real rows (gain-scheduled networks only, which are linear in
+      each row: ``alpha_i = sum_j G_j row_ij``) gets its ``d`` rows summed into ``W`` groups
+      of consecutive rows, each sum times ``(W + 1) / (d + 1)``, with all ``W`` mask entries 1:
+      the network acts as at in-degree ``W`` and its gains are rescaled from ``1/(W + 1)`` to
+      ``1/(d + 1)``, as the paper's controller (eq. 11, gains ``[[1, 1], [0, 1]] / (d_i + 1)``)
+      scales with the in-degree; for that controller the result is exact. It is an
+      extrapolation beyond the in-degrees the network was trained on (the loader warns, with a
+      :class:`PolicyAdaptedWarning`); VecNormalize statistics then normalise each group sum with
+      the statistics of the trained slot it is written into (no slot's statistics are borrowed
+      for another).
+    * an agent with at most ``W`` real rows of which some sit beyond slot ``W`` (link dropout
+      masks rows where they are) gets its real rows moved, in order, into the first slots.
+
+    Args:
+        policy: a policy on flat observations of the trained layout (``(..., trained.size)``).
+        layout: the environment's observation layout (one axis of it for :class:`PerAxisPolicy`).
+        slots: ``W``, the policy's trained neighbour slots.
+        reads_any_rows: True for the gain-scheduled networks; False refuses (``observations``) an
+            observation with a real row beyond slot ``W``.
+
+    Attributes:
+        obs_size, action_size: the environment's observation size and the policy's action size.
+        adaptation: what was adapted, as text (``"trained with 4 neighbour slots, acting on 1"``).
+    """
+
+    def __init__(self, policy: Any, layout: Any, slots: int, reads_any_rows: bool) -> None:
+        from fxc_env.config.layout import ObservationLayout
+
+        self.policy = policy
+        self.layout = layout
+        self.trained = ObservationLayout(slots, layout.dim, layout.limit_feature, layout.n_states)
+        self.reads_any_rows = reads_any_rows
+        self.obs_size = layout.size
+        self.action_size = policy.action_size
+        self.source = getattr(policy, "source", None)
+        self.training_settings = getattr(policy, "training_settings", None)
+        self.adaptation = f"trained with {slots} neighbour slots, acting on {layout.slots}"
+
+    def trained_observation(self, observation: Any) -> np.ndarray:
+        """The observation ``(..., obs_size)`` (or a dict one) rebuilt in the trained layout ``(..., trained.size)``."""
+        obs = self.layout.flat(observation)
+        if obs.shape[-1:] != (self.obs_size,):
+            raise ArgumentError(f"observations: expected shape (..., {self.obs_size}), got {obs.shape}")
+        lead, width, have = obs.shape[:-1], self.trained.slots, self.layout.slots
+        row = self.layout.row_size
+        rows = obs[..., : self.layout.rows_end].reshape((*lead, have, row))
+        mask = obs[..., self.layout.rows_end : self.layout.mask_end]
+        out = np.zeros((*lead, self.trained.size))
+        keep = min(width, have)
+        out[..., : keep * row] = obs[..., : keep * row]
+        out[..., self.trained.rows_end : self.trained.rows_end + keep] = mask[..., :keep]
+        out[..., self.trained.mask_end :] = obs[..., self.layout.mask_end :]
+        if have <= width:
+            return out
+        beyond = np.any(mask[..., width:] != 0, axis=-1)  # agents with a real row past the trained slots
+        if not np.any(beyond):
+            return out
+        if not self.reads_any_rows:
+            raise ArgumentError(
+                f"observations: an agent has a real neighbour row beyond the {width} rows this fixed-width "
+                "network reads (its in-degree exceeds the trained obs_slots)"
+            )
+        real = mask[beyond] != 0  # (M, S)
+        degree = real.sum(axis=-1, keepdims=True)  # (M, 1)
+        rank = np.cumsum(real, axis=-1) - 1
+        grouped = degree > width
+        target = np.where(grouped, (rank * width) // np.maximum(degree, 1), rank)  # the trained slot of each row
+        factor = np.where(grouped, (width + 1) / (degree + 1), 1.0)  # (M, 1)
+        assign = (target[..., None, :] == np.arange(width)[:, None]) & real[..., None, :]  # (M, W, S)
+        sums = (assign * factor[..., None]) @ rows[beyond]  # (M, W, row)
+        picked = out[beyond]
+        picked[..., : self.trained.rows_end] = sums.reshape(len(sums), -1)
+        picked[..., self.trained.rows_end : self.trained.mask_end] = np.arange(width) < np.minimum(degree, width)
+        out[beyond] = picked
+        return out
+
+    def __call__(self, observation: Any) -> np.ndarray:
+        """Actions ``(..., action_size)`` for observations ``(..., obs_size)`` of the environment's layout."""
+        return np.asarray(self.policy(self.trained_observation(observation)), dtype=np.float64)
+
+
 class PerAxisPolicy:
     """A policy trained in one dimension acting on each axis of a ``dim``-dimensional environment.
 
@@ -451,20 +584,64 @@ def load_learned_policy(
 
     config = config_of(env, "policy")
     trained = getattr(policy, "training_settings", None)
-    axis_size = ObservationLayout(config.layout.slots, 1, limit_feature=config.layout.limit_feature).size
+    layout = config.layout
+    axis = ObservationLayout(layout.slots, 1, limit_feature=layout.limit_feature)
     per_axis = (
         config.dim > 1
         and config.obs_mode == "normalized"
-        and (policy.obs_size, policy.action_size) == (axis_size, 2)
+        and policy.action_size == 2
+        and trained_slots(policy.obs_size, axis) is not None
         and (not trained or trained.get("dim", 1) == 1)
     )
+    target = axis if per_axis else layout
+    slots = trained_slots(policy.obs_size, target)
+    skip = ("dim",) if per_axis else ()
+    if slots is not None and slots != target.slots and policy.action_size == (2 if per_axis else config.action_size):
+        check_settings(trained, config, path, skip=(*skip, "obs_slots"))
+        policy = adapt_slots(policy, config, target, slots, path)
+        if per_axis:
+            policy = PerAxisPolicy(policy, config)
+    elif per_axis:
+        check_settings(trained, config, path, skip=skip)
+        policy = PerAxisPolicy(policy, config)
+    else:
+        check_fit(policy, config, "policy")
+        return policy
     if per_axis:
-        check_settings(trained, config, path, skip=("dim",))
-        adapted = PerAxisPolicy(policy, config)
-        warnings.warn(f"policy: {path} was {adapted.adaptation} (PerAxisPolicy)", PolicyAdaptedWarning, stacklevel=2)
-        return adapted
-    check_fit(policy, config, "policy")
+        warnings.warn(f"policy: {path} was {policy.adaptation} (PerAxisPolicy)", PolicyAdaptedWarning, stacklevel=2)
     return policy
+
+
+def adapt_slots(policy: Any, config: Any, layout: Any, slots: int, source: Any) -> SlotAdaptedPolicy:
+    """``policy`` (trained on ``slots`` neighbour slots) on observations of ``layout``: :class:`SlotAdaptedPolicy`.
+
+    A fixed-width network (an MLP) is refused, naming its architecture, its width and the
+    environment's, when an agent of ``config`` can have more in-neighbours than it reads; with
+    at most that many it is exact (zero rows with mask 0 pad the observation, as an
+    environment built with ``obs_slots=slots`` pads it). A gain-scheduled network reads any
+    number of rows; beyond ``slots`` it acts by its per-row structure (:class:`SlotAdaptedPolicy`)
+    and warns (:class:`PolicyAdaptedWarning`) that this extrapolates past the trained in-degrees.
+    """
+    name, reads_any_rows = architecture_of(policy)
+    degree = largest_in_degree(config)
+    if degree > slots and not reads_any_rows:
+        raise ArgumentError(
+            f"policy: the model at {source} is {name}, which reads a fixed {slots} neighbour rows (observations "
+            f"of size {policy.obs_size}); this environment's agents have up to {degree} in-neighbours "
+            f"(obs_slots: trained with {slots}, this environment has {layout.slots}). Fewer rows than {slots} are "
+            "padded exactly, more cannot be read by this architecture: use a gain-scheduled policy "
+            "(generalist, saturated) or one trained with enough obs_slots"
+        )
+    adapted = SlotAdaptedPolicy(policy, layout, slots, reads_any_rows)
+    if degree > slots:
+        warnings.warn(
+            f"policy: {source} was {adapted.adaptation}: agents with more than {slots} in-neighbours (up to "
+            f"{degree} here) act through {name}'s per-row gains, rescaled to their in-degree as eq. (11) "
+            "scales (SlotAdaptedPolicy), beyond the in-degrees it was trained on",
+            PolicyAdaptedWarning,
+            stacklevel=3,
+        )
+    return adapted
 
 
 class PolicyAdaptedWarning(UserWarning):
