@@ -163,3 +163,119 @@ def test_given_observations_set_the_feature_dtype():
     assert tensors.edge_attr.dtype == np.float32
     edge_index, edge_attr = episode_graph(tensors, 1)
     assert edge_index.shape == (2, int(tensors.n_edges[1])) and edge_attr.shape == (int(tensors.n_edges[1]), 2)
+
+
+# ------------------------------------------------------------------ the TorchRL environment
+
+
+def torchrl_env(**settings):
+    from fxc_env import ConsensusTorchEnv
+
+    return ConsensusTorchEnv(graph_tensors=True, seed=0, **settings)
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"scenario": "paper_fig1", "batch_size": 3},
+        {"scenario": "generalist", "batch_size": 4},
+        {"topology": FAMILY, "n_agents": 5, "batch_size": 3, "link_dropout": 0.3, "obs_mode": "raw", "dim": 2},
+    ],
+)
+def test_torchrl_env_specs_hold_with_graph_tensors(settings):
+    from torchrl.envs.utils import check_env_specs
+
+    env = torchrl_env(**settings)
+    check_env_specs(env)
+    for key in GRAPH_TENSOR_KEYS:
+        assert key in env.observation_spec.keys()
+
+
+def test_torchrl_env_adds_the_graph_at_reset_and_every_step_with_the_card_s_shapes():
+    from fxc_env import reference_policy
+
+    env = torchrl_env(scenario="paper_fig1", batch_size=2, dim=2)
+    rollout = env.rollout(4, reference_policy(env))
+    b, n, e = 2, 6, env.n_edges_max
+    assert e == max(len(edges) for edges in env.config.topology.edges)
+    topology = env.config.topology
+    for k, td in ((0, rollout[:, 0]), (3, rollout[:, 3]), (4, rollout["next"][:, 3])):
+        assert td["edge_index"].shape == (b, 2, e) and td["edge_index"].dtype == torch.int64
+        assert td["edge_mask"].shape == (b, e) and td["edge_mask"].dtype == torch.bool
+        assert td["n_edges"].shape == (b,) and td["n_edges"].dtype == torch.int64
+        assert td["edge_attr"].shape == (b, e, 2 * 2) and td["edge_attr"].dtype == torch.float64
+        # Features are the observation's rows of the edge's target and slot.
+        rows, _, _ = env.config.layout.split(td["agents", "observation"].numpy())
+        for episode in range(b):
+            for edge in range(int(td["n_edges"][episode])):
+                j, i = td["edge_index"][episode, :, edge].tolist()
+                g = k % topology.period
+                slot = list(topology.neighbour_index[g, i][topology.neighbour_mask[g, i]]).index(j)
+                np.testing.assert_array_equal(td["edge_attr"][episode, edge].numpy(), rows[episode, i, slot].ravel())
+    # G_{k mod 3}: the graph of instant k is the topology's graph k mod 3.
+    for k in range(4):
+        edge_index, n_edges = rollout["edge_index"][0, k], int(rollout["n_edges"][0, k])
+        np.testing.assert_array_equal(edge_index[:, :n_edges].T.numpy(), env.config.topology.edges[k % 3])
+    assert n == env.n_agents
+
+
+def test_torchrl_env_pads_a_family_to_n_slots_at_every_reset():
+    env = torchrl_env(topology=FAMILY, n_agents=6, batch_size=3)
+    width = env.config.n_agents * env.config.layout.slots
+    for _ in range(3):
+        td = env.reset()
+        assert td["edge_index"].shape == (3, 2, width) and td["edge_attr"].shape[1] == width
+        counts = [len(t.edges[int(g)]) for t, g in zip(env.engine.topologies, env.engine.graph_indices(), strict=True)]
+        assert td["n_edges"].tolist() == counts
+
+
+def test_a_partial_reset_keeps_the_other_episodes_graphs():
+    from tensordict import TensorDict
+    from torchrl.envs.utils import step_mdp
+
+    from fxc_env import reference_policy
+
+    # Rings dealt to three graphs (some may be empty), a new one per reset of an episode.
+    env = torchrl_env(scenario="paper_fig1", topology={"family": "ring", "period": (3, 3)}, batch_size=3)
+    module = reference_policy(env)
+    td = env.reset()
+    for _ in range(2):
+        td = step_mdp(env.step(module(td)))
+    before = {key: td[key].clone() for key in GRAPH_TENSOR_KEYS}
+    kept = env.engine.topologies[1:]
+    mask = torch.tensor([[True], [False], [False]])
+    # What the environment itself returns for every episode (TorchRL's reset then keeps the
+    # others' entries from the tensordict it was given).
+    raw = env._reset(TensorDict({"_reset": mask}, batch_size=[3]))
+    assert env.engine.topologies[1:] == kept
+    for key in GRAPH_TENSOR_KEYS:
+        assert torch.equal(raw[key][1:], before[key][1:]), key
+    td.set("_reset", mask)
+    td = env.reset(td)
+    for key in GRAPH_TENSOR_KEYS:
+        assert torch.equal(td[key], raw[key]), key
+    # The restarted episode plays its new topology's first graph; the others go on to G_{3 mod 3} = G_0.
+    restarted = env.engine.topologies[0]
+    np.testing.assert_array_equal(td["edge_index"][0, :, : int(td["n_edges"][0])].T.numpy(), restarted.edges[0])
+    td = step_mdp(env.step(module(td)))
+    for episode in (1, 2):
+        count = int(td["n_edges"][episode])
+        np.testing.assert_array_equal(td["edge_index"][episode, :, :count].T.numpy(), kept[episode - 1].edges[0])
+    np.testing.assert_array_equal(td["edge_index"][0, :, : int(td["n_edges"][0])].T.numpy(), restarted.edges[1])
+
+
+def test_torchrl_env_without_graph_tensors_has_no_edge_keys():
+    from fxc_env import ConsensusTorchEnv
+
+    env = ConsensusTorchEnv(scenario="paper_fig1", batch_size=2, seed=0)
+    td = env.reset()
+    assert not env.graph_tensors
+    assert not any(key in td.keys() or key in env.observation_spec.keys() for key in GRAPH_TENSOR_KEYS)
+
+
+def test_graph_tensors_must_be_a_bool_named_in_the_error():
+    from fxc_env import ConsensusTorchEnv
+    from fxc_env.core.validation import ArgumentTypeError
+
+    with pytest.raises(ArgumentTypeError, match="graph_tensors: expected True or False, got 1"):
+        ConsensusTorchEnv(scenario="paper_fig1", graph_tensors=1)

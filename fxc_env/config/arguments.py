@@ -25,6 +25,8 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
+import numpy as np
+
 from fxc_env.core import validation
 from fxc_env.core.graphs import TOPOLOGY_NAMES
 from fxc_env.core.linear import DEFAULT_DAMPING, DEFAULT_FREQUENCY, MODEL_NAMES
@@ -35,6 +37,7 @@ __all__ = [
     "ENV_ARGUMENTS",
     "ENV_ARGUMENT_NAMES",
     "FRONT_END_ARGUMENTS",
+    "GRAPH_TENSORS",
     "MAX_CYCLES",
     "NO_FALLBACK",
     "RENDER_MODE",
@@ -63,7 +66,7 @@ NO_FALLBACK: Any = _Marker("NO_FALLBACK")
 REQUIRED: Any = inspect.Parameter.empty
 
 #: The checks :meth:`Argument.check` knows, each a helper of :mod:`fxc_env.core.validation`.
-CHECK_KINDS = ("choice", "integer", "real", "probability", "seed")
+CHECK_KINDS = ("choice", "integer", "real", "probability", "seed", "boolean")
 #: What argparse turns a flag's text into; ``"numbers"``: a number or comma-separated numbers.
 FLAG_KINDS = ("str", "int", "float", "numbers")
 
@@ -139,6 +142,10 @@ class Argument:
             return validation.probability(self.name, value)
         if self.kind == "seed":
             return validation.optional_seed(self.name, value)
+        if self.kind == "boolean":
+            if not isinstance(value, bool | np.bool_):
+                raise validation.ArgumentTypeError(f"{self.name}: expected True or False, got {value!r}")
+            return bool(value)
         raise TypeError(f"{self.name}: checked by a helper of its own, not by Argument.check")
 
     @property
@@ -525,6 +532,17 @@ MAX_CYCLES = Argument(
     minimum=1,
 )
 FRONT_END_ARGUMENTS: tuple[Argument, ...] = (RENDER_MODE, MAX_CYCLES)
+#: The graph as edge tensors for graph neural networks (README, "Graph tensors"): taken by the
+#: TorchRL environment (root keys) and the PettingZoo parallel env (per-step infos) only.
+GRAPH_TENSORS = Argument(
+    "graph_tensors",
+    "bool",
+    False,
+    help="add the current graph as edge_index / edge_mask / n_edges / edge_attr",
+    card="the current interval's graph as PyG-style edge tensors, ``edge_index`` (source j, target i) and "
+    '``edge_attr`` (the observation\'s rows ``z_j - z_i``) (README, "Graph tensors")',
+    kind="boolean",
+)
 
 #: The keywords of :func:`fxc_env.make_config`, in order.
 ENV_ARGUMENT_NAMES: tuple[str, ...] = tuple(argument.name for argument in ENV_ARGUMENTS)

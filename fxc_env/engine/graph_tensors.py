@@ -17,8 +17,8 @@ name            shape, dtype      meaning
                                   observes it at ``t_k`` (``F = n dim``, see below)
 ==============  ================  ================================================================
 
-``E`` is the largest edge count of any graph in the engine's graph table (the same at every
-step of an episode set, so shapes never change between resets with one topology). Edges come
+``E`` is the largest edge count of any graph in the engine's graph table, or a given ``width``
+(:func:`edge_capacity`: the same at every reset, for fixed specs). Edges come
 first in each episode, sorted by target then source (the topology's order,
 :attr:`fxc_env.core.graphs.Topology.edges`); padding follows. With ``link_dropout`` an edge lost
 at ``t_k`` (its observation mask is 0) is not listed: the tensors hold what the agents receive.
@@ -37,6 +37,8 @@ import weakref
 from typing import Any, NamedTuple
 
 import numpy as np
+
+from fxc_env.core.validation import ArgumentError
 
 #: The names of :class:`GraphTensors`, in order (the TorchRL environment's root keys).
 GRAPH_TENSOR_KEYS = ("edge_index", "edge_mask", "n_edges", "edge_attr")
@@ -61,8 +63,19 @@ def edge_feature_size(config: Any) -> int:
 
 
 def max_edges(topologies: Any) -> int:
-    """``E``, the largest edge count over every graph of ``topologies`` (distinct :class:`Topology` objects)."""
+    """The largest edge count over every graph of ``topologies`` (:class:`~fxc_env.core.graphs.Topology` objects)."""
     return max((len(edges) for topology in topologies for edges in topology.edges), default=0)
+
+
+def edge_capacity(config: Any) -> int:
+    """The ``E`` a front end pads to, the same at every reset: fixed shapes for specs and buffers.
+
+    A fixed topology: its largest graph's edge count. A family (a new graph every reset): ``N
+    slots``, the most edges an observation can hold (every agent's slots filled).
+    """
+    if config.family is not None:
+        return int(config.n_agents * config.layout.slots)
+    return max_edges([config.topology])
 
 
 class _EdgeTable:
@@ -72,12 +85,17 @@ class _EdgeTable:
     position ``i * slots + r`` of each edge in the flat ``(N * slots)`` rows of an observation.
     """
 
-    def __init__(self, graphs: Any, slots: int) -> None:
+    def __init__(self, graphs: Any, slots: int, width: int | None) -> None:
         rows: dict[int, Any] = {}
         for offset, topology in zip(graphs.offset_host.tolist(), graphs.topologies, strict=True):
             rows.setdefault(int(offset), topology)
         blocks = [edges for _, topology in sorted(rows.items()) for edges in topology.edges]
-        width = max((len(edges) for edges in blocks), default=0)
+        largest = max((len(edges) for edges in blocks), default=0)
+        if width is not None and width < largest:
+            raise ArgumentError(
+                f"width: a graph of the engine has {largest} edges; expected at least that, got {width}"
+            )
+        width = largest if width is None else width
         g = len(blocks)
         index = np.zeros((g, 2, width), dtype=np.int64)
         mask = np.zeros((g, width), dtype=bool)
@@ -102,18 +120,18 @@ class _EdgeTable:
         self.episodes = xp.reshape(xp.arange(backend.n_episodes, dtype=xp.int64, device=backend.device), (-1, 1))
 
 
-#: Each live graph table's edges (made at its first use; dropped with the table).
-_TABLES: weakref.WeakKeyDictionary[Any, _EdgeTable] = weakref.WeakKeyDictionary()
+#: Each live graph table's edges by padded width (made at their first use; dropped with the table).
+_TABLES: weakref.WeakKeyDictionary[Any, dict[int | None, _EdgeTable]] = weakref.WeakKeyDictionary()
 
 
-def _edge_table(engine: Any) -> _EdgeTable:
-    table = _TABLES.get(engine.graphs)
-    if table is None:
-        table = _TABLES[engine.graphs] = _EdgeTable(engine.graphs, engine.layout.slots)
-    return table
+def _edge_table(engine: Any, width: int | None) -> _EdgeTable:
+    tables = _TABLES.setdefault(engine.graphs, {})
+    if width not in tables:
+        tables[width] = _EdgeTable(engine.graphs, engine.layout.slots, width)
+    return tables[width]
 
 
-def graph_tensors(engine: Any, observations: Any = None) -> GraphTensors:
+def graph_tensors(engine: Any, observations: Any = None, width: int | None = None) -> GraphTensors:
     """Every episode's graph on the coming interval as :class:`GraphTensors`, on the engine's backend.
 
     Args:
@@ -122,12 +140,14 @@ def graph_tensors(engine: Any, observations: Any = None) -> GraphTensors:
         observations: the engine's flat observations at ``t_k``, ``(B, N, obs_size)``, as the
             caller already holds them (any dtype: ``edge_attr`` takes it); None computes them
             (:meth:`~fxc_env.engine.ConsensusEngine.observations`).
+        width: pad ``E`` to at least this (:func:`edge_capacity` keeps shapes fixed across resets
+            that draw new graphs); None: the largest graph of the engine's table.
 
     The edge lists of the engine's graph table are made once (on the host, at the first call
     after a reset that changed the topologies) and indexed by each episode's current graph;
     ``edge_attr`` is a gather of the observation's rows. Nothing is read off the device.
     """
-    table = _edge_table(engine)
+    table = _edge_table(engine, width)
     layout, xp = engine.layout, engine.xp
     ids = engine.graphs.graph_ids
     if not engine.is_numpy:

@@ -21,11 +21,19 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from fxc_env.config import EnvConfig, make_config
-from fxc_env.config.arguments import ARGUMENTS, ENV_ARGUMENTS, Argument, env_arguments, with_arguments_table
+from fxc_env.config.arguments import (
+    ARGUMENTS,
+    ENV_ARGUMENTS,
+    GRAPH_TENSORS,
+    Argument,
+    env_arguments,
+    with_arguments_table,
+)
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core import validation
 from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.backend import torch_seed
+from fxc_env.engine.graph_tensors import GRAPH_TENSOR_KEYS, edge_capacity, edge_feature_size, graph_tensors
 
 #: The one agent group of the TensorDicts.
 GROUP = "agents"
@@ -92,6 +100,7 @@ TORCH_ARGUMENTS: tuple[Argument, ...] = (
         card="a prebuilt :class:`~fxc_env.config.EnvConfig` (``make_config``'s) instead of the environment's "
         "arguments, which then stay at their defaults",
     ),
+    GRAPH_TENSORS,
 )
 
 _OWN_ARGUMENTS = {argument.name: argument for argument in TORCH_ARGUMENTS}
@@ -122,6 +131,21 @@ class ConsensusTorchEnv(EnvBase):
     | ``("agents", "reward")`` | ``[B, N, 1]`` | the team reward ``log(D(t_k) + f) - log(D(t_{k+1}) + f)``, the same for every agent |
     | ``"done"``, ``"terminated"``, ``"truncated"`` | ``[B, 1]`` | the deadline ``T_s`` reached / ``max_cycles`` cut |
     | ``"state"`` | ``[B, N * 2 dim + 3]`` | with ``global_state="normalized"``: the scale-free global state (centralised critics) |
+    | ``"edge_index"`` | ``[B, 2, E]`` int64 | with ``graph_tensors=True``: the coming interval's edges, row 0 the source j, row 1 the target i (i measures j), padding 0 |
+    | ``"edge_mask"`` | ``[B, E]`` bool | with ``graph_tensors=True``: True for an edge (the first ``n_edges``), False for padding |
+    | ``"n_edges"`` | ``[B]`` int64 | with ``graph_tensors=True``: each episode's edge count |
+    | ``"edge_attr"`` | ``[B, E, n dim]`` | with ``graph_tensors=True``: each edge's observation row ``z_j - z_i`` as agent i observes it, in ``obs_dtype`` |
+
+    ## Graph tensors
+    ``graph_tensors=True`` adds the graph as edge tensors for graph neural networks (PyTorch
+    Geometric's convention; :mod:`fxc_env.engine.graph_tensors`), at reset and after every
+    step, following the switching schedule (each episode's own clock after a partial reset).
+    ``E`` is fixed for the environment (``n_edges_max``): the topology's largest graph, or
+    ``N slots`` for a family, whose graphs change at every reset. ``edge_attr`` is read out of
+    the observation rows (normalized or raw as ``obs_mode`` says; ``F = n dim``: ``[x_j - x_i,
+    v_j - v_i]`` per axis block); with ``link_dropout`` a link lost at ``t_k`` is not listed.
+    Off (the default) nothing is computed. One episode's PyG graph:
+    ``td["edge_index"][b, :, :td["n_edges"][b]]``, or ``edge_index[:, edge_mask]``.
 
     ## When a bad value is reported
     Shapes are checked at once (they are known on the host). Values are not read on the
@@ -149,6 +173,7 @@ class ConsensusTorchEnv(EnvBase):
         check_values: bool = True,
         max_cycles: int | None = None,
         config: EnvConfig | None = None,
+        graph_tensors: bool = False,
         scenario: str | None = None,
         n_agents: int | None = None,
         topology: Any = None,
@@ -193,6 +218,8 @@ class ConsensusTorchEnv(EnvBase):
             )
         self.max_cycles = _OWN_ARGUMENTS["max_cycles"].check(max_cycles)
         self.check_values = bool(check_values)
+        #: Whether every reset and step adds the current graph's edge tensors (README, "Graph tensors").
+        self.graph_tensors = GRAPH_TENSORS.check(graph_tensors)
         self.engine = ConsensusEngine(self.config, size, device=device, dtype=dtype)
         spec_device = "cpu" if self.engine.device.type == "meta" else self.engine.device
         super().__init__(device=spec_device, batch_size=torch.Size([size]), allow_done_after_reset=False)
@@ -227,6 +254,8 @@ class ConsensusTorchEnv(EnvBase):
             observation_spec["state"] = Bounded(
                 -1.0, 1.0, shape=(b, size), dtype=self._observation_dtype, device=device
             )
+        if self.graph_tensors:
+            observation_spec.update(self._graph_specs(device))
         self.observation_spec = observation_spec
         bound = c.action_bound
         self.action_spec = Composite(
@@ -252,6 +281,25 @@ class ConsensusTorchEnv(EnvBase):
         )
         flag = Categorical(n=2, shape=(b, 1), dtype=torch.bool, device=device)
         self.done_spec = Composite({"done": flag, "terminated": flag.clone(), "truncated": flag.clone()}, shape=(b,))
+
+    def _graph_specs(self, device: Any) -> dict[str, Any]:
+        """The root entries of :func:`fxc_env.engine.graph_tensors.graph_tensors`, padded to :attr:`n_edges_max`."""
+        c, b = self.config, self.batch_size[0]
+        e, features = self.n_edges_max, edge_feature_size(c)
+        attr_bound = 1.0 if c.obs_mode == "normalized" else torch.inf
+        return {
+            "edge_index": Bounded(0, max(c.n_agents - 1, 0), shape=(b, 2, e), dtype=torch.int64, device=device),
+            "edge_mask": Categorical(n=2, shape=(b, e), dtype=torch.bool, device=device),
+            "n_edges": Bounded(0, e, shape=(b,), dtype=torch.int64, device=device),
+            "edge_attr": Bounded(
+                -attr_bound, attr_bound, shape=(b, e, features), dtype=self._observation_dtype, device=device
+            ),
+        }
+
+    @property
+    def n_edges_max(self) -> int:
+        """``E``, the padded edge count of ``"edge_index"``: the topology's largest graph, ``N slots`` for a family."""
+        return edge_capacity(self.config)
 
     # ------------------------------------------------------------ EnvBase
     def set_seed(self, seed: int | None = None, static_seed: bool = False) -> int | None:
@@ -284,11 +332,10 @@ class ConsensusTorchEnv(EnvBase):
             else torch.where(episodes, 0, self._cycles)
         )
         false = torch.zeros((self.batch_size[0], 1), dtype=torch.bool, device=engine.device)
+        observations = self._observations()
         out = TensorDict(
             {
-                GROUP: TensorDict(
-                    {"observation": self._observations()}, batch_size=(self.batch_size[0], self.n_agents)
-                ),
+                GROUP: TensorDict({"observation": observations}, batch_size=(self.batch_size[0], self.n_agents)),
                 "done": false,
                 "terminated": false.clone(),
                 "truncated": false.clone(),
@@ -296,7 +343,7 @@ class ConsensusTorchEnv(EnvBase):
             batch_size=self.batch_size,
             device=engine.device,
         )
-        self._add_state(out)
+        self._add_state(out, observations)
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -314,9 +361,10 @@ class ConsensusTorchEnv(EnvBase):
         if self.check_values and engine.steps is None and engine.done:
             engine.raise_if_invalid()  # the episode end: one read per episode
         reward = outcome.reward[:, None, None].expand(b, n, 1)
+        observations = self._observations()
         out = TensorDict(
             {
-                GROUP: TensorDict({"observation": self._observations(), "reward": reward}, batch_size=(b, n)),
+                GROUP: TensorDict({"observation": observations, "reward": reward}, batch_size=(b, n)),
                 "done": (terminated | truncated)[:, None],
                 "terminated": terminated[:, None],
                 "truncated": truncated[:, None],
@@ -324,7 +372,7 @@ class ConsensusTorchEnv(EnvBase):
             batch_size=self.batch_size,
             device=engine.device,
         )
-        self._add_state(out)
+        self._add_state(out, observations)
         return out
 
     # ------------------------------------------------------------ helpers
@@ -345,9 +393,13 @@ class ConsensusTorchEnv(EnvBase):
     def _observations(self) -> torch.Tensor:
         return self.engine.observations().to(self._observation_dtype)
 
-    def _add_state(self, out: TensorDictBase) -> None:
+    def _add_state(self, out: TensorDictBase, observations: torch.Tensor) -> None:
         if self.config.global_state == "normalized":
             out.set("state", self.engine.normalized_state().to(self._observation_dtype))
+        if self.graph_tensors:
+            tensors = graph_tensors(self.engine, observations, self.n_edges_max)
+            for key, value in zip(GRAPH_TENSOR_KEYS, tensors, strict=True):
+                out.set(key, value)
 
     def episode_metrics(self) -> dict[str, np.ndarray]:
         """Every episode's metrics so far (``(B,)`` numpy arrays; a read off the device: call at episode ends)."""
