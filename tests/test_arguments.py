@@ -15,6 +15,7 @@ from fxc_env.config.arguments import (
     ARGUMENTS,
     ENV_ARGUMENTS,
     FRONT_END_ARGUMENTS,
+    GRAPH_TENSORS,
     NO_FALLBACK,
     TABLE_MARKER,
     with_arguments_table,
@@ -33,11 +34,11 @@ P = inspect.Parameter
 #: Each front end: what it takes before the environment's arguments, and after them.
 FRONT_ENDS = {
     "make_config": (make_config, (), ()),
-    "ConsensusParallelEnv": (ConsensusParallelEnv, (), FRONT_END_ARGUMENTS),
-    "parallel_env": (fxc_env.parallel_env, (), FRONT_END_ARGUMENTS),
-    "ConsensusAECEnv": (ConsensusAECEnv, (), FRONT_END_ARGUMENTS),
-    "env": (fxc_env.env, (), FRONT_END_ARGUMENTS),
-    "raw_env": (fxc_env.raw_env, (), FRONT_END_ARGUMENTS),
+    "ConsensusParallelEnv": (ConsensusParallelEnv, (), (*FRONT_END_ARGUMENTS, GRAPH_TENSORS)),
+    "parallel_env": (fxc_env.parallel_env, (), (*FRONT_END_ARGUMENTS, GRAPH_TENSORS)),
+    "ConsensusAECEnv": (ConsensusAECEnv, (), (*FRONT_END_ARGUMENTS, GRAPH_TENSORS)),
+    "env": (fxc_env.env, (), (*FRONT_END_ARGUMENTS, GRAPH_TENSORS)),
+    "raw_env": (fxc_env.raw_env, (), (*FRONT_END_ARGUMENTS, GRAPH_TENSORS)),
     "ConsensusVecEnv": (ConsensusVecEnv, (N_ENVS,), FRONT_END_ARGUMENTS),
     "ConsensusTorchEnv": (ConsensusTorchEnv, TORCH_ARGUMENTS, ()),
 }

@@ -279,3 +279,79 @@ def test_graph_tensors_must_be_a_bool_named_in_the_error():
 
     with pytest.raises(ArgumentTypeError, match="graph_tensors: expected True or False, got 1"):
         ConsensusTorchEnv(scenario="paper_fig1", graph_tensors=1)
+
+
+# ------------------------------------------------------------------ the PettingZoo environments
+
+
+def check_info_graph(env, observations, infos, k):
+    """Every agent's info holds instant k's graph, and its features are the observations' rows."""
+    topology = env.engine.topologies[0]
+    g = k % topology.period
+    layout = env.config.layout
+    first = infos["agent_0"]
+    assert first["edge_index"].dtype == np.int64 and first["edge_attr"].dtype == env.config.observation_dtype
+    np.testing.assert_array_equal(first["edge_index"].T, topology.edges[g])
+    for agent in env.possible_agents:
+        assert infos[agent]["edge_index"] is first["edge_index"] and infos[agent]["edge_attr"] is first["edge_attr"]
+    flat = {agent: layout.flat(observation) for agent, observation in observations.items()}
+    for (j, i), attr in zip(first["edge_index"].T.tolist(), first["edge_attr"], strict=True):
+        rows, _, _ = layout.split(flat[f"agent_{i}"])
+        slot = list(topology.neighbour_index[g, i][topology.neighbour_mask[g, i]]).index(j)
+        np.testing.assert_array_equal(attr, rows[slot].ravel())
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"scenario": "paper_fig1"},
+        {"scenario": "paper_fig1", "obs_format": "dict", "obs_dtype": "float32", "dim": 2},
+        {"topology": "random", "n_agents": 8, "topology_period": 2, "obs_mode": "raw"},
+    ],
+)
+@pytest.mark.parametrize("small_n_path", [True, False])
+def test_parallel_env_infos_carry_the_current_graph(settings, small_n_path):
+    import fxc_env
+
+    env = fxc_env.parallel_env(graph_tensors=True, **settings)
+    env.small_n_path = small_n_path
+    policy = fxc_env.ReferencePolicy(env)
+    observations, infos = env.reset(seed=0)
+    check_info_graph(env, observations, infos, 0)
+    for k in range(1, 5):
+        actions = {agent: policy(observation) for agent, observation in observations.items()}
+        observations, _, _, _, infos = env.step(actions)
+        check_info_graph(env, observations, infos, k)
+
+
+def test_parallel_env_without_graph_tensors_keeps_its_infos_numbers_only():
+    import fxc_env
+
+    env = fxc_env.parallel_env(scenario="paper_fig1")
+    _, infos = env.reset(seed=0)
+    assert not env.graph_tensors and all(np.isscalar(value) for value in infos["agent_0"].values())
+
+
+def test_parallel_env_with_graph_tensors_passes_pettingzoo_s_api_and_seed_tests():
+    from pettingzoo.test import parallel_api_test, parallel_seed_test
+
+    import fxc_env
+
+    parallel_api_test(fxc_env.parallel_env(scenario="paper_fig1", graph_tensors=True), num_cycles=5)
+    parallel_seed_test(lambda: fxc_env.parallel_env(topology=FAMILY, n_agents=5, graph_tensors=True))
+
+
+def test_aec_env_infos_carry_the_graph_too():
+    import fxc_env
+
+    env = fxc_env.env(scenario="paper_fig1", graph_tensors=True)
+    env.reset(seed=0)
+    np.testing.assert_array_equal(env.infos["agent_0"]["edge_index"].T, env.unwrapped.config.topology.edges[0])
+
+
+def test_parallel_env_refuses_a_non_bool_graph_tensors_by_name():
+    import fxc_env
+    from fxc_env.core.validation import ArgumentTypeError
+
+    with pytest.raises(ArgumentTypeError, match="graph_tensors: expected True or False, got 'yes'"):
+        fxc_env.parallel_env(scenario="paper_fig1", graph_tensors="yes")

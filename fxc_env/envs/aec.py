@@ -74,9 +74,15 @@ class ConsensusAECEnv(AECEnv, EzPickle):
         formation_offsets: Any = None,
         render_mode: str | None = None,
         max_cycles: int | None = None,
+        graph_tensors: bool = False,
     ) -> None:
         # The parallel env's arguments (fxc_env.config.arguments), written out for help() and IDEs.
-        arguments = {**env_arguments(locals()), "render_mode": render_mode, "max_cycles": max_cycles}
+        arguments = {
+            **env_arguments(locals()),
+            "render_mode": render_mode,
+            "max_cycles": max_cycles,
+            "graph_tensors": graph_tensors,
+        }
         AECEnv.__init__(self)
         #: The parallel environment that plays each interval once every agent has acted.
         self.parallel = ConsensusParallelEnv(**arguments)

@@ -17,6 +17,7 @@ from fxc_env.config.arguments import (
     ENV_ARGUMENT_NAMES,
     ENV_ARGUMENTS,
     FRONT_END_ARGUMENTS,
+    GRAPH_TENSORS,
     env_arguments,
     with_arguments_table,
 )
@@ -25,6 +26,8 @@ from fxc_env.core.families import edge_lists
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw, with_initial_state
+from fxc_env.engine.graph_tensors import episode_graph
+from fxc_env.engine.graph_tensors import graph_tensors as current_graph
 from fxc_env.envs.rendering import EpisodeView
 from fxc_env.envs.small_n import SmallInterval, applies, checked_values
 from fxc_env.envs.spaces import action_space, observation_space, state_space
@@ -196,6 +199,17 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     than ``nan``, so no info value is ever NaN and two identically seeded runs give equal
     infos.
 
+    **Graph tensors** (``graph_tensors=True``, for graph neural networks; README, "Graph
+    tensors"): every info at reset and after every step also holds the coming interval's
+    graph in PyTorch Geometric's convention, ``edge_index`` ``(2, E)`` int64 (row 0 the source
+    j, row 1 the target i: i measures j; agents ``0 .. N-1``) and ``edge_attr`` ``(E, n dim)``
+    (each edge's observation row ``z_j - z_i`` as agent i observes it, in ``obs_mode``'s
+    scaling and ``obs_dtype``), no padding; the same two arrays in every agent's dict. They
+    follow the switching schedule, and a link lost to ``link_dropout`` is not listed. They
+    are infos, not observations: the graph is global while an observation is one agent's
+    local measurement, and the observation spaces stay the fixed Boxes that SuperSuit, SB3
+    and TorchRL's wrapper expect (``E`` changes with the graph).
+
     ## State
     ``state()`` with ``global_state="raw"`` (default): ``(N, 2 dim)`` float64 rows
     ``[x_i, v_i]`` (absolute, unbounded). With ``global_state="normalized"`` (for centralised
@@ -254,7 +268,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     * v0: initial release.
     """
 
-    __doc__ = with_arguments_table(__doc__, (*ENV_ARGUMENTS, *FRONT_END_ARGUMENTS))
+    __doc__ = with_arguments_table(__doc__, (*ENV_ARGUMENTS, *FRONT_END_ARGUMENTS, GRAPH_TENSORS))
 
     metadata = {
         "name": "fxc_consensus_v0",
@@ -303,12 +317,17 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         formation_offsets: Any = None,
         render_mode: str | None = None,
         max_cycles: int | None = None,
+        graph_tensors: bool = False,
     ) -> None:
         arguments = env_arguments(locals())
         check_render_mode(render_mode)
         check_max_cycles(max_cycles)
+        #: Whether infos carry the current graph's ``edge_index`` and ``edge_attr`` (Infos, Graph tensors).
+        self.graph_tensors = GRAPH_TENSORS.check(graph_tensors)
         self.config: EnvConfig = make_config(**arguments)
-        EzPickle.__init__(self, **arguments, render_mode=render_mode, max_cycles=max_cycles)
+        EzPickle.__init__(
+            self, **arguments, render_mode=render_mode, max_cycles=max_cycles, graph_tensors=graph_tensors
+        )
         self.render_mode = render_mode
         self.max_cycles = max_cycles
         self.engine = ConsensusEngine(self.config, n_episodes=1)
@@ -374,13 +393,27 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             info.update(episode_draw_info(draw))
         if self.render_mode == "human":
             self.render()
-        return self._observe(), infos
+        flat = self._flat_observations()
+        self._add_graph(infos, flat)
+        return self._observe(flat), infos
 
-    def _observe(self) -> dict[str, Any]:
+    def _flat_observations(self) -> np.ndarray:
+        """Every agent's flat observation ``(N, obs_size)`` in ``obs_dtype``."""
         if self._small is not None:
-            obs = self._small.observations(self.engine)
-        else:
-            obs = self.engine.observations()[0].astype(self.config.observation_dtype, copy=False)
+            return self._small.observations(self.engine)
+        return self.engine.observations()[0].astype(self.config.observation_dtype, copy=False)
+
+    def _add_graph(self, infos: dict[str, dict[str, Any]], flat: np.ndarray) -> None:
+        """With ``graph_tensors``: the current graph's ``edge_index`` and ``edge_attr`` in every info (Infos)."""
+        if self.graph_tensors:
+            edge_index, edge_attr = episode_graph(current_graph(self.engine, flat[None]))
+            edge_index, edge_attr = np.ascontiguousarray(edge_index), np.ascontiguousarray(edge_attr)
+            for info in infos.values():
+                info["edge_index"], info["edge_attr"] = edge_index, edge_attr
+
+    def _observe(self, obs: np.ndarray | None = None) -> dict[str, Any]:
+        if obs is None:
+            obs = self._flat_observations()
         if self.config.obs_format == "dict":
             layout = self.config.layout
             rows = obs[:, : layout.rows_end].reshape(len(obs), layout.slots, layout.row_size)
@@ -463,7 +496,9 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             episode = episode_metrics_rows(engine)[0]
             for info in infos.values():
                 info["episode"] = dict(episode)  # each agent its own copy
-        observations = self._observe()
+        flat = self._flat_observations()
+        self._add_graph(infos, flat)
+        observations = self._observe(flat)
         if self.render_mode is not None:
             self._view.record(t, *positions_velocities(engine))
         if self.render_mode == "human":
