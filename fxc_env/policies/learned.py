@@ -395,10 +395,35 @@ def architecture_of(policy: Any) -> tuple[str, bool]:
         arch = getattr(model, "metadata", None) or {}
         widths = arch.get("net_arch") if isinstance(arch, dict) else None
         return f"an MLP ({cls}{'' if widths is None else f', net_arch {widths}'})", False
-    describe = getattr(policy, "architecture", None)
-    if isinstance(describe, str):
-        return describe, bool(getattr(policy, "reads_any_rows", False))
+    arch = getattr(policy, "arch", None)
+    if type(policy).__name__ == "TorchPolicy":  # fxc train --backend torch: mlp, gru or gnn actors
+        labels = {"mlp": "MLP", "gru": "GRU actor", "gnn": "message-passing actor"}
+        return f"a torch {labels.get(arch or 'mlp', repr(arch))} (fxc train --backend torch)", False
     return f"a fixed-width network ({type(policy).__name__})", False
+
+
+def check_width(policy: Any, env: Any, source: Any) -> None:
+    """Refuse, naming the architecture, its width and the environment's, an environment whose
+    observation differs from a fixed-width ``policy``'s only in its neighbour slots.
+
+    For loaders that return the policy itself (:func:`fxc_env.policies.torch_policy.load_torch_policy`);
+    :func:`load_learned_policy` instead adapts what can be adapted exactly (:func:`adapt_slots`).
+    """
+    from fxc_env.config import config_of
+
+    config = config_of(env, "policy")
+    layout = config.layout
+    slots = trained_slots(policy.obs_size, layout)
+    if slots is None or slots == layout.slots:
+        return
+    check_settings(getattr(policy, "training_settings", None), config, source, skip=("obs_slots",))
+    name, _ = architecture_of(policy)
+    raise ArgumentError(
+        f"policy: the model at {source} is {name}, which reads a fixed {slots} neighbour rows (observations of "
+        f"size {policy.obs_size}); this environment has {layout.slots} (obs_slots: trained with {slots}, this "
+        f"environment has {layout.slots}, observations of size {layout.size}). "
+        "fxc_env.policies.learned.load_learned_policy(path, env) pads fewer rows exactly"
+    )
 
 
 class SlotAdaptedPolicy:
@@ -624,6 +649,12 @@ def adapt_slots(policy: Any, config: Any, layout: Any, slots: int, source: Any) 
     """
     name, reads_any_rows = architecture_of(policy)
     degree = largest_in_degree(config)
+    if getattr(policy, "arch", None) == "gnn":  # its graph argument holds the environment's slots too
+        raise ArgumentError(
+            f"policy: the model at {source} is {name}, which reads {slots} neighbour slots of the observation and "
+            f"of the graph it passes messages on; this environment has {layout.slots} (obs_slots: trained with "
+            f"{slots}, this environment has {layout.slots}): build it with obs_slots={slots}"
+        )
     if degree > slots and not reads_any_rows:
         raise ArgumentError(
             f"policy: the model at {source} is {name}, which reads a fixed {slots} neighbour rows (observations "

@@ -120,8 +120,9 @@ def load_torch_policy(path: str | Path, env: Any = None) -> TorchPolicy:
         raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file")
     policy = TorchPolicy(record, source=path)
     if env is not None:
-        from fxc_env.policies.learned import check_fit
+        from fxc_env.policies.learned import check_fit, check_width
 
+        check_width(policy, env, path)  # a fixed-width network: another obs_slots is refused by name
         check_fit(policy, env, "policy")
     return policy
 
