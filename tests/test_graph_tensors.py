@@ -355,3 +355,20 @@ def test_parallel_env_refuses_a_non_bool_graph_tensors_by_name():
 
     with pytest.raises(ArgumentTypeError, match="graph_tensors: expected True or False, got 'yes'"):
         fxc_env.parallel_env(scenario="paper_fig1", graph_tensors="yes")
+
+
+def test_the_readme_s_message_pass_sums_each_agent_s_in_neighbour_messages():
+    from fxc_env import ConsensusTorchEnv
+
+    env = ConsensusTorchEnv(scenario="generalist", batch_size=8, graph_tensors=True, seed=0)
+    td = env.reset()
+    b, n = env.batch_size[0], env.n_agents
+    layer = torch.nn.Linear(td["edge_attr"].shape[-1], 16, dtype=torch.float64)
+    messages = layer(td["edge_attr"]) * td["edge_mask"][..., None]
+    target = td["edge_index"][:, 1] + n * torch.arange(b)[:, None]
+    nodes = torch.zeros(b * n, 16, dtype=torch.float64).index_add_(0, target.flatten(), messages.flatten(0, 1))
+    nodes = nodes.reshape(b, n, 16)
+    # The same sum through the observation: agent i's rows of its real slots, through the layer.
+    rows, mask, _ = env.config.layout.split(td["agents", "observation"])
+    per_slot = layer(rows.flatten(-2)) * mask[..., None]  # [B, N, slots, 16]
+    torch.testing.assert_close(nodes, per_slot.sum(dim=2), rtol=1e-12, atol=1e-12)
