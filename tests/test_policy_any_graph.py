@@ -199,12 +199,16 @@ def test_a_torch_mlp_names_its_width_and_loads_padded(tmp_path):
     np.testing.assert_array_equal(actions, expected)
 
 
-def test_rings_loads_into_a_plain_ring_of_20():
+def test_rings_loads_into_a_plain_ring_of_20_and_reads_any_slots():
     """The gain table reads the aggregated row (README of the shipped policies: 4.4e-15 median on rings of 20)."""
     env = fxc_env.parallel_env(**RING)
     assert env.unwrapped.config.layout.slots == 1
-    _, metrics = episode(load_quietly("rings", env), env)
+    actions, metrics = episode(load_quietly("rings", env), env)
     assert metrics["relative_deadline_error"] < 1e-12
+    padded = fxc_env.parallel_env(**RING, obs_slots=4)
+    padded_actions, padded_metrics = episode(load_quietly("rings", padded), padded)
+    np.testing.assert_array_equal(padded_actions, actions)
+    assert padded_metrics == metrics
 
 
 @pytest.mark.slow

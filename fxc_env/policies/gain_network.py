@@ -19,7 +19,15 @@ no such term at all). A small MLP maps the context to the gains. The paper's con
 is the case ``G_j = [[1, 1], [0, 1]] / (d_i + 1)`` for every real slot, so the network can
 represent it exactly; it is equivariant to the scale of the rows (no bias), and padded slots
 (zero rows) contribute nothing. The value function is an ordinary MLP on the whole
-observation. One axis only (``dim = 1``); in the plane it acts per axis
+observation.
+
+The gains come per slot from a context that holds the whole mask, so the network is built
+for a number of slots ``W`` (the training ``obs_slots``); a saved one acts on any number of
+rows through :class:`fxc_env.policies.learned.SlotAdaptedPolicy`, which
+:func:`~fxc_env.policies.learned.load_learned_policy` wraps around it: an agent with at most
+``W`` rows meets exactly the ``W``-slot observation, one with ``d > W`` rows gets them summed
+into ``W`` groups times ``(W + 1) / (d + 1)`` (the network at in-degree ``W``, its gains
+rescaled to ``d`` as eq. 11's ``1 / (d_i + 1)``; exact for the paper's gains). One axis only (``dim = 1``); in the plane it acts per axis
 (:class:`fxc_env.policies.learned.PerAxisPolicy`).
 
 Use it as ``policy: fxc_env.policies.gain_network.GainScheduledPolicy`` in the hyperparameter file.
@@ -40,7 +48,7 @@ class GainScheduledExtractor(nn.Module):
     """SB3's ``mlp_extractor`` slot: the actor's "latent" is the action itself, the critic an MLP.
 
     Args:
-        obs_size: length of the flat observation ``[rows (3 slots... ) | mask | clock | limit?]``.
+        obs_size: length of the flat observation ``[rows (2 per slot) | mask (1 per slot) | clock (3) | limit?]``.
         hidden: widths of the hidden layers of the gain network and of the value network.
     """
 

@@ -18,7 +18,7 @@ per eigenvalue of ``(D + I)^{-1} L``. A table is tied to the graph's spectrum an
 **File format** (``.npz``, read with ``allow_pickle=False``: nothing in it runs): ``gains``
 ``(K, 2, 2)`` float64 and ``header``, a JSON string: ``format`` (:data:`FORMAT`), ``name``,
 ``env`` (:func:`fxc_env.policies.policy_files.training_settings` of the training environment:
-schedule, modes, ``dim``, ``obs_slots``, ``n_agents``, ``n_intervals``, ``settling_time``,
+schedule, modes, ``dim``, ``obs_slots`` (for the record: the table reads any), ``n_agents``, ``n_intervals``, ``settling_time``,
 ``u_max``), ``topology`` (the graph family, e.g. ``{"family": "ring", "relabel": true}``),
 ``eigenvalues`` (the spectrum of ``(D + I)^{-1} L`` it was trained on, ``[[re, im], ...]``, 0 included)
 and ``training`` (how it was made: command, method, wall time, figures).
@@ -46,7 +46,6 @@ MATCHED_SETTINGS = {
     "action_mode": "action_mode",
     "obs_mode": "obs_mode",
     "dim": "dim",
-    "obs_slots": "obs_slots",
     "limit_feature": "u_max",
     "agent_model": "agent_model",
 }
@@ -90,6 +89,17 @@ class IntervalGainPolicy:
     @property
     def n_intervals(self) -> int:
         return len(self.gains)
+
+    def read_slots(self, slots: int) -> None:
+        """Read observations with ``slots`` neighbour slots (any ``obs_slots``: ``r_i`` sums the real rows only).
+
+        The aggregated row, and so the plan, is the same whatever the padding: masked rows enter
+        the sum as exact zeros, and adding a zero rounds nothing.
+        """
+        from fxc_env.config.layout import ObservationLayout
+
+        self.layout = ObservationLayout(int(slots), self.layout.dim, self.layout.limit_feature)
+        self.obs_size = self.layout.size
 
     def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
         """Plans ``(..., 2 dim)`` (``alpha_x`` then ``alpha_v``) for observations ``(..., obs_size)`` (flat or dict)."""
@@ -210,7 +220,8 @@ def load_interval_gains(path: str | Path, env: Any = None, *, check: bool = True
         config = config_of(env, "policy")
         if check:
             policy.check(config)
-        elif (config.layout.size, config.action_size) != (policy.obs_size, policy.action_size):
+        policy.read_slots(config.layout.slots)
+        if (config.layout.size, config.action_size) != (policy.obs_size, policy.action_size):
             raise ArgumentError(
                 f"policy: the table takes observations of size {policy.obs_size}; this environment has "
                 f"{config.layout.size}"

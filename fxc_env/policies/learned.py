@@ -17,10 +17,18 @@ environment (SB3 ``.zip`` files saved by ``fxc train`` or
 :func:`~fxc_env.policies.policy_files.save_model`, torch policies) is refused in an environment
 whose schedule, action or observation mode, input-limit feature, agent model, dimension or
 observation slots differ (:data:`fxc_env.policies.policy_files.CHECKED_SETTINGS`), with an
-error naming the setting and both values. The one adaptation: a model trained in one dimension
-acts per axis in a ``dim > 1`` environment (:class:`PerAxisPolicy`, which says so in
-:attr:`PerAxisPolicy.adaptation`). Any model is refused when its observation or action size
-differs from the environment's.
+error naming the setting and both values. :func:`load_learned_policy` adapts two of them:
+
+* **any obs_slots and N** (:class:`SlotAdaptedPolicy`): the observation is rebuilt in the
+  trained layout. Fewer rows than trained with are padded exactly as an environment built
+  with the trained ``obs_slots`` pads them (same actions, bit for bit); more rows are read by
+  the gain-scheduled networks (:data:`ROW_WISE_POLICIES`), grouped and rescaled to the
+  in-degree as eq. (11) scales its gains (a :class:`PolicyAdaptedWarning`), and refused for
+  a fixed-width network (an MLP), naming its architecture, its width and the environment's.
+* **dim**: a model trained in one dimension acts per axis in a ``dim > 1`` environment
+  (:class:`PerAxisPolicy`, which says so in :attr:`PerAxisPolicy.adaptation`).
+
+:class:`LearnedPolicy` itself takes only observations of the model's size.
 """
 
 from __future__ import annotations
@@ -579,10 +587,13 @@ def load_learned_policy(
     Nothing in the file is unpickled unless ``trusted`` (see the module): ``fxc evaluate``
     and ``fxc benchmark`` should pass it only for ``--trust-policy-file``. With ``env``, the
     policy must fit it: sizes, and the training settings the file records (schedule, modes,
-    input-limit feature, agent model, dim, obs_slots). A model trained in one dimension,
-    loaded for a normalized environment with ``dim > 1`` and otherwise the same settings,
-    acts on every axis alone (:class:`PerAxisPolicy`; it warns once, and says so in
-    ``adaptation``).
+    input-limit feature, agent model, dim). Another ``obs_slots`` (and so any N and graph) is
+    adapted (:func:`adapt_slots`, :class:`SlotAdaptedPolicy`): exactly for fewer rows than
+    trained with, by the gain networks' per-row structure for more (a warning), refused by
+    name for a fixed-width network whose width the environment's in-degree exceeds. A model
+    trained in one dimension, loaded for a normalized environment with ``dim > 1`` and
+    otherwise the same settings, acts on every axis alone (:class:`PerAxisPolicy`; it warns
+    once, and says so in ``adaptation``).
 
     Raises ``FileNotFoundError`` naming ``policy`` when nothing is saved at ``path``, and
     :class:`~fxc_env.core.validation.ArgumentError` naming ``policy`` when the file is empty,

@@ -74,7 +74,8 @@ PARAMETER_PREFIXES = {
 ACTIVATION_NAMES = ("tanh", "relu", "elu", "leaky_relu")
 #: The settings of the training environment a loaded policy must meet (README, "Training learned
 #: policies"): schedule name, action and observation modes, whether the observation carries the
-#: input-limit (``u_max``) feature, the agent model, the dimension and the observation slots.
+#: input-limit (``u_max``) feature, the agent model, the dimension and the observation slots
+#: (:func:`fxc_env.policies.learned.load_learned_policy` adapts the last two where it can).
 CHECKED_SETTINGS = ("schedule", "action_mode", "obs_mode", "limit_feature", "agent_model", "dim", "obs_slots")
 #: How a setting is named in refusals.
 SETTING_LABELS = {"limit_feature": "the u_max feature (limit_feature)"}
