@@ -104,4 +104,4 @@ def test_render_before_reset_is_a_clear_error_in_every_front_end():
             env.render()
     view_env = fxc_env.parallel_env(render_mode="rgb_array")
     with pytest.raises(RuntimeError, match="reset"):
-        view_env._view.frame(0)
+        view_env._view.frame()

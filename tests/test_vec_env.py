@@ -413,18 +413,23 @@ def test_reference_policy_through_the_vec_env_reaches_the_paper_numbers() -> Non
         assert metrics["predicted_final_velocity"] == pytest.approx(-0.125, abs=1e-12)
 
 
-def test_rgb_array_render_draws_episode_zero() -> None:
+def test_rgb_array_render_tiles_the_episodes_and_get_images_gives_each_agent_its_episode() -> None:
     venv = ConsensusVecEnv(2, render_mode="rgb_array", **SHORT)
     obs = venv.reset()
     for _ in range(3):
         obs, *_ = venv.step(ReferencePolicy(venv)(obs))
     frame = venv.render()
     assert frame is not None and frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
-    assert len(venv._view.history) == 4  # t_0 and three sampling instants of episode 0
+    assert len(venv._view.history) == 4  # t_0 and three sampling instants
     images = venv.get_images()
     assert len(images) == venv.num_envs
-    assert all(image is images[0] for image in images)  # episode 0's frame, drawn once
-    np.testing.assert_array_equal(images[0], frame)
+    n = venv.n_agents
+    assert all(image is images[0] for image in images[:n])  # episode 0's frame, drawn once for its agents
+    assert all(image is images[n] for image in images[n:])
+    height, width, _ = images[0].shape
+    assert frame.shape == (2 * height, width, 3)  # two episodes, one above the other (ceil(sqrt(2)) rows)
+    np.testing.assert_array_equal(frame[:height], images[0])
+    np.testing.assert_array_equal(frame[height:], images[n])
     venv.close()
 
 

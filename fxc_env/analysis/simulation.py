@@ -37,6 +37,11 @@ class Trajectory:
         config: the settings the episode ran with.
         topology: the episode's graphs (the config's, or its family's draw).
         u_max: the episode's input limit (m/s^2; drawn when the config gives a set), or None.
+        states: ``(K + 1, N, n, dim)`` the full states at the sampling instants in the engine's
+            coordinates (the formation error with offsets), or None.
+        plans: ``(K, N, dim, n)`` each interval's minimum-energy plan of a general agent (its
+            ``z(t_{k+1}) - F_k z(t_k)``), or None (the double integrator's input is ``u_start``/``u_end``).
+        graphs: ``(K,)`` the index in ``topology.edges`` of each interval's graph, or None.
     """
 
     times: np.ndarray
@@ -54,6 +59,9 @@ class Trajectory:
     config: EnvConfig
     topology: Topology
     u_max: float | None
+    states: np.ndarray | None = None
+    plans: np.ndarray | None = None
+    graphs: np.ndarray | None = None
 
 
 def simulate(
@@ -99,8 +107,9 @@ def simulate(
     engine.reset_from_draws([draw], rng=rng)
     u_max = None if engine.u_max is None else float(engine.u_max[0])
     states = [engine.state[0].copy()]  # (N, n, dim) in the engine's coordinates (formation error)
-    u_start, u_end, plans = [], [], []
+    u_start, u_end, plans, graphs = [], [], [], []
     while not engine.done:
+        graphs.append(int(engine.graph_indices()[0]))
         actions = engine.validate_actions(act(engine.observations()), name="policy output")
         outcome = engine.step(actions)
         states.append(engine.state[0].copy())
@@ -140,6 +149,9 @@ def simulate(
         config=config,
         topology=engine.topologies[0],
         u_max=u_max,
+        states=np.array(states),
+        plans=np.array(plans) if plans else None,
+        graphs=np.array(graphs),
     )
 
 

@@ -15,6 +15,7 @@ import math
 import sys
 from collections.abc import Sequence
 
+from fxc_env.analysis.video import add_video_arguments
 from fxc_env.baselines.benchmark import add_benchmark_parser
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
@@ -36,8 +37,10 @@ def _format(value: float) -> str:
 def simulate_command(args: argparse.Namespace) -> int:
     from fxc_env.analysis.plots import write_figures
     from fxc_env.analysis.simulation import simulate
+    from fxc_env.analysis.video import video_request, write_video
 
     out = output_directory("--out", args.out)
+    video = video_request(args)
     integer("--points-per-interval", args.points_per_interval, 1)
     optional_seed("--seed", args.seed)
     kwargs = env_kwargs_from(args)
@@ -74,6 +77,11 @@ def simulate_command(args: argparse.Namespace) -> int:
     }
     (out / "metrics.json").write_text(json.dumps(record, indent=2) + "\n")
     files.append(out / "metrics.json")
+    if video is not None:
+        drawn = write_video(
+            trajectory, video[0], video[2], strip=video[1], title=f"{scenario or 'custom'}: reference policy"
+        )
+        files += [path for path in (drawn.video, drawn.strip) if path is not None]
 
     print(f"fxc simulate: {scenario or 'custom'} — {topology.describe()}")
     if topology.note:
@@ -115,6 +123,13 @@ def simulate_command(args: argparse.Namespace) -> int:
         f"| {'intervals until D/D(0) < 1e-9':<38} | {_format(m.propagation_bound):>22} | "
         f"{_format(m.settled_interval):>22} |"
     )
+    if video is not None:
+        print()
+        width, height = drawn.size
+        print(
+            f"video: {drawn.n_frames} frames of {width}x{height} px, uniform in t from 0 to T_s, {drawn.fps} frames/s; "
+            f"drawn at {drawn.draw_rate:.1f} frames/s"
+        )
     print()
     print("wrote " + ", ".join(str(f) for f in files))
     return 0
@@ -155,6 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--seed", type=int, default=0, help="seed of the episode (initial state, family draw, noise)")
     sim.add_argument("--out", default="out", help="directory for PNGs and metrics.json")
     sim.add_argument("--points-per-interval", type=int, default=24, help="dense samples per interval in the figures")
+    add_video_arguments(sim)
     sim.set_defaults(handler=simulate_command)
     fast = commands.add_parser("speed", help="throughput against MPE2 and VMAS, and scaling to 10^6 agents")
     speed_arguments(fast)

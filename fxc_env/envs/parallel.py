@@ -374,7 +374,6 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             self._rng = np.random.default_rng(seed)
         draw = self.engine.draw_episode(self._rng)  # the family's topology and u_max when drawn, x0, v0
         draw = with_initial_state(draw, x0, v0)
-        x0, v0 = draw.x0, draw.v0
         self.engine.reset_from_draws([draw], rng=self._rng)
         if not self.small_n_path or not applies(self.config, self.engine):
             self._small = None
@@ -383,7 +382,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         self.agents = self.possible_agents[:]
         self._steps = 0
         self._has_reset = True
-        self._view.start(x0, v0)
+        self._view.start(self.engine)
         # The same numeric keys as every step's infos (consumers such as TorchRL read the schema here).
         infos = {
             agent: {"t": 0.0, "interval": 0, "energy": 0.0, "peak_u": 0.0, "saturated_fraction": 0.0}
@@ -500,7 +499,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         self._add_graph(infos, flat)
         observations = self._observe(flat)
         if self.render_mode is not None:
-            self._view.record(t, *positions_velocities(engine))
+            self._view.record(engine)
         if self.render_mode == "human":
             self.render()
         if terminated or truncated:
@@ -524,7 +523,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             return None
         if not self._has_reset:
             raise RuntimeError("render: there is no episode to draw yet; call reset() first")
-        return self._view.frame(int(self.engine.graph_indices()[0]), self.engine.topologies[0])
+        return self._view.frame()
 
     def close(self) -> None:
         self._view.close()

@@ -36,9 +36,8 @@ from fxc_env.envs.parallel import (
     episode_draw_info,
     episode_metrics_rows,
     normalized_state,
-    positions_velocities,
 )
-from fxc_env.envs.rendering import EpisodeView
+from fxc_env.envs.rendering import GRID_EPISODES, EpisodeView, blank_frame
 from fxc_env.envs.spaces import action_space, observation_space
 
 #: Attributes of a :class:`ConsensusVecEnv` that :meth:`~ConsensusVecEnv.set_attr` refuses
@@ -112,8 +111,9 @@ class ConsensusVecEnv(VecEnv):
     return one value per requested index. :meth:`set_attr` refuses what the config fixes
     (``n_agents``, ``settling_time``, ... and the structure built from it); ``max_cycles``
     is checked. :meth:`state` is the global state of every episode (``global_state`` as
-    in :class:`ConsensusParallelEnv`). ``render_mode="rgb_array"`` or ``"human"`` draws
-    episode 0 (:meth:`render`, :meth:`get_images`; only episode 0 is recorded).
+    in :class:`ConsensusParallelEnv`). ``render_mode="rgb_array"`` or ``"human"`` records the
+    first ``min(n_envs, 16)`` episodes: :meth:`render` tiles their frames into one picture,
+    :meth:`get_images` gives each sub-environment its episode's frame (README, "Video").
 
     ## Arguments
     ``n_envs`` is positional, every other argument keyword-only; the environment's arguments
@@ -185,7 +185,7 @@ class ConsensusVecEnv(VecEnv):
         self._actions: np.ndarray | None = None
         self._needs_reset = True
         self._steps = 0
-        self._view = EpisodeView(config, render_mode)
+        self._view = EpisodeView(config, render_mode, episodes=min(self.n_envs, GRID_EPISODES))
         self._infos_pool: tuple[dict[str, Any], ...] | None = None
         super().__init__(self.n_envs * self.n_agents, observation_space(config), action_space(config))
         self.metadata = dict(ConsensusParallelEnv.metadata)
@@ -272,7 +272,7 @@ class ConsensusVecEnv(VecEnv):
         self._needs_reset = False
         n = self.config.n_agents
         self.reset_infos = [episode_draw_info(draws[i // n]) for i in range(self.num_envs)]
-        self._view.start(draws[0].x0, draws[0].v0)
+        self._view.start(self.engine)
 
     def _empty_infos(self) -> list[dict[str, Any]]:
         """One empty dict per sub-environment, reused across steps while they stay empty.
@@ -315,7 +315,8 @@ class ConsensusVecEnv(VecEnv):
         truncated = not terminated and self.max_cycles is not None and self._steps >= self.max_cycles
         rewards = np.repeat(outcome.reward.astype(np.float32), self.n_agents)
         obs = self._observe()
-        self._view.record(self.engine.time, *positions_velocities(self.engine))
+        if self.render_mode is not None:  # nothing on the step path otherwise
+            self._view.record(self.engine)
         if not (terminated or truncated):
             return obs, rewards, np.zeros(self.num_envs, dtype=bool), self._empty_infos()
         per_agent = [episode for episode in episode_metrics_rows(self.engine) for _ in range(self.n_agents)]
@@ -390,7 +391,11 @@ class ConsensusVecEnv(VecEnv):
 
     # ---------------------------------------------------------------- render
     def render(self, mode: str | None = None) -> np.ndarray | None:
-        """Frame of episode 0 so far: ``(H, W, 3)`` uint8 for ``rgb_array``, None for ``human``."""
+        """The first ``min(n_envs, 16)`` episodes so far, tiled: ``(H, W, 3)`` uint8 (``rgb_array``), None (``human``).
+
+        One frame per episode (README, "Video"), laid out as Stable-Baselines3's ``tile_images``
+        lays out :meth:`get_images` (``ceil(sqrt(n))`` rows), but per episode, not per agent.
+        """
         if mode is not None and mode != self.render_mode:
             warnings.warn(f"render: mode {mode!r} differs from render_mode {self.render_mode!r}", stacklevel=2)
             return None
@@ -399,14 +404,15 @@ class ConsensusVecEnv(VecEnv):
             return None
         if self._needs_reset:
             raise RuntimeError("render: there is no episode to draw yet; call reset() first")
-        return self._view.frame(int(self.engine.graph_indices()[0]), self.engine.topologies[0])
+        return self._view.grid()
 
     def get_images(self) -> Sequence[np.ndarray | None]:
-        """One frame per sub-environment: episode 0's frame so far (``rgb_array`` only).
+        """One frame per sub-environment (``rgb_array`` only): its episode's frame so far.
 
-        Only episode 0 is recorded (a history of every episode would grow with ``num_envs``),
-        so every sub-environment gets that one frame, drawn once (the same array). Other
-        render modes warn and give None per sub-environment, as SB3's ``DummyVecEnv`` does.
+        Sub-environment ``b * N + i`` (agent i of episode b) gets episode b's frame, drawn once
+        and shared by the episode's N agents. The first 16 episodes are recorded; the
+        sub-environments of later ones share one blank frame that says so. Other render modes
+        warn and give None per sub-environment, as SB3's ``DummyVecEnv`` does.
         """
         if self.render_mode != "rgb_array":
             warnings.warn(
@@ -415,7 +421,12 @@ class ConsensusVecEnv(VecEnv):
             return [None] * self.num_envs
         if self._needs_reset:
             raise RuntimeError("get_images: there is no episode to draw yet; call reset() first")
-        return [self._view.frame(int(self.engine.graph_indices()[0]), self.engine.topologies[0])] * self.num_envs
+        frames = self._view.frames()
+        if self.n_envs > len(frames):
+            frames.append(
+                blank_frame(f"episodes {len(frames)}-{self.n_envs - 1} are not recorded (the first {len(frames)} are)")
+            )
+        return [frames[min(b, len(frames) - 1)] for b in range(self.n_envs) for _ in range(self.n_agents)]
 
     def close(self) -> None:
         self._view.close()
