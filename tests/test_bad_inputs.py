@@ -322,3 +322,182 @@ def test_the_table_covers_every_front_end_with_sixty_distinct_inputs_or_more():
     rows = len(CONSTRUCTOR_CASES) + len(STEP_CASES) + len(RESET_CASES) + len(SIMULATE_CASES)
     rows += len(AEC_CASES) + len(VECENV_CASES)
     assert rows >= 60  # and tests/test_cli.py holds the command line's table
+
+
+# ------------------------------------------------------------------ numpy engine
+def started_engine(**kwargs):
+    from fxc_env.config import make_config
+    from fxc_env.engine import ConsensusEngine
+
+    engine = ConsensusEngine(make_config("paper_fig1", **kwargs), n_episodes=2)
+    engine.seed(5)
+    rng = np.random.default_rng(0)
+    engine.reset_from_draws([engine.draw_episode(rng) for _ in range(2)])
+    engine.step(engine.validate_actions(np.zeros((2, N, 2))))
+    return engine
+
+
+def engine_snapshot(engine):
+    return (
+        engine.state.copy(),
+        engine.x0.copy(),
+        engine.current_disagreement.copy(),
+        engine.k,
+        pickle.dumps(engine.rng.bit_generator.state),
+    )
+
+
+def assert_engine_unchanged(before, after):
+    for a, b in zip(before[:3], after[:3], strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert before[3:] == after[3:]
+
+
+GOOD_STATE = np.zeros((2, N, 1))
+ENGINE_RESET_CASES = [
+    ("nan x0", {"x0": np.full((2, N, 1), np.nan)}, "x0", "finite"),
+    ("inf v0", {"v0": np.full((2, N, 1), -np.inf)}, "v0", "finite"),
+    ("complex x0", {"x0": GOOD_STATE.astype(complex)}, "x0", "real numbers"),
+    ("text v0", {"v0": np.full((2, N, 1), "a")}, "v0", "real numbers"),
+    ("beyond 1e100", {"x0": np.full((2, N, 1), 1e101)}, "x0", r"within ±1e\+100"),
+    ("one episode's shape", {"x0": np.zeros((N, 1))}, "x0", r"expected shape \(2, 6, 1\), got \(6, 1\)"),
+    ("ragged", {"v0": [[[0.0]] * N, [[0.0]] * (N - 1)]}, "v0", "real numbers"),
+]
+
+
+@pytest.mark.parametrize(
+    ("label", "given", "name", "message"), ENGINE_RESET_CASES, ids=[c[0] for c in ENGINE_RESET_CASES]
+)
+def test_the_numpy_engine_reset_checks_x0_and_v0_and_changes_nothing(label, given, name, message):
+    """The numpy engine checks a reset's states itself, as the torch engine does (one check for both)."""
+    engine = started_engine()
+    before = engine_snapshot(engine)
+    arguments = {"x0": GOOD_STATE + 1.0, "v0": GOOD_STATE, **given}
+    with pytest.raises(ArgumentError, match=f"^{name}: .*{message}"):
+        engine.reset(arguments["x0"], arguments["v0"])
+    assert_engine_unchanged(before, engine_snapshot(engine))
+    engine.step(engine.validate_actions(np.zeros((2, N, 2))))  # still usable
+    assert engine.k == 2
+
+
+def test_the_numpy_engine_reset_keeps_raw_float32_states_within_float32():
+    engine = started_engine(obs_dtype="float32", obs_mode="raw")
+    before = engine_snapshot(engine)
+    with pytest.raises(
+        ArgumentError, match=r'^x0: entries must lie within ±1e\+37 \(float32 range, obs_dtype="float32"'
+    ):
+        engine.reset(np.full((2, N, 1), 1e38), GOOD_STATE)
+    assert_engine_unchanged(before, engine_snapshot(engine))
+    engine.reset(np.full((2, N, 1), 1e36), GOOD_STATE)  # within range: taken
+    assert engine.k == 0
+
+
+def test_the_torch_and_numpy_engines_share_one_state_check():
+    """Both back ends refuse a host array with the same message (fxc_env.core.validation.state_batch)."""
+    from fxc_env.config import make_config
+    from fxc_env.engine import ConsensusEngine
+
+    messages = []
+    for device in (None, "cpu"):
+        engine = ConsensusEngine(make_config("paper_fig1"), n_episodes=2, device=device)
+        with pytest.raises(ArgumentError) as caught:
+            engine.reset(np.full((2, N, 1), np.nan), GOOD_STATE)
+        messages.append(str(caught.value))
+    assert messages[0] == messages[1] == "x0: every entry must be finite (no NaN or inf)"
+
+
+ENGINE_SEEDS = [-1, 1.5, True, 2**128, "abc", np.float64(3.0)]
+
+
+@pytest.mark.parametrize("seed", ENGINE_SEEDS, ids=[repr(s) for s in ENGINE_SEEDS])
+def test_the_numpy_engine_seed_is_refused_by_name_and_the_generator_kept(seed):
+    engine = started_engine()
+    before = engine_snapshot(engine)
+    with pytest.raises(ArgumentError, match=r"^seed: expected an integer in \[0, 2\*\*128 - 1\]"):
+        engine.seed(seed)
+    assert_engine_unchanged(before, engine_snapshot(engine))
+    engine.seed(2**128 - 1)  # the largest numpy seed is taken
+    engine.seed(None)
+
+
+# ------------------------------------------------------- raw float32 observations
+def raw32_env(small_n_path=True, **kwargs):
+    env = fxc_env.parallel_env(
+        obs_dtype="float32", obs_mode="raw", action_mode="accel", topology="complete", n_agents=4, **kwargs
+    )
+    env.small_n_path = small_n_path
+    return env
+
+
+@pytest.mark.parametrize("small_n_path", [True, False], ids=["small-N path", "engine"])
+def test_a_raw_float32_episode_that_grows_past_float32_is_refused_not_observed_as_inf(small_n_path):
+    """States admitted at reset (within ±1e37) that a step would take more than float32's range apart
+    (3.4e38: their raw row would be inf) are refused naming the actions; state unchanged, env usable."""
+    env = raw32_env(small_n_path)
+    env.reset(seed=0)
+    before = snapshot(env)
+    spread = {agent: np.full(2, 1e39 if agent != "agent_0" else -1e39) for agent in env.agents}
+    with pytest.raises(
+        ArgumentError, match=r'^actions: .*beyond ±3\.40282e\+38.*obs_dtype="float32", obs_mode="raw"'
+    ) as c:
+        env.step(spread)
+    assert "unchanged" in str(c.value)
+    assert_unchanged(before, snapshot(env))
+    observations, *_ = env.step({agent: np.zeros(2) for agent in env.agents})  # still usable
+    assert all(np.isfinite(o).all() for o in observations.values())
+    observations, _ = env.reset(seed=1)  # and the next reset starts clean
+    assert env.unwrapped.engine.k == 0 and all(np.isfinite(o).all() for o in observations.values())
+    # A common push moves every agent alike: no row grows, so nothing is refused.
+    observations, *_ = env.step({agent: np.full(2, 1e39) for agent in env.agents})
+    assert all(np.isfinite(o).all() for o in observations.values())
+
+
+def test_the_reference_from_the_edge_of_the_raw_float32_range_finishes_with_finite_observations():
+    env = fxc_env.parallel_env(obs_dtype="float32", obs_mode="raw")
+    policy = ReferencePolicy(env)
+    x0, v0 = np.array([1e37, -1e37, 1e37, -1e37, 0, 0]), np.array([1e37, -1e37, 0, 0, 0, 0])
+    observations, _ = env.reset(seed=0, options={"x0": x0, "v0": v0})
+    while env.agents:
+        observations, *_ = env.step({a: policy(o) for a, o in observations.items()})
+        assert all(np.isfinite(o).all() for o in observations.values())
+    assert env.unwrapped.engine.k == env.unwrapped.config.n_intervals
+
+
+def test_raw_float32_refuses_noise_beyond_float32s_range():
+    with pytest.raises(ArgumentError, match=r'^obs_noise: .*obs_dtype="float32", obs_mode="raw"'):
+        fxc_env.parallel_env(obs_dtype="float32", obs_mode="raw", obs_noise=1e50)
+    fxc_env.parallel_env(obs_dtype="float32", obs_noise=1e50)  # normalized observations stay in [-1, 1]
+
+
+def test_the_vecenv_refuses_a_raw_float32_step_past_float32_and_keeps_the_state():
+    venv = fxc_env.ConsensusVecEnv(
+        2, obs_dtype="float32", obs_mode="raw", action_mode="accel", topology="complete", n_agents=4
+    )
+    venv.seed(0)
+    venv.reset()
+    state, k = venv.engine.state.copy(), venv.engine.k
+    actions = np.full((venv.num_envs, 2), 1e39)
+    actions[0] = -1e39
+    with pytest.raises(ArgumentError, match=r"^actions: .*float32"):
+        venv.step(actions)
+    np.testing.assert_array_equal(venv.engine.state, state)
+    assert venv.engine.k == k
+    observations, *_ = venv.step(np.zeros((venv.num_envs, 2)))
+    assert np.isfinite(observations).all()
+
+
+def test_the_torch_engine_flags_a_raw_float32_step_past_float32_and_reports_it_once():
+    import torch
+
+    from fxc_env.config import make_config
+    from fxc_env.engine import ConsensusEngine
+
+    config = make_config(obs_dtype="float32", obs_mode="raw", action_mode="accel", topology="complete", n_agents=4)
+    engine = ConsensusEngine(config, n_episodes=2, device="cpu")
+    engine.reset(*engine.draw_batch()[:2])
+    actions = torch.zeros((2, 4, 2), dtype=torch.float64)
+    actions[1, 0] = 1e39  # episode 1 only: agent 0 pushed away from the others
+    engine.step(engine.validate_actions(actions))
+    with pytest.raises(ArgumentError, match=r"^actions: episodes \[1\] .*float32"):
+        engine.raise_if_invalid()
+    engine.raise_if_invalid()  # reported once: the flags were cleared

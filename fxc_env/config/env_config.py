@@ -260,6 +260,16 @@ def _scale_range(name: str, value: Any, limit: float = validation.STATE_LIMIT) -
     return number, number
 
 
+def _noise(value: float, limit: float) -> float:
+    """``obs_noise``, at most ``limit`` (with raw float32 observations, noise beyond float32's range would observe as inf)."""
+    if value > limit:
+        raise ArgumentError(
+            f'obs_noise: expected a number in [0, {limit:g}] (float32 range with obs_dtype="float32", obs_mode="raw"), '
+            f"got {value!r}"
+        )
+    return value
+
+
 def _half_width(name: str, value: Any, limit: float) -> float:
     number = validation.real(name, value, positive=True)
     if number > limit:
@@ -420,7 +430,7 @@ def make_config(
         position_range=_scale_range("position_range", merged["position_range"], limit),
         velocity_range=_scale_range("velocity_range", merged["velocity_range"], limit),
         u_max_choices=u_max_choices,
-        obs_noise=ARGUMENTS["obs_noise"].check(obs_noise),
+        obs_noise=_noise(ARGUMENTS["obs_noise"].check(obs_noise), limit),
         link_dropout=ARGUMENTS["link_dropout"].check(link_dropout),
         switching=ARGUMENTS["switching"].check(switching),
         scenario=scenario,

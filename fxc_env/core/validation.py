@@ -34,6 +34,10 @@ MIN_INTERVAL = 1e-30
 #: largest number is 3.4e38, and a raw observation holds differences of two states (relative
 #: positions), so 1e37 leaves a factor 17 for those and for growth within an episode.
 FLOAT32_STATE_LIMIT = 1e37
+#: float32's largest number (3.4e38): a raw float32 observation entry beyond it is ``inf``.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+#: Standard deviations of measurement noise kept below :data:`FLOAT32_MAX` by :func:`float32_row_limit`.
+NOISE_MARGIN = 17
 #: Longest accepted deadline ``T_s`` (s).
 MAX_SETTLING_TIME = 1e30
 #: Most sampling intervals K (the engine keeps per-instant arrays of K + 1 rows).
@@ -132,6 +136,38 @@ def state_array(name: str, value: Any, n_agents: int, dim: int, limit: float = S
     return array
 
 
+def float32_row_limit(obs_noise: float) -> float:
+    """Largest difference of two states (a raw observation row, m or m/s) a step may reach with
+    ``obs_dtype="float32"`` and ``obs_mode="raw"``: :data:`FLOAT32_MAX` less :data:`NOISE_MARGIN`
+    standard deviations of the noise (``obs_noise`` is at most :data:`FLOAT32_STATE_LIMIT`
+    there, so the limit is at least 1.7e38; without noise, exactly where a row would observe as ``inf``)."""
+    return FLOAT32_MAX - NOISE_MARGIN * obs_noise
+
+
+def state_batch(name: str, value: Any, shape: tuple[int, ...], limit: float = STATE_LIMIT) -> np.ndarray:
+    """``value`` as a float64 array of exactly ``shape`` (an engine's ``(B, N, dim)`` initial positions or
+    velocities), real, entries finite and within ±``limit``; raise naming ``name`` otherwise.
+
+    The one check of a batch of initial states, used by both engine back ends (numpy, and
+    torch for a host array); a torch tensor's values are checked on the device with the
+    message of :func:`state_entries_error`.
+    """
+    array = real_array(name, value, f"an array of shape {shape}")
+    if array.shape != shape:
+        raise ArgumentError(f"{name}: expected shape {shape}, got {array.shape}")
+    _check_entries(name, array, limit)
+    return array
+
+
+def state_entries_error(name: str, limit: float = STATE_LIMIT) -> str:
+    """The message of a state whose entries were found (in one read off a device) not finite or beyond ±``limit``."""
+    return (
+        f"{name}: expected finite entries within ±{limit:g} (metres, m/s; "
+        + ("float64 headroom" if limit == STATE_LIMIT else 'float32 range, obs_dtype="float32", obs_mode="raw"')
+        + "), got a NaN, an infinity or a larger entry"
+    )
+
+
 def action_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
     """``value`` as a float64 array of ``shape`` with finite entries."""
     array = real_array(name, value, f"an array of shape {shape}")
@@ -173,13 +209,18 @@ def real_array(name: str, value: Any, expected: str) -> np.ndarray:
 
 
 def _check_entries(name: str, array: np.ndarray, limit: float | None) -> None:
-    if not np.all(np.isfinite(array)):
-        raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
-    if limit is not None and array.size and np.max(np.abs(array)) > limit:
+    if limit is None or not array.size:
+        if not np.all(np.isfinite(array)):
+            raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
+        return
+    largest = np.abs(array).max()  # one pass: a NaN propagates, and fails the comparison as an inf does
+    if not largest <= limit:
+        if not math.isfinite(largest):
+            raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
         raise ArgumentError(
             f"{name}: entries must lie within ±{limit:g} ("
             + ("float64 headroom" if limit == STATE_LIMIT else 'float32 range, obs_dtype="float32", obs_mode="raw"')
-            + f"), got {np.max(np.abs(array)):g}"
+            + f"), got {largest:g}"
         )
 
 

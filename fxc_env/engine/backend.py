@@ -69,6 +69,10 @@ class NumpyBackend:
         self.xp = namespace(np.empty(0))
         #: No device flags on numpy (:meth:`commit_if_finite` raises instead).
         self.invalid = None
+        #: Raw float32 observations only (:meth:`limit_rows`): the largest difference of two
+        #: states a step may reach, and the disagreement below which no difference can reach it.
+        self.row_limit: float | None = None
+        self.quiet_disagreement = math.inf
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
@@ -99,8 +103,12 @@ class NumpyBackend:
 
     # --------------------------------------------------------------- draws
     def generator(self, seed: int | None) -> Any:
-        """A fresh generator of noise, dropout and switching: ``np.random.default_rng(seed)``."""
-        return np.random.default_rng(seed)
+        """A fresh generator of noise, dropout and switching: ``np.random.default_rng(seed)``.
+
+        ``seed`` is None or an integer in ``[0, 2**128)`` (bools, floats and negative numbers are
+        refused by name, as the PettingZoo env's ``reset(seed=...)`` refuses them).
+        """
+        return np.random.default_rng(validation.optional_seed("seed", seed))
 
     def uniform(self, rng: Any, shape: tuple[int, ...]) -> Any:
         """Uniform draws on ``[0, 1)``."""
@@ -115,14 +123,36 @@ class NumpyBackend:
         """A ``(B, N, 2 dim)`` real, finite action array, checked in full; raise naming ``name`` otherwise."""
         return validation.action_array(name, actions, expected)
 
+    def limit_rows(self, row_limit: float, component_weights: Any) -> None:
+        """Refuse (numpy) or flag (torch) a step after which two states differ by more than ``row_limit``
+        in a component (raw float32 observations: a larger row would be observed as ``inf``).
+
+        ``component_weights`` are the disagreement's weights ``T_s^l`` of the state's components
+        (``D = sum_l T_s^l e_l``, so every difference is at most ``D / min(weights)``): while the
+        disagreement stays below ``row_limit * min(weights)`` no difference can reach the limit and
+        the step's check is the one comparison folded into the finite check.
+        """
+        self.row_limit = float(row_limit)
+        self.quiet_disagreement = self.row_limit * float(min(component_weights))
+
+    def largest_difference(self, state: Any) -> Any:
+        """Per episode ``(B,)``: the largest difference of two agents' states in one component and axis."""
+        xp = self.xp
+        return xp.max(xp.max(state, axis=1) - xp.min(state, axis=1), axis=(1, 2))
+
     def commit_if_finite(self, current: Any, following: Any, refusal: Callable[[], ArgumentError]) -> tuple[Any, Any]:
         """The ``(state, spare)`` pair after an interval played into the spare buffer ``following.state``.
 
         One scalar decides (a sum overflowing past 1.8e308 is refused too: such energies
         would overflow the episode's totals); a step that is not finite raises
-        ``refusal()`` and the state is unchanged.
+        ``refusal()`` and the state is unchanged. With raw float32 observations
+        (:meth:`limit_rows`) the same sum of disagreements, once above
+        :attr:`quiet_disagreement`, has the states' differences compared with :attr:`row_limit`.
         """
-        if not math.isfinite(following.disagreement.sum() + following.energy.sum()):
+        disagreement = following.disagreement.sum()
+        if not math.isfinite(disagreement + following.energy.sum()):
+            raise refusal()
+        if disagreement > self.quiet_disagreement and self.largest_difference(following.state).max() > self.row_limit:
             raise refusal()
         return following.state, current
 
@@ -131,6 +161,8 @@ class NumpyBackend:
         would not be finite in float64 at instant ``k`` (interval ``T`` seconds), naming what caused it."""
         energy, disagreement_next = following.energy, following.disagreement
         bad_episodes = np.flatnonzero(~np.isfinite(disagreement_next) | ~np.isfinite(energy).all(axis=-1))
+        if not len(bad_episodes) and self.row_limit is not None:
+            return self._row_refusal(actions, following, k, interval)
         b = int(bad_episodes[0])
         agents = np.flatnonzero(~np.isfinite(energy[b]) | ~np.isfinite(following.state[b]).all(axis=(-2, -1)))
         shown = [int(a) for a in agents[:10]]
@@ -141,6 +173,29 @@ class NumpyBackend:
             f"(agents {shown}: a non-finite state, energy or disagreement); the largest action entry is {largest:g}. "
             "The step was refused and the state is unchanged; smaller actions (or a smaller obs_noise / state "
             "scale) keep it finite"
+        )
+
+    # -------------------------------------------------------------- states
+    def checked_state(
+        self, name: str, value: Any, shape: tuple[int, ...], limit: float = validation.STATE_LIMIT
+    ) -> Any:
+        """A real ``shape`` state array, entries finite and within ``±limit``, checked in full
+        (:func:`fxc_env.core.validation.state_batch`); raise naming ``name`` otherwise."""
+        return validation.state_batch(name, value, shape, limit)
+
+    def check_state_values(self, named: dict[str, Any], limit: float = validation.STATE_LIMIT) -> None:
+        """Nothing left to read on numpy: :meth:`checked_state` checked the values in full."""
+
+    def _row_refusal(self, actions: np.ndarray, following: Any, k: int, interval: float) -> ArgumentError:
+        """The error of a finite step whose states would differ by more than :attr:`row_limit` (raw float32)."""
+        largest = self.largest_difference(following.state)
+        b = int(np.argmax(largest))
+        episode = f" in episode {b}" if self.n_episodes > 1 else ""
+        return ArgumentError(
+            f"actions: the interval k = {k} (T = {interval:g} s) would take two agents' states {largest[b]:g} "
+            f"apart{episode}, beyond ±{self.row_limit:g}, where raw float32 observations overflow to inf "
+            f'(obs_dtype="float32", obs_mode="raw"); the largest action entry is {float(np.max(np.abs(actions[b]))):g}. '
+            'The step was refused and the state is unchanged; smaller actions keep it in range, or use obs_dtype="float64"'
         )
 
     def flag(self, mask: Any) -> None:
@@ -190,6 +245,8 @@ class TorchBackend(NumpyBackend):
         #: Per episode: a non-finite action or result, or a step past ``T_s``, was seen since
         #: its last reset. Read by :meth:`raise_if_invalid`.
         self.invalid = self.xp.zeros(n_episodes, dtype=self.xp.bool, device=chosen)
+        self.row_limit: float | None = None  # see NumpyBackend.limit_rows
+        self.quiet_disagreement = math.inf
 
     def _namespace(self) -> Any:
         import torch
@@ -253,6 +310,8 @@ class TorchBackend(NumpyBackend):
         xp = self.xp
         finite = xp.isfinite(following.disagreement) & xp.all(xp.isfinite(following.energy), axis=-1)
         self.flag(~finite)
+        if self.row_limit is not None:  # raw float32 observations: rows beyond float32's range
+            self.flag(self.largest_difference(following.state) > self.row_limit)
         return following.state, None
 
     def flag(self, mask: Any) -> None:
@@ -268,21 +327,19 @@ class TorchBackend(NumpyBackend):
         else:
             self.invalid = xp.where(episodes, xp.zeros_like(self.invalid), self.invalid)
 
-    def checked_state(self, name: str, value: Any, shape: tuple[int, ...]) -> Any:
-        """A ``shape`` real state on the device, entries finite and within ``±STATE_LIMIT``; raise naming ``name``.
+    def checked_state(
+        self, name: str, value: Any, shape: tuple[int, ...], limit: float = validation.STATE_LIMIT
+    ) -> Any:
+        """A ``shape`` real state on the device, entries finite and within ``±limit``; raise naming ``name``.
 
-        numpy input is checked in full and copied to the device; a tensor's shape and dtype
-        are checked on the host, its values by :meth:`check_state_values`.
+        numpy input is checked in full, as on numpy (:func:`fxc_env.core.validation.state_batch`),
+        and copied to the device; a tensor's shape and dtype are checked on the host, its values
+        by :meth:`check_state_values`.
         """
         import torch
 
         if isinstance(value, np.ndarray | list | tuple):
-            array = validation.real_array(name, value, f"an array of shape {shape}")
-            if array.shape != shape:
-                raise ArgumentError(f"{name}: expected shape {shape}, got {array.shape}")
-            if not np.all(np.isfinite(array) & (np.abs(array) <= validation.STATE_LIMIT)):
-                raise ArgumentError(_state_entries_error(name))
-            return self.array(array)
+            return self.array(validation.state_batch(name, value, shape, limit))
         if not isinstance(value, torch.Tensor):
             raise ArgumentError(f"{name}: expected a torch tensor of shape {shape}, got {type(value).__name__}")
         if tuple(value.shape) != shape:
@@ -291,8 +348,8 @@ class TorchBackend(NumpyBackend):
             raise ArgumentError(f"{name}: expected real numbers, got dtype {value.dtype}")
         return self.xp.astype(value.to(self.device), self.dtype)
 
-    def check_state_values(self, named: dict[str, Any]) -> None:
-        """Raise naming the first of ``named``'s tensors with a NaN, an infinity or an entry beyond ``±STATE_LIMIT``.
+    def check_state_values(self, named: dict[str, Any], limit: float = validation.STATE_LIMIT) -> None:
+        """Raise naming the first of ``named``'s tensors with a NaN, an infinity or an entry beyond ``±limit``.
 
         One read off the device for all of them (none on ``meta``): a NaN propagates through
         the largest magnitude, which then fails the comparison like an infinity does.
@@ -301,9 +358,9 @@ class TorchBackend(NumpyBackend):
 
         if self.device.type == "meta":
             return
-        within = torch.stack([value.abs().amax() for value in named.values()]) <= validation.STATE_LIMIT
+        within = torch.stack([value.abs().amax() for value in named.values()]) <= limit
         if not bool(within.all()):
-            raise ArgumentError(_state_entries_error(list(named)[int(to_host(~within).argmax())]))
+            raise ArgumentError(validation.state_entries_error(list(named)[int(to_host(~within).argmax())], limit))
 
     def raise_if_invalid(self) -> None:
         """Raise :class:`ArgumentError` if any episode was flagged (one read off the device), clearing the flags."""
@@ -313,16 +370,10 @@ class TorchBackend(NumpyBackend):
             # (a flag left set would make every later reset raise the same error).
             self.clear_flags()
             raise ArgumentError(
-                f"actions: episodes {bad[:10].tolist()} received a non-finite action, overflowed float64 or were "
+                f"actions: episodes {bad[:10].tolist()} received a non-finite action, overflowed float64 (or, with "
+                'obs_dtype="float32" and obs_mode="raw", took states apart beyond float32\'s range) or were '
                 "stepped past T_s since their last reset; reset them (their states are not to be trusted)"
             )
-
-
-def _state_entries_error(name: str) -> str:
-    return (
-        f"{name}: expected finite entries within ±{validation.STATE_LIMIT:g} (metres, m/s; float64 headroom), "
-        "got a NaN, an infinity or a larger entry"
-    )
 
 
 def make_backend(device: Any, dtype: str, n_episodes: int) -> NumpyBackend:

@@ -29,9 +29,12 @@ episode trackers          :mod:`~fxc_env.engine.trackers` (rewards, totals, the 
 ========================  ==========================================================================
 
 **Where a bad value is reported.** On numpy a step whose result would not be finite is
-refused at once (:class:`ArgumentError` naming ``actions``, state unchanged). On torch the
-step never reads a value back to the host: non-finite actions or results, and stepping an
-episode past ``T_s``, set a per-episode flag on the device (:attr:`ConsensusEngine.invalid`),
+refused at once (:class:`ArgumentError` naming ``actions``, state unchanged), and so is one
+that, with ``obs_dtype="float32"`` and ``obs_mode="raw"``, would take two agents' states more
+than :func:`~fxc_env.core.validation.float32_row_limit` apart (their raw row would observe as
+``inf``; the check is folded into the finite check's sum of disagreements). On torch the
+step never reads a value back to the host: non-finite actions or results (or raw float32
+rows beyond that limit), and stepping an episode past ``T_s``, set a per-episode flag on the device (:attr:`ConsensusEngine.invalid`),
 read by :meth:`ConsensusEngine.raise_if_invalid` off the hot path (the TorchRL environment
 calls it at every reset and at the end of every episode; ``check_values=False`` leaves it to
 the caller).
@@ -119,6 +122,12 @@ class ConsensusEngine:
                 f"device: {config.agent_model!r} agents run on numpy (device=None) in this version; the torch "
                 "backend covers the double integrator"
             )
+        if (config.obs_dtype, config.obs_mode) == ("float32", "raw"):
+            # A raw row is a difference of two states: one beyond float32's range would observe as inf.
+            backend.limit_rows(
+                validation.float32_row_limit(config.obs_noise),
+                [config.settling_time**level for level in range(config.n_states)],
+            )
         shape = (b, config.n_agents, config.n_states, config.dim)
         #: ``(B, N, n, dim)`` at ``t_k``; numpy plays each interval into the spare buffer (double buffering).
         self.state = backend.zeros(shape)
@@ -198,7 +207,12 @@ class ConsensusEngine:
 
     # ---------------------------------------------------------------- draws (the one backend-specific piece)
     def seed(self, seed: int | None) -> None:
-        """Seed :attr:`rng` (noise, dropout, switching and, on torch, :meth:`draw_batch`)."""
+        """Seed :attr:`rng` (noise, dropout, switching and, on torch, :meth:`draw_batch`).
+
+        ``seed``: None or an integer, in ``[0, 2**128)`` on numpy and ``[0, 2**64)`` on torch
+        (a ``torch.Generator``'s range); anything else raises :class:`ArgumentError` naming
+        ``seed`` and :attr:`rng` is unchanged.
+        """
         self.rng = self.backend.generator(seed)
 
     def _uniform(self, shape: tuple[int, ...]) -> Any:
@@ -260,15 +274,16 @@ class ConsensusEngine:
         (TorchRL's partial reset): their rows of ``x0, v0, u_max`` and ``topologies`` are used,
         the others go on where they are; from then on every episode keeps its own clock.
 
-        On torch, ``x0`` and ``v0`` (tensors, or numpy arrays copied to the device) are checked
-        before anything changes: shape ``(B, N, dim)``, real, finite, within ``±1e100`` (one
-        read off the device; none on ``meta``); a bad one raises :class:`ArgumentError` naming it.
+        ``x0`` and ``v0`` are checked before anything changes, on both back ends by the same
+        check (:func:`fxc_env.core.validation.state_batch`): shape ``(B, N, dim)``, real, finite,
+        within ``±1e100`` (``±1e37`` with raw float32 observations, ``config.state_limit``); a bad
+        one raises :class:`ArgumentError` naming it and the engine is unchanged. numpy arrays
+        are checked in full; a torch tensor's values in one read off the device (none on ``meta``).
         """
         xp, c = self.xp, self.config
-        if not self.is_numpy:  # checked before anything changes (numpy: the front ends check a user's state)
-            shape = (self.n_episodes, c.n_agents, c.dim)
-            x0, v0 = self.backend.checked_state("x0", x0, shape), self.backend.checked_state("v0", v0, shape)
-            self.backend.check_state_values({"x0": x0, "v0": v0})
+        shape, limit = (self.n_episodes, c.n_agents, c.dim), c.state_limit
+        x0, v0 = self.backend.checked_state("x0", x0, shape, limit), self.backend.checked_state("v0", v0, shape, limit)
+        self.backend.check_state_values({"x0": x0, "v0": v0}, limit)
         if episodes is not None and c.model is not None:
             raise ArgumentError(f"episodes: partial resets are for the double integrator, not {c.agent_model!r} agents")
         if topologies is not None:

@@ -42,6 +42,7 @@ _PARTS = {
     "tables": ("next_interval", "features", "row_factors"),
     "graphs": ("topologies", "draw"),
     "observer": ("invalidate",),
+    "backend": ("quiet_disagreement",),
     "trackers": (
         "current_disagreement",
         "log_disagreement",
@@ -100,6 +101,9 @@ class SmallInterval:
         self.factors: list[list[float]] = np.asarray(tables.row_factors)[:, :2].tolist()
         #: ``[1, T_s]``: the weights of ``D = e_x + T_s e_v`` (as the engine's agents hold them).
         self.weights = np.array([1.0, config.settling_time])
+        #: A disagreement above this goes to the engine: 1e300, or with raw float32 observations
+        #: the engine's bound below which no two states can differ beyond float32's range.
+        self.large = min(_LARGE, engine.backend.quiet_disagreement)
         self._topology: Any = None
         #: Per graph of the topology, per agent: the neighbour in each slot (itself when padded) and the mask.
         self._neighbours: list[list[list[int]]] = []
@@ -240,7 +244,7 @@ class SmallInterval:
         # D = e_x + T_s e_v at dim = 1: the ranges (exact in any order), weighted by numpy.
         x_next, v_next = following[0::2], following[1::2]
         disagreement = np.array([[max(x_next) - min(x_next), max(v_next) - min(v_next)]]) @ self.weights
-        if not float(disagreement[0]) <= _LARGE:
+        if not float(disagreement[0]) <= self.large:
             return None
         engine.state.flat[:] = following
         # The trackers, clock, measurements and graph, as ConsensusEngine.step leaves them.
