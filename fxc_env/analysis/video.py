@@ -145,7 +145,7 @@ def states_at(trajectory: Trajectory, times: Any) -> np.ndarray:
 
     The engine's coordinates are the formation error ``z_i - e^{A t} h_i`` when the run has
     formation offsets (:func:`absolute_positions` adds them back). Closed form in each
-    interval (module docstring); the state at ``t_k`` is the sampled one, bit for bit.
+    interval (module docstring); the state at a sampling instant is the sampled one, bit for bit.
     """
     if trajectory.states is None:
         raise ArgumentError("trajectory: it has no states (made by an older simulate); run fxc_env.simulate again")
@@ -165,17 +165,19 @@ def states_at(trajectory: Trajectory, times: Any) -> np.ndarray:
         if trajectory.u_max is not None:  # the clipped line from u0 to u(s), integrated exactly over [0, s]
             reach = np.maximum(offset, np.finfo(float).tiny)
             dx, dv, *_ = advance_clipped(x, v, u0, du, reach, trajectory.u_max)
-        inside = np.stack([dx, dv], axis=2)
-        at_instant = s == 0  # the sampled state itself (no rounding)
-        inside[at_instant] = z[k[at_instant]]
-        return inside
-    maps = c.interval_maps
-    out = np.empty((len(times), *z.shape[1:]))
-    for interval in np.unique(k):
-        rows = np.flatnonzero(k == interval)
-        per_axis = np.swapaxes(z[interval], -1, -2)  # (N, dim, n)
-        inside, _ = maps.state_inside(int(interval), per_axis, trajectory.plans[interval], s[rows])
-        out[rows] = np.swapaxes(inside, -1, -2)
+        out = np.stack([dx, dv], axis=2)
+    else:
+        maps = c.interval_maps
+        out = np.empty((len(times), *z.shape[1:]))
+        for interval in np.unique(k):
+            rows = np.flatnonzero(k == interval)
+            per_axis = np.swapaxes(z[interval], -1, -2)  # (N, dim, n)
+            inside, _ = maps.state_inside(int(interval), per_axis, trajectory.plans[interval], s[rows])
+            out[rows] = np.swapaxes(inside, -1, -2)
+    # At a sampling instant, the sampled state itself (no rounding): t_k, and T_s at the end of the last interval.
+    start, end = s == 0, times == trajectory.times[k + 1]
+    out[start] = z[k[start]]
+    out[end] = z[k[end] + 1]
     return out
 
 

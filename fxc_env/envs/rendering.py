@@ -434,7 +434,8 @@ class EpisodeView:
     def start(self, engine: Any) -> None:
         """A new episode (or batch of them): the engine's state at ``t = 0``."""
         self.history = []
-        self.record(engine)
+        if self.render_mode:
+            self.record(engine)
 
     def record(self, engine: Any) -> None:
         """The engine's first episodes at its current sampling instant (nothing without a render mode)."""
