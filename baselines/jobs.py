@@ -102,10 +102,14 @@ def run_job(job: Job) -> JobResult:
     d0 = engine.initial_disagreement.copy()
     trace = [np.ones(len(job.seeds))]
     obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
+    reads_graph = getattr(policy, "arch", None) == "gnn"  # a torch 'gnn' policy also reads the interval graph
+    if reads_graph:
+        from fxc_env.policies.torch_memory import interval_graph
     with np.errstate(all="ignore"):  # a diverging law overflows; its metrics say so
         while not engine.done:
             engine.observations(out=obs)
-            engine.step(np.asarray(policy(obs), dtype=np.float64))
+            actions = policy(obs, graph=interval_graph(engine, obs)) if reads_graph else policy(obs)
+            engine.step(np.asarray(actions, dtype=np.float64))
             trace.append(engine.current_disagreement / d0)
         metrics = engine.batch_metrics()
     relative = metrics["relative_deadline_error"]

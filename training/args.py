@@ -30,6 +30,8 @@ BACKENDS = ("sb3", "rllib", "torch")
 BACKEND_ALIASES = {"torchrl": "torch"}
 #: ``--critic`` of the torch back end: per-agent values, or one value per episode from the global state.
 CRITICS = ("local", "central")
+#: ``--policy-arch`` of the torch back end (:mod:`fxc_env.policies.torch_memory`).
+POLICY_ARCHS = ("mlp", "gru", "gnn")
 #: Fields only ``--backend rllib`` reads: another back end refuses a value other than the default.
 RLLIB_ONLY = ("num_env_runners", "envs_per_runner", "address")
 
@@ -79,6 +81,11 @@ class TrainArgs:
         "local",
         "torch: ``local`` (each agent's value from its own observation) or ``central`` (one value per episode "
         "from the normalized global state, shared by its agents).",
+    )
+    policy_arch: str = arg(
+        "mlp",
+        "torch: the actor, ``mlp`` (memoryless), ``gru`` (a GRU over the agent's own observations, reset per "
+        "episode) or ``gnn`` (messages along the interval graph's edges: a communication model beyond the paper's).",
     )
 
 
@@ -156,6 +163,11 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
     if args.backend in ("rllib", "torch") and args.algo != "ppo":
         raise ArgumentError(f"{name('algo')}: the {args.backend} backend trains 'ppo', got {args.algo!r}")
     choice(name("critic"), args.critic, CRITICS)
+    choice(name("policy_arch"), args.policy_arch, POLICY_ARCHS)
+    if args.backend != "torch" and args.policy_arch != "mlp":
+        raise ArgumentError(
+            f"{name('policy_arch')}: only the torch backend has a choice of actor, got {args.policy_arch!r}"
+        )
     if args.backend != "torch" and args.critic != "local":
         raise ArgumentError(f"{name('critic')}: only the torch backend has a choice of critic, got {args.critic!r}")
     if args.backend != "torch" and args.device != "cpu":

@@ -38,7 +38,22 @@ of a plain dictionary (it loads with ``weights_only=True``): ``format``
 widths), ``activation``, ``actor`` (the state dict of the mean network, an ``nn.Sequential``
 of ``Linear`` and activation layers), ``log_std`` (the exploration noise, unused by the
 deterministic policy), ``env`` (``scenario`` and the environment keywords it was trained on)
-and ``timesteps``. Every checkpoint holds the same dictionary under ``"policy"``.
+and ``timesteps``; ``arch`` (``mlp``; absent in older files) with, for ``gru``, ``gru_size`` and
+``clock_index``, ``gru_input``, ``rows_end`` and, for ``gnn``, ``embed_size`` and ``rounds``. Every checkpoint holds the same
+dictionary under ``"policy"``.
+
+**Memory and messages** (``--policy-arch``, :mod:`fxc_env.policies.torch_memory`; ``mlp`` is the
+default and trains bit for bit as before). ``gru``: a GRU over each agent's own observations with a
+gain head; its memory ``[B, N, gru_size]`` is carried across the steps (and rollouts) of an episode
+and zeroed where the observation's clock reads ``k = 0`` (every episode start, partial resets
+included). The rollout stores the memory at its start; the update reruns the GRU from it over the
+T steps of whole agent sequences (``minibatch_size // T`` sequences a minibatch), so the log
+probabilities are exact for the current weights and the gradient runs through the rollout
+(truncated at rollout boundaries) at the cost of one extra forward pass, where storing every
+step's memory would freeze the memories at the old weights. ``gnn``: messages along the interval
+graph (:mod:`fxc_env.engine.graph_tensors`'s ``edge_index``/``edge_mask``, stored per step);
+minibatches are whole (step, episode) graphs. That is a communication model beyond the paper's (its
+agents sample only their in-neighbours' states). The critic is an MLP in every case.
 """
 
 from __future__ import annotations
@@ -59,6 +74,8 @@ from fxc_env.config import EnvConfig, make_config
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
+from fxc_env.engine.graph_tensors import edge_capacity
+from fxc_env.policies.torch_memory import GRU_INPUTS, MessagePassingActor, RecurrentActor, interval_graph
 from fxc_env.policies.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp
 from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.run_dir import RunDir
@@ -114,6 +131,14 @@ class PPOSettings:
     log_std_init: float = -2.0
     """Initial log standard deviation of the exploration noise (state independent, learned)."""
     normalize_advantage: bool = True
+    gru_size: int = 64
+    """``--policy-arch gru``: the width of the GRU's hidden state."""
+    gru_input: str = "observation"
+    """``--policy-arch gru``: what the GRU reads, ``observation`` or ``schedule`` (:class:`RecurrentActor`)."""
+    embed_size: int = 64
+    """``--policy-arch gnn``: the width of each agent's embedding."""
+    message_rounds: int = 2
+    """``--policy-arch gnn``: rounds of messages (each reaches one hop further upstream)."""
 
     @classmethod
     def from_mapping(cls, entry: Mapping[str, Any], config: EnvConfig, *, name: str = "hyperparams") -> PPOSettings:
@@ -128,8 +153,9 @@ class PPOSettings:
             return f"{name}: torch_ppo.{k}"
 
         k_intervals = config.n_intervals
-        for field in ("n_envs", "rollout_steps", "epochs", "minibatch_size"):
+        for field in ("n_envs", "rollout_steps", "epochs", "minibatch_size", "gru_size", "embed_size"):
             validation.integer(key(field), values[field], 1)
+        validation.integer(key("message_rounds"), values["message_rounds"], 1, 8)
         if k_intervals % values["rollout_steps"]:
             raise ArgumentError(
                 f"{key('rollout_steps')}: expected K = {k_intervals} or a divisor of it, got {values['rollout_steps']}"
@@ -146,6 +172,7 @@ class PPOSettings:
         for width in hidden:
             validation.integer(key("hidden"), width, 1, 1_000_000)
         validation.choice(key("activation"), values["activation"], tuple(ACTIVATIONS))
+        validation.choice(key("gru_input"), values["gru_input"], GRU_INPUTS)
         if not isinstance(values["normalize_advantage"], bool):
             raise ArgumentError(f"{key('normalize_advantage')}: expected true or false")
         values["hidden"] = tuple(int(w) for w in hidden)
@@ -165,11 +192,47 @@ def run_config(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------------- networks
 class ActorCritic(nn.Module):
-    """The shared Gaussian policy (mean network, state-independent log std) and the critic."""
+    """The shared Gaussian policy (mean network, state-independent log std) and the critic.
 
-    def __init__(self, obs_size: int, action_size: int, critic_size: int, settings: PPOSettings) -> None:
+    ``arch``: the mean network, an MLP of the observation (``mlp``), a GRU over the agent's
+    observations with a gain head (``gru``) or messages along the interval graph (``gnn``),
+    :mod:`fxc_env.policies.torch_memory`; ``clock_index``: the observation entry of ``k/K``
+    (``gru`` resets its memory where it is 0). The critic is an MLP in every case.
+    """
+
+    def __init__(
+        self,
+        obs_size: int,
+        action_size: int,
+        critic_size: int,
+        settings: PPOSettings,
+        arch: str = "mlp",
+        clock_index: int = -1,
+        rows_end: int = 0,
+    ) -> None:
         super().__init__()
-        self.actor = mlp(obs_size, action_size, settings.hidden, settings.activation, 0.01)
+        if arch == "gru":
+            self.actor: nn.Module = RecurrentActor(
+                obs_size,
+                action_size,
+                settings.hidden,
+                settings.activation,
+                settings.gru_size,
+                clock_index,
+                settings.gru_input,
+                rows_end,
+            )
+        elif arch == "gnn":
+            self.actor = MessagePassingActor(
+                obs_size,
+                action_size,
+                settings.hidden,
+                settings.activation,
+                settings.embed_size,
+                settings.message_rounds,
+            )
+        else:
+            self.actor = mlp(obs_size, action_size, settings.hidden, settings.activation, 0.01)
         self.log_std = nn.Parameter(torch.full((action_size,), settings.log_std_init))
         self.critic = mlp(critic_size, 1, settings.hidden, settings.activation, 1.0)
 
@@ -223,7 +286,12 @@ class Trainer:
         torch.manual_seed(args.seed)  # the networks' initial weights
         self._reset()
         self.state_size = self.engine.normalized_state().shape[-1] if self.central else self.obs_size
-        self.model = ActorCritic(self.obs_size, self.action_size, self.state_size, settings).to(device)
+        self.arch = args.policy_arch
+        self.clock_index = config.layout.clock_end - 1  # k/K
+        self.rows_end = config.layout.rows_end
+        self.model = ActorCritic(
+            self.obs_size, self.action_size, self.state_size, settings, self.arch, self.clock_index, self.rows_end
+        ).to(device)
         self.optimizer = adam(self.model.parameters(), settings.learning_rate)
         self.timesteps = 0
         self.iterations = 0
@@ -236,6 +304,13 @@ class Trainer:
         self.log_probs = torch.empty((t, b, n), **f32)
         self.rewards = torch.empty((t, b), **f32)
         self.states = torch.empty((t, b, self.state_size), **f32) if self.central else None
+        if self.arch == "gru":  # the memory when the rollout began, [B, N, gru_size], and as it goes on
+            self.hidden = self.model.actor.initial_state((b, n), device)
+            self.start_hidden = self.hidden.clone()
+        if self.arch == "gnn":  # each step's interval graph as edge tensors, padded to a fixed E
+            self.edge_width = edge_capacity(config)
+            self.edge_index = torch.empty((t, b, 2, self.edge_width), dtype=torch.int64, device=device)
+            self.edge_mask = torch.empty((t, b, self.edge_width), dtype=torch.bool, device=device)
 
     # ---------------------------------------------------------------------- episodes
     def _draw(self) -> tuple[Any, Any, Any, Any]:
@@ -257,13 +332,22 @@ class Trainer:
         finished_returns, finished_errors = [], []
         if not self.fresh and engine.done:
             self._reset()
+        if self.arch == "gru":
+            self.start_hidden = self.hidden.clone()
         with torch.no_grad():
             for t in range(self.settings.rollout_steps):
                 obs = engine.observations().to(torch.float32)
                 self.obs[t] = obs
                 if self.central:
                     self.states[t] = engine.normalized_state().to(torch.float32)
-                mean = model.actor(obs)
+                if self.arch == "gru":  # the memory resets where the clock reads k = 0 (an episode's start)
+                    mean, self.hidden = model.actor.step(obs, self.hidden)
+                elif self.arch == "gnn":
+                    edge_index, edge_mask = interval_graph(engine, obs, self.edge_width)
+                    self.edge_index[t], self.edge_mask[t] = edge_index, edge_mask
+                    mean = model.actor(obs, edge_index, edge_mask)
+                else:
+                    mean = model.actor(obs)
                 noise = torch.randn(mean.shape, generator=self.generator, dtype=mean.dtype, device=mean.device)
                 actions = mean + std * noise
                 self.actions[t] = actions
@@ -319,6 +403,10 @@ class Trainer:
     # ------------------------------------------------------------------------ update
     def update(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
         """``epochs`` passes of clipped-surrogate minibatch steps; returns the statistics (on the device)."""
+        if self.arch == "gru":
+            return self._update_sequences(advantages, targets)
+        if self.arch == "gnn":
+            return self._update_graphs(advantages, targets)
         s, model, n = self.settings, self.model, self.n_agents
         obs = self.obs.reshape(-1, self.obs_size)
         actions = self.actions.reshape(-1, self.action_size)
@@ -370,6 +458,112 @@ class Trainer:
         self.n_updates += count
         return sums / count
 
+    def _minibatch_step(
+        self,
+        mean: torch.Tensor,
+        actions: torch.Tensor,
+        old_log_probs: torch.Tensor,
+        advantage: torch.Tensor,
+        value: torch.Tensor,
+        target: torch.Tensor,
+    ) -> torch.Tensor:
+        """One clipped-surrogate gradient step on a minibatch (any matching shapes); its statistics."""
+        s, model = self.settings, self.model
+        if s.normalize_advantage and advantage.numel() > 1:
+            advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
+        log_ratio = model.log_prob(mean, actions) - old_log_probs
+        ratio = torch.exp(log_ratio)
+        policy_loss = -torch.min(
+            advantage * ratio, advantage * torch.clamp(ratio, 1.0 - s.clip_range, 1.0 + s.clip_range)
+        ).mean()
+        value_loss = torch.mean((value - target) ** 2)
+        entropy = model.entropy()
+        loss = policy_loss + s.vf_coef * value_loss - s.ent_coef * entropy
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        nn.utils.clip_grad_norm_(model.parameters(), s.max_grad_norm)
+        self.optimizer.step()
+        with torch.no_grad():
+            approx_kl = torch.mean((ratio - 1.0) - log_ratio)
+            clipped = torch.mean((torch.abs(ratio - 1.0) > s.clip_range).to(torch.float32))
+            return torch.stack([policy_loss, value_loss, -entropy, approx_kl, clipped]).detach()
+
+    def _update_sequences(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+        """``gru``: minibatches of whole agent sequences, the GRU rerun over the rollout's T steps.
+
+        Each of the B * N agents' T steps is one sequence; a minibatch holds
+        ``max(1, minibatch_size // T)`` of them, and the GRU is rerun from the hidden state
+        stored when the rollout began (:attr:`start_hidden`), resetting where the clock reads
+        k = 0, so the log-probabilities are those of the current weights over the same
+        memory the actions were drawn with, and the gradient flows through the whole rollout
+        (truncated back-propagation through time at rollout boundaries).
+        """
+        s, model, n, t = self.settings, self.model, self.n_agents, self.settings.rollout_steps
+        sequences = self.n_envs * n
+        obs = self.obs.reshape(t, sequences, self.obs_size)
+        actions = self.actions.reshape(t, sequences, self.action_size)
+        old_log_probs = self.log_probs.reshape(t, sequences)
+        start = self.start_hidden.reshape(sequences, -1)
+        if self.central:
+            per_agent = advantages[:, :, None].expand(-1, -1, n).reshape(t, sequences)
+            states, value_targets = self.states, targets  # [T, B, S], [T, B]
+        else:
+            per_agent, value_targets = advantages.reshape(t, sequences), targets.reshape(t, sequences)
+        size = max(1, s.minibatch_size // t)
+        sums = torch.zeros(5, dtype=torch.float32, device=self.device)
+        count = 0
+        for _ in range(s.epochs):
+            order = torch.randperm(sequences, generator=self.generator, device=self.device)
+            for first in range(0, sequences, size):
+                index = order[first : first + size]
+                mean, _ = model.actor.sequence(obs[:, index], start[index])
+                if self.central:
+                    episodes = torch.unique(torch.div(index, n, rounding_mode="floor"))
+                    value = model.critic(states[:, episodes]).squeeze(-1)
+                    target = value_targets[:, episodes]
+                else:
+                    value = model.critic(obs[:, index]).squeeze(-1)
+                    target = value_targets[:, index]
+                sums += self._minibatch_step(
+                    mean, actions[:, index], old_log_probs[:, index], per_agent[:, index], value, target
+                )
+                count += 1
+        self.n_updates += count
+        return sums / count
+
+    def _update_graphs(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+        """``gnn``: minibatches of whole (step, episode) graphs, ``max(1, minibatch_size // N)`` of them."""
+        s, model, n, t = self.settings, self.model, self.n_agents, self.settings.rollout_steps
+        graphs = t * self.n_envs
+        obs = self.obs.reshape(graphs, n, self.obs_size)
+        actions = self.actions.reshape(graphs, n, self.action_size)
+        old_log_probs = self.log_probs.reshape(graphs, n)
+        edge_index = self.edge_index.reshape(graphs, 2, self.edge_width)
+        edge_mask = self.edge_mask.reshape(graphs, self.edge_width)
+        if self.central:
+            per_agent = advantages.reshape(graphs, 1).expand(-1, n)
+            states, value_targets = self.states.reshape(graphs, self.state_size), targets.reshape(graphs)
+        else:
+            per_agent, value_targets = advantages.reshape(graphs, n), targets.reshape(graphs, n)
+        size = max(1, s.minibatch_size // n)
+        sums = torch.zeros(5, dtype=torch.float32, device=self.device)
+        count = 0
+        for _ in range(s.epochs):
+            order = torch.randperm(graphs, generator=self.generator, device=self.device)
+            for first in range(0, graphs, size):
+                index = order[first : first + size]
+                mean = model.actor(obs[index], edge_index[index], edge_mask[index])
+                if self.central:
+                    value = model.critic(states[index]).squeeze(-1)
+                else:
+                    value = model.critic(obs[index]).squeeze(-1)
+                sums += self._minibatch_step(
+                    mean, actions[index], old_log_probs[index], per_agent[index], value, value_targets[index]
+                )
+                count += 1
+        self.n_updates += count
+        return sums / count
+
     # ---------------------------------------------------------------------- state
     def policy_record(self) -> dict[str, Any]:
         """The policy file's dictionary (see the module docstring)."""
@@ -380,11 +574,27 @@ class Trainer:
             "action_bound": self.bound,
             "hidden": list(self.settings.hidden),
             "activation": self.settings.activation,
+            "arch": self.arch,
+            **self.arch_entries(),
             "actor": {k: v.detach().cpu().clone() for k, v in self.model.actor.state_dict().items()},
             "log_std": self.model.log_std.detach().cpu().clone(),
             "env": dict(self.env_kwargs),
             "timesteps": self.timesteps,
         }
+
+    def arch_entries(self) -> dict[str, Any]:
+        """The policy record's entries of the ``gru`` (``gru_size``, ``clock_index``, ``gru_input``,
+        ``rows_end``) or ``gnn`` (``embed_size``, ``rounds``) actor."""
+        if self.arch == "gru":
+            return {
+                "gru_size": self.settings.gru_size,
+                "clock_index": self.clock_index,
+                "gru_input": self.settings.gru_input,
+                "rows_end": self.rows_end,
+            }
+        if self.arch == "gnn":
+            return {"embed_size": self.settings.embed_size, "rounds": self.settings.message_rounds}
+        return {}
 
     def save_checkpoint(self, run: RunDir) -> Path:
         """Networks, Adam's state, counters and every generator's state as ``checkpoints/model_<timesteps>_steps.pt``."""

@@ -5,8 +5,10 @@ of a plain dictionary that loads with ``weights_only=True``: ``format``
 (:data:`POLICY_FORMAT`), ``obs_size``, ``action_size``, ``action_bound``, ``hidden`` (the
 widths), ``activation``, ``actor`` (the state dict of the mean network, an ``nn.Sequential``
 of ``Linear`` and activation layers), ``log_std``, ``env`` (``scenario`` and the environment
-keywords it was trained on) and ``timesteps``. The trainer lives in
-:mod:`fxc_env.training.torch_ppo`; this module is what evaluation needs.
+keywords it was trained on) and ``timesteps``; ``arch`` (absent: ``mlp``) names the actor, ``gru``
+(``gru_size``, ``clock_index``) or ``gnn`` (``embed_size``, ``rounds``) of
+:mod:`fxc_env.policies.torch_memory`. The trainer lives in :mod:`fxc_env.training.torch_ppo`;
+this module is what evaluation needs.
 """
 
 from __future__ import annotations
@@ -66,11 +68,15 @@ class TorchPolicy:
         self.action_bound = float(record["action_bound"])
         self.env: dict[str, Any] = dict(record.get("env", {}))
         self.timesteps = int(record.get("timesteps", 0))
-        hidden = tuple(int(w) for w in record["hidden"])
-        self.module = mlp(self.obs_size, self.action_size, hidden, str(record["activation"]), 1.0)
+        from fxc_env.policies.torch_memory import build_actor
+
+        #: ``mlp`` (absent in older files), ``gru`` or ``gnn`` (:mod:`fxc_env.policies.torch_memory`).
+        self.arch = str(record.get("arch", "mlp"))
+        self.module = build_actor(record, self.obs_size, self.action_size)
         self.module.load_state_dict(record["actor"])
         self.module.eval().requires_grad_(False)
         self._settings: dict[str, Any] | None = None
+        self._hidden: torch.Tensor | None = None  # gru: the memory of the episodes under way
 
     @property
     def training_settings(self) -> dict[str, Any] | None:
@@ -81,16 +87,44 @@ class TorchPolicy:
             self._settings = settings_from_env_kwargs(self.env)
         return self._settings
 
-    def __call__(self, observations: Any) -> Any:
+    def reset(self) -> None:
+        """Forget the memory (``gru``); an episode's first observation (clock ``k/K = 0``) also resets it."""
+        self._hidden = None
+
+    def __call__(self, observations: Any, graph: tuple[Any, Any] | None = None) -> Any:
+        """Actions for observations ``[..., obs_size]``.
+
+        ``gru``: one call per sampling instant; the memory is carried from call to call for
+        observations of the same leading shape and reset per episode (clock ``k/K = 0``), or
+        when the shape changes, or by :meth:`reset`. ``gnn``: ``observations`` ``[..., N,
+        obs_size]`` and ``graph``, the interval graph's ``(edge_index, edge_mask)`` ``[..., 2, E]``,
+        ``[..., E]`` (:func:`fxc_env.policies.torch_memory.interval_graph`).
+        """
         numpy_in = not isinstance(observations, torch.Tensor)
         x = torch.as_tensor(np.asarray(observations) if numpy_in else observations)
         if x.ndim < 1 or x.shape[-1] != self.obs_size:
             raise ArgumentError(f"observations: expected shape [..., {self.obs_size}], got {tuple(x.shape)}")
+        if self.arch == "gnn" and graph is None:
+            raise ArgumentError(
+                "graph: a 'gnn' policy passes messages along the interval graph; call it with "
+                "graph=(edge_index, edge_mask) (observations alone do not say who is whose neighbour)"
+            )
         device = next(self.module.parameters()).device
         if x.device != device:
             self.module.to(x.device)
         with torch.no_grad():
-            actions = self.module(x.to(torch.float32)).clamp(-self.action_bound, self.action_bound)
+            x32 = x.to(torch.float32)
+            if self.arch == "gru":
+                hidden = self._hidden
+                if hidden is None or hidden.shape[:-1] != x32.shape[:-1] or hidden.device != x32.device:
+                    hidden = self.module.initial_state(tuple(x32.shape[:-1]), x32.device)
+                mean, self._hidden = self.module.step(x32, hidden)
+            elif self.arch == "gnn":
+                index, mask = (torch.as_tensor(np.asarray(g) if not isinstance(g, torch.Tensor) else g) for g in graph)
+                mean = self.module(x32, index.to(x32.device), mask.to(x32.device) > 0)
+            else:
+                mean = self.module(x32)
+            actions = mean.clamp(-self.action_bound, self.action_bound)
         if numpy_in:
             return actions.double().numpy()
         return actions.to(x.dtype) if x.is_floating_point() else actions

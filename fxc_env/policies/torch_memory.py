@@ -1,0 +1,249 @@
+"""Actors with memory or messages for the torch back end (``fxc train --backend torch --policy-arch``).
+
+Three actor architectures share the policy file of :mod:`fxc_env.policies.torch_policy`:
+
+- ``mlp`` (the default): the mean action is an MLP of the agent's observation (memoryless).
+- ``gru`` (:class:`RecurrentActor`): a GRU cell reads the agent's own observations, one per
+  sampling instant, ``h_k = GRU(o_k, h_{k-1})``, and the mean is a **gain head**
+  ``mu_k = A(h_k) o_k + b(h_k)``, ``[A | b]`` an MLP of ``h_k``: linear in the current observation
+  given the memory, as every law of the project's table is linear in the rows given the clock (the
+  paper's eq. (11) in normalized units, the minimum-time law's ``G_k r_i``). The hidden state is reset
+  to zero wherever the observation's clock ``k/K`` is 0, i.e. at every episode start, also after a
+  partial reset: the reset is read off the observation, so training, the update's recomputation and
+  evaluation all reset the same way without being told where episodes begin. With
+  ``gru_input="schedule"`` the GRU reads only the mask, clock and input-limit entries and the head
+  is linear in the relative rows, ``mu_k = A(h_k) rows_k`` (no offset): a clock-scheduled gain with
+  memory, the structure of eq. (11) and of the minimum-time law (every agent with the same schedule
+  history applies the same gain, and the plan is zero at consensus).
+- ``gnn`` (:class:`MessagePassingActor`): each agent embeds its observation, ``e_i = act(W o_i)``,
+  then ``rounds`` rounds of messages along the current interval graph's edges ``j -> i``,
+  ``e_i <- act(U e_i + V sum_j e_j / (d_i + 1))`` (a scatter-add, ``torch.index_add_``), and the
+  same gain head reads ``e_i``. **A communication model beyond the paper's**: in the paper an agent
+  samples only its in-neighbours' states (relative positions and velocities); here it also
+  receives their embeddings, so after R rounds its action depends on observations up to R hops
+  upstream (states up to R + 1 hops). Opt-in only.
+
+Shapes: observations ``[..., obs_size]`` (float32), hidden states ``[..., gru_size]``, graphs as
+:mod:`fxc_env.engine.graph_tensors` gives them (``edge_index`` ``[..., 2, E]``, ``edge_mask``
+``[..., E]``, :func:`interval_graph`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import Any
+
+import torch
+from torch import nn
+
+from fxc_env.core.validation import ArgumentError
+
+#: ``--policy-arch`` choices.
+ARCHS = ("mlp", "gru", "gnn")
+#: What a ``gru`` actor's GRU reads (:class:`RecurrentActor`).
+GRU_INPUTS = ("observation", "schedule")
+
+
+def _mlp(inputs: int, outputs: int, hidden: tuple[int, ...], activation: str, out_gain: float) -> nn.Sequential:
+    from fxc_env.policies.torch_policy import mlp
+
+    return mlp(inputs, outputs, hidden, activation, out_gain)
+
+
+class GainHead(nn.Module):
+    """``mu = A(f) o + b(f)`` (``affine``) or ``mu = A(f) o``: ``A`` ``[action_size, inputs]`` from features ``f`` by an MLP."""
+
+    def __init__(
+        self,
+        features: int,
+        inputs: int,
+        action_size: int,
+        hidden: tuple[int, ...],
+        activation: str,
+        affine: bool = True,
+    ) -> None:
+        super().__init__()
+        self.inputs, self.action_size, self.affine = inputs, action_size, affine
+        self.net = _mlp(features, action_size * (inputs + int(affine)), hidden, activation, 0.01)
+
+    def forward(self, features: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        out = self.net(features).unflatten(-1, (self.action_size, self.inputs + int(self.affine)))
+        mean = torch.einsum("...ao,...o->...a", out[..., : self.inputs], obs)
+        return mean + out[..., self.inputs] if self.affine else mean
+
+
+class RecurrentActor(nn.Module):
+    """A GRU over the agent's observations and a gain head (see the module).
+
+    Args:
+        obs_size, action_size: the layout's sizes.
+        hidden, activation: the gain head's hidden widths and activation.
+        gru_size: the hidden state's width.
+        clock_index: the observation entry holding ``k/K`` (0 at an episode's start).
+        gru_input: ``observation`` (the GRU reads the whole observation; the head is affine in
+            it) or ``schedule`` (the GRU reads everything but the relative rows: mask, clock,
+            input-limit feature; the head is linear in the rows, ``mu_k = A(h_k) rows_k``, so the
+            plan is zero at consensus and every agent with the same schedule history applies the
+            same gain, as in the paper's eq. (11) and the minimum-time law).
+        rows_end: where the rows end in the observation (``schedule`` only).
+    """
+
+    def __init__(
+        self,
+        obs_size: int,
+        action_size: int,
+        hidden: tuple[int, ...],
+        activation: str,
+        gru_size: int,
+        clock_index: int,
+        gru_input: str = "observation",
+        rows_end: int = 0,
+    ) -> None:
+        super().__init__()
+        if gru_input not in GRU_INPUTS:
+            raise ArgumentError(f"gru_input: expected one of {GRU_INPUTS}, got {gru_input!r}")
+        self.obs_size, self.gru_size, self.clock_index = obs_size, gru_size, clock_index
+        self.gru_input, self.rows_end = gru_input, rows_end if gru_input == "schedule" else 0
+        self.gru = nn.GRU(obs_size - self.rows_end, gru_size)
+        affine = gru_input == "observation"
+        self.head = GainHead(gru_size, obs_size if affine else rows_end, action_size, hidden, activation, affine)
+
+    def _head(self, states: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        return self.head(states, obs if self.gru_input == "observation" else obs[..., : self.rows_end])
+
+    def initial_state(self, shape: tuple[int, ...], device: Any = None) -> torch.Tensor:
+        """Zeros ``[*shape, gru_size]`` (float32)."""
+        return torch.zeros((*shape, self.gru_size), dtype=torch.float32, device=device)
+
+    def _starts(self, obs: torch.Tensor) -> torch.Tensor:
+        return obs[..., self.clock_index : self.clock_index + 1] == 0
+
+    def step(self, obs: torch.Tensor, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Means ``[..., action_size]`` and the next hidden state for observations ``[..., obs_size]``.
+
+        The hidden state ``[..., gru_size]`` is zeroed first where ``obs[..., clock_index] == 0``.
+        """
+        hidden = torch.where(self._starts(obs), torch.zeros_like(hidden), hidden)
+        shape = obs.shape[:-1]
+        read = obs[..., self.rows_end :].reshape(1, -1, self.obs_size - self.rows_end)
+        _, new = self.gru(read, hidden.reshape(1, -1, self.gru_size))
+        new = new.reshape(*shape, self.gru_size)
+        return self._head(new, obs), new
+
+    def sequence(self, obs: torch.Tensor, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Means ``[T, ..., action_size]`` over a sequence ``[T, ..., obs_size]`` from ``hidden`` ``[..., gru_size]``.
+
+        The same as :meth:`step` T times (memories reset where the clock reads k = 0), with the GRU
+        run over each stretch between resets in one call and the head applied to all T steps at once.
+        """
+        steps, shape = obs.shape[0], obs.shape[1:-1]
+        flat = obs.reshape(steps, -1, self.obs_size)
+        read = flat[..., self.rows_end :]
+        memory = hidden.reshape(1, -1, self.gru_size)
+        starts = self._starts(flat)  # [T, M, 1]
+        cuts = [0, *(int(t) for t in torch.nonzero(starts.any(dim=1).reshape(-1)).reshape(-1) if t > 0), steps]
+        outputs = []
+        for begin, end in itertools.pairwise(cuts):
+            if begin == end:
+                continue
+            memory = torch.where(starts[begin][None], torch.zeros_like(memory), memory)
+            out, memory = self.gru(read[begin:end], memory)
+            outputs.append(out)
+        states = torch.cat(outputs).reshape(steps, *shape, self.gru_size)
+        return self._head(states, obs), memory.reshape(*shape, self.gru_size)
+
+
+class MessagePassingActor(nn.Module):
+    """Embeddings, ``rounds`` rounds of messages along the interval graph, and a gain head (see the module).
+
+    Args:
+        obs_size, action_size: the layout's sizes.
+        hidden, activation: the gain head's hidden widths and the activation everywhere.
+        embed_size: the embedding's width.
+        rounds: message rounds (each reaches one hop further upstream).
+    """
+
+    def __init__(
+        self,
+        obs_size: int,
+        action_size: int,
+        hidden: tuple[int, ...],
+        activation: str,
+        embed_size: int,
+        rounds: int,
+    ) -> None:
+        super().__init__()
+        from fxc_env.policies.torch_policy import ACTIVATIONS
+
+        self.obs_size, self.embed_size, self.rounds = obs_size, embed_size, rounds
+        self.embed = nn.Linear(obs_size, embed_size)
+        self.own = nn.ModuleList(nn.Linear(embed_size, embed_size) for _ in range(rounds))
+        self.message = nn.ModuleList(nn.Linear(embed_size, embed_size, bias=False) for _ in range(rounds))
+        for layer in [self.embed, *self.own, *self.message]:
+            nn.init.orthogonal_(layer.weight, math.sqrt(2.0))
+            if layer.bias is not None:
+                nn.init.zeros_(layer.bias)
+        self.activation = ACTIVATIONS[activation]()
+        self.head = GainHead(embed_size, obs_size, action_size, hidden, activation)
+
+    def forward(self, obs: torch.Tensor, edge_index: torch.Tensor, edge_mask: torch.Tensor) -> torch.Tensor:
+        """Means ``[..., N, action_size]`` of observations ``[..., N, obs_size]`` on the interval graph.
+
+        ``edge_index`` ``[..., 2, E]`` (row 0 the source j, row 1 the target i, agents of the same
+        episode) and ``edge_mask`` ``[..., E]`` (True for an edge), as
+        :func:`fxc_env.engine.graph_tensors.graph_tensors` gives them; leading dimensions broadcast
+        to ``obs``'s. Each round is a scatter-add over the edges (``index_add_``).
+        """
+        n, lead, width = obs.shape[-2], obs.shape[:-2], edge_index.shape[-1]
+        edge_index = torch.broadcast_to(edge_index, (*lead, 2, width)).reshape(-1, 2, width)
+        weight = torch.broadcast_to(edge_mask, (*lead, width)).reshape(-1).to(obs.dtype)
+        offset = (torch.arange(edge_index.shape[0], device=obs.device) * n)[:, None]
+        source = (edge_index[:, 0] + offset).reshape(-1)
+        target = (edge_index[:, 1] + offset).reshape(-1)
+        nodes = edge_index.shape[0] * n
+        degree = torch.zeros(nodes, dtype=obs.dtype, device=obs.device).index_add_(0, target, weight)
+        scale = (1.0 / (degree + 1.0))[:, None]
+        features = self.activation(self.embed(obs.reshape(nodes, self.obs_size)))
+        for own, message in zip(self.own, self.message, strict=True):
+            sent = message(features)[source] * weight[:, None]
+            received = torch.zeros_like(features).index_add_(0, target, sent)
+            features = self.activation(own(features) + scale * received)
+        return self.head(features.reshape(*lead, n, self.embed_size), obs)
+
+
+def interval_graph(engine: Any, observations: Any = None, width: int | None = None) -> tuple[Any, Any]:
+    """``(edge_index, edge_mask)`` of each episode's coming interval, ``[B, 2, E]`` and ``[B, E]``, torch.
+
+    :func:`fxc_env.engine.graph_tensors.graph_tensors` (links lost to ``link_dropout`` left out);
+    ``width`` pads ``E`` (:func:`~fxc_env.engine.graph_tensors.edge_capacity` keeps it fixed).
+    """
+    from fxc_env.engine.graph_tensors import graph_tensors
+
+    tensors = graph_tensors(engine, observations, width)
+    return torch.as_tensor(tensors.edge_index), torch.as_tensor(tensors.edge_mask)
+
+
+def build_actor(record: dict[str, Any], obs_size: int, action_size: int) -> nn.Module:
+    """The actor a policy record's ``arch`` describes (``mlp``, ``gru``, ``gnn``); raise naming ``arch`` otherwise."""
+    arch = str(record.get("arch", "mlp"))
+    hidden = tuple(int(w) for w in record["hidden"])
+    activation = str(record["activation"])
+    if arch == "mlp":
+        return _mlp(obs_size, action_size, hidden, activation, 1.0)
+    if arch == "gru":
+        return RecurrentActor(
+            obs_size,
+            action_size,
+            hidden,
+            activation,
+            int(record["gru_size"]),
+            int(record["clock_index"]),
+            str(record.get("gru_input", "observation")),
+            int(record.get("rows_end", 0)),
+        )
+    if arch == "gnn":
+        return MessagePassingActor(
+            obs_size, action_size, hidden, activation, int(record["embed_size"]), int(record["rounds"])
+        )
+    raise ArgumentError(f"arch: expected one of {ARCHS}, got {arch!r}")
