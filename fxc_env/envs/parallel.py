@@ -99,7 +99,14 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     instants the motion is integrated exactly (cubic x, quadratic v): no ODE solver, no
     time step. The graph switches periodically by sample index (``G_{k mod m}``).
     ``fxc_env.ReferencePolicy`` is the paper's controller, eq. (11); the README ("Using the
-    environment") walks through an episode.
+    environment") walks through an episode. The shipped learned policies load into a plain
+    environment, whatever its ``obs_slots`` or N (README, "Training learned policies")::
+
+        from fxc_env.policies.learned import load_learned_policy
+
+        env = fxc_env.parallel_env(topology="ring", n_agents=20)  # obs_slots 1, the ring's in-degree
+        policy = load_learned_policy("generalist", env)  # trained with 4 slots: same actions as there
+        actions = {agent: policy(obs) for agent, obs in env.reset(seed=0)[0].items()}
 
     ## Action Space
     ``Box(-b, b, (2 dim,), float64)`` per agent:
@@ -253,8 +260,14 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     for a wrong type) naming it, and leaves a live env unchanged.
 
     ## Rendering
-    ``render()`` returns the frame of the episode so far (``rgb_array``: ``(H, W, 3)`` uint8;
-    ``human``: shown, None). Before the first ``reset`` there is no episode: it raises
+    ``render()`` returns the frame of the episode so far (``rgb_array``: ``(360, 640, 3)``
+    uint8; ``human``: shown in a pyplot window, None, which needs an interactive matplotlib
+    backend: under a headless one such as Agg matplotlib warns and nothing is shown). A frame
+    draws the trails through the sampling instants so far (position against time in 1-D, the
+    plane of the first two axes otherwise), the current interval's graph as arrows ``j -> i``,
+    the clock and ``D(t_k)/D(0)`` (README, "Video"). Call it after ``reset`` and after each step,
+    as Gymnasium's ``RecordVideo`` does, at ``metadata["render_fps"]``; nothing is recorded
+    while ``render_mode`` is None. Before the first ``reset`` there is no episode: it raises
     ``RuntimeError`` (as PettingZoo's and Gymnasium's order enforcing do). With
     ``render_mode=None`` it warns and returns None.
 
