@@ -3,7 +3,9 @@
 # `make check` is the fast loop (under a minute on 2 cores): ruff and every test not marked
 # slow (`pytest -m "not slow"`), in .venv only. `make test` runs everything and also builds
 # .venv-rllib for the Ray RLlib tests: Ray 2.60 pins gymnasium 1.2.2 where .venv has 1.4.0,
-# so it gets its own environment, pinned by constraints-rllib.txt.
+# so it gets its own environment, pinned by constraints-rllib.txt. It also builds .venv-benchmarl
+# for the BenchMARL task: BenchMARL 1.5 needs torchrl < 0.12 where .venv has 0.14, pinned by
+# constraints-benchmarl.txt (`make benchmarl` builds only that environment).
 PYTHON ?= python3
 PIP_FLAGS := --quiet --disable-pip-version-check
 VENV := .venv
@@ -13,14 +15,19 @@ TORCHRL_STAMP := $(VENV)/.installed-torchrl
 RLLIB_VENV := .venv-rllib
 RLLIB_BIN := $(RLLIB_VENV)/bin
 RLLIB_STAMP := $(RLLIB_VENV)/.installed
+BENCHMARL_VENV := .venv-benchmarl
+BENCHMARL_BIN := $(BENCHMARL_VENV)/bin
+BENCHMARL_STAMP := $(BENCHMARL_VENV)/.installed
 # Each environment runs exactly the tests it has the dependencies for: .venv everything but
-# tests/rllib/ (TorchRL included); .venv-rllib tests/rllib/ and, on its gymnasium 1.2.2, the
+# tests/rllib/ and tests/benchmarl/ (TorchRL included); .venv-rllib tests/rllib/ and, on its gymnasium 1.2.2, the
 # environment's own tests.
 RLLIB_TESTS := tests/rllib tests/test_fxc_consensus_v0.py tests/test_consensus_env.py tests/test_vec_env.py
+# .venv-benchmarl: tests/benchmarl/ and, on its torchrl 0.11, the TorchRL env's own tests.
+BENCHMARL_TESTS := tests/benchmarl tests/test_torchrl_env.py tests/test_interop.py
 # `make check` runs its tests as these two shares, side by side (see check below).
 CHECK_SHARDS := check-shard-1 check-shard-2
 
-.PHONY: demo test check $(CHECK_SHARDS) lint format clean
+.PHONY: demo test check $(CHECK_SHARDS) benchmarl lint format clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -37,14 +44,22 @@ $(RLLIB_STAMP): pyproject.toml constraints-rllib.txt
 	$(RLLIB_BIN)/pip install $(PIP_FLAGS) -c constraints-rllib.txt -e ".[rllib,test]"
 	touch $(RLLIB_STAMP)
 
+$(BENCHMARL_STAMP): pyproject.toml constraints-benchmarl.txt
+	test -x $(BENCHMARL_BIN)/python || $(PYTHON) -m venv $(BENCHMARL_VENV)
+	$(BENCHMARL_BIN)/pip install $(PIP_FLAGS) -c constraints-benchmarl.txt -e ".[benchmarl,test]"
+	touch $(BENCHMARL_STAMP)
+
+benchmarl: $(BENCHMARL_STAMP)
+
 demo: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/fxc simulate --scenario paper_fig1 --out out
 
-test: $(TORCHRL_STAMP) $(RLLIB_STAMP)
+test: $(TORCHRL_STAMP) $(RLLIB_STAMP) $(BENCHMARL_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	MPLBACKEND=Agg $(BIN)/python -m pytest --ignore=tests/rllib
+	MPLBACKEND=Agg $(BIN)/python -m pytest --ignore=tests/rllib --ignore=tests/benchmarl
 	MPLBACKEND=Agg $(RLLIB_BIN)/python -m pytest $(RLLIB_TESTS)
+	MPLBACKEND=Agg $(BENCHMARL_BIN)/python -m pytest $(BENCHMARL_TESTS)
 
 # The fast loop: the end-to-end tests (whole trainings, solve_ivp sweeps, shipped-policy
 # evaluations, wheel builds, big benchmark runs) are marked slow and left to `make test`.
@@ -56,7 +71,7 @@ check: $(TORCHRL_STAMP)
 	$(MAKE) --no-print-directory -j2 --output-sync=target $(CHECK_SHARDS)
 
 $(CHECK_SHARDS): check-shard-%:
-	MPLBACKEND=Agg $(BIN)/python -m pytest -q -m "not slow" --ignore=tests/rllib --shard $*/2
+	MPLBACKEND=Agg $(BIN)/python -m pytest -q -m "not slow" --ignore=tests/rllib --ignore=tests/benchmarl --shard $*/2
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
@@ -67,4 +82,4 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) $(RLLIB_VENV) out .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(RLLIB_VENV) $(BENCHMARL_VENV) out .pytest_cache .ruff_cache

@@ -1,0 +1,204 @@
+"""The environment as a BenchMARL task: every named scenario, run by BenchMARL's algorithms and models.
+
+:class:`FxcTask` is a BenchMARL task enum (one member per scenario of
+:data:`fxc_env.config.scenarios.SCENARIOS`) and :class:`FxcTaskClass` the task it builds: a
+factory of the batched TorchRL environment :class:`fxc_env.envs.torch_env.ConsensusTorchEnv`
+(``batch_size`` = BenchMARL's number of environments, so no ``SerialEnv`` in between), one
+agent group ``"agents"``, continuous actions only (the plan ``(a_x, a_v)`` of each agent, or
+its input in ``action_mode="accel"``; README "Using the environment"), episodes of K sampling
+intervals (``max_cycles`` when shorter), and with ``global_state="normalized"`` (the default
+configs) the scale-free global state as BenchMARL's ``"state"`` for centralised critics
+(MAPPO, MASAC)::
+
+    import torch_geometric
+    from benchmarl.algorithms import MappoConfig
+    from benchmarl.experiment import Experiment, ExperimentConfig
+    from benchmarl.models import GnnConfig, MlpConfig
+    from fxc_env.envs.benchmarl_task import FxcTask
+
+    task = FxcTask.PAPER_FIG1.get_from_yaml()  # the shipped fxc_env/envs/benchmarl_tasks/paper_fig1.yaml
+    task.config["n_intervals"] = 20  # any ConsensusTorchEnv argument
+    actor = GnnConfig(topology="full", self_loops=False, gnn_class=torch_geometric.nn.conv.GATv2Conv, gnn_kwargs={})
+    critic = MlpConfig.get_from_yaml()
+    config = ExperimentConfig.get_from_yaml()  # README "BenchMARL" shrinks it to a quick run
+    Experiment(task, MappoConfig.get_from_yaml(), actor, seed=0, config=config, critic_model_config=critic).run()
+
+A task's config is a dict of :class:`~fxc_env.envs.torch_env.ConsensusTorchEnv` keyword
+arguments; BenchMARL owns ``batch_size``, ``seed`` and ``device`` (its experiment config sets
+them) and a config naming one is refused. The config is checked when the task is made, by
+building a one-episode environment (the environment's own checks and messages), and again
+by every environment BenchMARL builds (after edits of ``task.config``).
+BenchMARL's networks are float32: the shipped configs set ``obs_dtype: float32`` (the engine
+still computes in float64, the paper's accuracy).
+
+Needs ``pip install "fxc-env[benchmarl]"`` (BenchMARL 1.5 with torchrl 0.11; README
+"BenchMARL"); ``import fxc_env`` never imports this module.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from importlib import resources
+from typing import Any
+
+import yaml
+from benchmarl.environments.common import Task, TaskClass
+from torchrl.data import Composite
+from torchrl.envs import EnvBase
+
+from fxc_env.core import validation
+from fxc_env.envs.torch_env import GROUP, ConsensusTorchEnv
+
+#: The environment's name in BenchMARL (its results, folders and ``"fxc/<task>"`` names).
+ENV_NAME = "fxc"
+
+#: The ConsensusTorchEnv arguments that BenchMARL's experiment sets, never a task's config.
+BENCHMARL_OWNED = {
+    "batch_size": "the experiment config's on_policy_n_envs_per_worker / off_policy_n_envs_per_worker "
+    "/ evaluation_episodes",
+    "seed": "the Experiment's seed",
+    "device": "the experiment config's sampling_device",
+}
+
+#: The package folder of the default task configs, one ``<scenario>.yaml`` each.
+CONFIG_FOLDER = "benchmarl_tasks"
+
+
+class FxcTaskClass(TaskClass):
+    """One fxc_env scenario as a BenchMARL task (``name``: the enum member's name; ``config``: env arguments).
+
+    The config is checked at once (names, then values, by a one-episode
+    :class:`~fxc_env.envs.torch_env.ConsensusTorchEnv`); bad ones raise
+    :class:`fxc_env.core.validation.ArgumentError` naming the argument.
+    """
+
+    def __init__(self, name: str, config: dict[str, Any] | None) -> None:
+        config = {} if config is None else dict(config)
+        _check_config(config)
+        super().__init__(name=name, config=config)
+        self._make_env(num_envs=1, seed=None, device="cpu")  # the environment's own checks of every value
+
+    def _make_env(self, num_envs: int, seed: int | None, device: Any) -> ConsensusTorchEnv:
+        return ConsensusTorchEnv(batch_size=num_envs, seed=seed, device=device, **copy.deepcopy(self.config))
+
+    # ------------------------------------------------------------ the environment
+    def get_env_fun(
+        self, num_envs: int, continuous_actions: bool, seed: int | None, device: Any
+    ) -> Callable[[], EnvBase]:
+        """A factory of ``ConsensusTorchEnv(batch_size=num_envs, seed=seed, device=device, **config)``."""
+        if not continuous_actions:
+            raise validation.ArgumentError(
+                "continuous_actions: fxc_env's actions are continuous (plans or inputs), got False "
+                "(choose an algorithm with continuous actions, or prefer_continuous_actions=True)"
+            )
+        return lambda: self._make_env(num_envs=num_envs, seed=seed, device=device)
+
+    def supports_continuous_actions(self) -> bool:
+        return True
+
+    def supports_discrete_actions(self) -> bool:
+        return False
+
+    def has_render(self, env: EnvBase) -> bool:
+        return False  # figures come from fxc_env.simulate (README "Quick start"), not env.render
+
+    def max_steps(self, env: EnvBase) -> int:
+        """The steps of an evaluation episode: K sampling intervals, or ``max_cycles`` when shorter."""
+        return _episode_steps(_base(env))
+
+    def group_map(self, env: EnvBase) -> dict[str, list[str]]:
+        """One group, ``"agents"``: ``agent_0 .. agent_{N-1}`` (the PettingZoo env's names)."""
+        return {GROUP: [f"agent_{i}" for i in range(_base(env).n_agents)]}
+
+    # ------------------------------------------------------------ specs (unbatched: BenchMARL's convention)
+    def observation_spec(self, env: EnvBase) -> Composite:
+        """The group's entries only: ``("agents", "observation")`` of shape ``[N, obs_size]``."""
+        spec = env.full_observation_spec_unbatched
+        return Composite({GROUP: spec[GROUP].clone()})
+
+    def state_spec(self, env: EnvBase) -> Composite | None:
+        """``"state"`` ``[N * 2 dim + 3]`` with ``global_state="normalized"``, else None."""
+        spec = env.full_observation_spec_unbatched
+        return Composite({"state": spec["state"].clone()}) if "state" in spec.keys() else None
+
+    def info_spec(self, env: EnvBase) -> Composite | None:
+        return None  # the episode metrics are read with ConsensusTorchEnv.episode_metrics()
+
+    def action_spec(self, env: EnvBase) -> Composite:
+        """``("agents", "action")`` of shape ``[N, 2 dim]`` (``action_size``), within ``action_bound``."""
+        return env.full_action_spec_unbatched
+
+    def action_mask_spec(self, env: EnvBase) -> Composite | None:
+        return None
+
+    @staticmethod
+    def env_name() -> str:
+        return ENV_NAME
+
+
+class FxcTask(Task):
+    """fxc_env's scenarios as BenchMARL tasks; ``FxcTask.PAPER_FIG1.get_from_yaml()`` gives the task.
+
+    ``get_from_yaml()`` reads the shipped ``fxc_env/envs/benchmarl_tasks/<scenario>.yaml``
+    (``get_from_yaml(path)`` another file), ``get_task(config)`` takes a dict.
+    """
+
+    PAPER_FIG1 = None
+    RING_6 = None
+    RANDOM_20_PLANAR = None
+    GENERALIST = None
+    SATURATED = None
+    FORMATION_HEXAGON = None
+    FORMATION_LINE = None
+
+    @staticmethod
+    def associated_class() -> type[FxcTaskClass]:
+        return FxcTaskClass
+
+    def get_from_yaml(self, path: str | None = None) -> FxcTaskClass:
+        """The task with the config in ``path`` (a YAML mapping of env arguments), by default the shipped one."""
+        if path is None:
+            text = resources.files("fxc_env.envs").joinpath(CONFIG_FOLDER, f"{self.name.lower()}.yaml").read_text()
+        else:
+            with open(path, encoding="utf-8") as file:
+                text = file.read()
+        config = yaml.safe_load(text)
+        if config is None:
+            config = {}
+        if not isinstance(config, dict):
+            raise validation.ArgumentError(
+                f"path: expected a YAML mapping of ConsensusTorchEnv arguments, got a {type(config).__name__} in {path}"
+            )
+        return self.get_task(config=config)
+
+
+def _check_config(config: dict[str, Any]) -> None:
+    """Refuse the arguments BenchMARL sets and any name ConsensusTorchEnv does not take, by name."""
+    for name in config:
+        if name in BENCHMARL_OWNED:
+            raise validation.ArgumentError(
+                f"{name}: set by BenchMARL ({BENCHMARL_OWNED[name]}), not by the task config"
+            )
+    accepted = set(ConsensusTorchEnv.__signature__.parameters) - set(BENCHMARL_OWNED)  # type: ignore[attr-defined]
+    unknown = sorted(str(name) for name in config if name not in accepted)
+    if unknown:
+        raise validation.ArgumentError(
+            f"{unknown[0]}: not a ConsensusTorchEnv argument (a task config takes {', '.join(sorted(accepted))})"
+        )
+
+
+def _base(env: EnvBase) -> ConsensusTorchEnv:
+    """The ConsensusTorchEnv under BenchMARL's TransformedEnv wrappers."""
+    while not isinstance(env, ConsensusTorchEnv) and hasattr(env, "base_env"):
+        env = env.base_env
+    if not isinstance(env, ConsensusTorchEnv):
+        raise validation.ArgumentTypeError(
+            f"env: expected a ConsensusTorchEnv (or one wrapped), got {type(env).__name__}"
+        )
+    return env
+
+
+def _episode_steps(env: ConsensusTorchEnv) -> int:
+    steps = env.config.n_intervals
+    return steps if env.max_cycles is None else min(steps, env.max_cycles)
