@@ -501,3 +501,107 @@ def test_the_torch_engine_flags_a_raw_float32_step_past_float32_and_reports_it_o
     with pytest.raises(ArgumentError, match=r"^actions: episodes \[1\] .*float32"):
         engine.raise_if_invalid()
     engine.raise_if_invalid()  # reported once: the flags were cleared
+
+
+# --------------------------------------------------- damaged torch checkpoints and policies
+@pytest.fixture(scope="module")
+def torch_run(tmp_path_factory):
+    """One tiny torch run (one rollout of one episode): its checkpoint and policy.pt, damaged below."""
+    from fxc_env.training import TrainArgs, train
+
+    root = tmp_path_factory.mktemp("torch_run")
+    args = {"scenario": "paper_fig1", "backend": "torch", "n_envs": 1, "checkpoint_every": 1, "torch_threads": 1}
+    run = train(TrainArgs(**args, timesteps=1, run_dir=str(root / "run"), progress_bar=False))
+    return run, args
+
+
+def _shape_of(record, key, shape):
+    import torch
+
+    record[key] = torch.zeros(shape)
+
+
+CHECKPOINT_DAMAGE = [
+    ("no model", lambda r: r.pop("model"), r"lacks model \(damaged"),
+    ("no host generator", lambda r: r["rng"].pop("host"), r"lacks rng\.host"),
+    (
+        "an extra weight",
+        lambda r: _shape_of(r["model"], "actor.9.weight", (2, 2)),
+        r"other network settings: .*actor\.9",
+    ),
+    ("a missing weight", lambda r: r["model"].pop("critic.0.bias"), r"other network settings: .*critic\.0\.bias"),
+    (
+        "a misshapen weight",
+        lambda r: _shape_of(r["model"], "actor.0.weight", (3, 3)),
+        r"other network settings: .*actor\.0",
+    ),
+    (
+        "misshapen Adam moments",
+        lambda r: [state.update(exp_avg=state["exp_avg"][..., :1]) for state in r["optimizer"]["state"].values()],
+        r"damaged optimizer, counter or generator state: optimizer state 'exp_avg'",
+    ),
+    ("a counter that is text", lambda r: r.update(timesteps="many"), r"damaged optimizer, counter or generator state"),
+]
+
+
+@pytest.mark.slow  # the module's tiny torch run takes about 6 s
+@pytest.mark.parametrize(("label", "damage", "message"), CHECKPOINT_DAMAGE, ids=[c[0] for c in CHECKPOINT_DAMAGE])
+def test_a_damaged_torch_checkpoint_is_a_one_line_usage_error_naming_it(torch_run, tmp_path, label, damage, message):
+    import shutil
+
+    import torch
+
+    from fxc_env.training import TrainArgs, train
+    from fxc_env.training.torch_ppo import latest_torch_checkpoint
+
+    run, args = torch_run
+    copy = shutil.copytree(run, tmp_path / "run")
+    checkpoint = latest_torch_checkpoint(copy)
+    record = torch.load(checkpoint, weights_only=True)
+    damage(record)
+    torch.save(record, checkpoint)
+    with pytest.raises(ArgumentError, match=f"^resume: .*{message}") as caught:
+        train(TrainArgs(**args, timesteps=10**6, resume=True, run_dir=str(copy), progress_bar=False))
+    assert "\n" not in str(caught.value) and checkpoint.name in str(caught.value)
+
+
+POLICY_DAMAGE = [
+    ("no actor", lambda r: r.pop("actor"), r"lacks the key 'actor'"),
+    ("an extra weight", lambda r: _shape_of(r["actor"], "9.weight", (2, 2)), r"does not load .*9\.weight"),
+    ("a misshapen weight", lambda r: _shape_of(r["actor"], "0.weight", (3, 3)), r"does not load .*0\.weight"),
+    ("a missing weight", lambda r: r["actor"].pop("4.bias"), r"does not load .*4\.bias"),
+    ("a size that is text", lambda r: r.update(obs_size="wide"), r"does not load"),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("label", "damage", "message"), POLICY_DAMAGE, ids=[c[0] for c in POLICY_DAMAGE])
+def test_a_damaged_torch_policy_is_a_one_line_usage_error_naming_it(torch_run, tmp_path, label, damage, message):
+    import torch
+
+    from fxc_env.policies.torch_policy import load_torch_policy
+
+    run, _ = torch_run
+    assert load_torch_policy(run)(np.zeros((2, 15))).shape == (2, 2)  # the undamaged file loads
+    record = torch.load(run / "policy.pt", weights_only=True)
+    damage(record)
+    path = tmp_path / "policy.pt"
+    torch.save(record, path)
+    with pytest.raises(ArgumentError, match=f"^policy: .*{message}") as caught:
+        load_torch_policy(path)
+    assert "\n" not in str(caught.value) and str(path) in str(caught.value)
+
+
+@pytest.mark.slow
+def test_a_torch_checkpoint_without_its_policy_record_is_refused_by_name(torch_run, tmp_path):
+    import torch
+
+    from fxc_env.policies.torch_policy import load_torch_policy
+    from fxc_env.training.torch_ppo import latest_torch_checkpoint
+
+    record = torch.load(latest_torch_checkpoint(torch_run[0]), weights_only=True)
+    del record["policy"]
+    path = tmp_path / "model_1_steps.pt"
+    torch.save(record, path)
+    with pytest.raises(ArgumentError, match=r"^policy: the checkpoint .*lacks the key 'policy'"):
+        load_torch_policy(path)

@@ -629,20 +629,46 @@ class Trainer:
             raise ArgumentError(f"resume: cannot read the checkpoint {str(path)!r} ({first})") from exc
         if not isinstance(record, dict) or record.get("format") != CHECKPOINT_FORMAT:
             raise ArgumentError(f"resume: {str(path)!r} is not a torch back-end checkpoint")
+        from fxc_env.policies.torch_policy import one_line
+
+        rng = record.get("rng")
+        missing = [
+            key for key in ("model", "optimizer", "timesteps", "iterations", "n_updates", "rng") if key not in record
+        ]
+        missing += [
+            f"rng.{key}" for key in ("torch", "generator", "engine", "host") if isinstance(rng, dict) and key not in rng
+        ]
+        if missing:
+            raise ArgumentError(
+                f"resume: the checkpoint {str(path)!r} lacks {', '.join(missing)} (damaged, or another version's)"
+            )
         try:
             self.model.load_state_dict(record["model"])
-        except RuntimeError as exc:
-            raise ArgumentError(f"resume: {path.name} was trained with other network settings ({exc})") from exc
-        self.optimizer.load_state_dict(record["optimizer"])
-        self.timesteps = int(record["timesteps"])
-        self.iterations = int(record["iterations"])
-        self.n_updates = int(record["n_updates"])
-        rng = record["rng"]
-        torch.set_rng_state(rng["torch"])
-        self.generator.set_state(rng["generator"])
-        if rng["engine"] is not None and isinstance(self.engine.rng, torch.Generator):
-            self.engine.rng.set_state(rng["engine"])
-        self.host_rng.bit_generator.state = rng["host"]
+        except (RuntimeError, TypeError, AttributeError) as exc:  # missing, extra or misshapen weights
+            raise ArgumentError(
+                f"resume: {str(path)!r} was trained with other network settings: {one_line(exc)}"
+            ) from exc
+        try:
+            self.optimizer.load_state_dict(record["optimizer"])
+            for group in self.optimizer.param_groups:  # Adam's moments must fit the weights they follow
+                for weight in group["params"]:
+                    for name, value in self.optimizer.state.get(weight, {}).items():
+                        if isinstance(value, torch.Tensor) and value.ndim and value.shape != weight.shape:
+                            raise ValueError(
+                                f"optimizer state {name!r} of shape {tuple(value.shape)} for a weight {tuple(weight.shape)}"
+                            )
+            self.timesteps = int(record["timesteps"])
+            self.iterations = int(record["iterations"])
+            self.n_updates = int(record["n_updates"])
+            torch.set_rng_state(rng["torch"])
+            self.generator.set_state(rng["generator"])
+            if rng["engine"] is not None and isinstance(self.engine.rng, torch.Generator):
+                self.engine.rng.set_state(rng["engine"])
+            self.host_rng.bit_generator.state = rng["host"]
+        except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as exc:
+            raise ArgumentError(
+                f"resume: the checkpoint {str(path)!r} holds a damaged optimizer, counter or generator state: {one_line(exc)}"
+            ) from exc
         self._reset()  # a resumed run starts fresh episodes
 
 

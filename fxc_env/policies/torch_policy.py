@@ -149,16 +149,35 @@ def load_torch_policy(path: str | Path, env: Any = None) -> TorchPolicy:
     except Exception as exc:  # a foreign or damaged file
         raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file ({exc})") from exc
     if isinstance(record, dict) and record.get("format") == CHECKPOINT_FORMAT:
+        if "policy" not in record:
+            raise ArgumentError(f"policy: the checkpoint {str(path)!r} lacks the key 'policy' (its policy record)")
         record = record["policy"]
     if not isinstance(record, dict):
         raise ArgumentError(f"policy: {str(path)!r} is not a torch policy file")
-    policy = TorchPolicy(record, source=path)
+    try:
+        policy = TorchPolicy(record, source=path)
+    except ArgumentError:
+        raise
+    except KeyError as exc:  # a record of the right format with a key missing
+        raise ArgumentError(
+            f"policy: {str(path)!r} lacks the key {exc.args[0]!r} of a {POLICY_FORMAT!r} record (damaged, or "
+            "written by another version)"
+        ) from exc
+    except (RuntimeError, TypeError, ValueError) as exc:  # missing, extra or misshapen weights; a wrong value
+        raise ArgumentError(f"policy: {str(path)!r} does not load as a torch policy: {one_line(exc)}") from exc
     if env is not None:
         from fxc_env.policies.learned import check_fit, check_width
 
         check_width(policy, env, path)  # a fixed-width network: another obs_slots is refused by name
         check_fit(policy, env, "policy")
     return policy
+
+
+def one_line(error: BaseException, limit: int = 400) -> str:
+    """``error``'s message on one line (torch's ``load_state_dict`` lists missing and unexpected keys and
+    shapes on several), at most ``limit`` characters."""
+    text = " ".join(str(error).split()) or type(error).__name__
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def is_torch_policy(path: str | Path) -> bool:
