@@ -51,6 +51,11 @@ class TrainArgs:
     algo: str = arg("ppo", "``ppo`` or ``sac``.")
     timesteps: int = arg(2_000_000, "Total agent-steps (SB3 timesteps: one per agent per environment step).")
     seed: int = arg(0, "Seeds the policy, SB3 and the episodes' initial states.")
+    seeds: str | None = arg(
+        None,
+        "Several training seeds, one run each, in turn (``0-4``, ``0,2,5``); runs go to ``<run_dir>-seed<k>`` "
+        "(or each seed's default). Not with ``--seed``. See :mod:`fxc_env.training.seeds`.",
+    )
     run_dir: str | None = arg(
         None, "Run directory; default ``runs/<scenario>-[<backend>-]<algo>-seed<seed>`` (no back-end part for sb3)."
     )
@@ -158,6 +163,11 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
     def name(field: str) -> str:
         return "--" + field.replace("_", "-") if flags else field
 
+    if args.seeds is not None:
+        raise ArgumentError(
+            f"{name('seeds')}: one run trains one seed; fxc train --seeds (fxc_env.training.seeds.train_seeds) "
+            "trains several"
+        )
     choice(name("backend"), canonical_backend(args.backend), BACKENDS)
     args = dataclasses.replace(args, backend=canonical_backend(args.backend, warn=False))
     if args.backend in ("rllib", "torch") and args.algo != "ppo":
@@ -263,8 +273,16 @@ def add_train_parser(commands: argparse._SubParsersAction) -> argparse.ArgumentP
         if flag_type(field) is bool:
             parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=field.default, help=help_text)
         else:
-            parser.add_argument(flag, default=field.default, help=help_text)
+            parser.add_argument(flag, default=field.default, help=help_text, action=RecordedFlag)
     return parser
+
+
+class RecordedFlag(argparse.Action):
+    """Store a flag's text and record its field in ``namespace.given_flags`` (``--seed`` with ``--seeds`` is refused)."""
+
+    def __call__(self, parser: Any, namespace: argparse.Namespace, values: Any, option_string: Any = None) -> None:
+        setattr(namespace, self.dest, values)
+        namespace.given_flags = {*getattr(namespace, "given_flags", ()), self.dest}
 
 
 def args_from_namespace(namespace: argparse.Namespace) -> TrainArgs:

@@ -24,7 +24,8 @@ from fxc_env.baselines.suite import (
 )
 from fxc_env.config import make_config
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
-from fxc_env.core.validation import ArgumentError, integer
+from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
+from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.utils.cli_checks import budgets as parse_budgets
 from fxc_env.utils.cli_checks import output_directory
 
@@ -63,10 +64,27 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--policy",
-        required=True,
         help="'reference', 'pretrained' (shipped with fxc_env), the path of a saved SB3 model (.zip), "
         "a torch policy (policy.pt or its run directory: fxc train --backend torch), "
         "or an RLlib checkpoint or run directory (fxc train --backend rllib)",
+    )
+    parser.add_argument(
+        "--runs",
+        nargs="+",
+        metavar="RUN",
+        help="instead of --policy: one policy's training seeds (run directories, saved policies, shipped names, "
+        "globs such as 'runs/x-seed*', or a folder of *-seed<k> runs); adds the median and IQM over seeds with 95%% "
+        "bootstrap intervals (seeds.md, seeds.json) and marl_eval.json",
+    )
+    parser.add_argument("--label", help="with --runs: the policy's name in the tables (default: the runs' name)")
+    parser.add_argument(
+        "--bootstrap-reps", type=int, default=DEFAULT_REPS, help=f"with --runs: bootstrap replicates ({DEFAULT_REPS})"
+    )
+    parser.add_argument(
+        "--bootstrap-seed",
+        type=int,
+        default=DEFAULT_BOOTSTRAP_SEED,
+        help=f"with --runs: seed of the bootstrap's generator ({DEFAULT_BOOTSTRAP_SEED}; fixed, so reruns agree)",
     )
     parser.add_argument(
         "--trust-policy-file",
@@ -119,6 +137,18 @@ ENV_FIELDS_OF_CONTENDERS = ("n_intervals", "schedule", "action_mode", "obs_mode"
 
 def evaluate_command(args: argparse.Namespace) -> int:
     """Handler of ``fxc evaluate``: every value is checked (and the policy loaded) before the suite runs."""
+    if (args.policy is None) == (args.runs is None):
+        raise ArgumentError("--policy: give one policy (--policy) or the training seeds of one (--runs)")
+    if args.runs is None:
+        for flag, value, default in (
+            ("--label", args.label, None),
+            ("--bootstrap-reps", args.bootstrap_reps, DEFAULT_REPS),
+            ("--bootstrap-seed", args.bootstrap_seed, DEFAULT_BOOTSTRAP_SEED),
+        ):
+            if value != default:
+                raise ArgumentError(f"{flag}: only --runs reads it (several training seeds), not --policy")
+    integer("--bootstrap-reps", args.bootstrap_reps, 1)
+    optional_seed("--bootstrap-seed", args.bootstrap_seed)
     seeds = integer("--seeds", args.seeds, 1)
     budgets = parse_budgets("--budgets", args.budgets)
     if args.workers is not None:
@@ -148,7 +178,15 @@ def evaluate_command(args: argparse.Namespace) -> int:
     else:
         suite = evaluation_suite(seeds, budgets)
     contenders = builtin_contenders(None if args.baselines else ["reference"])
-    if args.policy != "reference":
+    runs: list[Any] = []
+    if args.runs is not None:
+        from fxc_env.training import seed_evaluation
+
+        runs = [seed_evaluation.resolve_run(entry) for entry in seed_evaluation.expand_runs(args.runs)]
+        label = args.label or seed_evaluation.default_label(runs)
+        own = seed_evaluation.seed_contenders(runs, label, trusted=args.trust_policy_file, **learned)
+        contenders += own
+    elif args.policy != "reference":
         contenders.append(learned_contender(args.policy, name="--policy", trusted=args.trust_policy_file, **learned))
     command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["evaluate"] else None
     try:
@@ -164,8 +202,20 @@ def evaluate_command(args: argparse.Namespace) -> int:
         command=command,
     )
     print(output.markdown)
-    print("wrote " + ", ".join(str(f) for f in output.files))
-    if args.policy != "reference":
+    files = list(output.files)
+    if runs:
+        scores = seed_evaluation.case_scores(output.results, suite, own, runs)
+        table, written = seed_evaluation.write_seed_report(
+            out, scores, runs, label, reps=args.bootstrap_reps, seed=args.bootstrap_seed, command=command
+        )
+        print(f"\n{label} over training seeds {', '.join(str(r.seed) for r in runs)} (95% stratified bootstrap):\n")
+        print(table)
+        files += written
+    print("wrote " + ", ".join(str(f) for f in files))
+    if runs:
+        for contender in own:
+            refuse_unrun_policy("--runs", contender.name, output.results)
+    elif args.policy != "reference":
         refuse_unrun_policy("--policy", contenders[-1].name, output.results)
     return 0
 

@@ -263,14 +263,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--evaluate", default=None, help="only measure the policy saved at this path")
     parser.add_argument("--n-agents", type=int, default=20, help="ring size to measure on")
     parser.add_argument("--seeds", type=int, default=20, help="evaluation episodes (seeds 0 ..)")
+    parser.add_argument(
+        "--seed", type=int, default=0, help="training seed k: demonstrations from episode seeds 1000 + k * episodes"
+    )
     args = parser.parse_args(argv)
     integer("--episodes", args.episodes, 1)
+    integer("--seed", args.seed, 0)
     integer("--seeds", args.seeds, 1)
     if args.evaluate is not None:
         policy = load_interval_gains(args.evaluate)
     else:
-        policy, record = train(args.episodes, args.refine_steps, args.init, lr=args.lr)
+        first = DEMONSTRATION_SEED + args.seed * args.episodes  # seed 0: the shipped file's episodes
+        policy, record = train(args.episodes, args.refine_steps, args.init, seed=first, lr=args.lr)
         policy.header["training"]["command"] = "python -m fxc_env.training.rings " + " ".join(sys.argv[1:])
+        policy.header["training"]["training_seed"] = args.seed
         print("trained:", json.dumps(record))
         if args.out:
             print("wrote", policy.save(args.out))

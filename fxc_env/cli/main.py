@@ -149,14 +149,21 @@ def train_command(args: argparse.Namespace) -> int:
 
     Every flag is checked before work starts (``--backend torchrl`` is read as ``--backend torch``,
     with a deprecation message on stderr); Ctrl-C saves a checkpoint and exits with status 130.
+    ``--seeds`` trains one run per seed, in turn (:mod:`fxc_env.training.seeds`).
     """
     from fxc_env.training.args import args_from_namespace, check_train_args
     from fxc_env.training.backends import train
+    from fxc_env.training.seeds import seed_flag_given, train_seeds
 
     train_args = args_from_namespace(args)
-    check_train_args(train_args, flags=True)
+    if train_args.seeds is not None and seed_flag_given(args):
+        raise UsageError("--seeds: give one seed (--seed) or several (--seeds), not both")
     try:
-        train(train_args)
+        if train_args.seeds is not None:
+            train_seeds(train_args, flags=True)  # every seed is checked before any trains
+        else:
+            check_train_args(train_args, flags=True)
+            train(train_args)
     except KeyboardInterrupt:
         return 130
     return 0

@@ -1,0 +1,420 @@
+"""``fxc evaluate --runs``: one policy trained with several seeds, scored with confidence intervals.
+
+Each run (a training seed) plays the suite's seeded initial states next to the reference, as
+``fxc evaluate --policy`` does; per case the deadline errors form a ``(R, S)`` matrix (R
+training seeds by S initial states) and :mod:`fxc_env.core.statistics` gives
+
+* the **median** of ``D(T_s)/D(0)`` over all seeds and initial states, and
+* the **IQM** (interquartile mean) of ``log10(max(D(T_s)/D(0), 1e-12))``, the benchmark's log
+  column in decades,
+
+each with a 95 % stratified bootstrap interval (training seeds resampled, then initial states
+within each; a fixed bootstrap seed, so the same scores give the same interval). The reference
+is one deterministic law: its interval resamples initial states only (R = 1).
+
+Written next to the benchmark's files: ``seeds.md`` (the table), ``seeds.json`` (every
+estimate and interval, the runs and their seeds) and ``marl_eval.json``, the raw scores in the
+layout marl-eval reads (Gorsane et al. 2022; ``marl_eval.utils.data_processing_utils``)::
+
+    {"fxc_env": {"<case>": {"<label>": {"seed_<k>": {
+        "step_0": {"step_count": <timesteps trained>, "deadline_error": [S floats], ...},
+        "absolute_metrics": {"deadline_error": [S floats], ...}}}}}}
+
+one environment (``fxc_env``), a task per case, an algorithm per policy (the runs' label and
+``reference``), a run per training seed, one evaluation step (the final policy; marl-eval reads
+the last key of a run as its absolute metrics, so ``absolute_metrics`` comes last) holding one
+value per initial state. marl-eval needs the same runs for every algorithm of a task, so the
+reference, which has no training seed, is listed under each run's key (and step count) with the same
+scores.
+Metrics: ``deadline_error`` (``D(T_s)/D(0)``, lower is better), ``decades_reached``
+(``-log10(max(D(T_s)/D(0), 1e-12))``, higher is better: what marl-eval's plots assume) and
+``energy`` (``Σ_i ∫ u_i² dt``, m²/s³).
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fxc_env.baselines.suite import Contender, Suite, learned_contender, model_path
+from fxc_env.core import statistics
+from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.learned import SHIPPED, load_learned_policy
+
+#: Training seed of each shipped policy (its recipe in ``fxc_env/pretrained/README.md``: ``--seed 0``;
+#: ``rings``: ``python -m fxc_env.training.rings --seed 0``, the default).
+SHIPPED_SEEDS = {"pretrained": 0, "generalist": 0, "saturated": 0, "paper_fig1": 0, "rings": 0}
+#: A run directory or file named ``...seed<k>...`` was trained with seed k.
+_SEED_IN_NAME = re.compile(r"seed(\d+)")
+#: Files that make a directory a run (else it is read as a folder of ``*-seed<k>`` runs).
+_RUN_FILES = ("model.zip", "policy.pt", "config.json", "checkpoints")
+#: Floor of the log column (the benchmark's ``log10(max(error, 1e-12))``).
+LOG_FLOOR = 1e-12
+#: The environment's name in ``marl_eval.json``.
+MARL_EVAL_ENV = "fxc_env"
+
+
+@dataclass(frozen=True)
+class TrainedRun:
+    """One training seed of a policy.
+
+    Attributes:
+        entry: the path (or shipped name) it was found as.
+        spec: what the benchmark loads (``model.zip`` inside an SB3 run directory; a torch or
+            RLlib run directory itself; a file; a shipped name).
+        seed: its training seed.
+        timesteps: the agent-steps it was trained for (0 when nothing records them).
+    """
+
+    entry: str
+    spec: str
+    seed: int
+    timesteps: int
+
+
+def expand_runs(entries: Sequence[str], name: str = "--runs") -> list[str]:
+    """Each entry as the runs it names: a shipped policy name, a file, a run directory, a glob, or a
+    folder holding ``*-seed<k>`` runs (those runs, in seed order).
+
+    Refused, naming ``name``: a glob that matches nothing, a path that does not exist, a folder that
+    is neither a run nor holds ``*-seed<k>`` runs, and a run named twice.
+    """
+    found: list[str] = []
+    for entry in entries:
+        if entry in SHIPPED and not Path(entry).exists():
+            found.append(entry)
+        elif glob.has_magic(entry):
+            matches = sorted(glob.glob(entry), key=_seed_order)
+            if not matches:
+                raise ArgumentError(f"{name}: no run matches {entry!r}")
+            found += matches
+        elif not Path(entry).exists():
+            raise ArgumentError(f"{name}: nothing at {entry!r} (expected a run directory, a saved policy or a glob)")
+        elif Path(entry).is_dir() and not _is_run(Path(entry)) and not _is_rllib_run(Path(entry)):
+            children = sorted((str(p) for p in Path(entry).glob("*-seed*") if p.is_dir()), key=_seed_order)
+            if not children:
+                raise ArgumentError(
+                    f"{name}: {entry!r} is neither a run directory (model.zip, policy.pt, config.json or "
+                    "checkpoints/) nor a folder of *-seed<k> runs"
+                )
+            found += children
+        else:
+            found.append(entry)
+    twice = [e for i, e in enumerate(found) if e in found[:i]]
+    if twice:
+        raise ArgumentError(f"{name}: {twice[0]!r} is named twice")
+    return found
+
+
+def _is_run(path: Path) -> bool:
+    return any((path / f).exists() for f in _RUN_FILES)
+
+
+def _is_rllib_run(path: Path) -> bool:
+    return (path / "rllib_checkpoint.json").exists()
+
+
+def _seed_order(path: str) -> tuple[int, str]:
+    match = _SEED_IN_NAME.search(Path(path).name)
+    return (int(match.group(1)) if match else -1, path)
+
+
+def resolve_run(entry: str, name: str = "--runs") -> TrainedRun:
+    """The :class:`TrainedRun` at ``entry``: where its policy is, its training seed and timesteps.
+
+    The seed comes from the run's ``config.json`` (what ``fxc train`` recorded), else from
+    ``seed<k>`` in its name, else from :data:`SHIPPED_SEEDS`; a run whose seed none of these
+    tells is refused, naming ``name``.
+    """
+    path = Path(entry)
+    spec = str(path / "model.zip") if path.is_dir() and (path / "model.zip").is_file() else entry
+    run_dir = path if path.is_dir() else path.parent
+    recorded = _read_config(run_dir / "config.json") if entry not in SHIPPED or path.exists() else {}
+    seed = recorded.get("seed")
+    if not isinstance(seed, int):
+        named = [path.name] if path.is_dir() else [path.stem, path.parent.name]  # runs/x-seed1/model.zip
+        match = next((m for m in map(_SEED_IN_NAME.search, named) if m), None)
+        seed = int(match.group(1)) if match else SHIPPED_SEEDS.get(entry)
+    if seed is None:
+        raise ArgumentError(
+            f"{name}: cannot tell the training seed of {entry!r} (no config.json from fxc train, no seed<k> in its name)"
+        )
+    return TrainedRun(entry, spec, int(seed), _timesteps(spec, recorded))
+
+
+def _read_config(path: Path) -> dict[str, Any]:
+    try:
+        args = json.loads(path.read_text()).get("args", {}) if path.is_file() else {}
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+        return {}
+    return args if isinstance(args, dict) else {}
+
+
+def _timesteps(spec: str, recorded: dict[str, Any]) -> int:
+    """The agent-steps a policy was trained for: its zip's ``fxc_policy.json``, else ``config.json``, else 0."""
+    from fxc_env.policies.policy_files import read_metadata
+
+    target = model_path(spec)
+    if target.suffix == ".zip" and target.is_file():
+        try:
+            record = read_metadata(target) or {}
+        except ArgumentError:
+            record = {}
+        if isinstance(record.get("num_timesteps"), int):
+            return int(record["num_timesteps"])
+    steps = recorded.get("timesteps")
+    return int(steps) if isinstance(steps, int) else 0
+
+
+def default_label(runs: Sequence[TrainedRun]) -> str:
+    """The runs' common name without its seed (``generalist-ppo`` for ``runs/generalist-ppo-seed1``), else ``policy``."""
+    names = set()
+    for run in runs:
+        path = Path(run.entry)
+        stem = path.name if path.is_dir() or run.entry in SHIPPED else path.stem
+        if stem == "model":
+            stem = path.parent.name
+        names.add(re.sub(r"[-_]?seed\d+", "", stem) or "policy")
+    return names.pop() if len(names) == 1 else "policy"
+
+
+def seed_contenders(
+    runs: Sequence[TrainedRun],
+    label: str,
+    *,
+    trusted: bool = False,
+    schedule: str | None = None,
+    action_mode: str | None = None,
+    obs_mode: str | None = None,
+    name: str = "--runs",
+) -> list[Contender]:
+    """One learned contender per run, named ``learned:<label>-seed<k>``, with its training settings.
+
+    The schedule, action and observation modes are the ones the policy records (its training
+    environment) unless given; every run is loaded here, so a missing or damaged one is refused
+    naming ``name`` before any job runs. Two runs with the same seed are refused.
+    """
+    seeds = [run.seed for run in runs]
+    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
+    if repeated:
+        twins = [run.entry for run in runs if run.seed == repeated[0]]
+        raise ArgumentError(f"{name}: {twins[0]!r} and {twins[1]!r} were both trained with seed {repeated[0]}")
+    contenders = []
+    for run in runs:
+        try:
+            trained = getattr(load_learned_policy(model_path(run.spec), trusted=trusted), "training_settings", None)
+        except (FileNotFoundError, ArgumentError) as exc:
+            raise ArgumentError(f"{name}: {str(exc).removeprefix('policy: ')}") from exc
+        trained = trained or {}
+        settings = {
+            "schedule": schedule or trained.get("schedule"),
+            "action_mode": action_mode or trained.get("action_mode", "plan"),
+            "obs_mode": obs_mode or trained.get("obs_mode", "normalized"),
+        }
+        if settings["schedule"] not in ("paper", "uniform"):
+            settings["schedule"] = None  # a custom or unrecorded schedule: the benchmark's default for it
+        contender = learned_contender(run.spec, name=name, trusted=trusted, **settings)
+        contenders.append(replace(contender, name=f"learned:{label}-seed{run.seed}"))
+    return contenders
+
+
+# ------------------------------------------------------------------------------- the scores
+@dataclass(frozen=True)
+class CaseScores:
+    """The deadline errors and energies of one case: the runs' ``(R, S)`` and the reference's ``(S,)``.
+
+    ``learned`` is None when a run could not play the case (``note`` says why).
+    """
+
+    case: Any
+    seeds: tuple[int, ...]
+    learned_error: np.ndarray | None
+    learned_energy: np.ndarray | None
+    reference_error: np.ndarray | None
+    reference_energy: np.ndarray | None
+    note: str = ""
+
+
+def case_scores(
+    results: Sequence[Any], suite: Suite, contenders: Sequence[Contender], runs: Sequence[TrainedRun]
+) -> list[CaseScores]:
+    """Per case of ``suite``, the scores at the headline budget (see :class:`CaseScores`)."""
+    k = suite.headline_budget
+    chosen = {
+        (r.job.contender.name, r.job.case): r for r in results if r.job.n_intervals == k or not r.job.contender.sampled
+    }
+    out = []
+    for case in suite.cases:
+        reference = chosen.get(("reference", case))
+        ref_ok = reference is not None and reference.error is None
+        own = [chosen.get((c.name, case)) for c in contenders]
+        refused = [r for r in own if r is None or r.error is not None]
+        note = ""
+        if refused:
+            first = refused[0]
+            note = "not run" if first is None else first.error
+        out.append(
+            CaseScores(
+                case,
+                tuple(run.seed for run in runs),
+                None if refused else np.stack([r.metrics["relative_deadline_error"] for r in own]),
+                None if refused else np.stack([r.metrics["energy"] for r in own]),
+                reference.metrics["relative_deadline_error"] if ref_ok else None,
+                reference.metrics["energy"] if ref_ok else None,
+                note,
+            )
+        )
+    return out
+
+
+def intervals(scores: CaseScores, *, reps: int, seed: int) -> dict[str, Any]:
+    """The median and IQM (decades) of the runs and of the reference, with their 95 % intervals."""
+
+    def both(errors: np.ndarray) -> dict[str, Any]:
+        return {
+            "median_deadline_error": statistics.stratified_bootstrap(errors, "median", reps=reps, seed=seed).as_dict(),
+            "iqm_log10_deadline_error": statistics.stratified_bootstrap(
+                statistics.decades(errors, LOG_FLOOR), "iqm", reps=reps, seed=seed
+            ).as_dict(),
+        }
+
+    record: dict[str, Any] = {"case": scores.case.key, "note": scores.note}
+    if scores.learned_error is not None:
+        record["learned"] = both(scores.learned_error)
+        record["learned"]["per_seed_median_deadline_error"] = {
+            str(s): float(np.median(row)) for s, row in zip(scores.seeds, scores.learned_error, strict=True)
+        }
+    if scores.reference_error is not None:
+        record["reference"] = both(scores.reference_error[None, :])
+    return record
+
+
+def _number(value: float) -> str:
+    if math.isnan(value):
+        return "n/a"
+    if math.isinf(value):
+        return "∞"
+    if value == 0:
+        return "0"
+    return f"{value:.2g}" if abs(value) < 1e-2 or abs(value) >= 1e4 else f"{value:.3g}"
+
+
+def _cell(interval: dict[str, Any] | None, log: bool = False) -> str:
+    if interval is None:
+        return "—"
+    show = (lambda v: "∞" if math.isinf(v) else f"{v:.2f}") if log else _number
+    return f"{show(interval['estimate'])} [{show(interval['low'])}, {show(interval['high'])}]"
+
+
+def seed_table(records: Sequence[dict[str, Any]], label: str, seeds: Sequence[int]) -> str:
+    """The markdown table of :func:`intervals` records, one row a case."""
+    seed_text = ", ".join(str(s) for s in seeds)
+    header = [
+        "case",
+        "reference: median D(T_s)/D(0) [95% CI]",
+        f"{label}: median [95% CI]",
+        "reference: IQM log10 [95% CI]",
+        f"{label}: IQM log10 [95% CI]",
+        f"{label}: median per seed ({seed_text})",
+    ]
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    for record in records:
+        learned, reference = record.get("learned"), record.get("reference")
+        per_seed = (
+            " / ".join(_number(v) for v in learned["per_seed_median_deadline_error"].values())
+            if learned
+            else (f"— ({record['note']})" if record["note"] else "—")
+        )
+        row = [
+            record["case"],
+            _cell(reference and reference["median_deadline_error"]),
+            _cell(learned and learned["median_deadline_error"]),
+            _cell(reference and reference["iqm_log10_deadline_error"], log=True),
+            _cell(learned and learned["iqm_log10_deadline_error"], log=True),
+            per_seed,
+        ]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def _episode_metrics(errors: np.ndarray, energies: np.ndarray) -> dict[str, list[float]]:
+    return {
+        "deadline_error": [float(e) for e in errors],
+        "decades_reached": [float(-d) for d in statistics.decades(errors, LOG_FLOOR)],
+        "energy": [float(e) for e in energies],
+    }
+
+
+def marl_eval_record(scores: Sequence[CaseScores], runs: Sequence[TrainedRun], label: str) -> dict[str, Any]:
+    """The raw scores in marl-eval's layout (see the module): env → case → algorithm → seed_<k> → step_0 / absolute_metrics.
+
+    Cases that a run could not play are left out (marl-eval needs every algorithm and run in
+    every task). Values are plain floats; an ``inf`` (a diverged episode) is written as JSON's
+    ``Infinity``, which Python's ``json`` (and so marl-eval) reads back.
+    """
+    tasks: dict[str, Any] = {}
+    for case in scores:
+        if case.learned_error is None or case.reference_error is None:
+            continue
+        algorithms: dict[str, Any] = {label: {}, "reference": {}}
+        for i, run in enumerate(runs):
+            learned = _episode_metrics(case.learned_error[i], case.learned_energy[i])
+            reference = _episode_metrics(case.reference_error, case.reference_energy)
+            algorithms[label][f"seed_{run.seed}"] = {
+                "step_0": {"step_count": run.timesteps, **learned},
+                "absolute_metrics": learned,
+            }
+            algorithms["reference"][f"seed_{run.seed}"] = {
+                "step_0": {"step_count": run.timesteps, **reference},
+                "absolute_metrics": reference,
+            }
+        tasks[case.case.key] = algorithms
+    return {MARL_EVAL_ENV: tasks}
+
+
+def write_seed_report(
+    out: Path,
+    scores: Sequence[CaseScores],
+    runs: Sequence[TrainedRun],
+    label: str,
+    *,
+    reps: int,
+    seed: int,
+    command: str | None = None,
+) -> tuple[str, list[Path]]:
+    """Write ``seeds.md``, ``seeds.json`` and ``marl_eval.json`` into ``out``; returns the table and the files."""
+    records = [intervals(s, reps=reps, seed=seed) for s in scores]
+    table = seed_table(records, label, [run.seed for run in runs])
+    budget = sorted({run.timesteps for run in runs})
+    lines = [
+        f"# {label}: {len(runs)} training seeds ({', '.join(str(r.seed) for r in runs)})",
+        "",
+        f"Runs: {', '.join(r.entry for r in runs)}; trained for {', '.join(str(b) for b in budget)} agent-steps.",
+        f"Median of D(T_s)/D(0) and IQM of log10(max(D(T_s)/D(0), {LOG_FLOOR:g})) over every training seed and "
+        "initial state; 95% percentile intervals of a stratified bootstrap (training seeds resampled, then initial "
+        f"states within each; {reps} replicates, bootstrap seed {seed}). The reference is one law: its interval "
+        "resamples initial states only.",
+    ]
+    if command:
+        lines += ["", f"Command: `{command}`"]
+    markdown = "\n".join([*lines, "", table]) + "\n"
+    summary = {
+        "label": label,
+        "runs": [{"entry": r.entry, "spec": r.spec, "seed": r.seed, "timesteps": r.timesteps} for r in runs],
+        "bootstrap": {"reps": reps, "seed": seed, "confidence": 0.95, "log_floor": LOG_FLOOR},
+        "command": command,
+        "cases": records,
+    }
+    files = [out / "seeds.md", out / "seeds.json", out / "marl_eval.json"]
+    files[0].write_text(markdown)
+    files[1].write_text(json.dumps(summary, indent=2) + "\n")
+    files[2].write_text(json.dumps(marl_eval_record(scores, runs, label), indent=2) + "\n")
+    return table, files
