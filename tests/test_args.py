@@ -82,6 +82,7 @@ def test_a_command_line_reaches_every_field_with_its_type(parser):
         "address": "auto",
         "device": "cuda:1",
         "critic": "central",
+        "policy_arch": "gru",
     }
     assert set(given) == {field.name for field in FIELDS}
     argv = []
