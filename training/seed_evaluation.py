@@ -331,7 +331,7 @@ def seed_table(records: Sequence[dict[str, Any]], label: str, seeds: Sequence[in
         per_seed = (
             " / ".join(_number(v) for v in learned["per_seed_median_deadline_error"].values())
             if learned
-            else (f"— ({record['note']})" if record["note"] else "—")
+            else ("— (refused: see seeds.json)" if record["note"] else "—")
         )
         row = [
             record["case"],
