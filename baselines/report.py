@@ -282,9 +282,14 @@ def notes(results: list[JobResult], suite: Suite, contenders: list[Contender]) -
                 if Path(contender.spec).is_dir()
                 else "SB3 model"
             )
+            width = (
+                "It reads any number of neighbour rows (a gain-scheduled network)."
+                if contender.obs_slots is None
+                else "Cases with more in-neighbours than its observation has rows are not run."
+            )
             lines.append(
                 f"  Law: a learned policy ({kind} `{contender.spec}`), one network shared by every agent; "
-                "no guarantee. Cases with more in-neighbours than its observation has rows are not run."
+                f"no guarantee. {width}"
             )
         elif contender.spec == "reference":
             lines.append(

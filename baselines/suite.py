@@ -33,7 +33,7 @@ from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core.families import AnyFamily, TopologyFamily
 from fxc_env.core.graphs import Topology
 from fxc_env.core.validation import ArgumentError
-from fxc_env.policies.learned import SHIPPED, SHIPPED_SCHEDULES, load_learned_policy, pretrained_path
+from fxc_env.policies.learned import SHIPPED, SHIPPED_SCHEDULES, architecture_of, load_learned_policy, pretrained_path
 from fxc_env.policies.reference import ReferencePolicy
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -182,22 +182,26 @@ def learned_contender(
     """A saved policy (``pretrained``, an SB3 ``.zip``, an RLlib checkpoint or run directory) as a
     sampled contender, named after its file or directory.
 
-    Its observation width fixes ``obs_slots`` (rows = (obs_size - 3) / (2 dim + 1), dim = 1,
-    one more entry for a policy that sees the input limit); cases with more
+    A fixed-width network's observation width fixes ``obs_slots`` (rows = (obs_size - 3) /
+    (2 dim + 1), dim = 1, one more entry for a policy that sees the input limit); cases with more
     in-neighbours than that, or without an input limit for a policy that expects one, are
-    reported as not run. In ``dim > 1`` it acts per axis (:class:`fxc_env.policies.learned.PerAxisPolicy`). The model is loaded
+    reported as not run. A gain-scheduled network reads any number of rows
+    (:class:`fxc_env.policies.learned.SlotAdaptedPolicy`): ``obs_slots`` is left to each case. In ``dim > 1`` it acts per axis (:class:`fxc_env.policies.learned.PerAxisPolicy`). The model is loaded
     here, so a missing, empty or corrupt file raises :class:`ArgumentError` naming ``name``
     (``--policy`` on the command line) before any job runs. ``trusted`` allows formats that
     unpickle (RLlib checkpoints, pickled SB3 entries); without it they are refused by name.
     """
     path = model_path(spec)
     try:
-        obs_size = load_learned_policy(path, trusted=trusted).obs_size
+        policy = load_learned_policy(path, trusted=trusted)
     except (FileNotFoundError, ArgumentError) as exc:
         raise ArgumentError(_renamed(str(exc), name)) from exc
+    obs_size = policy.obs_size
     slots, remainder = divmod(obs_size - CLOCK_SIZE, 3)  # remainder 1: the input-limit feature
     if remainder == 2 or slots < 1:
         raise ArgumentError(f"{name}: the model at {path} takes observations of size {obs_size}, not a dim-1 layout")
+    if architecture_of(policy)[1]:  # a gain network reads any number of rows: each case's own obs_slots
+        slots = None
     label = path.name if path.is_dir() else path.stem
     schedule = SHIPPED_SCHEDULES.get(spec, "paper") if schedule is None else schedule
     return Contender(f"learned:{label}", str(path), True, schedule, action_mode, obs_mode, slots, trusted)

@@ -16,7 +16,7 @@ from fxc_env.baselines.suite import (
     load_policy,
     quick_suite,
 )
-from fxc_env.policies.learned import LearnedPolicy
+from fxc_env.policies.learned import LearnedPolicy, SlotAdaptedPolicy
 
 
 def test_full_suite_covers_every_family_size_and_budget():
@@ -66,11 +66,12 @@ def test_load_policy_by_name():
 
 def test_learned_policy_plugs_in_with_its_observation_width():
     contender = learned_contender("pretrained")
-    assert contender.sampled and contender.obs_slots == 4
+    assert contender.sampled and contender.obs_slots is None  # a gain network: each case's own slots
+    assert learned_contender("paper_fig1").obs_slots == 4  # an MLP: its fixed width
     config = contender_config(contender, full_suite().cases[0], 200, 20.0)
     policy = load_policy(contender.spec, config)
-    assert isinstance(policy, LearnedPolicy)
+    assert isinstance(policy, SlotAdaptedPolicy) and isinstance(policy.policy, LearnedPolicy)
     obs = np.zeros((3, config.n_agents, config.layout.size))
     assert policy(obs).shape == (3, config.n_agents, 2)
-    unpadded = make_config()  # paper_fig1 without padding: one slot, which the gain network reads too
-    assert load_policy(contender.spec, unpadded)(np.zeros((6, unpadded.layout.size))).shape == (6, 2)
+    padded = contender_config(learned_contender("paper_fig1"), full_suite().cases[0], 200, 20.0)
+    assert isinstance(load_policy(learned_contender("paper_fig1").spec, padded), LearnedPolicy)
