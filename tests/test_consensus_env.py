@@ -306,12 +306,13 @@ def test_the_signature_lists_every_argument_of_make_config_with_its_default():
     config_parameters = inspect.signature(fxc_env.make_config).parameters
     for factory in (ConsensusParallelEnv, fxc_env.parallel_env, fxc_env.env, fxc_env.raw_env):
         parameters = inspect.signature(factory).parameters
-        assert list(parameters) == [*config_parameters, "render_mode", "max_cycles"], factory
+        assert list(parameters) == [*config_parameters, "render_mode", "max_cycles", "graph_tensors"], factory
         for name, parameter in config_parameters.items():
             assert parameters[name].default == parameter.default, (factory, name)
             assert parameters[name].kind == parameter.kind, (factory, name)
             assert parameters[name].annotation == parameter.annotation, (factory, name)
         assert parameters["render_mode"].default is None and parameters["max_cycles"].default is None
+        assert parameters["graph_tensors"].default is False
         assert all(p.kind is not inspect.Parameter.VAR_KEYWORD for p in parameters.values())
 
 
