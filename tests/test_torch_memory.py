@@ -240,3 +240,37 @@ def test_gru_with_a_central_critic_and_rollouts_shorter_than_an_episode(tmp_path
     record = torch.load(run_dir / "policy.pt", weights_only=True)
     assert record["gru_size"] == 8 and record["timesteps"] == PER_ROLLOUT
     assert all(torch.all(torch.isfinite(v)) for v in record["actor"].values())
+
+
+def test_a_schedule_gru_plans_linearly_in_the_rows_with_one_gain_for_one_schedule():
+    """``gru_input="schedule"``: the GRU reads mask and clock only, the head is linear in the rows, so
+    scaling an agent's rows scales its plan, zero rows give a zero plan, and agents with the same schedule
+    history get the same gain (the structure of eq. 11 and of the minimum-time law)."""
+    config = make_config(None, topology="ring", n_agents=5, obs_slots=1, n_intervals=8)
+    layout = config.layout
+    torch.manual_seed(2)
+    actor = RecurrentActor(
+        layout.size, 2, (16,), "tanh", 8, layout.clock_end - 1, gru_input="schedule", rows_end=layout.rows_end
+    )
+    for parameter in actor.head.parameters():
+        torch.nn.init.normal_(parameter, std=0.5)
+    engine = ConsensusEngine(config, n_episodes=1)
+    engine.reset_from_draws([engine.draw_episode(np.random.default_rng(4))])
+    observations = []
+    while not engine.done:
+        observations.append(np.asarray(engine.observations()[0]))
+        engine.step(np.zeros((1, 5, 2)))
+    obs = torch.as_tensor(np.array(observations), dtype=torch.float32)  # [K, N, obs]
+    means, _ = actor.sequence(obs, actor.initial_state((5,)))
+    scaled = obs.clone()
+    scaled[..., : layout.rows_end] *= -3.0
+    assert torch.allclose(actor.sequence(scaled, actor.initial_state((5,)))[0], -3.0 * means, atol=1e-5)
+    zero = obs.clone()
+    zero[..., : layout.rows_end] = 0.0
+    assert torch.equal(actor.sequence(zero, actor.initial_state((5,)))[0], torch.zeros_like(means))
+    # The observation-reading GRU is not linear in the rows.
+    free = RecurrentActor(layout.size, 2, (16,), "tanh", 8, layout.clock_end - 1)
+    for parameter in free.parameters():
+        torch.nn.init.normal_(parameter, std=0.5)
+    plain, _ = free.sequence(obs, free.initial_state((5,)))
+    assert not torch.allclose(free.sequence(scaled, free.initial_state((5,)))[0], -3.0 * plain, atol=1e-3)
