@@ -212,13 +212,14 @@ class SceneRenderer:
         fig = self.figure
         self.heading = fig.text(0.01, 0.985, "", ha="left", va="top", fontsize=self.font * 1.05)
         self.clock = fig.text(0.01, 0.92, "", ha="left", va="top", fontsize=self.font, family="monospace")
+        left = max(0.09, 62 / width)  # room for the tick labels and the axis label
         if self.one_d:
-            self.ax = fig.add_axes((0.09, 0.14, 0.58, 0.68))
+            self.ax = fig.add_axes((left, 0.14, 0.67 - left, 0.68))
             self.graph_ax = fig.add_axes((0.69, 0.04, 0.30, 0.80))
             self.graph_ax.set_axis_off()
             self.graph_ax.set_aspect("equal")
             self.graph_ax.set_xlim(-1.3, 1.3)
-            self.graph_ax.set_ylim(-1.3, 1.3)
+            self.graph_ax.set_ylim(-1.55, 1.3)
             style = {"marker": ".", "ms": 3} if markers else {}
             self.lines = [self.ax.plot([], [], lw=1.2, color=c, **style)[0] for c in self.colours]
             self.now = self.ax.axvline(0.0, color="grey", lw=0.8, ls=":")
@@ -228,7 +229,7 @@ class SceneRenderer:
         else:
             from matplotlib.collections import LineCollection, PolyCollection
 
-            self.ax = fig.add_axes((0.09, 0.14, 0.89, 0.70))
+            self.ax = fig.add_axes((left, 0.14, 0.98 - left, 0.70))
             self.trails = LineCollection([], colors=self.colours, linewidths=1.0, alpha=0.8)
             self.edges = LineCollection([], colors="0.25", linewidths=0.9, zorder=2)
             self.heads = PolyCollection([], facecolors="0.25", edgecolors="none", zorder=2)
@@ -270,7 +271,7 @@ class SceneRenderer:
             artist.remove()
         self._graph_patches, self._shown_graph = [], None
         n = topology.n_agents
-        ax.text(0, -1.28, "current graph: arrow j -> i", ha="center", va="bottom", fontsize=self.font * 0.9)
+        ax.text(0, -1.52, "current graph: arrow j -> i", ha="center", va="bottom", fontsize=self.font * 0.9)
         if n > DRAW_GRAPH_LIMIT:
             self._graph_summary = ax.text(0, 0, "", ha="center", va="center", fontsize=self.font, animated=True)
         else:
@@ -366,8 +367,7 @@ class SceneRenderer:
         self.heading.set_text(heading)
         shown_ratio = "n/a" if not np.isfinite(ratio) else f"{ratio:.2e}"
         self.clock.set_text(
-            f"t = {t:7.3f} s of T_s = {c.settling_time:g} s   k = {interval}/{c.n_intervals}, G_{graph}"
-            f"   D(t)/D(0) = {shown_ratio}"
+            f"t = {t:6.3f}/{c.settling_time:g} s  k = {interval}/{c.n_intervals}  G_{graph}  D(t)/D(0) = {shown_ratio}"
         )
         if self.one_d:
             for i, line in enumerate(self.lines):
