@@ -260,8 +260,14 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     for a wrong type) naming it, and leaves a live env unchanged.
 
     ## Rendering
-    ``render()`` returns the frame of the episode so far (``rgb_array``: ``(H, W, 3)`` uint8;
-    ``human``: shown, None). Before the first ``reset`` there is no episode: it raises
+    ``render()`` returns the frame of the episode so far (``rgb_array``: ``(360, 640, 3)``
+    uint8; ``human``: shown in a pyplot window, None, which needs an interactive matplotlib
+    backend: under a headless one such as Agg matplotlib warns and nothing is shown). A frame
+    draws the trails through the sampling instants so far (position against time in 1-D, the
+    plane of the first two axes otherwise), the current interval's graph as arrows ``j -> i``,
+    the clock and ``D(t_k)/D(0)`` (README, "Video"). Call it after ``reset`` and after each step,
+    as Gymnasium's ``RecordVideo`` does, at ``metadata["render_fps"]``; nothing is recorded
+    while ``render_mode`` is None. Before the first ``reset`` there is no episode: it raises
     ``RuntimeError`` (as PettingZoo's and Gymnasium's order enforcing do). With
     ``render_mode=None`` it warns and returns None.
 
