@@ -250,8 +250,9 @@ def test_simulate_names_the_bad_argument(kwargs, name):
 
 
 def test_simulate_refuses_a_policy_that_is_not_callable():
-    with pytest.raises(ArgumentError, match=r"^policy"):
-        fxc_env.simulate("pid", "paper_fig1")
+    for policy in ("pid", None, 3):
+        with pytest.raises(ArgumentError, match=r"^policy: expected 'reference' or a callable"):
+            fxc_env.simulate(policy, "paper_fig1")
 
 
 # ------------------------------------------------------------------ AEC form
@@ -605,3 +606,81 @@ def test_a_torch_checkpoint_without_its_policy_record_is_refused_by_name(torch_r
     torch.save(record, path)
     with pytest.raises(ArgumentError, match=r"^policy: the checkpoint .*lacks the key 'policy'"):
         load_torch_policy(path)
+
+
+# ------------------------------------------------- more refusals found by probing the front ends
+def test_booleans_are_not_states_or_actions():
+    env, *_ = started()
+    before = snapshot(env)
+    with pytest.raises(ArgumentError, match=r"^options\['x0'\]: .*got booleans"):
+        env.reset(options={"x0": np.ones(N, bool)})
+    with pytest.raises(ArgumentError, match=r"^actions\['agent_0'\]: .*got booleans"):
+        env.step({agent: np.array([True, False]) for agent in env.agents})
+    assert_unchanged(before, snapshot(env))
+    aec = fxc_env.raw_env(scenario="paper_fig1")
+    aec.reset(seed=0)
+    with pytest.raises(ArgumentError, match=r"^action of agent_0: .*got booleans"):
+        aec.step(np.array([True, True]))
+    venv = started_vecenv()
+    with pytest.raises(ArgumentError, match=r"^actions: expected real numbers, got dtype bool"):
+        venv.step(np.ones((venv.num_envs, 2), bool))
+    with pytest.raises(ArgumentError, match=r"^x0: .*got booleans"):
+        fxc_env.simulate("reference", "paper_fig1", x0=np.ones(N, bool))
+
+
+def test_state_and_last_before_the_first_reset_raise_like_render_and_observe():
+    with pytest.raises(RuntimeError, match=r"^state: .*reset"):
+        fxc_env.parallel_env().state()
+    with pytest.raises(RuntimeError, match=r"^state: .*reset"):
+        fxc_env.raw_env().state()
+    with pytest.raises(RuntimeError, match=r"^last: call reset"):
+        fxc_env.raw_env().last()
+    env = fxc_env.raw_env(n_intervals=3)
+    env.reset(seed=0)
+    assert env.last()[1] == 0.0 and env.state().shape == (N, 2)
+
+
+def engine_with_limit():
+    from fxc_env.config import make_config
+    from fxc_env.engine import ConsensusEngine
+
+    engine = ConsensusEngine(make_config("paper_fig1", u_max=(5.0, 50.0)), n_episodes=2)
+    engine.reset_from_draws([engine.draw_episode(np.random.default_rng(s)) for s in range(2)])
+    return engine
+
+
+ENGINE_EXTRA_CASES = [
+    ("u_max NaN", lambda e: e.reset(GOOD_STATE, GOOD_STATE, u_max=[np.nan, 5.0]), "u_max"),
+    ("u_max negative", lambda e: e.reset(GOOD_STATE, GOOD_STATE, u_max=[-1.0, 5.0]), "u_max"),
+    ("u_max per agent", lambda e: e.reset(GOOD_STATE, GOOD_STATE, u_max=[5.0] * 3), "u_max"),
+    ("u_max text", lambda e: e.reset(GOOD_STATE, GOOD_STATE, u_max=["fast", "slow"]), "u_max"),
+    ("one topology for two episodes", lambda e: e.reset(GOOD_STATE, GOOD_STATE, topologies=[None]), "topologies"),
+    ("a topology by name", lambda e: e.reset(GOOD_STATE, GOOD_STATE, topologies=["ring", "ring"]), "topologies"),
+    ("an integer generator", lambda e: e.reset(GOOD_STATE, GOOD_STATE, rng=5), "rng"),
+    ("an integer mask", lambda e: e.reset(GOOD_STATE, GOOD_STATE, episodes=np.array([1, 0])), "episodes"),
+    ("a list mask", lambda e: e.reset(GOOD_STATE, GOOD_STATE, episodes=[True, False]), "episodes"),
+    ("a metrics index out of range", lambda e: e.episode_metrics(2), "episode"),
+    ("a negative metrics index", lambda e: e.episode_metrics(-1), "episode"),
+    ("a misshapen out buffer", lambda e: e.observations(out=np.zeros((1, N, 3))), "out"),
+    ("a seed for a generator", lambda e: e.draw_episode(5), "rng"),
+]
+
+
+@pytest.mark.parametrize(("label", "call", "name"), ENGINE_EXTRA_CASES, ids=[c[0] for c in ENGINE_EXTRA_CASES])
+def test_the_engine_refuses_reset_extras_by_name_and_changes_nothing(label, call, name):
+    engine = engine_with_limit()
+    engine.step(engine.validate_actions(np.zeros((2, N, 2))))
+    before, limits = engine_snapshot(engine), engine.u_max.copy()
+    with pytest.raises(ArgumentError) as caught:
+        call(engine)
+    assert str(caught.value).startswith(name), str(caught.value)
+    assert_engine_unchanged(before, engine_snapshot(engine))
+    np.testing.assert_array_equal(engine.u_max, limits)
+    engine.step(engine.validate_actions(np.zeros((2, N, 2))))  # still usable
+
+
+def test_the_engine_refuses_an_input_limit_its_config_does_not_have():
+    engine = started_engine()
+    with pytest.raises(ArgumentError, match=r"^u_max: this engine's config has no input limit"):
+        engine.reset(GOOD_STATE, GOOD_STATE, u_max=[5.0, 5.0])
+    assert engine.u_max is None and engine.k == 1

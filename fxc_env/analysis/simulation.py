@@ -102,7 +102,7 @@ def simulate(
         None if v0 is None else engine.validate_state("v0", v0),
     )
     act = ReferencePolicy(config) if isinstance(policy, str) and policy == "reference" else policy
-    if isinstance(act, str):
+    if isinstance(act, str) or not callable(act):
         raise ArgumentError(f"policy: expected 'reference' or a callable, got {policy!r}")
     engine.reset_from_draws([draw], rng=rng)
     u_max = None if engine.u_max is None else float(engine.u_max[0])

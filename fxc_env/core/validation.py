@@ -127,7 +127,7 @@ def state_array(name: str, value: Any, n_agents: int, dim: int, limit: float = S
     """``value`` as a float64 ``(N, dim)`` array (``(N,)`` accepted when ``dim = 1``), entries within ±``limit``
     (:data:`STATE_LIMIT`, or :data:`FLOAT32_STATE_LIMIT` for raw float32 observations)."""
     accepted = f"({n_agents}, {dim})" + (f" or ({n_agents},)" if dim == 1 else "")
-    array = real_array(name, value, f"an array of shape {accepted}")
+    array = real_array(name, value, f"an array of shape {accepted}", booleans=False)
     if dim == 1 and array.shape == (n_agents,):
         array = array[:, None]
     if array.shape != (n_agents, dim):
@@ -152,7 +152,7 @@ def state_batch(name: str, value: Any, shape: tuple[int, ...], limit: float = ST
     torch for a host array); a torch tensor's values are checked on the device with the
     message of :func:`state_entries_error`.
     """
-    array = real_array(name, value, f"an array of shape {shape}")
+    array = real_array(name, value, f"an array of shape {shape}", booleans=False)
     if array.shape != shape:
         raise ArgumentError(f"{name}: expected shape {shape}, got {array.shape}")
     _check_entries(name, array, limit)
@@ -169,8 +169,8 @@ def state_entries_error(name: str, limit: float = STATE_LIMIT) -> str:
 
 
 def action_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
-    """``value`` as a float64 array of ``shape`` with finite entries."""
-    array = real_array(name, value, f"an array of shape {shape}")
+    """``value`` as a float64 array of ``shape`` with finite entries (booleans refused)."""
+    array = real_array(name, value, f"an array of shape {shape}", booleans=False)
     if array.shape != shape:
         raise ArgumentError(f"{name}: expected shape {shape}, got {array.shape}")
     _check_entries(name, array, None)
@@ -194,10 +194,11 @@ def interval_lengths(name: str, value: Any) -> np.ndarray:
     return lengths
 
 
-def real_array(name: str, value: Any, expected: str) -> np.ndarray:
+def real_array(name: str, value: Any, expected: str, *, booleans: bool = True) -> np.ndarray:
     """``value`` as a float64 array (not copied when it is one); a ragged or non-numeric value raises naming ``name``.
 
     ``expected`` completes the message: ``"{name}: expected {expected} of real numbers, got ..."``.
+    ``booleans=False`` refuses an array of booleans too (states and actions: ``True`` is no position).
     """
     try:
         array = np.asarray(value)
@@ -205,6 +206,8 @@ def real_array(name: str, value: Any, expected: str) -> np.ndarray:
         raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {_short(value)}") from None
     if array.dtype.kind not in "biuf":
         raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {_short(value)}")
+    if not booleans and array.dtype.kind == "b":
+        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got booleans")
     return array.astype(np.float64, copy=False)
 
 

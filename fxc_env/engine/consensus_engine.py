@@ -52,7 +52,7 @@ from fxc_env.config import EnvConfig
 from fxc_env.core import validation
 from fxc_env.core.graphs import Topology
 from fxc_env.core.metrics import EpisodeMetrics
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 
 from . import draws
 from .agents import Formation, make_agents, state_disagreement
@@ -236,6 +236,10 @@ class ConsensusEngine:
 
     def draw_episode(self, rng: np.random.Generator) -> EpisodeDraw:
         """What a new episode draws from its seeded numpy generator: see :func:`fxc_env.engine.draws.draw_episode`."""
+        if not isinstance(rng, np.random.Generator):
+            raise ArgumentTypeError(
+                f"rng: expected a numpy Generator (np.random.default_rng), got {type(rng).__name__}"
+            )
         return draws.draw_episode(self.config, rng)
 
     def draw_batch(self, host_rng: np.random.Generator | None = None) -> tuple[Any, Any, Any, list | None]:
@@ -286,6 +290,7 @@ class ConsensusEngine:
         self.backend.check_state_values({"x0": x0, "v0": v0}, limit)
         if episodes is not None and c.model is not None:
             raise ArgumentError(f"episodes: partial resets are for the double integrator, not {c.agent_model!r} agents")
+        self._check_reset_extras(rng, topologies, u_max, episodes)
         if topologies is not None:
             chosen = [c.topology if t is None else t for t in topologies]
             if any(a is not b for a, b in zip(chosen, self.topologies, strict=True)):
@@ -307,6 +312,54 @@ class ConsensusEngine:
             self.clock = EpisodeClock(self.tables, xp.where(episodes, xp.zeros_like(current), current), self.clock.k)
         self.backend.clear_flags(episodes)
         self._restart(x0, v0, fresh, episodes)
+
+    def _check_reset_extras(self, rng: Any, topologies: Any, u_max: Any, episodes: Any) -> None:
+        """Refuse, naming it, a :meth:`reset` argument beside the states that does not fit (before anything changes).
+
+        ``rng``: a numpy ``Generator`` (numpy) or a ``torch.Generator`` (torch); ``topologies``: one
+        :class:`~fxc_env.core.graphs.Topology` of N agents (or None) per episode; ``u_max``: one
+        positive limit within ±1e100 per episode, only where the config has a limit;
+        ``episodes``: a ``(B,)`` boolean array of the backend.
+        """
+        c, b = self.config, self.n_episodes
+        if rng is not None:
+            if self.is_numpy:
+                fits, expected = isinstance(rng, np.random.Generator), "a numpy Generator (np.random.default_rng)"
+            else:
+                import torch
+
+                fits, expected = isinstance(rng, torch.Generator), "a torch.Generator"
+            if not fits:
+                raise ArgumentTypeError(f"rng: expected None or {expected}, got {type(rng).__name__}")
+        if topologies is not None:
+            if isinstance(topologies, str | bytes) or not isinstance(topologies, Sequence) or len(topologies) != b:
+                raise ArgumentError(f"topologies: expected one topology (or None) per episode, {b} in all")
+            for topology in topologies:
+                if topology is not None and (not isinstance(topology, Topology) or topology.n_agents != c.n_agents):
+                    raise ArgumentError(
+                        f"topologies: expected Topology objects of {c.n_agents} agents (or None), got {topology!r:.80}"
+                    )
+        if u_max is not None:
+            if self.u_max is None:
+                raise ArgumentError("u_max: this engine's config has no input limit (give u_max to make_config)")
+            if self.is_numpy or isinstance(u_max, np.ndarray | list | tuple):
+                if isinstance(u_max, list | tuple):
+                    u_max = [c.u_max_choices[0] if u is None else u for u in u_max]
+                array = validation.real_array("u_max", u_max, f"an array of shape ({b},)")
+                if array.shape != (b,):
+                    raise ArgumentError(f"u_max: expected one limit per episode, shape ({b},), got {array.shape}")
+                if not np.all((array > 0) & (array <= validation.STATE_LIMIT)):
+                    raise ArgumentError(
+                        f"u_max: expected positive finite limits <= {validation.STATE_LIMIT:g} (m/s^2), one per episode"
+                    )
+            elif tuple(u_max.shape) != (b,):
+                raise ArgumentError(f"u_max: expected one limit per episode, shape ({b},), got {tuple(u_max.shape)}")
+        if episodes is not None:
+            dtype = getattr(episodes, "dtype", None)
+            if tuple(getattr(episodes, "shape", ())) != (b,) or dtype not in (np.bool_, self.xp.bool):
+                raise ArgumentError(
+                    f"episodes: expected a boolean array of shape ({b},) on the engine's device, got {episodes!r:.80}"
+                )
 
     def _restart(self, x0: Any, v0: Any, fresh: Any, episodes: Any = None) -> None:
         """Restart the trackers of ``episodes`` (None: all), drop the cached measurements, draw the graphs."""
@@ -338,6 +391,13 @@ class ConsensusEngine:
         array: for loops that consume observations at once, it saves the page faults of
         a new large buffer every step.
         """
+        if out is not None and (
+            not isinstance(out, np.ndarray)
+            or out.dtype != np.float64
+            or out.shape != (self.n_episodes, self.config.n_agents, self.layout.size)
+        ):
+            expected = (self.n_episodes, self.config.n_agents, self.layout.size)
+            raise ArgumentError(f"out: expected a float64 numpy array of shape {expected}, got {out!r:.60}")
         return self.observer.observe(self.state, self.clock, self.graphs, self.u_max, self._uniform, self._normal, out)
 
     def normalized_state(self) -> Any:
@@ -408,5 +468,6 @@ class ConsensusEngine:
         return self.trackers.batch_metrics(self.state, steps, self.topologies, self.graphs.shared)
 
     def episode_metrics(self, episode: int = 0) -> EpisodeMetrics:
-        """The metrics of one episode so far (see :meth:`batch_metrics`)."""
+        """The metrics of one episode so far (see :meth:`batch_metrics`); ``episode`` in ``[0, B)``."""
+        episode = validation.integer("episode", episode, 0, self.n_episodes - 1)
         return EpisodeMetrics(**{name: column[episode].item() for name, column in self.batch_metrics().items()})

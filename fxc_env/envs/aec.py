@@ -139,6 +139,12 @@ class ConsensusAECEnv(AECEnv, EzPickle):
         self._skip_agent_selection = None
         self.agent_selection = self.agents[0]
 
+    def last(self, observe: bool = True) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        """PettingZoo's ``last()``; before the first ``reset`` a ``RuntimeError`` (there is no agent to select yet)."""
+        if not self._observations:
+            raise RuntimeError("last: call reset() first")
+        return super().last(observe)
+
     def observe(self, agent: str) -> Any:
         """``agent``'s latest observation (its last one after the episode end)."""
         if agent not in self._observations:

@@ -464,7 +464,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             stacked = np.array([actions[agent] for agent in self.possible_agents])
         except (TypeError, ValueError):
             stacked = None  # ragged: the loop below names the agent
-        array = stacked.astype(np.float64) if stacked is not None and stacked.dtype.kind in "biuf" else None
+        array = stacked.astype(np.float64) if stacked is not None and stacked.dtype.kind in "iuf" else None
         if array is None or array.shape != (len(self.possible_agents), size) or not np.isfinite(array).all():
             for agent in self.possible_agents:
                 self.check_action(agent, actions[agent])
@@ -521,7 +521,12 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
 
     # ------------------------------------------------------------------ state
     def state(self) -> np.ndarray:
-        """The global state (see State in the class docstring): raw ``(N, 2 dim)`` or normalized ``(N * 2 dim + 3,)``."""
+        """The global state (see State in the class docstring): raw ``(N, 2 dim)`` or normalized ``(N * 2 dim + 3,)``.
+
+        Before the first ``reset`` there is no episode: ``RuntimeError``, as ``render``.
+        """
+        if not self._has_reset:
+            raise RuntimeError("state: there is no episode yet; call reset() first")
         if self.config.global_state == "normalized":
             return normalized_state(self.engine)[0]
         return np.array(self.engine.absolute_state()[0].reshape(self.config.n_agents, -1))

@@ -295,7 +295,7 @@ class ConsensusVecEnv(VecEnv):
             raise RuntimeError("step: call reset() before the first step")
         array = np.asarray(actions)
         expected = (self.num_envs, self.config.action_size)
-        if array.dtype.kind not in "biuf":
+        if array.dtype.kind not in "iuf":  # booleans too: True is no action
             raise ArgumentTypeError(f"actions: expected real numbers, got dtype {array.dtype}")
         if array.shape != expected:
             raise ArgumentError(f"actions: expected shape {expected} (num_envs, 2 dim), got {array.shape}")
