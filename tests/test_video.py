@@ -166,6 +166,13 @@ def test_bad_video_flags_are_one_line_usage_errors(tmp_path, capsys, flags, mess
     assert message.replace("\\", "") in capsys.readouterr().err.replace("\\", "")
 
 
+def test_video_shape_flags_without_a_video_are_refused_not_ignored(tmp_path, capsys):
+    assert main(["simulate", "--out", str(tmp_path / "out"), "--video-fps", "5", "--video-size", "320x200"]) == 2
+    error = capsys.readouterr().err
+    assert "--video-fps, --video-size: applies only with --video or --frame-strip" in error
+    assert not (tmp_path / "out").exists()
+
+
 def test_frame_size_reads_pairs_and_text():
     assert frame_size("size", "320x200") == (320, 200) == frame_size("size", (320, 200))
     for bad in ("320", "32x200", "320x200x3", (320.0, 200), (True, 200), "axb"):

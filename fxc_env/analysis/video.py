@@ -357,6 +357,10 @@ def write_video(
 
 
 # ---------------------------------------------------------------------------- command line
+#: The flags that shape the frames, by destination (they apply only with ``--video`` or ``--frame-strip``).
+_SHAPE_FLAGS = {"video_fps": "--video-fps", "video_seconds": "--video-seconds", "video_size": "--video-size"}
+
+
 def add_video_arguments(parser: Any) -> None:
     """``fxc simulate``'s video flags (declared here once): ``--video``, ``--frame-strip``, fps, length, size."""
     width, height = FRAME_SIZE
@@ -364,22 +368,37 @@ def add_video_arguments(parser: Any) -> None:
     parser.add_argument(
         "--frame-strip", default=None, help=f"write {STRIP_FRAMES} frames of the video side by side as a .png"
     )
-    parser.add_argument("--video-fps", type=int, default=VIDEO_FPS, help="frames per second of the video")
+    parser.add_argument(
+        "--video-fps", type=int, default=None, help=f"frames per second of the video (default {VIDEO_FPS})"
+    )
     parser.add_argument(
         "--video-seconds",
         type=float,
-        default=VIDEO_SECONDS,
-        help="length of the video in seconds (frames uniform in t from 0 to T_s)",
+        default=None,
+        help=f"length of the video in seconds, frames uniform in t from 0 to T_s (default {VIDEO_SECONDS:g})",
     )
-    parser.add_argument("--video-size", default=f"{width}x{height}", help="frame size WIDTHxHEIGHT in pixels")
+    parser.add_argument(
+        "--video-size", default=None, help=f"frame size WIDTHxHEIGHT in pixels (default {width}x{height})"
+    )
 
 
 def video_request(args: Any) -> tuple[Path | None, Path | None, VideoOptions] | None:
-    """The checked video flags of ``args`` (None when neither ``--video`` nor ``--frame-strip`` is given)."""
+    """The checked video flags of ``args`` (None when neither ``--video`` nor ``--frame-strip`` is given).
+
+    ``--video-fps``, ``--video-seconds`` and ``--video-size`` without either are refused by name
+    (they would change nothing).
+    """
+    given = [flag for dest, flag in _SHAPE_FLAGS.items() if getattr(args, dest) is not None]
+    width, height = FRAME_SIZE
     options = video_options(
-        args.video_fps, args.video_seconds, args.video_size, names=("--video-fps", "--video-seconds", "--video-size")
+        VIDEO_FPS if args.video_fps is None else args.video_fps,
+        VIDEO_SECONDS if args.video_seconds is None else args.video_seconds,
+        f"{width}x{height}" if args.video_size is None else args.video_size,
+        names=("--video-fps", "--video-seconds", "--video-size"),
     )
     if args.video is None and args.frame_strip is None:
+        if given:
+            raise ArgumentError(f"{', '.join(given)}: applies only with --video or --frame-strip, and neither is given")
         return None
     video = None if args.video is None else check_video_path("--video", args.video, options.size)
     strip = None if args.frame_strip is None else check_strip_path("--frame-strip", args.frame_strip)
