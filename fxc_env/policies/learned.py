@@ -404,6 +404,8 @@ def architecture_of(policy: Any) -> tuple[str, bool]:
         widths = arch.get("net_arch") if isinstance(arch, dict) else None
         return f"an MLP ({cls}{'' if widths is None else f', net_arch {widths}'})", False
     arch = getattr(policy, "arch", None)
+    if isinstance(policy, RLlibPolicy):
+        return "an RLlib module (fxc train --backend rllib)", False
     if type(policy).__name__ == "TorchPolicy":  # fxc train --backend torch: mlp, gru or gnn actors
         labels = {"mlp": "MLP", "gru": "GRU actor", "gnn": "message-passing actor"}
         return f"a torch {labels.get(arch or 'mlp', repr(arch))} (fxc train --backend torch)", False

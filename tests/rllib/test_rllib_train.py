@@ -97,8 +97,14 @@ def test_the_checkpoint_acts_like_a_learned_policy(trained):
     assert actions.shape == (3, 6, 2) and np.all(np.abs(actions) <= 2.0)
     np.testing.assert_allclose(actions[2, 5], policy(obs[2, 5]), rtol=1e-5, atol=1e-6)  # float32 network
     np.testing.assert_array_equal(actions, policy(obs))  # deterministic: the Gaussian's mean
-    with pytest.raises(ValueError, match=r"observations of size 15 .* this environment has 6"):
-        load_learned_policy(trained, make_config("paper_fig1"), trusted=True)
+    # One slot (the paper's in-degree) is padded to the trained 4 exactly; in-degree 5 is refused by name.
+    unpadded = load_learned_policy(trained, make_config("paper_fig1"), trusted=True)
+    one = obs[..., [0, 1, 8, 12, 13, 14]]  # the rows and mask of slot 0, the clock
+    padded = np.zeros_like(obs)
+    padded[..., [0, 1, 8, 12, 13, 14]] = one
+    np.testing.assert_array_equal(unpadded(one), policy(padded))
+    with pytest.raises(ValueError, match=r"an RLlib module .* reads a fixed 4 neighbour rows .* up to 5 in-neighbours"):
+        load_learned_policy(trained, make_config(topology="complete", n_agents=6), trusted=True)
 
 
 @pytest.mark.slow
