@@ -43,7 +43,14 @@ from importlib import resources
 from typing import Any
 
 import yaml
-from benchmarl.environments.common import Task, TaskClass
+
+try:
+    from benchmarl.environments.common import Task, TaskClass
+except ModuleNotFoundError as error:
+    raise ModuleNotFoundError(
+        'fxc_env.envs.benchmarl_task needs BenchMARL: pip install "fxc-env[benchmarl]" (README "BenchMARL")',
+        name=error.name,
+    ) from error
 from torchrl.data import Composite
 from torchrl.envs import EnvBase
 

@@ -186,3 +186,12 @@ def test_importing_fxc_env_does_not_import_benchmarl():
     code = "import sys, fxc_env; print('benchmarl' in sys.modules, 'torch_geometric' in sys.modules)"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.split() == ["False", "False"]
+
+
+def test_without_benchmarl_the_import_names_the_extra_to_install():
+    code = "import sys; sys.modules['benchmarl'] = None; import fxc_env.envs.benchmarl_task"
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 1
+    assert 'ModuleNotFoundError: fxc_env.envs.benchmarl_task needs BenchMARL: pip install "fxc-env[benchmarl]"' in (
+        result.stderr
+    )
