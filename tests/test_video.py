@@ -278,6 +278,20 @@ def test_vec_env_records_at_most_the_grid_episodes():
     assert venv._view.history[0][1].shape == (GRID_EPISODES, 3, 1)  # (episodes, agents, dim)
 
 
+@pytest.mark.slow  # 32 frames
+def test_vec_env_beyond_the_grid_episodes_gets_a_shared_blank_frame():
+    venv = fxc_env.ConsensusVecEnv(
+        GRID_EPISODES + 2, n_agents=3, topology="ring", n_intervals=3, render_mode="rgb_array"
+    )
+    venv.reset()
+    images = venv.get_images()
+    assert len(images) == venv.num_envs == (GRID_EPISODES + 2) * 3
+    unrecorded = images[GRID_EPISODES * 3 :]
+    assert all(image is unrecorded[0] for image in unrecorded)  # one shared "not recorded" frame
+    assert unrecorded[0].shape == images[0].shape and not np.array_equal(unrecorded[0], images[0])
+    assert venv.render().shape == (4 * FRAME_SIZE[1], 4 * FRAME_SIZE[0], 3)  # the 16 recorded episodes, 4 x 4
+
+
 def test_mp4_frames_go_to_ffmpeg_as_raw_rgb(tmp_path, monkeypatch):
     """With an ffmpeg binary on PATH, every frame is piped as W x H x 3 bytes (a stand-in binary keeps them)."""
     fake = tmp_path / "ffmpeg"

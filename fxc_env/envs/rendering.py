@@ -143,7 +143,7 @@ def blank_frame(message: str, size: Any = FRAME_SIZE) -> np.ndarray:
 
     width, height = frame_size("size", size)
     figure = Figure(figsize=(width / _DPI, height / _DPI), dpi=_DPI)
-    FigureCanvasAgg(figure).draw()
+    FigureCanvasAgg(figure)
     figure.text(0.5, 0.5, message, ha="center", va="center", wrap=True, fontsize=max(6.0, height / 36))
     figure.canvas.draw()
     frame = np.full((height, width, 3), 255, dtype=np.uint8)
@@ -248,7 +248,6 @@ class SceneRenderer:
         self.ax.grid(alpha=0.3)
         self._topology: Topology | None = None
         self._graph_patches: list[list[Any]] = []
-        self._shown_graph: int | None = None
         self._graph_summary: Any = None
         self._background: Any = None
         self._background_key: Any = None
@@ -269,7 +268,7 @@ class SceneRenderer:
                 patch.remove()
         for artist in [*ax.collections, *ax.texts]:
             artist.remove()
-        self._graph_patches, self._shown_graph = [], None
+        self._graph_patches = []
         n = topology.n_agents
         ax.text(0, -1.52, "current graph: arrow j -> i", ha="center", va="bottom", fontsize=self.font * 0.9)
         if n > DRAW_GRAPH_LIMIT:
