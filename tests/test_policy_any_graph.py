@@ -217,3 +217,29 @@ def test_fxc_evaluate_the_generalist_on_a_ring_of_20(tmp_path, capsys):
     assert cli.main([*argv, "--seeds", "2", "--out", str(tmp_path), "--no-progress"]) == 0
     table = capsys.readouterr().out
     assert "learned:generalist" in table and "could not run" not in table
+
+
+def test_masked_rows_are_ignored_and_a_fixed_width_network_refuses_a_real_row_beyond_its_width():
+    config = make_config(topology="ring", n_agents=10, obs_slots=8)
+    layout = config.layout
+    obs = np.zeros((3, layout.size))
+    obs[:, :2] = [[0.5, -1.0], [1.0, 0.25], [-0.75, 0.5]]  # slot 0's row
+    obs[:, layout.rows_end] = 1.0  # slot 0 is real
+    obs[:, layout.mask_end :] = [0.3, 0.05, 0.4]  # the clock
+    garbage = obs.copy()
+    garbage[:, 2 : layout.rows_end] = 1e6  # rows of masked slots
+    for name in ("generalist", "paper_fig1"):
+        policy = load_quietly(name, config)
+        np.testing.assert_array_equal(policy(garbage), policy(obs))
+    real_beyond = obs.copy()
+    real_beyond[:, layout.rows_end + 5] = 1.0  # a real row in slot 5, past the MLP's 4
+    with pytest.raises(ArgumentError, match=r"^observations: an agent has a real neighbour row beyond the 4 rows"):
+        load_quietly("paper_fig1", config)(real_beyond)
+
+
+def test_dict_observations_give_the_flat_observations_actions():
+    flat = fxc_env.parallel_env(**RING, n_intervals=10)
+    nested = fxc_env.parallel_env(**RING, n_intervals=10, obs_format="dict")
+    expected, _ = episode(load_quietly("generalist", flat), flat)
+    actions, _ = episode(load_quietly("generalist", nested), nested)
+    np.testing.assert_array_equal(actions, expected)

@@ -443,6 +443,7 @@ class SlotAdaptedPolicy:
     rebuilt in the trained layout, row by row, and the policy (with any VecNormalize statistics
     it records, which are per slot of the trained layout) acts on that:
 
+    * masked rows are ignored: set to zero (as the environment writes them anyway).
     * an agent whose real rows all sit in the first ``W`` slots (always when ``S <= W``, and
       when its in-degree is at most ``W``) gets the first ``W`` slots as they are, padded with
       zero rows and mask 0 up to ``W``: exactly the observation an environment built with
@@ -494,11 +495,12 @@ class SlotAdaptedPolicy:
             raise ArgumentError(f"observations: expected shape (..., {self.obs_size}), got {obs.shape}")
         lead, width, have = obs.shape[:-1], self.trained.slots, self.layout.slots
         row = self.layout.row_size
-        rows = obs[..., : self.layout.rows_end].reshape((*lead, have, row))
         mask = obs[..., self.layout.rows_end : self.layout.mask_end]
+        # Masked rows are ignored: zero, as the environment writes them (padding, dropped links).
+        rows = np.where(mask[..., None] != 0, obs[..., : self.layout.rows_end].reshape((*lead, have, row)), 0.0)
         out = np.zeros((*lead, self.trained.size))
         keep = min(width, have)
-        out[..., : keep * row] = obs[..., : keep * row]
+        out[..., : keep * row] = rows[..., :keep, :].reshape((*lead, keep * row))
         out[..., self.trained.rows_end : self.trained.rows_end + keep] = mask[..., :keep]
         out[..., self.trained.mask_end :] = obs[..., self.layout.mask_end :]
         if have <= width:
@@ -528,6 +530,12 @@ class SlotAdaptedPolicy:
     def __call__(self, observation: Any) -> np.ndarray:
         """Actions ``(..., action_size)`` for observations ``(..., obs_size)`` of the environment's layout."""
         return np.asarray(self.policy(self.trained_observation(observation)), dtype=np.float64)
+
+    def reset(self) -> None:
+        """The wrapped policy's ``reset`` (a torch GRU actor's memory), where it has one."""
+        reset = getattr(self.policy, "reset", None)
+        if callable(reset):
+            reset()
 
 
 class PerAxisPolicy:
