@@ -1,0 +1,68 @@
+"""fxc_env.training.recurrent_imitation: cloning the minimum-time law into a schedule-reading gru policy."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from fxc_env import make_config
+from fxc_env.core.validation import ArgumentError
+from fxc_env.engine import ConsensusEngine
+from fxc_env.policies.torch_memory import RecurrentActor
+from fxc_env.policies.torch_policy import load_torch_policy
+from fxc_env.training import recurrent_imitation
+
+
+def ring_observations(n_agents: int = 5, n_intervals: int = 12) -> torch.Tensor:
+    """Observations ``[K, N, obs]`` of one seeded episode on a ring (one slot), agents coasting."""
+    config = make_config(None, topology="ring", n_agents=n_agents, obs_slots=1, n_intervals=n_intervals)
+    engine = ConsensusEngine(config, n_episodes=1)
+    engine.reset_from_draws([engine.draw_episode(np.random.default_rng(7))])
+    observations = []
+    while not engine.done:
+        observations.append(np.asarray(engine.observations()[0]))
+        engine.step(np.zeros((1, n_agents, 2)))
+    return torch.as_tensor(np.array(observations), dtype=torch.float32)
+
+
+def test_polish_recovers_a_last_layer_the_features_can_express():
+    obs = ring_observations()
+    layout = make_config(None, topology="ring", n_agents=5, obs_slots=1).layout
+    torch.manual_seed(0)
+    teacher = RecurrentActor(
+        layout.size, 2, (16,), "tanh", 8, layout.clock_end - 1, gru_input="schedule", rows_end=layout.rows_end
+    )
+    torch.nn.init.normal_(teacher.head.net[-1].weight, std=1.0)
+    with torch.no_grad():
+        targets, _ = teacher.sequence(obs, teacher.initial_state((5,)))
+    student = copy.deepcopy(teacher)
+    torch.nn.init.normal_(student.head.net[-1].weight, std=1.0)  # a wrong last layer, the same features
+    torch.nn.init.normal_(student.head.net[-1].bias, std=1.0)
+    with torch.no_grad():
+        before = student.sequence(obs, student.initial_state((5,)))[0]
+    assert not torch.allclose(before, targets, atol=1e-2)
+    residual = recurrent_imitation.polish(student, obs, targets)
+    assert residual < 1e-5
+    with torch.no_grad():
+        after = student.sequence(obs, student.initial_state((5,)))[0]
+    assert torch.allclose(after, targets, atol=1e-4)
+    observing = RecurrentActor(layout.size, 2, (16,), "tanh", 8, layout.clock_end - 1)
+    with pytest.raises(ArgumentError, match=r"^polish: only the schedule form"):
+        recurrent_imitation.polish(observing, obs, targets)
+
+
+@pytest.mark.slow
+def test_the_trained_record_is_a_gru_policy_file_that_knows_its_task(tmp_path):
+    record, made = recurrent_imitation.train(
+        sizes=(4,), rounds=0, episodes=1, steps=1, batch=4, gru_size=8, hidden=(8,), log=lambda _: None
+    )
+    assert made["sizes"] == [4] and "round_0" in made
+    torch.save(record, tmp_path / "policy.pt")
+    policy = load_torch_policy(tmp_path, recurrent_imitation.task_config(20))  # trained on 4, fits 20: N is not read
+    assert policy.arch == "gru" and policy.training_settings["obs_slots"] == 1
+    assert policy.training_settings["schedule"] == "paper" and policy.action_bound == 20.0
+    with pytest.raises(ArgumentError, match=r"schedule"):
+        load_torch_policy(tmp_path, make_config(None, topology="ring", n_agents=20, obs_slots=1, schedule="uniform"))
