@@ -243,3 +243,15 @@ def test_dict_observations_give_the_flat_observations_actions():
     expected, _ = episode(load_quietly("generalist", flat), flat)
     actions, _ = episode(load_quietly("generalist", nested), nested)
     np.testing.assert_array_equal(actions, expected)
+
+
+def test_sb3s_own_loader_adapts_the_same_way():
+    """trusted=True (SB3's PPO.load) rebuilds the same network: the same adapted actions on in-degree 5."""
+    env = fxc_env.parallel_env(topology="complete", n_agents=6)
+    obs = np.stack(list(env.reset(seed=1)[0].values()))
+    with pytest.warns(PolicyAdaptedWarning):
+        safe = load_learned_policy("generalist", env)
+    with pytest.warns(PolicyAdaptedWarning):
+        trusted = load_learned_policy(pretrained_path("generalist"), env, trusted=True)
+    assert isinstance(trusted, SlotAdaptedPolicy)
+    np.testing.assert_allclose(trusted(obs), safe(obs), rtol=1e-6, atol=1e-7)

@@ -397,7 +397,9 @@ def architecture_of(policy: Any) -> tuple[str, bool]:
     """``(name, reads any number of rows)`` of a loaded policy's network, for messages and :class:`SlotAdaptedPolicy`."""
     model = getattr(policy, "model", None)
     if model is not None:  # LearnedPolicy: a SavedModel, or SB3's own model (trusted)
-        cls = getattr(model, "policy_class", None) or type(getattr(model, "policy", model)).__name__
+        cls = getattr(model, "policy_class", None)  # a SavedModel's is a name, SB3's own a class
+        if not isinstance(cls, str):
+            cls = type(getattr(model, "policy", model)).__name__
         if cls in ROW_WISE_POLICIES:
             return f"the gain-scheduled network {cls}", True
         arch = getattr(model, "metadata", None) or {}
