@@ -684,3 +684,16 @@ def test_the_engine_refuses_an_input_limit_its_config_does_not_have():
     with pytest.raises(ArgumentError, match=r"^u_max: this engine's config has no input limit"):
         engine.reset(GOOD_STATE, GOOD_STATE, u_max=[5.0, 5.0])
     assert engine.u_max is None and engine.k == 1
+
+
+def test_an_engine_that_was_never_reset_refuses_to_step():
+    from fxc_env.config import make_config
+    from fxc_env.engine import ConsensusEngine
+
+    engine = ConsensusEngine(make_config("paper_fig1"), n_episodes=2)
+    with pytest.raises(RuntimeError, match=r"^step: call reset\(\) before the first step"):
+        engine.step(engine.validate_actions(np.zeros((2, N, 2))))
+    assert engine.k == 0 and not engine.state.any()
+    engine.reset(GOOD_STATE + np.arange(N)[None, :, None], GOOD_STATE)
+    engine.step(engine.validate_actions(np.zeros((2, N, 2))))
+    assert engine.k == 1

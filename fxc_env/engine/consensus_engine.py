@@ -101,6 +101,14 @@ class StepOutcome:
     plan: np.ndarray | None = None
 
 
+class _BeforeReset(LockStepClock):
+    """The clock of an engine that was never reset: instant 0 of a zero state, which :meth:`ConsensusEngine.step` refuses
+    (a ``RuntimeError``, as the environments' ``step`` before ``reset``); the first reset replaces it."""
+
+    def check_can_step(self) -> None:
+        raise RuntimeError("step: call reset() before the first step (the engine holds no episode yet)")
+
+
 class ConsensusEngine:
     """B episodes advanced as arrays. Call :meth:`reset` before :meth:`step`.
 
@@ -133,7 +141,7 @@ class ConsensusEngine:
         self.state = backend.zeros(shape)
         self._spare = backend.spare(shape)
         self.tables = InstantTables(config, backend)
-        self.clock: LockStepClock | EpisodeClock = LockStepClock(self.tables)
+        self.clock: LockStepClock | EpisodeClock = _BeforeReset(self.tables)
         self.graphs = GraphTable([config.topology] * b, self.layout.slots, backend, config.switching == "random")
         self.agents = make_agents(config, backend)
         if config.u_max_choices is not None:
