@@ -303,3 +303,43 @@ def test_mp4_frames_go_to_ffmpeg_as_raw_rgb(tmp_path, monkeypatch):
     width, height = SMALL.size
     assert report.n_frames == 6
     assert (tmp_path / "run.mp4").stat().st_size == 6 * width * height * 3
+
+
+# ------------------------------------------------------------------ the TorchRL env
+def test_torch_env_render_tiles_its_episodes_and_follows_their_clocks():
+    import torch
+    from tensordict import TensorDict
+
+    from fxc_env.envs.torch_env import ConsensusTorchEnv
+
+    env = ConsensusTorchEnv(batch_size=3, scenario="random_20_planar", n_intervals=6, action_bound=0.25)
+    with pytest.raises(RuntimeError, match=r"reset\(\)"):
+        env.render()
+    td = env.reset()
+    first = env.render()
+    width, height = FRAME_SIZE
+    assert first.shape == (2 * height, 2 * width, 3) and first.dtype == np.uint8  # 3 episodes: 2 x 2
+    for _ in range(2):
+        td = env.step(env.rand_action(td))["next"]
+        env.render()
+    assert [len(trail) for trail in env._snapshots.trails] == [3, 3, 3]  # t_0, t_1, t_2
+    assert not np.array_equal(env.render(), first)
+    assert [len(trail) for trail in env._snapshots.trails] == [3, 3, 3]  # the same instant is not added twice
+    env.reset(TensorDict({"_reset": torch.tensor([[False], [True], [False]])}, batch_size=[3]))
+    env.render()
+    assert [len(trail) for trail in env._snapshots.trails] == [3, 1, 3]  # episode 1 starts a new trail
+
+
+def test_torch_env_frames_through_torchrl_pixel_render_transform():
+    from torchrl.envs import TransformedEnv
+    from torchrl.record import PixelRenderTransform
+
+    from fxc_env.envs.torch_env import ConsensusTorchEnv
+
+    env = TransformedEnv(
+        ConsensusTorchEnv(batch_size=2, scenario="paper_fig1", n_intervals=4), PixelRenderTransform(out_keys=["pixels"])
+    )
+    rollout = env.rollout(4)
+    frames = rollout["next", "pixels"]
+    assert len(frames) == 2  # one per episode of the batch (the same tiled picture)
+    assert np.asarray(frames[0][-1]).shape == (2 * FRAME_SIZE[1], FRAME_SIZE[0], 3)  # 2 episodes, one above the other

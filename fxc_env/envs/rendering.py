@@ -516,3 +516,74 @@ class EpisodeView:
 
     def __getstate__(self) -> dict[str, Any]:
         return {**self.__dict__, "_renderer": None, "_window": None}
+
+
+class SnapshotView:
+    """Frames of a batched engine whose episodes may keep their own clocks (the TorchRL env).
+
+    Nothing is recorded on the step path: each :meth:`grid` call reads the first ``episodes``
+    episodes' instants, states and ``D(t_k)/D(0)`` off the device, adds them to each episode's
+    trail, then draws and tiles their frames. An episode whose instant went back to 0 or below
+    its last one (a reset) starts a new trail; the same instant again replaces its entry. So
+    calling it after every reset and step (TorchRL's ``PixelRenderTransform`` does) draws the
+    trails through every sampling instant.
+
+    Args:
+        config: the settings.
+        episodes: how many of the engine's first episodes to draw.
+    """
+
+    def __init__(self, config: EnvConfig, episodes: int) -> None:
+        self.config = config
+        self.episodes = episodes
+        #: Per episode: ``(k, t, positions (N, dim), D(t_k)/D(0))`` at each recorded instant.
+        self.trails: list[list[tuple[int, float, np.ndarray, float]]] = [[] for _ in range(episodes)]
+        self._renderer: SceneRenderer | None = None
+
+    def record(self, engine: Any) -> None:
+        """Add the engine's first episodes at their current instants to their trails."""
+        from fxc_env.engine.backend import to_host
+
+        g = self.episodes
+        steps = engine.steps
+        instants = np.full(g, int(engine.k)) if steps is None else to_host(steps[:g]).astype(np.int64)
+        times = np.asarray(self.config.schedule.times)[instants]
+        positions = to_host(engine.absolute_state()[:g])[:, :, 0]
+        initial = to_host(engine.initial_disagreement[:g]).astype(float)
+        current = to_host(engine.current_disagreement[:g]).astype(float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratios = np.where(initial > 0, current / np.where(initial > 0, initial, 1.0), np.nan)
+        self._graphs = to_host(engine.graph_indices()[:g]).astype(np.int64)
+        self._topologies = list(engine.topologies[:g])
+        for b, trail in enumerate(self.trails):
+            entry = (int(instants[b]), float(times[b]), positions[b].astype(float), float(ratios[b]))
+            if not trail or entry[0] == 0 or entry[0] < trail[-1][0]:
+                trail[:] = [entry]
+            elif entry[0] == trail[-1][0]:
+                trail[-1] = entry
+            else:
+                trail.append(entry)
+
+    def grid(self, engine: Any) -> np.ndarray:
+        """Record (:meth:`record`), then the episodes' frames tiled (:func:`tile_frames`): ``(H, W, 3)`` uint8."""
+        self.record(engine)
+        if self._renderer is None:
+            self._renderer = SceneRenderer(self.config, markers=True)
+        frames = []
+        for b, trail in enumerate(self.trails):
+            topology = self._topologies[b]
+            frames.append(
+                self._renderer.draw(
+                    np.array([entry[1] for entry in trail]),
+                    np.array([entry[2] for entry in trail]),
+                    ratio=trail[-1][3],
+                    interval=trail[-1][0],
+                    graph=int(self._graphs[b]),
+                    topology=topology,
+                    heading=f"{topology.name}: episode {b}" if self.episodes > 1 else None,
+                )
+            )
+        return tile_frames(frames)
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {**self.__dict__, "_renderer": None}

@@ -405,6 +405,25 @@ class ConsensusTorchEnv(EnvBase):
         """Every episode's metrics so far (``(B,)`` numpy arrays; a read off the device: call at episode ends)."""
         return self.engine.batch_metrics()
 
+    def render(self) -> np.ndarray:
+        """The first ``min(B, 16)`` episodes at their current instants, tiled: ``(H, W, 3)`` uint8 (README, "Video").
+
+        Each call reads them off the device and adds them to their trails
+        (:class:`~fxc_env.envs.rendering.SnapshotView`), so calling it after every reset and step,
+        as ``torchrl.record.PixelRenderTransform`` does, draws the trails; nothing is recorded on
+        the step path. Raises ``RuntimeError`` before the first reset and on the meta device.
+        """
+        from fxc_env.envs.rendering import GRID_EPISODES, SnapshotView
+
+        if not hasattr(self, "_cycles"):
+            raise RuntimeError("render: there is no episode to draw yet; call reset() first")
+        if self.engine.device.type == "meta":
+            raise RuntimeError("render: the meta device holds no values to draw")
+        view = self.__dict__.get("_snapshots")
+        if view is None:
+            view = self._snapshots = SnapshotView(self.config, min(self.batch_size[0], GRID_EPISODES))
+        return view.grid(self.engine)
+
 
 # TorchRL's metaclass and EnvBase.__new__ take (*args, **kwargs); the class's signature is
 # __init__'s, so help(), inspect and IDEs list every argument as for the PettingZoo env.
