@@ -157,6 +157,12 @@ class ConsensusTorchEnv(EnvBase):
     refused (naming ``_reset``) before anything changes. On numpy (the PettingZoo and SB3
     front ends) such a step is refused at once.
 
+    ## Rendering
+    :meth:`render` returns the first ``min(B, 16)`` episodes' frames tiled, ``(H, W, 3)`` uint8
+    (README, "Video"). There is no render mode: each call reads the episodes off the device and
+    adds them to their trails, so call it after every reset and step (TorchRL's
+    ``PixelRenderTransform`` does); the step path does nothing for frames.
+
     ## Version history
     * v0: first release.
     """
