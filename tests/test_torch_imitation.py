@@ -66,3 +66,16 @@ def test_the_trained_record_is_a_gru_policy_file_that_knows_its_task(tmp_path):
     assert policy.training_settings["schedule"] == "paper" and policy.action_bound == 20.0
     with pytest.raises(ArgumentError, match=r"schedule"):
         load_torch_policy(tmp_path, make_config(None, topology="ring", n_agents=20, obs_slots=1, schedule="uniform"))
+
+
+def test_the_shipped_rings_gru_beats_the_reference_tenfold_on_rings_of_20():
+    from pathlib import Path
+
+    import fxc_env
+
+    path = Path(fxc_env.__file__).parent / "pretrained" / "rings_gru.pt"
+    assert path.stat().st_size < 2**20
+    policy = load_torch_policy(path, recurrent_imitation.task_config(20))
+    assert policy.arch == "gru" and policy.module.gru_input == "schedule"
+    result = recurrent_imitation.evaluate(policy, 20, range(3))
+    assert result["median"] * 10 < result["reference_median"]
