@@ -274,3 +274,21 @@ def test_a_schedule_gru_plans_linearly_in_the_rows_with_one_gain_for_one_schedul
         torch.nn.init.normal_(parameter, std=0.5)
     plain, _ = free.sequence(obs, free.initial_state((5,)))
     assert not torch.allclose(free.sequence(scaled, free.initial_state((5,)))[0], -3.0 * plain, atol=1e-3)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("arch", ["gru", "gnn"])
+def test_fxc_evaluate_plays_a_gru_or_gnn_run(tmp_path, capsys, arch):
+    """The benchmark carries a gru's memory through each episode and hands a gnn its interval graph."""
+    import csv
+
+    from fxc_env.cli import main
+
+    run_dir = train(short_args(tmp_path, policy_arch=arch))
+    out = tmp_path / "evaluate"
+    arguments = ["evaluate", "--policy", str(run_dir), "--topology", "ring", "--n-agents", "6", "--seeds", "2"]
+    assert main([*arguments, "--out", str(out), "--no-progress", "--workers", "1"]) == 0
+    capsys.readouterr()
+    with (out / "episodes.csv").open() as handle:
+        rows = [row for row in csv.DictReader(handle) if row["policy"] == "learned:run"]
+    assert len(rows) == 2 and all(float(row["relative_deadline_error"]) >= 0 for row in rows)  # ran, not refused
