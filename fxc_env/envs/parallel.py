@@ -154,8 +154,10 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     agent with ``s_i = 0`` sees zeros and coasts whatever it does. ``obs_mode="raw"``
     gives physical units. ``obs_format="dict"`` gives ``{"neighbours": (d_max, 2 dim),
     "mask": (d_max,), "clock": (3,)}`` (and ``"input_limit": (1,)``) instead. No absolute position, no global information.
-    The engine always computes in float64; ``obs_dtype="float32"`` casts at the output (raw
-    values beyond float32's range, about 3e38, would become ``inf``).
+    The engine always computes in float64; ``obs_dtype="float32"`` casts at the output. With raw
+    float32 observations no entry becomes ``inf``: states start within ``±1e37`` and a step that
+    would take two agents further apart than float32's range (3.4e38) is refused naming ``actions``
+    (state unchanged).
 
     The limit entry is ``l / (1 + |l|)`` with ``l = log10(u_max T^2 / s_i)``: ``u_max T^2 / s_i``
     compares the limit with the input a plan at the agent's scale needs (eq. 11 starts an
