@@ -42,8 +42,9 @@ CONFIGURATIONS = {
     "obs_noise": {"obs_noise": 0.05},
 }
 BATTERY = ("parallel_api", "api", "seed", "parallel_seed", "max_cycles", "render", "state")
-#: matplotlib frames of both render modes (about 7 s each on 2 busy cores): `make test` runs them,
-#: `make check` keeps the default configuration's (tests/test_rendering.py covers the frames).
+#: matplotlib frames of both render modes (2-3 s each at load 4.5, 7-9 s at load 8 on the 2 shared
+#: cores): `make test` runs them all, `make check` the default configuration's (tests/test_rendering.py
+#: covers the frames).
 SLOW = {(name, "render") for name in CONFIGURATIONS if name != "default"}
 
 
