@@ -394,10 +394,15 @@ def write_seed_report(
     records = [intervals(s, reps=reps, seed=seed) for s in scores]
     table = seed_table(records, label, [run.seed for run in runs])
     budget = sorted({run.timesteps for run in runs})
+    trained = (
+        f"trained for {', '.join(str(b) for b in budget)} agent-steps"
+        if 0 not in budget
+        else "training budget not recorded in every run (0 in marl_eval.json's step_count)"
+    )
     lines = [
         f"# {label}: {len(runs)} training seeds ({', '.join(str(r.seed) for r in runs)})",
         "",
-        f"Runs: {', '.join(r.entry for r in runs)}; trained for {', '.join(str(b) for b in budget)} agent-steps.",
+        f"Runs: {', '.join(r.entry for r in runs)}; {trained}.",
         f"Median of D(T_s)/D(0) and IQM of log10(max(D(T_s)/D(0), {LOG_FLOOR:g})) over every training seed and "
         "initial state; 95% percentile intervals of a stratified bootstrap (training seeds resampled, then initial "
         f"states within each; {reps} replicates, bootstrap seed {seed}). The reference is one law: its interval "
