@@ -108,7 +108,10 @@ class FxcTaskClass(TaskClass):
         return False
 
     def has_render(self, env: EnvBase) -> bool:
-        return False  # figures come from fxc_env.simulate (README "Quick start"), not env.render
+        """False: BenchMARL's default ``render: True`` would write its evaluation videos through
+        torchvision, which has no CPU build for the torch on which this extra is tested; frames
+        come from ``ConsensusTorchEnv.render`` and ``fxc simulate --video`` (README "Video")."""
+        return False
 
     def max_steps(self, env: EnvBase) -> int:
         """The steps of an evaluation episode: K sampling intervals, or ``max_cycles`` when shorter."""
