@@ -56,6 +56,8 @@ SHIPPED_SEEDS = {"pretrained": 0, "generalist": 0, "saturated": 0, "paper_fig1":
 _SEED_IN_NAME = re.compile(r"seed(\d+)")
 #: Files that make a directory a run (else it is read as a folder of ``*-seed<k>`` runs).
 _RUN_FILES = ("model.zip", "policy.pt", "config.json", "checkpoints")
+#: The step count in a checkpoint's name (``model_4000000_steps.zip``, ``rllib_4000_steps``).
+_CHECKPOINT_STEPS = re.compile(r"_(\d+)_steps")
 #: Floor of the log column (the benchmark's ``log10(max(error, 1e-12))``).
 LOG_FLOOR = 1e-12
 #: The environment's name in ``marl_eval.json``.
@@ -159,7 +161,9 @@ def _read_config(path: Path) -> dict[str, Any]:
 
 
 def _timesteps(spec: str, recorded: dict[str, Any]) -> int:
-    """The agent-steps a policy was trained for: its zip's ``fxc_policy.json``, else ``config.json``, else 0."""
+    """The agent-steps a policy was trained for: its zip's ``fxc_policy.json``, else its run's newest
+    checkpoint (``checkpoints/*_<steps>_steps*``: whole rollouts, past the target), else the target
+    in ``config.json``, else 0."""
     from fxc_env.policies.policy_files import read_metadata
 
     target = model_path(spec)
@@ -170,6 +174,10 @@ def _timesteps(spec: str, recorded: dict[str, Any]) -> int:
             record = {}
         if isinstance(record.get("num_timesteps"), int):
             return int(record["num_timesteps"])
+    run_dir = target if target.is_dir() else target.parent
+    saved = [int(m.group(1)) for p in run_dir.glob("checkpoints/*") if (m := _CHECKPOINT_STEPS.search(p.name))]
+    if saved:
+        return max(saved)
     steps = recorded.get("timesteps")
     return int(steps) if isinstance(steps, int) else 0
 
