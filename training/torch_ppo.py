@@ -426,34 +426,16 @@ class Trainer:
             order = torch.randperm(total, generator=self.generator, device=self.device)
             for start in range(0, total, s.minibatch_size):
                 index = order[start : start + s.minibatch_size]
-                advantage = per_agent[index]
-                if s.normalize_advantage and index.numel() > 1:
-                    advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
                 batch = obs[index]
-                mean = model.actor(batch)
-                log_prob = model.log_prob(mean, actions[index])
-                log_ratio = log_prob - old_log_probs[index]
-                ratio = torch.exp(log_ratio)
-                policy_loss = -torch.min(
-                    advantage * ratio, advantage * torch.clamp(ratio, 1.0 - s.clip_range, 1.0 + s.clip_range)
-                ).mean()
                 if self.central:
                     value_index = torch.div(index, n, rounding_mode="floor")
-                    value = model.critic(states[value_index]).squeeze(-1)
-                    value_loss = torch.mean((value - targets[value_index]) ** 2)
+                    value, target = model.critic(states[value_index]).squeeze(-1), targets[value_index]
                 else:
-                    value = model.critic(batch).squeeze(-1)
-                    value_loss = torch.mean((value - targets[index]) ** 2)
-                entropy = model.entropy()
-                loss = policy_loss + s.vf_coef * value_loss - s.ent_coef * entropy
-                self.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                nn.utils.clip_grad_norm_(model.parameters(), s.max_grad_norm)
-                self.optimizer.step()
-                with torch.no_grad():
-                    approx_kl = torch.mean((ratio - 1.0) - log_ratio)
-                    clipped = torch.mean((torch.abs(ratio - 1.0) > s.clip_range).to(torch.float32))
-                    sums += torch.stack([policy_loss, value_loss, -entropy, approx_kl, clipped]).detach()
+                    value, target = model.critic(batch).squeeze(-1), targets[index]
+                mean = model.actor(batch)
+                sums += self._minibatch_step(
+                    mean, actions[index], old_log_probs[index], per_agent[index], value, target
+                )
                 count += 1
         self.n_updates += count
         return sums / count
