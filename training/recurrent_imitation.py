@@ -282,14 +282,7 @@ def evaluate(policy: TorchPolicy, n_agents: int = 20, seeds: Sequence[int] = ran
     policy.reset()
     ours = play(config, seeds, policy, label=False)["deadline_error"]
     reference = rings.run_episodes(rings.task_config(n_agents), ReferencePolicy, seeds)["deadline_error"]
-    return {
-        "n_agents": n_agents,
-        "seeds": len(seeds),
-        "median": float(np.median(ours)),
-        "max": float(np.max(ours)),
-        "reference_median": float(np.median(reference)),
-        "ratio": float(np.median(reference) / max(np.median(ours), 1e-300)),
-    }
+    return rings.comparison(n_agents, ours, reference)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -243,9 +243,14 @@ def evaluate(policy: IntervalGainPolicy, n_agents: int = 20, seeds: Sequence[int
     config = task_config(n_agents)
     ours = run_episodes(config, lambda _config: policy, seeds)["deadline_error"]
     reference = run_episodes(config, ReferencePolicy, seeds)["deadline_error"]
+    return comparison(n_agents, ours, reference)
+
+
+def comparison(n_agents: int, ours: np.ndarray, reference: np.ndarray) -> dict[str, float]:
+    """Medians of a policy's and the reference's ``D(T_s)/D(0)`` (one value per seed each), their ratio."""
     return {
         "n_agents": n_agents,
-        "seeds": len(seeds),
+        "seeds": len(ours),
         "median": float(np.median(ours)),
         "max": float(np.max(ours)),
         "reference_median": float(np.median(reference)),
