@@ -79,3 +79,26 @@ def test_the_shipped_rings_gru_beats_the_reference_tenfold_on_rings_of_20():
     assert policy.arch == "gru" and policy.module.gru_input == "schedule"
     result = recurrent_imitation.evaluate(policy, 20, range(3))
     assert result["median"] * 10 < result["reference_median"]
+
+
+def test_rings_gru_loads_by_name_into_a_plain_ring_of_20_and_beats_the_reference_there():
+    import fxc_env
+    from fxc_env.policies.learned import load_learned_policy
+    from fxc_env.policies.reference import ReferencePolicy
+
+    def deadline_error(make_policy, act) -> float:
+        env = fxc_env.parallel_env(topology="ring", n_agents=20, n_intervals=200, settling_time=20.0)
+        observations, infos = env.reset(seed=3)
+        policy = make_policy(env)
+        while env.agents:
+            observations, _, _, _, infos = env.step(act(policy, observations))
+        return infos["agent_0"]["episode"]["relative_deadline_error"]
+
+    def per_agent(policy, observations):
+        return {agent: policy(o) for agent, o in observations.items()}
+
+    ours = deadline_error(lambda env: load_learned_policy("rings_gru", env), lambda policy, obs: policy(obs))
+    assert ours * 10 < deadline_error(ReferencePolicy, per_agent)
+    policy = load_learned_policy("rings_gru")
+    with pytest.raises(ArgumentError, match=r"observations: a 'gru' policy keeps a memory per agent"):
+        policy(np.zeros(policy.obs_size))

@@ -98,12 +98,24 @@ class TorchPolicy:
         observations of the same leading shape and reset per episode (clock ``k/K = 0``), or
         when the shape changes, or by :meth:`reset`. ``gnn``: ``observations`` ``[..., N,
         obs_size]`` and ``graph``, the interval graph's ``(edge_index, edge_mask)`` ``[..., 2, E]``,
-        ``[..., E]`` (:func:`fxc_env.policies.torch_memory.interval_graph`).
+        ``[..., E]`` (:func:`fxc_env.policies.torch_memory.interval_graph`). A mapping
+        ``{agent: observation}`` (a PettingZoo env's observations) gives ``{agent: action}``, the
+        agents acting as one batch; a ``gru`` refuses one agent's observation alone (its memory
+        is per agent: calling it agent by agent would run one memory through every agent's rows).
         """
+        if isinstance(observations, Mapping):
+            agents = list(observations)
+            stacked = np.stack([np.asarray(observations[agent]) for agent in agents]) if agents else np.zeros((0,))
+            return dict(zip(agents, self(stacked, graph), strict=True))
         numpy_in = not isinstance(observations, torch.Tensor)
         x = torch.as_tensor(np.asarray(observations) if numpy_in else observations)
         if x.ndim < 1 or x.shape[-1] != self.obs_size:
             raise ArgumentError(f"observations: expected shape [..., {self.obs_size}], got {tuple(x.shape)}")
+        if self.arch == "gru" and x.ndim == 1:
+            raise ArgumentError(
+                f"observations: a 'gru' policy keeps a memory per agent; pass every agent's observations at "
+                f"once, [N, {self.obs_size}] or a dict agent -> observation, not one agent's ({self.obs_size},)"
+            )
         if self.arch == "gnn" and graph is None:
             raise ArgumentError(
                 "graph: a 'gnn' policy passes messages along the interval graph; call it with "
