@@ -57,7 +57,8 @@ def quantiles(values: np.ndarray) -> tuple[float, float, float]:
     return float(median), float(q25), float(q75)
 
 
-def _number(value: float) -> str:
+def number_text(value: float) -> str:
+    """A table figure: 3 significant digits, 2 below 1e-2 and from 1e4 on; ``n/a``, ``∞``, ``0``."""
     if math.isnan(value):
         return "n/a"
     if math.isinf(value):
@@ -72,7 +73,7 @@ def spread_cell(values: np.ndarray) -> str:
     median, q25, q75 = quantiles(values)
     if math.isnan(median):
         return "n/a"
-    return f"{_number(median)} [{_number(q25)}, {_number(q75)}]"
+    return f"{number_text(median)} [{number_text(q25)}, {number_text(q75)}]"
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
@@ -206,7 +207,7 @@ def realism_table(results: list[JobResult], suite: Suite, contenders: list[Conte
             error, saturated, energy = (
                 quantiles(metrics[m])[0] for m in ("relative_deadline_error", "saturated_fraction", "energy")
             )
-            row.append(f"{_number(error)} · sat {saturated:.0%} · E {_number(energy)}")
+            row.append(f"{number_text(error)} · sat {saturated:.0%} · E {number_text(energy)}")
         rows.append(row)
     return _table(header, rows)
 
@@ -225,7 +226,7 @@ def optimality_table(results: list[JobResult], suite: Suite, contenders: list[Co
             rows.append(
                 [
                     case.key,
-                    _number(quantiles(m["energy_bound"])[0]),
+                    number_text(quantiles(m["energy_bound"])[0]),
                     contender.name,
                     str(match[0].job.n_intervals),
                     spread_cell(m["relative_deadline_error"]),
@@ -256,7 +257,7 @@ def _parameter_ranges(chosen: list[JobResult]) -> str:
     for name in names:
         values = np.array([r.parameters[name] for r in chosen if name in r.parameters])
         low, high = float(values.min()), float(values.max())
-        parts.append(f"{name} = {_number(low)}" + ("" if np.isclose(low, high) else f" … {_number(high)}"))
+        parts.append(f"{name} = {number_text(low)}" + ("" if np.isclose(low, high) else f" … {number_text(high)}"))
     return ", ".join(parts)
 
 

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.baselines.report import number_text
 from fxc_env.baselines.suite import Contender, Suite, learned_contender, model_path
 from fxc_env.core import statistics
 from fxc_env.core.validation import ArgumentError
@@ -305,20 +306,10 @@ def intervals(scores: CaseScores, *, reps: int, seed: int) -> dict[str, Any]:
     return record
 
 
-def _number(value: float) -> str:
-    if math.isnan(value):
-        return "n/a"
-    if math.isinf(value):
-        return "∞"
-    if value == 0:
-        return "0"
-    return f"{value:.2g}" if abs(value) < 1e-2 or abs(value) >= 1e4 else f"{value:.3g}"
-
-
 def _cell(interval: dict[str, Any] | None, log: bool = False) -> str:
     if interval is None:
         return "—"
-    show = (lambda v: "∞" if math.isinf(v) else f"{v:.2f}") if log else _number
+    show = (lambda v: "∞" if math.isinf(v) else f"{v:.2f}") if log else number_text
     return f"{show(interval['estimate'])} [{show(interval['low'])}, {show(interval['high'])}]"
 
 
@@ -337,7 +328,7 @@ def seed_table(records: Sequence[dict[str, Any]], label: str, seeds: Sequence[in
     for record in records:
         learned, reference = record.get("learned"), record.get("reference")
         per_seed = (
-            " / ".join(_number(v) for v in learned["per_seed_median_deadline_error"].values())
+            " / ".join(number_text(v) for v in learned["per_seed_median_deadline_error"].values())
             if learned
             else ("— (refused: see seeds.json)" if record["note"] else "—")
         )
