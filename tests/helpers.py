@@ -94,3 +94,32 @@ def reference_actions(policy, observations: dict) -> dict:
 def relative_error(a: np.ndarray, b: np.ndarray) -> float:
     """``max |a - b| / max |b|`` (the scale of the reference ``b``)."""
     return float(np.max(np.abs(np.asarray(a) - np.asarray(b))) / np.max(np.abs(b)))
+
+
+def torch_mlp_policy_file(folder, env: dict, seed: int | None = None):
+    """A ``policy.pt`` in ``folder`` for a small torch MLP (obs 15 = paper_fig1's 4 slots, plan actions, widths (8,)).
+
+    ``env`` is the recorded training environment; ``seed`` seeds the weights (None: torch's current generator).
+    """
+    import torch
+
+    from fxc_env.policies.torch_policy import POLICY_FORMAT, mlp
+
+    if seed is not None:
+        torch.manual_seed(seed)
+    actor = mlp(15, 2, (8,), "tanh", 1.0)
+    record = {
+        "format": POLICY_FORMAT,
+        "obs_size": 15,
+        "action_size": 2,
+        "action_bound": 2.0,
+        "hidden": [8],
+        "activation": "tanh",
+        "actor": actor.state_dict(),
+        "log_std": torch.zeros(2),
+        "env": env,
+        "timesteps": 0,
+    }
+    path = folder / "policy.pt"
+    torch.save(record, path)
+    return path

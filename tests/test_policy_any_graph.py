@@ -15,6 +15,7 @@ import zipfile
 import numpy as np
 import pytest
 import torch
+from helpers import torch_mlp_policy_file
 
 import fxc_env
 from fxc_env import cli
@@ -163,25 +164,7 @@ def test_the_mlp_reads_fewer_rows_exactly_and_refuses_more_by_name():
 
 
 def torch_mlp(tmp_path):
-    from fxc_env.policies.torch_policy import POLICY_FORMAT, mlp
-
-    torch.manual_seed(0)
-    actor = mlp(15, 2, (8,), "tanh", 1.0)
-    record = {
-        "format": POLICY_FORMAT,
-        "obs_size": 15,
-        "action_size": 2,
-        "action_bound": 2.0,
-        "hidden": [8],
-        "activation": "tanh",
-        "actor": actor.state_dict(),
-        "log_std": torch.zeros(2),
-        "env": {"scenario": "paper_fig1", "obs_slots": 4},
-        "timesteps": 0,
-    }
-    path = tmp_path / "policy.pt"
-    torch.save(record, path)
-    return path
+    return torch_mlp_policy_file(tmp_path, {"scenario": "paper_fig1", "obs_slots": 4}, seed=0)
 
 
 def test_a_torch_mlp_names_its_width_and_loads_padded(tmp_path):

@@ -17,6 +17,7 @@ import zipfile
 import numpy as np
 import pytest
 import torch
+from helpers import torch_mlp_policy_file
 
 from fxc_env import make_config
 from fxc_env.core.validation import ArgumentError
@@ -240,23 +241,7 @@ def test_a_one_axis_policy_in_the_plane_acts_per_axis_and_says_so():
 
 
 def torch_policy_file(tmp_path, env):
-    from fxc_env.policies.torch_policy import POLICY_FORMAT, mlp
-
-    actor = mlp(15, 2, (8,), "tanh", 1.0)
-    record = {
-        "format": POLICY_FORMAT,
-        "obs_size": 15,
-        "action_size": 2,
-        "action_bound": 2.0,
-        "hidden": [8],
-        "activation": "tanh",
-        "actor": actor.state_dict(),
-        "log_std": torch.zeros(2),
-        "env": env,
-        "timesteps": 0,
-    }
-    torch.save(record, tmp_path / "policy.pt")
-    return tmp_path / "policy.pt"
+    return torch_mlp_policy_file(tmp_path, env)
 
 
 def test_a_torch_policy_refuses_settings_other_than_its_recorded_env(tmp_path):
