@@ -38,9 +38,11 @@ COLOURS = (
     "#17becf",
     "#bcbd22",
     "#7f7f7f",
+    "#000000",
 )
 #: One marker per policy where points of several policies may coincide (the optimality figure).
-MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">")
+#: Eleven markers and eleven colours: the first eleven contenders differ in both, later ones repeat.
+MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">", "h")
 
 
 def _colour(contenders: list[Contender], name: str) -> str:
