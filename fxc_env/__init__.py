@@ -11,6 +11,9 @@ dynamics, the paper's controller (eq. 11) as :class:`ReferencePolicy`, and the e
 
 from __future__ import annotations
 
+import sys
+
+from fxc_env import _moved
 from fxc_env.analysis.simulation import Trajectory, simulate
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.config.scenarios import SCENARIOS
@@ -20,9 +23,13 @@ from fxc_env.engine import ConsensusEngine
 from fxc_env.envs import fxc_consensus_v0  # the versioned module, as PettingZoo's suites export theirs
 from fxc_env.envs.fxc_consensus_v0 import env, parallel_env, raw_env
 from fxc_env.envs.registration import ENV_ID, register_environments
+from fxc_env.policies.learned import load_learned_policy
 from fxc_env.policies.reference import ReferencePolicy
 
 register_environments()
+# The versioned module also imports at its public path, as PettingZoo's suites' modules do (no file stands there).
+sys.modules.setdefault(f"{__name__}.fxc_consensus_v0", fxc_consensus_v0)
+_moved.install()  # the previous release's module paths, with a DeprecationWarning naming the new ones
 
 __all__ = [
     "ENV_ID",
@@ -31,13 +38,21 @@ __all__ = [
     "ConsensusTorchEnv",
     "ConsensusVecEnv",
     "EnvConfig",
+    "FiniteTimePolicy",
+    "LinearConsensusPolicy",
+    "MinimumTimePolicy",
+    "PrescribedTimePolicy",
     "ReferenceModule",
     "ReferencePolicy",
+    "SampledLinearPolicy",
+    "SaturationAwarePolicy",
     "Schedule",
+    "SignallingPolicy",
     "Topology",
     "Trajectory",
     "env",
     "fxc_consensus_v0",
+    "load_learned_policy",
     "make_config",
     "make_schedule",
     "make_topology",
@@ -54,6 +69,14 @@ _LAZY = {
     "ConsensusTorchEnv": "fxc_env.envs.torch_env",  # torchrl (the torchrl extra)
     "reference_policy": "fxc_env.policies.torchrl_reference",
     "ReferenceModule": "fxc_env.policies.torchrl_reference",
+    # The baselines sit above the environments in the layer order: imported on first use, never by fxc_env itself.
+    "FiniteTimePolicy": "fxc_env.baselines",
+    "LinearConsensusPolicy": "fxc_env.baselines",
+    "MinimumTimePolicy": "fxc_env.baselines",
+    "PrescribedTimePolicy": "fxc_env.baselines",
+    "SampledLinearPolicy": "fxc_env.baselines",
+    "SaturationAwarePolicy": "fxc_env.baselines",
+    "SignallingPolicy": "fxc_env.baselines",
 }
 
 
@@ -62,4 +85,8 @@ def __getattr__(name: str) -> object:
         import importlib
 
         return getattr(importlib.import_module(_LAZY[name]), name)
+    if f"{__name__}.{name}" in _moved.MOVED:  # an old submodule read as an attribute: import it, with its warning
+        import importlib
+
+        return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module 'fxc_env' has no attribute {name!r}")

@@ -1,0 +1,156 @@
+"""The previous release's module paths still import, for one release, with a warning naming the new path.
+
+The layers became folders (README, "Moved modules"): every module at the package's top level moved into
+one, and ``fxc_env.training.train`` became ``sb3_train``. A user's ``import fxc_env.learned`` keeps working
+and says where the module is now; the public names users import sit on ``fxc_env`` itself.
+"""
+
+from __future__ import annotations
+
+import importlib
+import subprocess
+import sys
+import warnings
+
+import pytest
+
+import fxc_env
+
+#: Every module path of the previous release that moved, and where its names are now.
+OLD_TO_NEW = {
+    "fxc_env.cli_checks": ["fxc_env.utils.cli_checks"],
+    "fxc_env.cluster": ["fxc_env.utils.cluster"],
+    "fxc_env.consensus_aec": ["fxc_env.envs.aec"],
+    "fxc_env.consensus_env": ["fxc_env.envs.parallel"],
+    "fxc_env.env_arguments": ["fxc_env.config.flags"],
+    "fxc_env.gain_policy": ["fxc_env.policies.gain_network"],
+    "fxc_env.interop": ["fxc_env.envs.interop"],
+    "fxc_env.layout": ["fxc_env.config.layout"],
+    "fxc_env.learned": ["fxc_env.policies.learned"],
+    "fxc_env.plots": ["fxc_env.analysis.plots"],
+    "fxc_env.reference": ["fxc_env.policies.reference"],
+    "fxc_env.registration": ["fxc_env.envs.registration"],
+    "fxc_env.rendering": ["fxc_env.envs.rendering"],
+    "fxc_env.scenarios": ["fxc_env.config.scenarios"],
+    "fxc_env.simulation": ["fxc_env.analysis.simulation"],
+    "fxc_env.spaces": ["fxc_env.envs.spaces"],
+    "fxc_env.threads": ["fxc_env.utils.threads"],
+    "fxc_env.torch_policy": ["fxc_env.policies.torch_policy"],
+    "fxc_env.torchrl_env": ["fxc_env.envs.torch_env", "fxc_env.policies.torchrl_reference"],
+    "fxc_env.vec_env": ["fxc_env.envs.vec_env"],
+    "fxc_env.training.train": ["fxc_env.training.sb3_train"],
+}
+
+#: Names the previous release's README imported from the old paths.
+README_IMPORTS = {
+    "fxc_env.torchrl_env": ["ConsensusTorchEnv", "reference_policy"],
+    "fxc_env.learned": ["load_learned_policy"],
+    "fxc_env.gain_policy": ["GainScheduledPolicy"],
+    "fxc_env.torch_policy": ["TorchPolicy", "load_torch_policy"],
+}
+
+
+def forget(path: str) -> None:
+    """Drop an old module from this process, so that importing it runs (and warns) again."""
+    sys.modules.pop(path, None)
+    parent, _, child = path.rpartition(".")
+    vars(importlib.import_module(parent)).pop(child, None)
+
+
+def import_old(path: str) -> tuple[object, list[warnings.WarningMessage]]:
+    forget(path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        module = importlib.import_module(path)
+    return module, [w for w in caught if issubclass(w.category, DeprecationWarning)]
+
+
+@pytest.mark.parametrize("old", sorted(OLD_TO_NEW))
+def test_an_old_path_imports_the_new_modules_objects_with_a_warning_naming_the_new_path(old):
+    if old == "fxc_env.torchrl_env":
+        pytest.importorskip("torchrl")
+    module, caught = import_old(old)
+    (warning,) = [w for w in caught if old in str(w.message)]
+    for new in OLD_TO_NEW[old]:
+        assert new in str(warning.message)
+    assert "next release" in str(warning.message)
+    assert warning.filename == __file__  # pointed at the importing line, not at the import machinery
+    for new in OLD_TO_NEW[old]:
+        target = importlib.import_module(new)
+        names = getattr(target, "__all__", None) or [n for n in vars(target) if not n.startswith("_")]
+        for name in names:
+            assert getattr(module, name) is getattr(target, name), name
+    for name in README_IMPORTS.get(old, []):
+        assert name in module.__all__
+
+
+def test_the_renamed_torchrl_env_function_still_answers_with_a_warning_naming_torchrl_wrapper():
+    from fxc_env.envs.interop import torchrl_wrapper
+
+    module, _ = import_old("fxc_env.interop")
+    with pytest.warns(
+        DeprecationWarning, match=r"fxc_env\.interop\.torchrl_env is now fxc_env\.envs\.interop\.torchrl_wrapper"
+    ) as caught:
+        function = module.torchrl_env
+    assert function is torchrl_wrapper
+    assert caught[0].filename == __file__
+
+
+def test_an_old_submodule_read_as_an_attribute_of_the_package_imports_with_its_warning():
+    forget("fxc_env.simulation")
+    with pytest.warns(DeprecationWarning, match=r"fxc_env\.analysis\.simulation") as caught:
+        simulate = fxc_env.simulation.simulate
+    assert simulate is fxc_env.simulate
+    assert caught[0].filename == __file__
+
+
+def test_a_users_script_sees_the_warning_by_default_at_its_own_import_line(tmp_path):
+    script = tmp_path / "old_script.py"
+    script.write_text(
+        "import fxc_env\n"
+        "from fxc_env.learned import load_learned_policy\n"
+        "assert load_learned_policy is fxc_env.load_learned_policy\n"
+    )
+    result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, check=True)
+    assert (
+        f"{script}:2: DeprecationWarning: fxc_env.learned moved to fxc_env.policies.learned: import from there; "
+        "the old path goes away in the next release"
+    ) in result.stderr
+
+
+def test_the_package_imports_no_old_path_and_loads_the_baselines_and_torchrl_on_first_use():
+    code = (
+        "import sys, fxc_env; "
+        "assert 'fxc_env.baselines' not in sys.modules and 'torchrl' not in sys.modules, sorted(sys.modules); "
+        "fxc_env.SignallingPolicy; "
+        "assert 'fxc_env.baselines' in sys.modules"
+    )
+    subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", code], check=True)
+
+
+def test_the_versioned_module_imports_at_its_public_path_without_a_warning():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        module = importlib.import_module("fxc_env.fxc_consensus_v0")
+    assert module is fxc_env.fxc_consensus_v0
+    assert module.parallel_env is fxc_env.parallel_env
+
+
+def test_the_names_users_import_sit_on_fxc_env():
+    from fxc_env import baselines
+    from fxc_env.policies.learned import load_learned_policy
+
+    assert fxc_env.load_learned_policy is load_learned_policy
+    for name in baselines.__all__:
+        if name.endswith("Policy"):
+            assert name in fxc_env.__all__
+            assert getattr(fxc_env, name) is getattr(baselines, name)
+
+
+def test_every_name_in_all_resolves_and_all_lists_the_names_users_import():
+    pytest.importorskip("torchrl")  # ConsensusTorchEnv, ReferenceModule, reference_policy
+    assert {"ConsensusTorchEnv", "load_learned_policy", "SignallingPolicy", "MinimumTimePolicy"} <= set(fxc_env.__all__)
+    for name in fxc_env.__all__:
+        namespace: dict[str, object] = {}
+        exec(f"from fxc_env import {name}", namespace)
+        assert namespace[name] is getattr(fxc_env, name)
