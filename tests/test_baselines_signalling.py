@@ -17,11 +17,11 @@ from fxc_env.engine import ConsensusEngine
 SIGNALLING = Contender("signalling", "signalling", True, "uniform", "plan", "raw")
 
 
-def episodes(seeds=(0, 1, 2), **kwargs):
+def episodes(seeds=(0, 1, 2), amplitude=None, **kwargs):
     """Run the law on seeded episodes; the engine (for z0) and its batch metrics."""
     kwargs = {"scenario": None, "schedule": "uniform", "action_mode": "plan", "obs_mode": "raw", **kwargs}
     config = make_config(**kwargs)
-    policy = SignallingPolicy(config)
+    policy = SignallingPolicy(config, amplitude=amplitude)
     engine = ConsensusEngine(config, n_episodes=len(seeds))
     draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
     engine.reset(np.stack([d.x0 for d in draws]), np.stack([d.v0 for d in draws]))
@@ -103,6 +103,17 @@ def test_it_refuses_by_name_what_it_cannot_honour(kwargs, name):
         SignallingPolicy(config)
     with pytest.raises(ArgumentError, match=r"^amplitude:"):
         SignallingPolicy(make_config(scenario=None, topology="ring", n_agents=6, obs_mode="raw"), amplitude=0.0)
+
+
+@pytest.mark.parametrize(("inside", "outside"), [(1e-12, 1e-13), (1.0, 1.5)])
+def test_it_refuses_amplitudes_past_where_the_reads_decode_and_the_ends_of_the_range_still_decode(inside, outside):
+    """Below 1e-12 rounding over ε takes the reads' digits; above 1 the error grows again like ε (module docstring)."""
+    config = make_config(scenario=None, topology="ring", n_agents=6, obs_mode="raw")
+    for bad in (outside, 1e-16, 1e12, 1e300):
+        with pytest.raises(ArgumentError, match=r"^amplitude: expected 1e-12 <= amplitude <= 1; .*got "):
+            SignallingPolicy(config, amplitude=bad)
+    _, _, metrics = episodes(topology="ring", n_agents=6, amplitude=inside)
+    assert np.max(metrics["relative_deadline_error"]) < 1e-3
 
 
 def test_under_measurement_noise_it_runs_only_with_a_chosen_amplitude_and_loses_accuracy_like_one_over_it():
