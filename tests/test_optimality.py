@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import scipy.integrate
@@ -34,6 +36,23 @@ def steering_energy(start: np.ndarray, target: np.ndarray, T: float) -> float:
 
 def test_the_paper_example_needs_at_least_5_4597():
     assert abs(float(energy_bound(PAPER_X0, PAPER_V0, 20.0)) - 5.4597) < 1e-4
+
+
+@pytest.mark.parametrize("T", [1e-300, 1e-110, 1e200, 1e300])
+def test_at_extreme_settling_times_the_bound_is_its_limit_never_nan_nor_an_overflow_error(T):
+    """E* -> inf as T_s -> 0 with any disagreement, 0 for a team already in consensus, -> 0 as T_s -> inf."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no RuntimeWarning from an intermediate 0 / 0 or inf - inf
+        disagreeing = float(energy_bound(PAPER_X0, PAPER_V0, T))
+        agreed = float(energy_bound(np.full(6, 3.0), np.full(6, -1.0), T))
+        moving_apart = float(energy_bound(np.zeros(6), PAPER_V0, T))  # one place, different speeds
+    assert agreed == 0.0
+    w = PAPER_V0 - PAPER_V0.mean()
+    if T < 1:
+        assert disagreeing == np.inf
+        assert moving_apart == pytest.approx(4.0 * np.sum(w * w) / T, rel=1e-12)  # 4 |w|² / T exactly
+    else:
+        assert 0.0 <= disagreeing == pytest.approx(4.0 * np.sum(w * w) / T, rel=1e-12)  # 12 s² -> 3 w²
 
 
 def test_the_bound_is_the_closed_form_at_the_mean_of_the_coasted_states_batched_in_the_plane():

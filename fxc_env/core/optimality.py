@@ -69,7 +69,13 @@ def energy_bound(x0: Any, v0: Any, settling_time: Any) -> np.ndarray:
         settling_time: ``T_s`` in seconds, > 0.
 
     Returns:
-        ``(...)`` float64: one bound per episode, summed over agents and axes.
+        ``(...)`` float64: one bound per episode, summed over agents and axes; 0 for a team already in
+        exact consensus at any ``T_s``, and ``inf`` where ``E*`` is beyond float64 (its limit as
+        ``T_s -> 0`` with any disagreement, e.g. ``T_s = 1e-300``).
+
+    The per-axis sum is evaluated as ``(12 s^2 + w^2) / T_s``, ``s = a / T_s + w / 2``, with ``a`` and ``w``
+    the position and velocity offsets from the team's means (``d = a + T_s w`` expanded: a sum of squares,
+    with no cancellation and no power of ``T_s`` that can underflow or overflow on its own).
     """
     x = _states("x0", x0, 1)
     v = _states("v0", v0, 1)
@@ -78,10 +84,11 @@ def energy_bound(x0: Any, v0: Any, settling_time: Any) -> np.ndarray:
     T = validation.real("settling_time", settling_time, positive=True)
     if x.ndim == 1:
         x, v = x[:, None], v[:, None]
-    predicted = x + T * v
-    d = predicted - predicted.mean(axis=-2, keepdims=True)  # p_x - mean: minus the plan's position change
+    a = x - x.mean(axis=-2, keepdims=True)
     w = v - v.mean(axis=-2, keepdims=True)
-    per_axis = 12.0 * d * d / T**3 - 12.0 * d * w / T**2 + 4.0 * w * w / T
+    with np.errstate(over="ignore"):  # beyond float64 the bound is inf, which is its value to float64
+        s = a / T + w / 2.0
+        per_axis = (12.0 * s * s + w * w) / T
     return per_axis.sum(axis=(-2, -1))
 
 
