@@ -154,3 +154,51 @@ def test_every_name_in_all_resolves_and_all_lists_the_names_users_import():
         namespace: dict[str, object] = {}
         exec(f"from fxc_env import {name}", namespace)
         assert namespace[name] is getattr(fxc_env, name)
+
+
+def old_release_file(tmp_path, name: str = "generalist"):
+    """A shipped gain network as the previous release saved it: its class under ``fxc_env.gain_policy``, no fxc_policy.json."""
+    import base64
+    import json
+    import zipfile
+
+    from fxc_env.policies.learned import pretrained_path
+
+    with zipfile.ZipFile(pretrained_path(name)) as archive:
+        contents = {member: archive.read(member) for member in archive.namelist() if member != "fxc_policy.json"}
+    data = json.loads(contents["data"])
+    entry = data["policy_class"]
+    assert entry["__module__"] == "fxc_env.policies.gain_network"
+    entry["__module__"] = "fxc_env.gain_policy"
+    # The pickled class reference, protocol 5: GLOBAL by module and name (what SB3 wrote then).
+    module, cls = b"fxc_env.gain_policy", entry["__init__"].split()[1].split(".")[0].encode()
+    body = b"\x8c" + bytes([len(module)]) + module + b"\x94\x8c" + bytes([len(cls)]) + cls + b"\x94\x93\x94."
+    entry[":serialized:"] = base64.b64encode(b"\x80\x05\x95" + len(body).to_bytes(8, "little") + body).decode()
+    contents["data"] = json.dumps(data).encode()
+    path = tmp_path / f"{name}_previous_release.zip"
+    with zipfile.ZipFile(path, "w") as archive:
+        for member, content in contents.items():
+            archive.writestr(member, content)
+    return path
+
+
+@pytest.mark.parametrize("trusted", [False, True])
+def test_a_gain_network_saved_by_the_previous_release_loads_and_acts_as_the_shipped_one(tmp_path, trusted):
+    import numpy as np
+
+    from fxc_env.config import make_config
+    from fxc_env.policies.learned import LearnedPolicy, load_model, pretrained_path
+
+    config = make_config("paper_fig1", obs_slots=4, topology="ring", n_agents=8)
+    path = old_release_file(tmp_path)
+    forget("fxc_env.gain_policy")
+    if trusted:  # SB3 unpickles the class reference: the old module path answers, with its warning
+        with pytest.warns(DeprecationWarning, match=r"fxc_env\.gain_policy moved to fxc_env\.policies\.gain_network"):
+            model = load_model(path, trusted=True)
+        assert type(model.policy) is fxc_env.policies.gain_network.GainScheduledPolicy
+        policy = LearnedPolicy(path, config, trusted=True)
+    else:  # the safe reader reads the class's name and module without unpickling
+        policy = fxc_env.load_learned_policy(path, config)
+    shipped = fxc_env.load_learned_policy(pretrained_path("generalist"), config)
+    obs = np.random.default_rng(0).uniform(-1, 1, size=(5, config.n_agents, config.layout.size))
+    assert np.array_equal(policy(obs), shipped(obs))

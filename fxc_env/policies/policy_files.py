@@ -56,6 +56,7 @@ KNOWN_MODULES = {
     "stable_baselines3.common.policies": ("ActorCriticPolicy",),
     "stable_baselines3.sac.policies": ("SACPolicy",),
     "fxc_env.policies.gain_network": ("GainScheduledPolicy", "GatedGainPolicy"),
+    "fxc_env.gain_policy": ("GainScheduledPolicy", "GatedGainPolicy"),  # files saved before the layer folders
 }
 #: The parameters each policy class's ``policy.pth`` may hold (a Flatten features extractor has none).
 PARAMETER_PREFIXES = {
