@@ -202,3 +202,11 @@ def test_a_gain_network_saved_by_the_previous_release_loads_and_acts_as_the_ship
     shipped = fxc_env.load_learned_policy(pretrained_path("generalist"), config)
     obs = np.random.default_rng(0).uniform(-1, 1, size=(5, config.n_agents, config.layout.size))
     assert np.array_equal(policy(obs), shipped(obs))
+
+
+def test_the_previous_releases_config_names_still_import_from_fxc_env_config():
+    from fxc_env.config import layout
+
+    namespace: dict[str, object] = {}
+    exec("from fxc_env.config import CLOCK_SIZE, EnvConfig, ObservationLayout, config_of, make_config", namespace)
+    assert namespace["ObservationLayout"] is layout.ObservationLayout and namespace["CLOCK_SIZE"] == layout.CLOCK_SIZE

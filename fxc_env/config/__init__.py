@@ -16,5 +16,15 @@ from fxc_env.config.env_config import (
     config_of,
     make_config,
 )
+from fxc_env.config.layout import CLOCK_SIZE, ObservationLayout  # in fxc_env.config's names since the first release
 
-__all__ = ["RENDER_MODES", "EnvConfig", "check_max_cycles", "check_render_mode", "config_of", "make_config"]
+__all__ = [
+    "CLOCK_SIZE",
+    "RENDER_MODES",
+    "EnvConfig",
+    "ObservationLayout",
+    "check_max_cycles",
+    "check_render_mode",
+    "config_of",
+    "make_config",
+]
