@@ -392,7 +392,7 @@ def optimality_cases(sizes: tuple[int, ...] = (20, 100)) -> tuple[BenchmarkCase,
 def optimality_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     """How far from optimal (README, "How far from optimal"): :func:`optimality_cases` at K = 200, T_s = 20 s.
 
-    Every job reports its episodes' bounds (``E*`` and the propagation bound) beside the deadline
+    Every job reports its episodes' bounds (``E*``, the radius and the all-roots bounds) beside the deadline
     error, the energy ratio and the intervals used; run it with :func:`optimality_contenders`.
     """
     return Suite(
