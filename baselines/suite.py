@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.baselines.finite_time import FiniteTimePolicy
+from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
 from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
@@ -48,6 +49,7 @@ BASELINES = {
         PrescribedTimePolicy,
         SaturationAwarePolicy,
         MinimumTimePolicy,
+        LeaderFollowerPolicy,
         SignallingPolicy,
     )
 }
@@ -61,6 +63,7 @@ BUILTIN_SETTINGS = {
     "prescribed_time": (False, "uniform", "accel", "raw"),
     "saturation_aware": (True, "uniform", "accel", "raw"),
     "minimum_time": (True, "uniform", "plan", "normalized"),
+    "leader_follower": (True, "uniform", "plan", "normalized"),
     "signalling": (True, "uniform", "plan", "raw"),
 }
 

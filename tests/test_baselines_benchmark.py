@@ -49,9 +49,10 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     assert all(r["error"].startswith("topology:") for r in rows if r["error"] and r["policy"] == "minimum_time")
     # The signalling law needs its agreement's intervals: it refuses too small a K, by name.
     assert all(r["error"].startswith("n_intervals:") for r in rows if r["error"] and r["policy"] == "signalling")
-    for name in ("linear_sampled", "linear", "finite_time", "prescribed_time", "saturation_aware", "minimum_time"):
+    names = ("linear_sampled", "linear", "finite_time", "prescribed_time", "saturation_aware", "minimum_time")
+    for name in (*names, "leader_follower"):
         assert f"- **{name}** — settings:" in printed
-    assert printed.count("Proven for:") == 8
+    assert printed.count("Proven for:") == 9
     assert "Parameters (range over the suite" in printed
     assert "unproven" in printed  # finite-time and prescribed-time on digraphs
 
