@@ -14,8 +14,9 @@ source paper, the graph class it is proven for, and its parameters:
 - :class:`SaturationAwarePolicy` (:mod:`fxc_env.baselines.saturation_aware`): the paper's plan
   where it fits under the input limit, a held linear law where it does not;
 - :class:`MinimumTimePolicy` (:mod:`fxc_env.baselines.minimum_time`): this project's minimum-time law
-  for a known fixed digraph, exact after one interval per eigenvalue of ``(D + I)^{-1} L`` (a ring of
-  N: N - 1), in ``plan`` or ``accel`` mode, raw or normalized;
+  for a known fixed digraph, exact after one interval per root of the minimal polynomial of
+  ``(D + I)^{-1} L`` (a ring of N: N - 1; a tree: its depth), minimum-time only where that count
+  equals the radius, in ``plan`` or ``accel`` mode, raw or normalized;
 - :class:`LeaderFollowerPolicy` (:mod:`fxc_env.baselines.leader_follower`): this project's time-optimal
   law for a known graph: the centre coasts, every other agent lands on its parent's coasted state in a
   (time-respecting) shortest-path tree; exact after exactly the radius, the bound for every law;

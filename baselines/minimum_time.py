@@ -24,7 +24,8 @@ interval k acts on the mode of an eigenvalue ``mu'`` of ``Ŵ`` as ``P_k - mu' G_
 
 After these factors every disagreement mode is zero: a directed ring of N agrees after N - 1
 intervals. It is **minimum-time only where that count equals the graph's radius**
-(:func:`fxc_env.core.optimality.radius_bound`, the fewest intervals of any law): rings, paths, trees.
+(:func:`fxc_env.core.optimality.radius_bound`, the fewest intervals of any law): generically the
+count is N - 1, so only where N - 1 equals the radius (rings, paths), and on trees (depth = radius).
 Elsewhere it is bounded by, and on random digraphs well above, the all-roots bound, and the
 leader-follower law (:mod:`fxc_env.baselines.leader_follower`) is exact sooner. The factors run in Leja
 order (each next one kills the mode whose partial product is largest), so partial products stay
