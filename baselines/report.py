@@ -173,24 +173,37 @@ def headline_table(results: list[JobResult], suite: Suite, contenders: list[Cont
     return _table(header, rows)
 
 
+#: The last column of the per-case tables: the case's intervals bounds (README, "How far from optimal").
+BOUNDS_TITLE = "intervals bound: radius (any law) / all roots"
+
+
+def bounds_cell(results: list[JobResult], case: Any) -> str:
+    """``radius / all-roots`` of a case's graph (medians over its episodes: families draw per episode); n/a for random switching."""
+    ran = [r for r in _ran(results) if r.job.case == case and "radius_bound" in r.metrics]
+    if not ran:
+        return "—"
+    radius, all_roots = (number_text(quantiles(ran[0].metrics[m])[0]) for m in ("radius_bound", "all_roots_bound"))
+    return f"{radius} / {all_roots}"
+
+
 def case_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
-    """Deadline error per case (rows) and policy (columns) at the headline budget."""
+    """Deadline error per case (rows) and policy (columns) at the headline budget, and the case's intervals bounds."""
     names = [c.name for c in contenders]
-    header = ["case", *names]
+    header = ["case", *names, BOUNDS_TITLE]
     rows = []
     for case in suite.cases:
         row = [case.key]
         for name in names:
             match = [r for r in _headline_results(results, suite, name) if r.job.case == case]
             row.append(spread_cell(match[0].metrics["relative_deadline_error"]) if match else "—")
-        rows.append(row)
+        rows.append([*row, bounds_cell(results, case)])
     return _table(header, rows)
 
 
 def realism_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
     """Per case and condition, each policy's median deadline error, saturated time share and energy."""
     names = [c.name for c in contenders]
-    header = ["case", "condition", *names]
+    header = ["case", "condition", *names, BOUNDS_TITLE]
     rows = []
     for case in suite.cases:
         row = [f"{case.family} N={case.n_agents}", case.condition]
@@ -204,7 +217,7 @@ def realism_table(results: list[JobResult], suite: Suite, contenders: list[Conte
                 quantiles(metrics[m])[0] for m in ("relative_deadline_error", "saturated_fraction", "energy")
             )
             row.append(f"{number_text(error)} · sat {saturated:.0%} · E {number_text(energy)}")
-        rows.append(row)
+        rows.append([*row, bounds_cell(results, case)])
     return _table(header, rows)
 
 

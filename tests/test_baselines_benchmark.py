@@ -37,6 +37,8 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     # The printed Markdown: the by-case row of paper_fig1 opens with the reference's median at K = 200.
     row = next(line for line in printed.splitlines() if line.startswith("| paper_fig1 N=6 |"))
     assert float(row.split("|")[2].split("[")[0]) <= 1e-9
+    # ... and closes with the case's intervals bounds: radius 5 (any law) / 7 (laws using every root).
+    assert "intervals bound: radius (any law) / all roots |" in printed and row.endswith("| 5 / 7 |")
     assert (tmp_path / "table.md").read_text().strip() in printed
 
     # Every policy ran every quick case with the settings and notes the README's benchmark table lists.
