@@ -91,18 +91,21 @@ def _block_index(block: np.ndarray, mu: complex, multiplicity: int) -> int:
     """The size of the largest Jordan block of ``mu`` in ``block`` (its index), by a rank test; at most ``multiplicity``.
 
     The smallest j with ``rank((block - mu I)^j) = size - multiplicity`` (numerical rank, singular values
-    below ``1e-8`` of the largest count as zero). Where the test is not conclusive, ``multiplicity``
-    (the characteristic polynomial's count, always enough).
+    below ``1e-8`` of the largest count as zero). Where the test is not conclusive (the rank stops
+    falling above that), ``multiplicity`` (the characteristic polynomial's count, always enough).
     """
     size = len(block)
-    shifted = block - mu * np.eye(size)
-    power = np.eye(size, dtype=complex)
+    shifted = block - (mu.real if mu.imag == 0 else mu) * np.eye(size)
+    power, previous = np.eye(size, dtype=shifted.dtype), size
     for j in range(1, multiplicity):
         power = power @ shifted
         singular = np.linalg.svd(power, compute_uv=False)
         rank = int(np.sum(singular > 1e-8 * max(singular[0], 1e-300)))
         if rank == size - multiplicity:
             return j
+        if rank >= previous:
+            break
+        previous = rank
     return multiplicity
 
 
