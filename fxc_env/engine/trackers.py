@@ -58,7 +58,7 @@ class EpisodeTrackers:
         model = config.model if config.model is not None else LinearModel(*model_matrices("double_integrator"))
         self._model = model
         #: ``(topology, (radius_bound, all_roots_bound))`` by the topology's id (a graph's bounds are computed once).
-        self._propagation: dict[int, tuple[Any, tuple[float, float]]] = {}
+        self._bounds_cache: dict[int, tuple[Any, tuple[float, float]]] = {}
 
     def restart(self, x0: Any, v0: Any, fresh: Any, disagreement: Any, episodes: Any = None) -> None:
         """Start the trackers of ``episodes`` (a ``(B,)`` mask; None: all) from ``x0, v0`` and state ``fresh``.
@@ -183,12 +183,12 @@ class EpisodeTrackers:
     def _intervals_bounds(self, topology: Any) -> tuple[float, float]:
         if self.config.switching != "periodic" or topology.n_agents > DENSE_LIMIT:
             return np.nan, np.nan
-        cached = self._propagation.get(id(topology))
+        cached = self._bounds_cache.get(id(topology))
         if cached is None or cached[0] is not topology:  # an id is only unique while its object lives
-            if len(self._propagation) >= 64:  # families draw a graph per episode: keep the cache small
-                self._propagation.clear()
+            if len(self._bounds_cache) >= 64:  # families draw a graph per episode: keep the cache small
+                self._bounds_cache.clear()
             intervals = reach_intervals(topology)[1]
-            cached = self._propagation[id(topology)] = (topology, (float(intervals.min()), float(intervals.max())))
+            cached = self._bounds_cache[id(topology)] = (topology, (float(intervals.min()), float(intervals.max())))
         return cached[1]
 
     def predicted_final_state(self, topologies: list, shared: bool) -> np.ndarray:
