@@ -14,14 +14,19 @@ source paper, the graph class it is proven for, and its parameters:
 - :class:`SaturationAwarePolicy` (:mod:`fxc_env.baselines.saturation_aware`): the paper's plan
   where it fits under the input limit, a held linear law where it does not;
 - :class:`MinimumTimePolicy` (:mod:`fxc_env.baselines.minimum_time`): this project's minimum-time law
-  for a known fixed digraph, exact after one interval per eigenvalue of ``(D + I)^{-1} L`` (a ring of
-  N: N - 1), in ``plan`` or ``accel`` mode, raw or normalized;
+  for a known fixed digraph, exact after one interval per root of the minimal polynomial of
+  ``(D + I)^{-1} L`` (a ring of N: N - 1; a tree: its depth), minimum-time only where that count
+  equals the radius, in ``plan`` or ``accel`` mode, raw or normalized;
+- :class:`LeaderFollowerPolicy` (:mod:`fxc_env.baselines.leader_follower`): this project's time-optimal
+  law for a known graph: the centre coasts, every other agent lands on its parent's coasted state in a
+  (time-respecting) shortest-path tree; exact after exactly the radius, the bound for every law;
 - :class:`SignallingPolicy` (:mod:`fxc_env.baselines.signalling`): this project's law on the
   energy-accuracy frontier: agents agree on the mean of the free-motion predictions by signalling
   numbers through small motions, then steer once with the minimum-energy input (a few × ``E*``).
 
 :mod:`fxc_env.core.optimality` gives the bounds every law is measured against: the least energy
-``E*`` of an exact consensus at ``T_s`` and the fewest intervals (the propagation bound).
+``E*`` of an exact consensus at ``T_s`` and the fewest intervals (the radius, for every law; the
+all-roots bound for laws whose value depends on every root).
 
 ``fxc benchmark`` (:mod:`fxc_env.baselines.benchmark`) scores them, the reference and learned
 policies (:func:`load_policy`) on one suite (:mod:`fxc_env.baselines.suite`).
@@ -35,6 +40,7 @@ policies (:func:`load_policy`) on one suite (:mod:`fxc_env.baselines.suite`).
 from __future__ import annotations
 
 from fxc_env.baselines.finite_time import FiniteTimePolicy
+from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
 from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
@@ -45,6 +51,7 @@ from fxc_env.baselines.suite import load_policy
 
 __all__ = [
     "FiniteTimePolicy",
+    "LeaderFollowerPolicy",
     "LinearConsensusPolicy",
     "MinimumTimePolicy",
     "PrescribedTimePolicy",

@@ -139,7 +139,7 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         default="full",
         help="'full': topologies x sizes x budgets; 'realism': input limits, noise and dropout; 'models': every "
         "agent model (single, double, triple, quadruple integrators, damped, oscillator) at K = 200, 400; "
-        "'optimality': error, energy / E* and intervals used against the propagation bound (rings and random "
+        "'optimality': error, energy / E* and intervals used against the radius and all-roots bounds (rings and random "
         "digraphs N = 20, 100, paper_fig1, K = 200, reference, minimum_time and signalling on both schedules)",
     )
     parser.add_argument("--out", default="out/benchmark", help="directory for table.md, CSVs and PNGs")

@@ -39,10 +39,12 @@ COLOURS = (
     "#bcbd22",
     "#7f7f7f",
     "#000000",
+    "#393b79",
 )
 #: One marker per policy where points of several policies may coincide (the optimality figure).
-#: Eleven markers and eleven colours: the first eleven contenders differ in both, later ones repeat.
-MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">", "h")
+#: Twelve markers and twelve colours (the optimality suite's twelve laws, leader_follower the twelfth):
+#: the first twelve contenders differ in both, later ones repeat.
+MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">", "h", "d")
 
 
 def _colour(contenders: list[Contender], name: str) -> str:

@@ -47,7 +47,7 @@ class JobResult:
             :class:`fxc_env.core.metrics.EpisodeMetrics`, plus ``final_value_gap``
             (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``;
             the optimality columns (``energy_bound``, ``energy_ratio``, ``settled_interval``,
-            ``propagation_bound``) come with the engine's metrics.
+            ``radius_bound``, ``all_roots_bound``) come with the engine's metrics.
         trace_times, trace: sampling instants and the median over seeds of ``D(t_k) / D(0)``
             (only for the suite's trace case).
         description: the policy's law, source, graph class and parameters (as text).

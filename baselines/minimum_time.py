@@ -1,4 +1,4 @@
-"""A minimum-time law for a known fixed digraph: exact consensus in one interval per eigenvalue.
+"""A dead-beat law for a known fixed digraph: exact consensus in one interval per root of the minimal polynomial.
 
 Law (derived for this project; README, "How far from optimal"). Agent i reads its aggregated
 relative row ``r_i = (1/(d_i+1)) sum_{j in N_i} (z_j - z_i)``, ``z = (x, v)``, at ``t_k`` and plans
@@ -16,16 +16,26 @@ interval k acts on the mode of an eigenvalue ``mu'`` of ``Ŵ`` as ``P_k - mu' G_
   give ``P_{k+1} (I - mu' R^T)(I - mu' R) P_k = (1 - mu'/mu)(1 - mu'/conj(mu)) P_{k+1} P_k``
   (``R + R^T = 2a I``, ``R^T R = I/|mu|^2``); here ``R`` is conjugated by ``diag(1, 1/T_{k+1})`` so
   that its entries carry the units of a gain;
-- an eigenvalue of multiplicity s (a Jordan block: a path's eigenvalues are all 1/2) repeats its
-  factor s times; ``mu = 0``, the consensus mode, is never touched.
+- an eigenvalue whose largest Jordan block has size s repeats its factor s times: the minimal
+  polynomial decides, not the characteristic one (:func:`design_eigenvalues`; a path's N - 1
+  eigenvalues 1/2 form one block, so N - 1 factors; a binary tree's are 1/2 too but its blocks are
+  only as long as its depth, so depth factors: copying the parent each interval); ``mu = 0``, the
+  consensus mode, is never touched.
 
-After one factor per nonzero eigenvalue every disagreement mode is zero: a directed ring of N agrees
-after N - 1 intervals, :func:`fxc_env.core.optimality.propagation_bound`. The factors run in Leja
+After these factors every disagreement mode is zero: a directed ring of N agrees after N - 1
+intervals. It is **minimum-time only where that count equals the graph's radius**
+(:func:`fxc_env.core.optimality.radius_bound`, the fewest intervals of any law): generically the
+count is N - 1, so only where N - 1 equals the radius (rings, paths), and on trees (depth = radius).
+Elsewhere it is bounded by, and on random digraphs well above, the all-roots bound, and the
+leader-follower law (:mod:`fxc_env.baselines.leader_follower`) is exact sooner. The factors run in Leja
 order (each next one kills the mode whose partial product is largest), so partial products stay
 small; afterwards the agents play the paper's plan (``G_k = P_k``, eq. 11), which holds consensus
 and damps the round-off left. The consensus value is the paper's, ``xi^T z(0)`` coasted (Theorem 1:
-every factor is a polynomial in ``Ŵ`` equal to 1 at 0). With fewer intervals K than factors, the
-design plays the subset that leaves the smallest predicted residual (:func:`budget_factors`).
+every factor is a polynomial in ``Ŵ`` equal to 1 at 0). With fewer intervals K than the factors
+need, the design plays the subset with the smallest Jordan-aware modal score (:func:`budget_factors`),
+**warns** (``UserWarning`` naming ``n_intervals``) and reports the residual it leaves, computed from
+the matrix (:func:`design_residual`), as ``predicted_residual``; this project chose a warning over a
+refusal because a short budget is a benchmark setting, not a misuse.
 
 - Source: this project (a deadbeat / finite-time "minimal polynomial" design in the spirit of
   Sundaram & Hadjicostis 2007 and Kibangou 2012, on the sampled-data plan of the paper).
@@ -41,18 +51,20 @@ Its price is energy: the early factors of a slow graph move agents far (README f
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
 from fxc_env.baselines.policy import describe_law
 from fxc_env.config import config_of
 from fxc_env.core.dynamics import input_from_plan
-from fxc_env.core.graphs import Topology
+from fxc_env.core.graphs import DENSE_LIMIT, Topology
 from fxc_env.core.validation import ArgumentError
 
 
@@ -67,38 +79,107 @@ class Factor:
         return 2 if self.eigenvalue.imag != 0 else 1
 
 
-def nonzero_eigenvalues(topology: Topology) -> np.ndarray:
-    """The nonzero eigenvalues of ``Ŵ = (D + I)^{-1} L`` with algebraic multiplicity, ``(N - 1,)`` complex.
+#: Eigenvalues closer than this (relative to ``max(1, |mu|)``) are one eigenvalue of the design.
+SAME_EIGENVALUE = 1e-9
 
-    Computed block by block over the strongly connected components (``Ŵ`` is block triangular in
-    their order), so a repeated eigenvalue of separate components (a path's 1/2) comes out exactly
-    repeated instead of split by a Jordan block's perturbation. The consensus eigenvalue 0, simple
-    under a directed spanning tree, lies in the root component and is removed there.
+
+def _same(a: complex, b: complex) -> bool:
+    return abs(a - b) <= SAME_EIGENVALUE * max(1.0, abs(a))
+
+
+def _block_index(block: np.ndarray, mu: complex, multiplicity: int) -> int:
+    """The size of the largest Jordan block of ``mu`` in ``block`` (its index), by a rank test; at most ``multiplicity``.
+
+    The smallest j with ``rank((block - mu I)^j) = size - multiplicity`` (numerical rank, singular values
+    below ``1e-8`` of the largest count as zero). Where the test is not conclusive (the rank stops
+    falling above that), ``multiplicity`` (the characteristic polynomial's count, always enough).
+    """
+    size = len(block)
+    shifted = block - (mu.real if mu.imag == 0 else mu) * np.eye(size)
+    power, previous = np.eye(size, dtype=shifted.dtype), size
+    for j in range(1, multiplicity):
+        power = power @ shifted
+        singular = np.linalg.svd(power, compute_uv=False)
+        rank = int(np.sum(singular > 1e-8 * max(singular[0], 1e-300)))
+        if rank == size - multiplicity:
+            return j
+        if rank >= previous:
+            break
+        previous = rank
+    return multiplicity
+
+
+def design_eigenvalues(topology: Topology) -> np.ndarray:
+    """The roots of the minimal polynomial of ``Ŵ`` but 0, each repeated by its index (largest Jordan block).
+
+    A product ``q(Ŵ) = prod (I - Ŵ/mu)`` over these is zero on every disagreement mode, and no product
+    of fewer such factors is (for a Jordan block of size s the factor must come s times: the minimal
+    polynomial decides, not the characteristic one). ``Ŵ`` is block triangular over the strongly
+    connected components in their order, so the index of ``mu`` is at most the largest sum, along a
+    chain of components linked by paths, of its index inside each component (:func:`_block_index`);
+    that sum is used. A tree's eigenvalue 1/2 comes once per level (its depth: copying the parent
+    each interval), a path's ``N - 1`` times, a ring's N - 1 distinct eigenvalues once each.
+
+    Returns:
+        ``(F,)`` complex, conjugate pairs both listed; ``F <= N - 1``.
     """
     if topology.period != 1:
         raise ArgumentError("topology: the minimum-time design needs one fixed graph")
-    n = topology.n_agents
     identity_weight = 1.0 / (topology.in_degree[0] + 1.0)
-    laplacian = topology.laplacian(0)
-    w_hat = sp.csr_array(sp.diags_array(identity_weight) @ laplacian)
+    w_hat = sp.csr_array(sp.diags_array(identity_weight) @ topology.laplacian(0))
     forward = topology.adjacency(0).T  # forward[j, i] != 0: edge j -> i
     n_comp, labels = csgraph.connected_components(forward, directed=True, connection="strong")
     coo = forward.tocoo()
     crossing = labels[coo.row] != labels[coo.col]
-    has_incoming = np.zeros(n_comp, dtype=bool)
-    has_incoming[labels[coo.col[crossing]]] = True
-    values = []
+    condensed = sp.csr_array(
+        (np.ones(int(crossing.sum())), (labels[coo.row[crossing]], labels[coo.col[crossing]])), shape=(n_comp, n_comp)
+    )
+    has_incoming = np.asarray(condensed.sum(axis=0)).ravel() > 0
+    # Per component: its distinct eigenvalues with their index inside the component.
+    per_component: list[list[tuple[complex, int]]] = []
     for comp in range(n_comp):
         members = np.flatnonzero(labels == comp)
         block = w_hat[members][:, members].toarray()
-        eigenvalues = np.linalg.eigvals(block) if len(members) > 1 else block.ravel().astype(complex)
-        eigenvalues = np.asarray(eigenvalues, dtype=complex)
+        values = np.linalg.eigvals(block) if len(members) > 1 else block.ravel().astype(complex)
+        values = list(np.asarray(values, dtype=complex))
         if not has_incoming[comp]:
-            eigenvalues = np.delete(eigenvalues, np.argmin(np.abs(eigenvalues)))  # the consensus mode
-        values.append(eigenvalues)
-    result = np.concatenate(values) if values else np.zeros(0, dtype=complex)
-    assert len(result) == n - 1
-    return result
+            values.pop(int(np.argmin(np.abs(values))))  # the consensus mode: simple, in the root component
+        clusters: list[list[complex]] = []
+        for mu in values:
+            home = next((c for c in clusters if _same(c[0], mu)), None)
+            home.append(mu) if home is not None else clusters.append([mu])
+        per_component.append([(c[0], _block_index(block, c[0], len(c)) if len(c) > 1 else 1) for c in clusters])
+    distinct: list[complex] = []
+    for items in per_component:
+        for mu, _ in items:
+            if not any(_same(d, mu) for d in distinct):
+                distinct.append(mu)
+    # Components in topological order of the condensation, for the longest-chain sums.
+    order = _topological_order(condensed, n_comp)
+    predecessors = [condensed[:, [c]].nonzero()[0] for c in range(n_comp)]
+    result = []
+    for mu in distinct:
+        own = np.array([sum(k for v, k in items if _same(v, mu)) for items in per_component])
+        chain = np.zeros(n_comp, dtype=np.int64)
+        for c in order:
+            before = chain[predecessors[c]].max() if len(predecessors[c]) else 0
+            chain[c] = own[c] + before
+        result += [mu] * int(chain.max())
+    return np.array(result, dtype=complex)
+
+
+def _topological_order(condensed: sp.csr_array, n_comp: int) -> list[int]:
+    indegree = np.asarray((condensed != 0).sum(axis=0)).ravel().astype(np.int64)
+    ready = [c for c in range(n_comp) if indegree[c] == 0]
+    order = []
+    while ready:
+        c = ready.pop()
+        order.append(c)
+        for d in condensed[[c], :].nonzero()[1]:
+            indegree[d] -= 1
+            if indegree[d] == 0:
+                ready.append(int(d))
+    return order
 
 
 def leja_factors(eigenvalues: np.ndarray) -> list[Factor]:
@@ -142,30 +223,43 @@ def _log_factor(points: np.ndarray, factor: Factor) -> np.ndarray:
 
 
 def budget_factors(eigenvalues: np.ndarray, n_intervals: int) -> tuple[list[Factor], float]:
-    """The factors to play in K intervals, and the largest modal residual they leave (predicted).
+    """The factors to play in K intervals, and the modal residual they leave as the design sees it.
 
-    When every factor fits, all of them (:func:`leja_factors`; residual 0). Otherwise the best, by the
-    largest predicted ``|q(mu')|`` over the nonzero eigenvalues, of: the first factors in Leja order,
-    or the factors of the s slowest modes (smallest ``|mu|``, played in Leja order) for the best s,
-    each followed by the paper's plan (factor ``1 - mu'``) on the intervals left. The prediction is
-    modal (exact for normal ``Ŵ``, a ring's); the paper's plan alone is the case s = 0.
+    ``eigenvalues`` are :func:`design_eigenvalues` (each repeated by its index). When every factor fits,
+    all of them (:func:`leja_factors`; residual 0). Otherwise the best, by a Jordan-aware modal score,
+    of: the first factors in Leja order, or the factors of the s slowest modes (smallest ``|mu|``,
+    played in Leja order) for the best s, each followed by the paper's plan (the factor of
+    ``mu = 1``) on the intervals left. The score of an eigenvalue ``mu'`` of index m is
+    ``prod |1 - mu'/mu_j|`` over the factors played at *other* eigenvalues, and zero only once its own
+    factor has been played m times (a Jordan block of size m needs m; the derivative terms left
+    before that are counted as the product itself). The paper's plan alone is the case s = 0. The
+    score only ranks the candidates: :class:`MinimumTimePolicy` reports the residual of the chosen
+    design from the matrix (:func:`design_residual`).
     """
     points = np.asarray(eigenvalues, dtype=complex)
     everything = leja_factors(points)
     if sum(f.intervals for f in everything) <= n_intervals:
         return everything, 0.0
-    with np.errstate(divide="ignore"):
-        reference = np.log(np.abs(1.0 - points))  # the paper's plan on one interval
+    distinct, index = np.unique(points, return_counts=True)
+    paper = Factor(1.0 + 0.0j)  # the paper's plan G_k = P_k: the factor of the eigenvalue 1
+
+    def score(played: list[Factor], rest: int) -> float:
+        log_q, own = np.zeros(len(distinct)), np.zeros(len(distinct))
+        for factor in [*played, *([paper] * rest)]:
+            value = _log_factor(distinct, factor)
+            hit = np.isneginf(value)
+            own += hit
+            log_q += np.where(hit, 0.0, value)
+        alive = own < index
+        return float(np.max(log_q[alive])) if alive.any() else -np.inf
 
     def best_prefix(order: list[Factor]) -> tuple[float, int]:
-        log_q, used = np.zeros(len(points)), 0
-        best = (float(np.max(log_q + n_intervals * reference)), 0)
+        used, best = 0, (score([], n_intervals), 0)
         for s, factor in enumerate(order, start=1):
             if used + factor.intervals > n_intervals:
                 break
-            log_q = log_q + _log_factor(points, factor)
             used += factor.intervals
-            best = min(best, (float(np.max(log_q + (n_intervals - used) * reference)), s))
+            best = min(best, (score(order[:s], n_intervals - used), s))
         return best
 
     leja_score, leja_count = best_prefix(everything)
@@ -175,6 +269,38 @@ def budget_factors(eigenvalues: np.ndarray, n_intervals: int) -> tuple[list[Fact
         return everything[:leja_count], float(np.exp(leja_score))
     chosen = leja_factors(np.array([f.eigenvalue for f in slowest[:slow_count]]))
     return chosen, float(np.exp(slow_score))
+
+
+def design_residual(topology: Topology, factors: list[Factor], n_intervals: int) -> float:
+    """The largest gain of the design's polynomial on a disagreement, from the matrix itself.
+
+    ``q(Ŵ) = prod_f (I - Ŵ/mu_f) (I - Ŵ)^(K - used)`` (a complex pair as the real quadratic), and the
+    residual ``max ||q(Ŵ) d|| / ||d||`` over the disagreements d (``xi^T d = 0``, Theorem 1's weights):
+    the 2-norm of ``q(Ŵ) B`` for an orthonormal basis B of them. For a normal ``Ŵ`` (a ring's) it is
+    the largest ``|q(mu')|``; with Jordan blocks it counts what a modal figure misses. Computed in
+    float64 (so round-off of large partial products shows); NaN above ``DENSE_LIMIT`` agents.
+    """
+    n = topology.n_agents
+    if n > DENSE_LIMIT:
+        return float("nan")
+    if n == 1:
+        return 0.0
+    w_hat = sp.csr_array(sp.diags_array(1.0 / (topology.in_degree[0] + 1.0)) @ topology.laplacian(0))
+    basis = scipy.linalg.null_space(topology.consensus_weights()[None, :])  # (N, N - 1)
+    used = 0
+    for factor in factors:
+        if used + factor.intervals > n_intervals:
+            break
+        mu = factor.eigenvalue
+        if factor.intervals == 1:
+            basis = basis - (w_hat @ basis) / mu.real
+        else:
+            once = w_hat @ basis
+            basis = basis - (2.0 * mu.real / abs(mu) ** 2) * once + (w_hat @ once) / abs(mu) ** 2
+        used += factor.intervals
+    for _ in range(n_intervals - used):
+        basis = basis - w_hat @ basis
+    return float(np.linalg.norm(basis, 2)) if np.all(np.isfinite(basis)) else float("inf")
 
 
 def gain_schedule(factors: list[Factor], intervals: np.ndarray) -> tuple[np.ndarray, int]:
@@ -220,25 +346,39 @@ class MinimumTimePolicy:
 
     NAME: ClassVar[str] = "minimum_time"
     LAW: ClassVar[str] = (
-        "plan z_i(t_k+1) = P_k z_i + G_k r_i, G_k = P_k/μ (real μ) or R P_k, P_k Rᵀ (complex pair) per eigenvalue "
-        "μ of (D+I)⁻¹L in Leja order, then the paper's plan"
+        "plan z_i(t_k+1) = P_k z_i + G_k r_i, G_k = P_k/μ (real μ) or R P_k, P_k Rᵀ (complex pair) per root μ "
+        "of the minimal polynomial of (D+I)⁻¹L (repeated by its Jordan index) in Leja order, then the paper's plan"
     )
     SOURCE: ClassVar[str] = "this project (minimal-polynomial deadbeat design on the paper's sampled-data plan)"
     GRAPH_CLASS: ClassVar[str] = (
-        "fixed digraph with a directed spanning tree, ideal agents: exact after one interval per nonzero eigenvalue"
+        "fixed digraph with a directed spanning tree, ideal agents: exact after one interval per nonzero root of "
+        "the minimal polynomial (minimum-time where that equals the radius)"
     )
 
     def __init__(self, env: Any) -> None:
         config = config_of(env, type(self).__name__)
-        _refuse_what_it_cannot_honour(config)
+        refuse_what_a_graph_design_cannot_honour(config, type(self).__name__)
         self.config = config
         self.layout = config.layout
         intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
-        eigenvalues = nonzero_eigenvalues(config.topology)
-        #: The needed intervals: one per real eigenvalue, two per complex pair.
+        eigenvalues = design_eigenvalues(config.topology)
+        #: The needed intervals: one per real root of the minimal polynomial, two per complex pair, each
+        #: repeated by its index (a tree's depth, a ring's N - 1).
         self.needed_intervals = int(np.sum(eigenvalues.imag >= 0) + np.sum(eigenvalues.imag > 0))
-        #: The factors played, and the largest modal residual they leave (0 when all fit in K).
-        self.factors, self.predicted_residual = budget_factors(eigenvalues, config.n_intervals)
+        #: The factors played, and the residual they leave: 0 when all fit in K (exact arithmetic);
+        #: otherwise the largest gain on a disagreement of the played polynomial (:func:`design_residual`).
+        self.factors, _ = budget_factors(eigenvalues, config.n_intervals)
+        self.predicted_residual = 0.0
+        if sum(f.intervals for f in self.factors) < self.needed_intervals:
+            self.predicted_residual = design_residual(config.topology, self.factors, config.n_intervals)
+            warnings.warn(
+                f"n_intervals: K = {config.n_intervals} is below the {self.needed_intervals} intervals "
+                f"{type(self).__name__} needs for exact consensus on this graph; it plays {len(self.factors)} "
+                f"factors, then the paper's plan, and leaves a predicted residual {self.predicted_residual:.3g} "
+                "(largest gain on a disagreement)",
+                UserWarning,
+                stacklevel=2,
+            )
         #: ``(K, 2, 2)`` gains in physical units, and the intervals the factors use.
         self.gains, self.factor_intervals = gain_schedule(self.factors, intervals)
         # Normalized rows are (x_j - x_i)/s and T (v_j - v_i)/s; plans alpha_x = a_x/s, alpha_v = T a_v/s:
@@ -289,13 +429,17 @@ class MinimumTimePolicy:
         return f"exact in exact arithmetic after {self.needed_intervals} intervals (round-off aside)"
 
 
-def _refuse_what_it_cannot_honour(config: Any) -> None:
-    name = "MinimumTimePolicy"
+def refuse_what_a_graph_design_cannot_honour(config: Any, name: str, periods: bool = False) -> None:
+    """Raise :class:`ArgumentError` naming what a law designed offline for one known graph cannot honour.
+
+    Families (a graph drawn per episode), random switching, a switching period (unless ``periods``),
+    ``u_max``, ``obs_noise``, ``link_dropout`` and agent models other than the double integrator.
+    """
     if config.family is not None:
         raise ArgumentError(
             f"topology: {name} designs its gains offline for one known graph; a family draws a new graph per episode"
         )
-    if config.topology.period != 1:
+    if config.topology.period != 1 and not periods:
         raise ArgumentError(
             f"topology: {name} designs its gains for one fixed graph; got a switching period of "
             f"{config.topology.period} graphs"

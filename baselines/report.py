@@ -41,10 +41,6 @@ HEADLINE_COLUMNS = (
 CSV_METRICS = (
     *(f.name for f in EpisodeMetrics.__dataclass_fields__.values()),
     "final_value_gap",
-    "energy_bound",
-    "energy_ratio",
-    "settled_interval",
-    "propagation_bound",
 )
 
 
@@ -177,24 +173,37 @@ def headline_table(results: list[JobResult], suite: Suite, contenders: list[Cont
     return _table(header, rows)
 
 
+#: The last column of the per-case tables: the case's intervals bounds (README, "How far from optimal").
+BOUNDS_TITLE = "intervals bound: radius (any law) / all roots"
+
+
+def bounds_cell(results: list[JobResult], case: Any) -> str:
+    """``radius / all-roots`` of a case's graph (medians over its episodes: families draw per episode); n/a for random switching."""
+    ran = [r for r in _ran(results) if r.job.case == case and "radius_bound" in r.metrics]
+    if not ran:
+        return "—"
+    radius, all_roots = (number_text(quantiles(ran[0].metrics[m])[0]) for m in ("radius_bound", "all_roots_bound"))
+    return f"{radius} / {all_roots}"
+
+
 def case_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
-    """Deadline error per case (rows) and policy (columns) at the headline budget."""
+    """Deadline error per case (rows) and policy (columns) at the headline budget, and the case's intervals bounds."""
     names = [c.name for c in contenders]
-    header = ["case", *names]
+    header = ["case", *names, BOUNDS_TITLE]
     rows = []
     for case in suite.cases:
         row = [case.key]
         for name in names:
             match = [r for r in _headline_results(results, suite, name) if r.job.case == case]
             row.append(spread_cell(match[0].metrics["relative_deadline_error"]) if match else "—")
-        rows.append(row)
+        rows.append([*row, bounds_cell(results, case)])
     return _table(header, rows)
 
 
 def realism_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
     """Per case and condition, each policy's median deadline error, saturated time share and energy."""
     names = [c.name for c in contenders]
-    header = ["case", "condition", *names]
+    header = ["case", "condition", *names, BOUNDS_TITLE]
     rows = []
     for case in suite.cases:
         row = [f"{case.family} N={case.n_agents}", case.condition]
@@ -208,13 +217,23 @@ def realism_table(results: list[JobResult], suite: Suite, contenders: list[Conte
                 quantiles(metrics[m])[0] for m in ("relative_deadline_error", "saturated_fraction", "energy")
             )
             row.append(f"{number_text(error)} · sat {saturated:.0%} · E {number_text(energy)}")
-        rows.append(row)
+        rows.append([*row, bounds_cell(results, case)])
     return _table(header, rows)
 
 
 def optimality_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
-    """Per case and policy: deadline error, energy / E*, intervals used against the propagation bound."""
-    header = ["case", "E* (m²/s³)", "policy", "K", "D(T_s)/D(0)", "energy / E*", "intervals used", "bound"]
+    """Per case and policy: deadline error, energy / E*, intervals used against the radius and all-roots bounds."""
+    header = [
+        "case",
+        "E* (m²/s³)",
+        "policy",
+        "K",
+        "D(T_s)/D(0)",
+        "energy / E*",
+        "intervals used",
+        "radius bound",
+        "all-roots bound",
+    ]
     rows = []
     for case in suite.cases:
         for contender in contenders:
@@ -232,7 +251,8 @@ def optimality_table(results: list[JobResult], suite: Suite, contenders: list[Co
                     spread_cell(m["relative_deadline_error"]),
                     spread_cell(m["energy_ratio"]),
                     "not by T_s" if math.isinf(settled) else f"{settled:.0f}",
-                    f"{quantiles(m['propagation_bound'])[0]:.0f}",
+                    number_text(quantiles(m["radius_bound"])[0]),
+                    number_text(quantiles(m["all_roots_bound"])[0]),
                 ]
             )
     return _table(header, rows)
@@ -363,7 +383,10 @@ def markdown_report(
             "E*: the least energy of any exact consensus at T_s from the episode's initial state (steer every "
             "agent once, minimum-energy, to the mean of the coasted states). Intervals used: median over seeds "
             "of the interval after which D(t_k)/D(0) stayed below 1e-9 ('not by T_s' when the median episode "
-            "did not). Bound: the fewest intervals after which every agent can have heard from every root.",
+            "did not). Radius bound: the fewest intervals in which any law can be exact (the graph's radius: one "
+            "agent's information must reach every agent). All-roots bound: the fewest after which every agent can "
+            "have heard from every root, a bound only for laws whose value depends on every root (the paper's, "
+            "the E*-optimal mean); n/a for random switching.",
             "",
         ]
     parts += [

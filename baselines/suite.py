@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.baselines.finite_time import FiniteTimePolicy
+from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
 from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
@@ -48,6 +49,7 @@ BASELINES = {
         PrescribedTimePolicy,
         SaturationAwarePolicy,
         MinimumTimePolicy,
+        LeaderFollowerPolicy,
         SignallingPolicy,
     )
 }
@@ -61,6 +63,7 @@ BUILTIN_SETTINGS = {
     "prescribed_time": (False, "uniform", "accel", "raw"),
     "saturation_aware": (True, "uniform", "accel", "raw"),
     "minimum_time": (True, "uniform", "plan", "normalized"),
+    "leader_follower": (True, "uniform", "plan", "normalized"),
     "signalling": (True, "uniform", "plan", "raw"),
 }
 
@@ -392,7 +395,7 @@ def optimality_cases(sizes: tuple[int, ...] = (20, 100)) -> tuple[BenchmarkCase,
 def optimality_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     """How far from optimal (README, "How far from optimal"): :func:`optimality_cases` at K = 200, T_s = 20 s.
 
-    Every job reports its episodes' bounds (``E*`` and the propagation bound) beside the deadline
+    Every job reports its episodes' bounds (``E*``, the radius and the all-roots bounds) beside the deadline
     error, the energy ratio and the intervals used; run it with :func:`optimality_contenders`.
     """
     return Suite(

@@ -37,6 +37,8 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     # The printed Markdown: the by-case row of paper_fig1 opens with the reference's median at K = 200.
     row = next(line for line in printed.splitlines() if line.startswith("| paper_fig1 N=6 |"))
     assert float(row.split("|")[2].split("[")[0]) <= 1e-9
+    # ... and closes with the case's intervals bounds: radius 5 (any law) / 7 (laws using every root).
+    assert "intervals bound: radius (any law) / all roots |" in printed and row.endswith("| 5 / 7 |")
     assert (tmp_path / "table.md").read_text().strip() in printed
 
     # Every policy ran every quick case with the settings and notes the README's benchmark table lists.
@@ -49,9 +51,10 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     assert all(r["error"].startswith("topology:") for r in rows if r["error"] and r["policy"] == "minimum_time")
     # The signalling law needs its agreement's intervals: it refuses too small a K, by name.
     assert all(r["error"].startswith("n_intervals:") for r in rows if r["error"] and r["policy"] == "signalling")
-    for name in ("linear_sampled", "linear", "finite_time", "prescribed_time", "saturation_aware", "minimum_time"):
+    names = ("linear_sampled", "linear", "finite_time", "prescribed_time", "saturation_aware", "minimum_time")
+    for name in (*names, "leader_follower"):
         assert f"- **{name}** — settings:" in printed
-    assert printed.count("Proven for:") == 8
+    assert printed.count("Proven for:") == 9
     assert "Parameters (range over the suite" in printed
     assert "unproven" in printed  # finite-time and prescribed-time on digraphs
 
@@ -143,7 +146,7 @@ def test_a_damaged_saved_policy_is_an_argument_error_naming_policy(tmp_path):
 
 
 @pytest.mark.slow
-def test_the_optimality_suite_reports_every_law_against_e_star_and_the_propagation_bound(tmp_path, capsys):
+def test_the_optimality_suite_reports_every_law_against_e_star_and_the_intervals_bounds(tmp_path, capsys):
     argv = ["benchmark", "--suite", "optimality", "--quick", "--seeds", "2", "--out", str(tmp_path), "--no-progress"]
     assert main(argv) == 0
     printed = capsys.readouterr().out
@@ -158,11 +161,13 @@ def test_the_optimality_suite_reports_every_law_against_e_star_and_the_propagati
     }
     ring = by[("minimum_time", "ring N=20")]
     assert float(ring["relative_deadline_error_q75"]) <= 1e-12
-    assert float(ring["settled_interval_median"]) == float(ring["propagation_bound_median"]) == 19
+    assert float(ring["settled_interval_median"]) == float(ring["radius_bound_median"]) == 19
+    assert float(ring["all_roots_bound_median"]) == 19  # a ring: every agent is a root, all 19 hops away
+    assert "| radius bound | all-roots bound |" in printed
     assert by[("minimum_time/paper", "paper_fig1 N=6")]["error"].startswith("topology:")
     # E* bounds every episode that ends in exact consensus (episodes.csv: one row per episode).
     episodes = list(csv.DictReader((tmp_path / "episodes.csv").open()))
     exact = [e for e in episodes if float(e["relative_deadline_error"]) < 1e-9]
     assert len(exact) >= 10
     assert all(float(e["energy_ratio"]) >= 1.0 for e in exact)
-    assert all(float(e["settled_interval"]) >= float(e["propagation_bound"]) for e in exact)
+    assert all(float(e["settled_interval"]) >= float(e["radius_bound"]) for e in exact)

@@ -10,12 +10,13 @@ import pytest
 import fxc_env
 from fxc_env.baselines import MinimumTimePolicy
 from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.minimum_time import leja_factors, nonzero_eigenvalues
+from fxc_env.baselines.minimum_time import design_eigenvalues, leja_factors
 from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, load_policy
 from fxc_env.config import make_config
 from fxc_env.config.scenarios import HEXAGON
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.graphs import make_topology
+from fxc_env.core.optimality import radius_bound
 from fxc_env.core.validation import ArgumentError
 
 MODES = [("plan", "normalized"), ("plan", "raw"), ("accel", "normalized"), ("accel", "raw")]
@@ -42,7 +43,7 @@ def test_a_directed_ring_of_n_agrees_exactly_after_n_minus_1_intervals(n, action
 
 @pytest.mark.parametrize("dim", [1, 2, 3])
 def test_a_path_repeats_its_eigenvalue_one_half_and_agrees_after_n_minus_1_intervals(dim):
-    eigenvalues = nonzero_eigenvalues(make_topology("path", 9))
+    eigenvalues = design_eigenvalues(make_topology("path", 9))
     np.testing.assert_array_equal(eigenvalues, np.full(8, 0.5))  # one Jordan block of size 8
     errors, _ = run(topology="path", n_agents=9, n_intervals=8, dim=dim, schedule="uniform")
     assert errors[-1] <= 1e-12 and errors[-2] > 1e-6
@@ -74,7 +75,8 @@ def test_formation_offsets_are_reached():
 
 
 def test_fewer_intervals_than_factors_plays_the_first_ones_and_says_there_is_no_guarantee():
-    policy = MinimumTimePolicy(make_config(topology="ring", n_agents=12, n_intervals=6))
+    with pytest.warns(UserWarning, match=r"^n_intervals: K = 6 is below the 11 intervals"):
+        policy = MinimumTimePolicy(make_config(topology="ring", n_agents=12, n_intervals=6))
     assert policy.needed_intervals == 11 and policy.factor_intervals <= 6
     assert policy.guarantee().startswith("no exact guarantee")
     assert MinimumTimePolicy(make_config(topology="ring", n_agents=12, n_intervals=11)).guarantee().startswith("exact")
@@ -83,16 +85,18 @@ def test_fewer_intervals_than_factors_plays_the_first_ones_and_says_there_is_no_
 @pytest.mark.parametrize(("topology", "n"), [("ring", 40), ("random", 60)])
 def test_with_fewer_intervals_than_factors_it_does_no_worse_than_the_papers_plan(topology, n):
     kwargs = {"topology": topology, "n_agents": n, "n_intervals": 20, "schedule": "uniform"}
-    policy = MinimumTimePolicy(make_config(**kwargs))
+    with pytest.warns(UserWarning, match="^n_intervals:"):
+        policy = MinimumTimePolicy(make_config(**kwargs))
     assert policy.needed_intervals > 20
     for seed in (0, 1):
-        errors, _ = run(seed, **kwargs)
+        with pytest.warns(UserWarning, match="^n_intervals:"):
+            errors, _ = run(seed, **kwargs)
         reference = fxc_env.simulate("reference", None, seed=seed, points_per_interval=1, **kwargs)
         assert errors[-1] <= reference.metrics.relative_deadline_error * (1 + 1e-9)
 
 
 def test_leja_order_starts_at_the_largest_eigenvalue_and_keeps_each_complex_pair_as_one_factor():
-    eigenvalues = nonzero_eigenvalues(make_topology("ring", 10))
+    eigenvalues = design_eigenvalues(make_topology("ring", 10))
     factors = leja_factors(eigenvalues)
     assert sum(f.intervals for f in factors) == 9
     assert abs(factors[0].eigenvalue) == pytest.approx(np.max(np.abs(eigenvalues)))
@@ -154,3 +158,49 @@ def test_fxc_evaluate_with_baselines_scores_it(tmp_path):
     assert rows["minimum_time"]["error"] == ""
     assert float(rows["minimum_time"]["relative_deadline_error_q75"]) <= 1e-12
     assert float(rows["minimum_time"]["settled_interval_median"]) == 7  # N - 1
+
+
+#: A binary tree of 31 agents, edges parent -> child: depth 4, every non-root eigenvalue 1/2 (Jordan blocks up to 4).
+BINARY_TREE = [((i - 1) // 2, i) for i in range(1, 31)]
+
+
+@pytest.mark.parametrize("k", [4, 8])
+def test_a_binary_tree_is_exact_at_its_depth_its_eigenvalue_repeated_by_its_jordan_block(k):
+    # 30 eigenvalues 1/2 but a minimal polynomial (1 - 2 mu)^4: four factors, copying the parent four times.
+    np.testing.assert_array_equal(design_eigenvalues(make_topology(BINARY_TREE, 31)), np.full(4, 0.5))
+    policy = MinimumTimePolicy(make_config(scenario=None, topology=BINARY_TREE, n_agents=31, n_intervals=k))
+    assert policy.needed_intervals == radius_bound(make_topology(BINARY_TREE, 31)) == 4
+    assert policy.predicted_residual == 0.0
+    for seed in (0, 1, 2):
+        errors, _ = run(seed, topology=BINARY_TREE, n_agents=31, n_intervals=k, schedule="uniform")
+        assert errors[-1] <= 1e-12
+
+
+def test_below_the_factors_it_needs_it_warns_and_predicts_the_residual_it_leaves():
+    kwargs = {"topology": BINARY_TREE, "n_agents": 31, "n_intervals": 3, "schedule": "uniform"}
+    with pytest.warns(UserWarning, match=r"^n_intervals: K = 3 is below the 4 intervals MinimumTimePolicy needs"):
+        policy = MinimumTimePolicy(make_config(scenario=None, **kwargs))
+    assert policy.guarantee().startswith("no exact guarantee")
+    with pytest.warns(UserWarning):
+        errors, _ = run(0, **kwargs)
+    # The prediction is the largest gain on a disagreement (2-norm); the run's D(T_s)/D(0) is of its order.
+    assert policy.predicted_residual > 0.1 and errors[-1] > 0.1
+    assert 0.2 < errors[-1] / policy.predicted_residual < 5.0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_held_out_graphs_with_repeated_eigenvalues_are_exact_after_the_factors_it_needs(seed):
+    # A random tree plus edges whose receivers often keep in-degree 1 or 2: many components share an eigenvalue.
+    rng = np.random.default_rng(50_000 + seed)
+    n = int(rng.integers(10, 40))
+    order = rng.permutation(n)
+    edges = {(int(order[rng.integers(0, k)]), int(order[k])) for k in range(1, n)}
+    for _ in range(int(rng.integers(0, n // 2))):
+        k = int(rng.integers(2, n))
+        edges.add((int(order[rng.integers(0, k)]), int(order[k])))  # from an earlier agent: a DAG
+    edges = sorted(edges)
+    policy = MinimumTimePolicy(make_config(scenario=None, topology=edges, n_agents=n, n_intervals=n - 1))
+    needed = policy.needed_intervals
+    assert radius_bound(make_topology(edges, n)) <= needed <= n - 1
+    errors, _ = run(seed, topology=edges, n_agents=n, n_intervals=needed, schedule="uniform")
+    assert errors[-1] <= 1e-12

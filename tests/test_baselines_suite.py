@@ -49,6 +49,7 @@ def test_contender_settings_reach_the_environment():
         "linear_sampled",
         "saturation_aware",
         "minimum_time",
+        "leader_follower",
         "signalling",
     }  # the budget sweep
 

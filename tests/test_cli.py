@@ -70,6 +70,9 @@ def test_simulate_the_paper_example(tmp_path, capsys):
     deadline_error = float(find_row(rows, "relative deadline error")[-1])
     assert 0 <= deadline_error <= 1e-9
     assert deadline_error == pytest.approx(m["relative_deadline_error"], rel=1e-3)
+    # The intervals bounds, named for what they bound: any law (the radius, 5) and laws using every root (7).
+    assert find_row(rows, "intervals to 1e-9, any law (radius)")[0] == "5" and m["radius_bound"] == 5
+    assert find_row(rows, "intervals, laws using every root")[0] == "7" and m["all_roots_bound"] == 7
 
 
 @pytest.mark.slow

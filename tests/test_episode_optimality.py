@@ -1,4 +1,4 @@
-"""The optimality columns of every episode's metrics: E*, energy / E*, the settled interval and the propagation bound.
+"""The optimality columns of every episode's metrics: E*, energy / E*, the settled interval, the intervals bounds.
 
 They come from the engine's trackers, so every front end reports the same numbers: the
 PettingZoo infos, the SB3 VecEnv infos, the TorchRL env's episode metrics and ``simulate``.
@@ -38,8 +38,10 @@ def test_the_paper_example_reports_e_star_and_the_reference_s_distance_from_it()
     assert m.energy_bound == pytest.approx(5.4597, abs=5e-5)
     assert m.energy_ratio == pytest.approx(m.energy / m.energy_bound, rel=1e-12)
     assert 1e7 < m.energy_ratio < 3e7  # the reference spends 1.7e7 x E* on the paper's schedule
-    assert m.propagation_bound == 7  # the assumed Fig. 1 switching ring, through the time-varying graph
-    assert m.propagation_bound <= m.settled_interval <= 200
+    # The assumed Fig. 1 switching ring, through the time-varying graph: agent 0 reaches everyone after
+    # 5 intervals (any law's bound), the last root heard everywhere after 7 (the reference's: xi > 0 on all).
+    assert (m.radius_bound, m.all_roots_bound, m.propagation_bound) == (5, 7, 7)
+    assert m.all_roots_bound <= m.settled_interval <= 200
     assert m.energy >= m.energy_bound
 
 
@@ -90,6 +92,7 @@ def test_every_front_end_reports_the_same_bounds():
 def test_random_switching_and_formations():
     m = fxc_env.simulate(scenario="paper_fig1", switching="random", seed=1).metrics
     assert math.isnan(m.propagation_bound)  # no fixed sequence of graphs to count through
+    assert math.isnan(m.radius_bound) and math.isnan(m.all_roots_bound)
     assert math.isfinite(m.energy_bound) and m.energy_bound > 0
     hexagon = fxc_env.simulate(scenario="formation_hexagon", seed=0).metrics
     assert hexagon.energy >= hexagon.energy_bound > 0  # E* of reaching the formation
@@ -104,3 +107,29 @@ def test_the_torchrl_env_reports_the_bounds():
     metrics = env.episode_metrics()
     assert np.allclose(metrics["energy_ratio"], metrics["energy"] / metrics["energy_bound"], rtol=1e-12)
     assert np.all(metrics["propagation_bound"] == 7)
+    assert np.all(metrics["radius_bound"] == 5) and np.all(metrics["all_roots_bound"] == 7)
+
+
+def test_episode_infos_report_the_radius_for_every_law_and_the_all_roots_bound_apart():
+    # A directed ring of 45 with chords 0 -> 11, 22, 33: radius 12 (agent 0), all-roots 44 (agent 1 to 0).
+    n = 45
+    edges = [(i, (i + 1) % n) for i in range(n)] + [(0, 11), (0, 22), (0, 33)]
+    infos = play_reference(fxc_env.parallel_env(scenario=None, topology=edges, n_agents=n, n_intervals=20))
+    episode = infos["agent_0"]["episode"]
+    assert (episode["radius_bound"], episode["all_roots_bound"]) == (12, 44)
+
+
+def test_a_family_reports_the_bounds_of_each_episode_s_own_graph():
+    from fxc_env.core.families import TopologyFamily
+    from fxc_env.core.optimality import all_roots_bound, radius_bound
+
+    config = fxc_env.make_config(scenario=None, topology=TopologyFamily("random"), n_agents=30, n_intervals=5)
+    engine = ConsensusEngine(config, n_episodes=4)
+    x0, v0, _, topologies = engine.draw_batch(np.random.default_rng(3))
+    engine.reset(x0, v0, topologies=topologies)
+    while not engine.done:
+        engine.step(np.zeros((4, 30, 2)))
+    metrics = engine.batch_metrics()
+    assert list(metrics["radius_bound"]) == [radius_bound(t) for t in topologies]
+    assert list(metrics["all_roots_bound"]) == [all_roots_bound(t) for t in topologies]
+    assert len(set(metrics["all_roots_bound"])) > 1  # the graphs differ, and so do their bounds

@@ -118,6 +118,8 @@ def test_episode_metrics_as_dict_is_json_safe():
         energy_bound=0.5,
         energy_ratio=2.0,
         settled_interval=math.inf,
+        radius_bound=math.nan,
+        all_roots_bound=math.nan,
         propagation_bound=math.nan,
     )
     d = m.as_dict()

@@ -1,9 +1,10 @@
-"""Lower bounds for every controller: the minimum energy E*, the propagation bound, the settled interval."""
+"""Lower bounds: the minimum energy E* and the radius (every law), the all-roots bound, the settled interval."""
 
 from __future__ import annotations
 
 import warnings
 
+import networkx as nx
 import numpy as np
 import pytest
 import scipy.integrate
@@ -16,9 +17,12 @@ from fxc_env.config import make_config
 from fxc_env.core.graphs import make_topology
 from fxc_env.core.linear import LinearModel
 from fxc_env.core.optimality import (
+    all_roots_bound,
     energy_bound,
     linear_energy_bound,
     propagation_bound,
+    radius_bound,
+    radius_centre,
     settled_interval,
 )
 from fxc_env.core.validation import ArgumentError
@@ -159,31 +163,35 @@ def test_the_paper_numbers_the_reference_spends_far_above_e_star():
 
 @pytest.mark.parametrize("n", [2, 3, 6, 20, 101])
 def test_a_directed_ring_of_n_needs_n_minus_1_intervals_and_so_does_a_path(n):
-    assert propagation_bound(make_topology("ring", n)) == n - 1
-    assert propagation_bound(make_topology("path", n)) == n - 1
+    for name in ("ring", "path"):
+        topology = make_topology(name, n)
+        assert all_roots_bound(topology) == radius_bound(topology) == n - 1
 
 
 def test_a_star_and_a_complete_graph_need_one_interval():
-    assert propagation_bound(make_topology("star", 12)) == 1
-    assert propagation_bound(make_topology("complete", 7)) == 1
+    assert all_roots_bound(make_topology("star", 12)) == 1
+    assert all_roots_bound(make_topology("complete", 7)) == 1
 
 
 def test_a_switching_period_is_counted_through_the_time_varying_graph():
     # Assumed Fig. 1: G_0 = {0->1, 3->4}, G_1 = {1->2, 4->5}, G_2 = {2->3, 5->0}. Agent 2 sends
     # first on interval 2 (G_2), then 3, 4, 5, 0 one interval each: agent 1 hears it after 7.
-    assert propagation_bound(make_topology("paper_fig1")) == 7
+    assert all_roots_bound(make_topology("paper_fig1")) == 7
+    # Agent 0 sends on G_0 (0->1), then 1->2, 2->3, 3->4, 4->5 one interval each: everyone after 5.
+    assert radius_bound(make_topology("paper_fig1")) == 5
     # The same ring as one fixed graph: 5.
     ring = [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 0)]
-    assert propagation_bound(make_topology(ring, 6)) == 5
+    assert all_roots_bound(make_topology(ring, 6)) == radius_bound(make_topology(ring, 6)) == 5
 
 
 def test_only_the_roots_count_on_a_graph_with_a_spanning_tree():
     # 0 <-> 1 is the root component; 1 -> 2 -> 3 hangs off it: root 0 reaches 3 in 3 hops.
     topology = make_topology([(0, 1), (1, 0), (1, 2), (2, 3)], 4)
-    assert propagation_bound(topology) == 3
+    assert all_roots_bound(topology) == 3
+    assert radius_bound(topology) == 2 and radius_centre(topology) == 1  # root 1 reaches 3 in 2 hops
 
 
-def test_no_law_beats_the_propagation_bound_the_minimum_time_law_meets_it_on_a_ring():
+def test_no_law_beats_the_radius_the_minimum_time_law_meets_it_on_a_ring():
     config = make_config(topology="ring", n_agents=7, n_intervals=12, schedule="uniform")
     run = fxc_env.simulate(
         MinimumTimePolicy(config),
@@ -195,7 +203,7 @@ def test_no_law_beats_the_propagation_bound_the_minimum_time_law_meets_it_on_a_r
         schedule="uniform",
     )
     errors = run.disagreement / run.disagreement[0]
-    assert settled_interval(errors) == propagation_bound(config.topology) == 6
+    assert settled_interval(errors) == radius_bound(config.topology) == all_roots_bound(config.topology) == 6
     assert errors[5] > 1e-3  # one interval short, a root has not been heard everywhere
 
 
@@ -221,7 +229,8 @@ def test_settled_interval_counts_the_intervals_after_which_the_error_stayed_belo
         (lambda: energy_bound([1.0, 2.0], [1.0, 2.0], 0.0), "settling_time"),
         (lambda: linear_energy_bound("double_integrator", np.zeros((2, 2, 1)), 1.0), "model"),
         (lambda: linear_energy_bound(LinearModel.named("double_integrator"), np.zeros((2, 3, 1)), 1.0), "z0"),
-        (lambda: propagation_bound([(0, 1)]), "topology"),
+        (lambda: all_roots_bound([(0, 1)]), "topology"),
+        (lambda: radius_bound([(0, 1)]), "topology"),
         (lambda: settled_interval([1.0, 0.1], tol=-1.0), "tol"),
     ],
 )
@@ -234,4 +243,91 @@ def test_a_period_counts_an_agent_that_hears_from_hundreds_of_informed_senders_a
     # G_0: agent 0 to agents 1..256; G_1: all of those to agent 257. The root 0 reaches 257 after 2.
     first = [(0, i) for i in range(1, 257)]
     second = [(j, 257) for j in range(1, 257)]
-    assert propagation_bound(make_topology([first, second], 258)) == 2
+    assert (
+        all_roots_bound(make_topology([first, second], 258)) == radius_bound(make_topology([first, second], 258)) == 2
+    )
+
+
+def held_out_digraph(rng: np.random.Generator, n: int, extra: int) -> list[tuple[int, int]]:
+    """A random digraph with a directed spanning tree: a random tree plus ``extra`` random edges (j, i)."""
+    order = rng.permutation(n)
+    edges = {(int(order[rng.integers(0, k)]), int(order[k])) for k in range(1, n)}
+    while len(edges) < n - 1 + extra:
+        j, i = (int(a) for a in rng.choice(n, size=2, replace=False))
+        edges.add((j, i))
+    return sorted(edges)
+
+
+def eccentricities_by_networkx(edges: list[tuple[int, int]], n: int) -> np.ndarray:
+    """Per agent r, max_i dist(r -> i) along the edges j -> i (inf where r does not reach everyone)."""
+    graph = nx.DiGraph(edges)
+    graph.add_nodes_from(range(n))
+    out = np.full(n, np.inf)
+    for r in range(n):
+        lengths = nx.single_source_shortest_path_length(graph, r)
+        if len(lengths) == n:
+            out[r] = max(lengths.values())
+    return out
+
+
+def reach_by_time_respecting_search(period: list[list[tuple[int, int]]], n: int) -> np.ndarray:
+    """Per agent r, the fewest intervals until r's initial state has reached everyone (inf if never).
+
+    Interval k uses graph k mod m; an agent informed by t_k informs its out-neighbours of that graph by t_{k+1}.
+    """
+    out = np.full(n, np.inf)
+    for r in range(n):
+        informed, k = {r}, 0
+        while len(informed) < n and k <= len(period) * n:
+            informed = informed | {i for j, i in period[k % len(period)] if j in informed}
+            k += 1
+        if len(informed) == n:
+            out[r] = k
+    return out
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_radius_and_all_roots_bounds_equal_an_independent_graph_search_on_held_out_digraphs(seed):
+    rng = np.random.default_rng(10_000 + seed)
+    n = int(rng.integers(4, 60))
+    edges = held_out_digraph(rng, n, extra=int(rng.integers(0, n)))
+    topology = make_topology(edges, n)
+    eccentricity = eccentricities_by_networkx(edges, n)
+    roots = np.isfinite(eccentricity)
+    assert radius_bound(topology) == eccentricity.min()
+    assert eccentricity[radius_centre(topology)] == eccentricity.min()
+    # The all-roots bound: the largest eccentricity among the roots (those that reach everyone).
+    assert all_roots_bound(topology) == eccentricity[roots].max()
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_switching_bounds_equal_an_independent_time_respecting_search(seed):
+    rng = np.random.default_rng(20_000 + seed)
+    n, m = int(rng.integers(4, 25)), int(rng.integers(2, 4))
+    edges = held_out_digraph(rng, n, extra=int(rng.integers(0, n)))
+    slot = rng.integers(0, m, size=len(edges))
+    period = [[e for e, g in zip(edges, slot, strict=True) if g == s] for s in range(m)]
+    topology = make_topology(period, n)
+    reach = reach_by_time_respecting_search(period, n)
+    assert radius_bound(topology) == reach.min()
+    assert all_roots_bound(topology) == reach[np.isfinite(reach)].max()
+    assert reach[radius_centre(topology)] == reach.min()
+
+
+def test_a_ring_with_chords_has_a_radius_far_below_its_all_roots_bound():
+    # A directed ring of 45 with three chords out of agent 0, to 11, 22 and 33 (this project's own
+    # construction): agent 0 reaches everyone within 12 hops, but agent 1 reaches agent 0 only
+    # around the ring, 44 hops. A law following agent 0 can be exact after 12 intervals; a law
+    # whose value depends on every root (the paper's) not before 44.
+    n = 45
+    edges = [(i, (i + 1) % n) for i in range(n)] + [(0, 11), (0, 22), (0, 33)]
+    topology = make_topology(edges, n)
+    eccentricity = eccentricities_by_networkx(edges, n)
+    assert radius_bound(topology) == eccentricity.min() == 12 and radius_centre(topology) == 0
+    assert all_roots_bound(topology) == eccentricity.max() == 44
+
+
+def test_propagation_bound_is_a_deprecated_alias_of_the_all_roots_bound():
+    topology = make_topology("paper_fig1")
+    with pytest.warns(DeprecationWarning, match="all_roots_bound"):
+        assert propagation_bound(topology) == all_roots_bound(topology) == 7

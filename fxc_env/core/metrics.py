@@ -432,8 +432,12 @@ class EpisodeMetrics:
     formations, of reaching the formation), and ``energy_ratio`` is ``energy / E*`` (NaN where
     ``E* = 0``). ``settled_interval`` is the number of intervals after which ``D(t_k) / D(0)`` stayed
     below :data:`SETTLED_TOLERANCE` (``inf`` if it is not below by now), to compare with
-    ``propagation_bound``, the fewest intervals in which every agent can have heard from every root
-    of the episode's graph (NaN for random switching, and above 2000 agents, where it is not computed).
+    ``radius_bound``, the fewest intervals in which *any* law can be exact (the radius of the
+    episode's graph: one agent's information must reach every agent), and ``all_roots_bound``, the
+    fewest in which every agent can have heard from every root (a bound only for laws whose value
+    depends on every root, the paper's among them). Both are NaN for random switching, and above 2000
+    agents, where they are not computed. ``propagation_bound`` is a deprecated copy of
+    ``all_roots_bound``, kept for one release.
     """
 
     final_position_spread: float
@@ -452,6 +456,8 @@ class EpisodeMetrics:
     energy_bound: float
     energy_ratio: float
     settled_interval: float
+    radius_bound: float
+    all_roots_bound: float
     propagation_bound: float
 
     def as_dict(self) -> dict[str, float | int | None]:

@@ -1,7 +1,7 @@
-"""How far from optimal: the minimum-energy bound, the propagation bound and the settled interval.
+"""How far from optimal: the minimum-energy bound, the intervals bounds and the settled interval.
 
-Two lower bounds hold for *every* controller of the consensus task (README, "How far from
-optimal"), centralised or not:
+The energy and radius bounds hold for *every* controller of the consensus task (README, "How far
+from optimal"), centralised or not; the all-roots bound for laws whose value depends on every root:
 
 - **Energy** (:func:`energy_bound`, :func:`linear_energy_bound`). Agent i, steered from
   ``z_i(0)`` to a common ``z*`` in time ``T_s``, needs at least
@@ -12,11 +12,18 @@ optimal"), centralised or not:
   ``E* = sum_i (p_i - p̄)^T G(T_s)^{-1} (p_i - p̄)``, summed over the ``dim`` axes. For the double
   integrator ``p_i = (x_i + T_s v_i, v_i)`` and ``G(T)^{-1} = [[12/T^3, -6/T^2], [-6/T^2, 4/T]]``:
   per agent ``12 d^2/T^3 - 12 d w/T^2 + 4 w^2/T`` with ``d = x* - x_i - v_i T``, ``w = v* - v_i``.
-- **Sampling instants** (:func:`propagation_bound`). Information moves one hop per interval
-  (an agent measures its in-neighbours at ``t_k`` only), so an agent cannot have heard from a
-  root ``r`` before the time-respecting distance from ``r`` to it. A controller whose consensus
-  value depends on every root's initial state (Theorems 1-2: ``xi`` is positive on the roots)
-  cannot be exact earlier than the longest such distance.
+- **Sampling instants** (:func:`radius_bound`). Information moves one hop per interval (an
+  agent measures its in-neighbours at ``t_k`` only) and every law sees relative measurements only,
+  so ``z_i(t_K)`` depends on the initial states within K time-respecting hops upstream of i, and is
+  unchanged by a common coasting shift of all agents. Exact consensus for every initial state then
+  needs one agent whose information reaches every agent within K intervals (if the agents' upstream
+  sets had no common member, the common value would depend on no initial state at all): **no law**
+  is exact in fewer intervals than the graph's (time-respecting) radius. The leader-follower law
+  (:class:`fxc_env.baselines.LeaderFollowerPolicy`) attains it on fixed graphs.
+- **All roots** (:func:`all_roots_bound`): a law whose consensus value depends on *every* root's
+  initial state (the paper's, with ``xi`` positive on the roots, Theorems 1-2; the E*-optimal mean)
+  cannot be exact before the longest time-respecting distance from a root to an agent. It is at
+  least the radius and bounds only such laws.
 
 :func:`settled_interval` reads, from a run's relative disagreements ``D(t_k)/D(0)``, the interval
 after which the error stayed below a tolerance: the intervals a law actually used.
@@ -26,6 +33,7 @@ Pure numpy/scipy: no environment, no torch.
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -38,10 +46,14 @@ from fxc_env.core.linear import LinearModel
 from fxc_env.core.validation import ArgumentError
 
 __all__ = [
+    "all_roots_bound",
     "energy_bound",
     "episode_energy_bound",
     "linear_energy_bound",
     "propagation_bound",
+    "radius_bound",
+    "radius_centre",
+    "reach_intervals",
     "root_set",
     "settled_interval",
 ]
@@ -160,44 +172,100 @@ def root_set(topology: Topology) -> np.ndarray:
     return np.flatnonzero(labels == sources[0])
 
 
-def propagation_bound(topology: Topology) -> int:
-    """The fewest sampling intervals after which every agent can have heard from every root.
+def reach_intervals(topology: Topology) -> tuple[np.ndarray, np.ndarray]:
+    """The roots, and per root the fewest intervals after which its initial state has reached every agent.
 
-    Agent i measures its in-neighbours of ``G_k`` at ``t_k`` (graph k of the period on interval k),
-    so a root's initial state reaches i no sooner than the time-respecting path from the root to i
-    allows. For a fixed digraph this is the longest shortest-path distance from a root to an agent
-    (a directed ring of N: ``N - 1``; a path: ``N - 1``; a star: 1); for a period ``G_0, G_1, ...``
-    it is counted through the time-varying graph, interval by interval from ``k = 0``.
-
-    A controller whose consensus value depends on every root's initial state (the paper's, with
-    ``xi`` positive on the roots, Theorems 1-2) cannot reach exact consensus in fewer intervals; one
-    that follows a single leader ``r`` needs only ``r``'s own longest distance.
+    Agent i measures its in-neighbours of ``G_k`` at ``t_k`` (graph ``k mod m`` of the period on
+    interval k, from ``k = 0``, the first interval of every episode), so agent r's initial state
+    reaches i along time-respecting paths only, one hop per interval. For a fixed digraph this is
+    r's eccentricity, the longest shortest-path distance from r along the edges ``j -> i`` (i
+    receives from j); for a period it is counted interval by interval through ``G_0, G_1, ...``.
+    Only the roots of the (joint) graph reach every agent, so no other agent is listed.
 
     Returns:
-        The bound as an int (0 for a single agent).
+        ``(roots, intervals)``: the roots sorted ``(R,)`` and their reach times ``(R,)`` int.
     """
     if not isinstance(topology, Topology):
         raise ArgumentError(f"topology: expected a fxc_env.core.graphs.Topology, got {type(topology).__name__}")
     n = topology.n_agents
-    if n == 1:
-        return 0
     roots = root_set(topology)
+    if n == 1:
+        return roots, np.zeros(1, dtype=np.int64)
     if topology.period == 1:
-        forward = sp.csr_array(topology.adjacency(0).T)
+        forward = sp.csr_array(topology.adjacency(0).T)  # forward[j, i] != 0: edge j -> i
         distances = csgraph.shortest_path(forward, method="D", unweighted=True, indices=roots)
-        return int(np.max(distances))
+        return roots, np.max(distances, axis=1).astype(np.int64)
     # reached[r, i]: root r's initial state has reached agent i. Each interval k adds the
     # receivers of G_{k mod m} whose senders were reached by t_k. Every period adds at least one
     # agent per root while the joint graph spans, so m N intervals always suffice.
-    adjacency = [topology.adjacency(g).astype(bool) for g in range(topology.period)]  # [i, j]: i receives from j
-    reached = np.zeros((len(roots), n), dtype=bool)
-    reached[np.arange(len(roots)), roots] = True
+    adjacency = [sp.csr_array(topology.adjacency(g), dtype=np.int32) for g in range(topology.period)]
+    reached = np.zeros((n, len(roots)), dtype=bool)  # [i, r]
+    reached[roots, np.arange(len(roots))] = True
+    intervals = np.full(len(roots), -1, dtype=np.int64)
     for k in range(topology.period * n + 1):
-        if reached.all():
-            return k
-        heard = (adjacency[k % topology.period] @ reached.T.astype(np.int32)).T > 0
-        reached |= heard
+        done = reached.all(axis=0) & (intervals < 0)
+        intervals[done] = k
+        if np.all(intervals >= 0):
+            return roots, intervals
+        reached |= (adjacency[k % topology.period] @ reached.astype(np.int32)) > 0
     raise AssertionError("the joint graph spans, so every root reaches every agent within m N intervals")
+
+
+def radius_bound(topology: Topology) -> int:
+    """The fewest sampling intervals in which **any** law can reach exact consensus: the graph's radius.
+
+    ``min_r max_i dist(r -> i)`` over agents r, along the direction information flows (i receives
+    from j: the edge ``j -> i``); for a switching period the time-respecting version: the fewest
+    intervals K such that some agent's initial state has reached every agent by ``t_K`` through
+    ``G_0, G_1, ...`` from interval 0 (:func:`reach_intervals`). Module docstring: every law sees
+    relative measurements only, so one agent's information must reach all. A directed ring of N:
+    ``N - 1``; a path: ``N - 1`` from its end; a star: 1; a binary tree: its depth.
+
+    Graphs drawn per episode (topology families) have one bound per drawn graph: the environment
+    reports each episode's own. Random switching (a graph drawn per interval) has no fixed sequence
+    to count through; the environment reports NaN there.
+
+    Returns:
+        The bound as an int (0 for a single agent).
+    """
+    return int(np.min(reach_intervals(topology)[1]))
+
+
+def radius_centre(topology: Topology) -> int:
+    """An agent attaining :func:`radius_bound` (the smallest index among them): a leader that reaches all soonest."""
+    roots, intervals = reach_intervals(topology)
+    return int(roots[np.argmin(intervals)])
+
+
+def all_roots_bound(topology: Topology) -> int:
+    """The fewest sampling intervals after which every agent can have heard from **every** root.
+
+    The longest time-respecting distance from a root to an agent (:func:`reach_intervals`; a
+    directed ring of N: ``N - 1``; a star: 1). A law whose consensus value depends on every root's
+    initial state (the paper's, with ``xi`` positive on the roots, Theorems 1-2; the E*-optimal mean
+    of the free-motion predictions) cannot reach exact consensus in fewer intervals. It bounds only
+    such laws: any law is bounded by :func:`radius_bound`, which is never larger.
+
+    Returns:
+        The bound as an int (0 for a single agent).
+    """
+    return int(np.max(reach_intervals(topology)[1]))
+
+
+def propagation_bound(topology: Topology) -> int:
+    """Deprecated alias of :func:`all_roots_bound` (kept for one release; it is not a bound on every law).
+
+    Warns:
+        DeprecationWarning: use :func:`all_roots_bound` (laws whose value depends on every root) or
+        :func:`radius_bound` (every law).
+    """
+    warnings.warn(
+        "propagation_bound is deprecated: it is all_roots_bound, which bounds only laws whose value depends on "
+        "every root; radius_bound bounds every law",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+    return all_roots_bound(topology)
 
 
 def settled_interval(errors: Any, tol: float = 1e-9) -> np.ndarray:

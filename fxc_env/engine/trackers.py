@@ -23,7 +23,7 @@ from fxc_env.config import EnvConfig
 from fxc_env.core.graphs import DENSE_LIMIT
 from fxc_env.core.linear import LinearModel, final_value, model_matrices
 from fxc_env.core.metrics import TRACKED_THRESHOLDS, reward_floor, spread
-from fxc_env.core.optimality import episode_energy_bound, propagation_bound
+from fxc_env.core.optimality import episode_energy_bound, reach_intervals
 
 from .backend import TINY, to_host
 
@@ -57,8 +57,8 @@ class EpisodeTrackers:
         self._thresholds = backend.array(np.array(TRACKED_THRESHOLDS)[:, None])
         model = config.model if config.model is not None else LinearModel(*model_matrices("double_integrator"))
         self._model = model
-        #: ``(topology, propagation_bound)`` by the topology's id (a graph's bound is computed once).
-        self._propagation: dict[int, tuple[Any, float]] = {}
+        #: ``(topology, (radius_bound, all_roots_bound))`` by the topology's id (a graph's bounds are computed once).
+        self._bounds_cache: dict[int, tuple[Any, tuple[float, float]]] = {}
 
     def restart(self, x0: Any, v0: Any, fresh: Any, disagreement: Any, episodes: Any = None) -> None:
         """Start the trackers of ``episodes`` (a ``(B,)`` mask; None: all) from ``x0, v0`` and state ``fresh``.
@@ -156,12 +156,14 @@ class EpisodeTrackers:
         return metrics
 
     def optimality_metrics(self, energy: np.ndarray, topologies: list) -> dict[str, np.ndarray]:
-        """``energy_bound`` (E*), ``energy_ratio``, ``settled_interval`` and ``propagation_bound``, each ``(B,)``.
+        """``energy_bound`` (E*), ``energy_ratio``, ``settled_interval``, ``radius_bound`` and ``all_roots_bound``.
 
-        E* from each episode's initial state (:func:`fxc_env.core.optimality.episode_energy_bound`);
-        the settled interval from the trackers' last instant at or above the tolerance; the
-        propagation bound of each episode's graph (:func:`fxc_env.core.optimality.propagation_bound`,
-        cached per topology; NaN for random switching and above ``DENSE_LIMIT`` agents).
+        Each ``(B,)``. E* from each episode's initial state
+        (:func:`fxc_env.core.optimality.episode_energy_bound`); the settled interval from the trackers'
+        last instant at or above the tolerance; the intervals bounds of each episode's own graph
+        (:func:`fxc_env.core.optimality.radius_bound`, every law; :func:`~fxc_env.core.optimality.all_roots_bound`,
+        laws whose value depends on every root; cached per topology; NaN for random switching and
+        above ``DENSE_LIMIT`` agents). ``propagation_bound``, deprecated, repeats ``all_roots_bound``.
         """
         c = self.config
         bound = episode_energy_bound(c.model, to_host(self.z0), c.settling_time)
@@ -169,21 +171,24 @@ class EpisodeTrackers:
             ratio = np.where(bound > 0, energy / np.where(bound > 0, bound, 1.0), np.nan)
         below = to_host(self.current_disagreement * self.inverse_d0) < TRACKED_THRESHOLDS[-1]
         settled = np.where(below, to_host(self.last_above[-1]) + 1.0, np.inf)
-        return {
+        metrics = {
             "energy_bound": bound,
             "energy_ratio": ratio,
             "settled_interval": settled,
-            "propagation_bound": np.array([self._propagation_bound(topology) for topology in topologies]),
         }
+        bounds = np.array([self._intervals_bounds(topology) for topology in topologies]).reshape(-1, 2)
+        metrics.update(radius_bound=bounds[:, 0], all_roots_bound=bounds[:, 1], propagation_bound=bounds[:, 1].copy())
+        return metrics
 
-    def _propagation_bound(self, topology: Any) -> float:
+    def _intervals_bounds(self, topology: Any) -> tuple[float, float]:
         if self.config.switching != "periodic" or topology.n_agents > DENSE_LIMIT:
-            return np.nan
-        cached = self._propagation.get(id(topology))
+            return np.nan, np.nan
+        cached = self._bounds_cache.get(id(topology))
         if cached is None or cached[0] is not topology:  # an id is only unique while its object lives
-            if len(self._propagation) >= 64:  # families draw a graph per episode: keep the cache small
-                self._propagation.clear()
-            cached = self._propagation[id(topology)] = (topology, float(propagation_bound(topology)))
+            if len(self._bounds_cache) >= 64:  # families draw a graph per episode: keep the cache small
+                self._bounds_cache.clear()
+            intervals = reach_intervals(topology)[1]
+            cached = self._bounds_cache[id(topology)] = (topology, (float(intervals.min()), float(intervals.max())))
         return cached[1]
 
     def predicted_final_state(self, topologies: list, shared: bool) -> np.ndarray:

@@ -42,8 +42,9 @@ def episode_metrics_rows(engine: ConsensusEngine) -> list[dict[str, float | int]
     The keys are the fields of :class:`fxc_env.core.metrics.EpisodeMetrics`. Unlike
     ``EpisodeMetrics.as_dict()`` (made for JSON), nothing is ``None``: a threshold never
     reached stays ``inf``, and a metric that does not apply to the episode (``nan`` in
-    :meth:`ConsensusEngine.batch_metrics`: Theorem 2's ``predicted_*`` and ``propagation_bound``
-    with random switching, ``propagation_bound`` above 2000 agents, ``energy_ratio`` where
+    :meth:`ConsensusEngine.batch_metrics`: Theorem 2's ``predicted_*`` and the intervals bounds
+    (``radius_bound``, ``all_roots_bound``, ``propagation_bound``) with random switching, the bounds
+    above 2000 agents, ``energy_ratio`` where
     ``E* = 0``) is left out. NaN never equals itself, so leaving it out keeps two identically
     seeded runs' infos equal (PettingZoo's ``seed_test``) and replay buffers free of NaN
     (Tianshou refuses NaN in its buffer). ``sampling_instants`` is an ``int``, every other
@@ -203,8 +204,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     settling times ``t_eps``, energy, peak input, Theorem 2's predicted and the achieved
     final values; README, "Quick start"). Numbers only, each agent its own dict:
     ``inf`` for a threshold never reached; a metric that does not apply to the episode
-    (``predicted_*`` and ``propagation_bound`` with random switching, ``propagation_bound``
-    above 2000 agents, ``energy_ratio`` where ``E* = 0``) is left out of the dict rather
+    (``predicted_*`` and the intervals bounds ``radius_bound``, ``all_roots_bound`` with random
+    switching, the bounds above 2000 agents, ``energy_ratio`` where ``E* = 0``) is left out of the dict rather
     than ``nan``, so no info value is ever NaN and two identically seeded runs give equal
     infos.
 
