@@ -39,6 +39,8 @@ __all__ = [
     "ConsensusVecEnv",
     "EnvConfig",
     "FiniteTimePolicy",
+    "GraphAgnosticPolicy",
+    "LeaderFollowerPolicy",
     "LinearConsensusPolicy",
     "MinimumTimePolicy",
     "PrescribedTimePolicy",
@@ -71,6 +73,8 @@ _LAZY = {
     "ReferenceModule": "fxc_env.policies.torchrl_reference",
     # The baselines sit above the environments in the layer order: imported on first use, never by fxc_env itself.
     "FiniteTimePolicy": "fxc_env.baselines",
+    "GraphAgnosticPolicy": "fxc_env.baselines",
+    "LeaderFollowerPolicy": "fxc_env.baselines",
     "LinearConsensusPolicy": "fxc_env.baselines",
     "MinimumTimePolicy": "fxc_env.baselines",
     "PrescribedTimePolicy": "fxc_env.baselines",
