@@ -237,8 +237,14 @@ def test_fxc_prints_the_refusal_as_one_usage_line_and_writes_nothing(tmp_path, c
         ),
         (["evaluate", "--policy", "reference", "--action-mode", "accel"], "--action-mode: sets a learned policy's"),
         (["simulate", "--scenario", "none", "--topology", "complete", "--n-agents", "1"], "n_agents: expected"),
+        (["simulate", "--family", "ring", "--mean-in-degree", "3"], "--mean-in-degree: shapes --family random only"),
     ],
-    ids=["a combination the Python API refuses", "a learned policy's flag with the reference", "one agent"],
+    ids=[
+        "a combination the Python API refuses",
+        "a learned policy's flag with the reference",
+        "one agent",
+        "a key the family does not use",
+    ],
 )
 def test_fxc_refuses_environment_flags_as_the_python_api_does_and_writes_nothing(tmp_path, capsys, argv, message):
     # fxc evaluate ran (exit 0) on a combination make_config refuses, or ignored the flag (issue 24).
