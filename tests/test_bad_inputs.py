@@ -697,3 +697,98 @@ def test_an_engine_that_was_never_reset_refuses_to_step():
     engine.reset(GOOD_STATE + np.arange(N)[None, :, None], GOOD_STATE)
     engine.step(engine.validate_actions(np.zeros((2, N, 2))))
     assert engine.k == 1
+
+
+# ------------------------------------------------------------------ issue 24
+def _one_node_graph():
+    graph = nx.DiGraph()
+    graph.add_node(0)
+    return graph
+
+
+ONE_AGENT_FRONT_ENDS = [
+    ("parallel_env", lambda **kwargs: fxc_env.parallel_env(**kwargs)),
+    ("env (AEC)", lambda **kwargs: fxc_env.env(**kwargs)),
+    ("ConsensusVecEnv", lambda **kwargs: fxc_env.ConsensusVecEnv(2, **kwargs)),
+    ("ConsensusEngine", lambda **kwargs: fxc_env.ConsensusEngine(fxc_env.make_config(**kwargs))),
+    ("simulate", lambda **kwargs: fxc_env.simulate("reference", **kwargs)),
+]
+
+
+@pytest.mark.parametrize(("label", "build"), ONE_AGENT_FRONT_ENDS, ids=[c[0] for c in ONE_AGENT_FRONT_ENDS])
+def test_one_agent_is_refused_by_name_at_construction_on_every_front_end(label, build):
+    # One agent crashed at reset in the small-N path (issue 24). Consensus is agreement between
+    # agents: N = 1 is refused where it is given (the torch env and fxc simulate: their test files).
+    with pytest.raises(ArgumentError, match=r"^n_agents: expected an integer in \[2, "):
+        build(scenario=None, topology="complete", n_agents=1)
+    with pytest.raises(ArgumentError, match=r"^n_agents: expected an integer in \[2, "):
+        build(scenario=None, topology={"family": "ring"}, n_agents=1)
+    with pytest.raises(ArgumentError, match=r"^topology: expected at least 2 agents .*got a graph of 1"):
+        build(scenario=None, topology=_one_node_graph())
+    build(scenario=None, topology="complete", n_agents=2)  # two agents: the smallest consensus
+
+
+UNKNOWN_RESET_OPTIONS = [
+    {"X0": np.arange(N, dtype=float)},
+    {"x0": np.arange(N, dtype=float), "v00": np.ones(N)},
+    {"bogus": 1},
+]
+UNKNOWN_OPTION_MESSAGE = r"^options: unknown key\(s\) \[.*\]; expected only 'x0', 'v0'"
+
+
+@pytest.mark.parametrize("options", UNKNOWN_RESET_OPTIONS, ids=[str(sorted(o)) for o in UNKNOWN_RESET_OPTIONS])
+def test_an_unknown_reset_option_is_refused_naming_the_known_keys_and_nothing_changes(options):
+    # The intended initial state was silently not used (issue 24): every env front end refuses the key.
+    env, obs, policy = started()
+    before = snapshot(env)
+    with pytest.raises(ArgumentError, match=UNKNOWN_OPTION_MESSAGE):
+        env.reset(seed=0, options=options)
+    assert_unchanged(before, snapshot(env))
+    env.step(good_actions(env, obs, policy))
+
+    aec = fxc_env.env(scenario="paper_fig1")
+    aec.reset(seed=3)
+    aec.step(ReferencePolicy(aec)(aec.observe(aec.agent_selection)))
+    before, selected = snapshot(aec.unwrapped.parallel), aec.agent_selection
+    with pytest.raises(ArgumentError, match=UNKNOWN_OPTION_MESSAGE):
+        aec.reset(seed=0, options=options)
+    assert_unchanged(before, snapshot(aec.unwrapped.parallel))
+    assert aec.agent_selection == selected == "agent_1"
+
+    venv = started_vecenv()
+    state, k = venv.engine.state.copy(), venv.engine.k
+    for given in (options, [options] * venv.num_envs, [{}] * (venv.num_envs - 1) + [options]):
+        with pytest.raises(ArgumentError, match=UNKNOWN_OPTION_MESSAGE):
+            venv.set_options(given)
+    np.testing.assert_array_equal(venv.engine.state, state)
+    assert venv.engine.k == k
+    venv.reset()  # nothing was stored: the next reset draws as usual
+    assert not np.array_equal(venv.engine.state[0, :, 0, 0], options.get("x0", np.full(N, np.nan)))
+
+
+def test_a_weighted_networkx_graph_is_refused_by_name():
+    # The weights were silently dropped (issue 24); the paper's graphs are unweighted.
+    weighted = nx.DiGraph()
+    weighted.add_weighted_edges_from([(j, (j + 1) % N, 1.0 if j else 2.5) for j in range(N)])
+    with pytest.raises(ArgumentError, match=r"^topology: expected an unweighted networkx graph .*weight 2\.5"):
+        fxc_env.parallel_env(scenario=None, topology=weighted)
+    unit = nx.DiGraph()
+    unit.add_weighted_edges_from([(j, (j + 1) % N, 1.0) for j in range(N)])
+    plain = fxc_env.make_config(None, topology=nx.DiGraph([(j, (j + 1) % N) for j in range(N)])).topology
+    assert fxc_env.make_config(None, topology=unit).topology.edges[0].tolist() == plain.edges[0].tolist()
+
+
+def test_a_model_parameter_that_breaks_the_interval_maps_is_blamed_by_name():
+    # frequency = 2**70 was blamed on "intervals", which the user never gave (issue 24).
+    with pytest.raises(ArgumentError, match=r"^frequency: expected a value with which 'oscillator' agents can be"):
+        fxc_env.parallel_env(scenario=None, agent_model="oscillator", frequency=2**70)
+
+
+def test_the_engine_refuses_a_scenario_name_in_place_of_its_config():
+    # ConsensusEngine("paper_fig1") raised AttributeError (issue 24): one way in, the validated config.
+    with pytest.raises(
+        TypeError, match=r"^config: expected an EnvConfig \(make_config\('paper_fig1'\)\), got the name"
+    ):
+        fxc_env.ConsensusEngine("paper_fig1")
+    with pytest.raises(ArgumentError, match=r"^config: expected an EnvConfig .*got a dict"):
+        fxc_env.ConsensusEngine({"scenario": "paper_fig1"})

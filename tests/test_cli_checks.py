@@ -226,3 +226,31 @@ def test_fxc_prints_the_refusal_as_one_usage_line_and_writes_nothing(tmp_path, c
     assert main(["evaluate", "--policy", "reference", "--budgets", "25,25", "--out", str(tmp_path / "eval")]) == 2
     assert capsys.readouterr().err == "fxc evaluate: error: --budgets: expected distinct budgets, got '25,25'\n"
     assert tree(tmp_path) == before
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            "evaluate --policy reference --agent-model integrator_chain --order 3 --action-mode accel".split(),
+            "action_mode: 'integrator_chain' agents take plans only",
+        ),
+        (["evaluate", "--policy", "reference", "--action-mode", "accel"], "--action-mode: sets a learned policy's"),
+        (["simulate", "--scenario", "none", "--topology", "complete", "--n-agents", "1"], "n_agents: expected"),
+        (["simulate", "--family", "ring", "--mean-in-degree", "3"], "--mean-in-degree: shapes --family random only"),
+    ],
+    ids=[
+        "a combination the Python API refuses",
+        "a learned policy's flag with the reference",
+        "one agent",
+        "a key the family does not use",
+    ],
+)
+def test_fxc_refuses_environment_flags_as_the_python_api_does_and_writes_nothing(tmp_path, capsys, argv, message):
+    # fxc evaluate ran (exit 0) on a combination make_config refuses, or ignored the flag (issue 24).
+    from fxc_env.cli import main
+
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"fxc {argv[0]}: error: {message}") and err.count("\n") == 1, err
+    assert tree(tmp_path) == {}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -27,7 +29,8 @@ MIXTURE = {
 @pytest.mark.parametrize("kind", FAMILY_KINDS)
 @pytest.mark.parametrize("period", [(1, 1), (2, 4)])
 def test_every_draw_spans_jointly_within_the_family_bounds(kind, period):
-    family = make_family({"family": kind, "period": period, "mean_in_degree": (1.5, 3.5)})
+    degree = {"mean_in_degree": (1.5, 3.5)} if kind == "random" else {}
+    family = make_family({"family": kind, "period": period, **degree})
     rng = np.random.default_rng(0)
     for n in (2, 7, 30):
         for _ in range(25):
@@ -227,3 +230,29 @@ def test_each_vecenv_episode_draws_its_own_graph_from_its_seed():
     again.seed(7)
     again.reset()
     assert [again.reset_infos[b * n]["edges"] for b in range(3)] == drawn
+
+
+@pytest.mark.parametrize(
+    ("spec", "unused"),
+    [
+        ({"family": "ring", "mean_in_degree": 3.0}, "['mean_in_degree']; its keys are 'family', 'period', 'relabel'"),
+        ({"family": "star", "mean_in_degree": (1.0, 2.0)}, "['mean_in_degree']"),
+        ({"family": "random", "relabel": False}, "['relabel']; its keys are 'family', 'mean_in_degree', 'period'"),
+        ({"family": "complete", "relabel": True}, "['relabel']; its keys are 'family', 'period'"),
+        ({"mixture": [({"family": "path", "mean_in_degree": 2.0}, 1.0)]}, "['mean_in_degree']"),
+    ],
+)
+def test_a_key_the_family_does_not_use_is_refused_naming_the_keys_it_does(spec, unused):
+    # A ring's mean_in_degree was silently ignored (issue 24): a setting that is not honoured is refused.
+    kind = spec["family"] if "family" in spec else spec["mixture"][0][0]["family"]
+    with pytest.raises(ArgumentError, match=rf"^topology: the '{kind}' family does not use {re.escape(unused)}"):
+        make_config(topology=spec, n_agents=8)
+
+
+def test_a_mixture_member_may_be_a_bare_family_name():
+    # README: {"mixture": [(family, weight), ...]} read as if ("random", 2.0) were allowed (issue 24).
+    bare = make_family({"mixture": [("random", 2.0), ("ring", 1.0)], "name": "bare"})
+    spelled = make_family({"mixture": [({"family": "random"}, 2.0), ({"family": "ring"}, 1.0)], "name": "bare"})
+    assert bare == spelled
+    with pytest.raises(ArgumentError, match=r"^topology\['family'\]: "):
+        make_family({"mixture": [("hypercube", 1.0)]})

@@ -235,3 +235,30 @@ def test_set_seed_refuses_a_bad_seed_and_keeps_the_generators(seed):
     with pytest.raises(ArgumentError, match="seed: expected an integer"):
         env.set_seed(seed)
     assert env.engine.rng is rng and env._host_rng is host_rng
+
+
+def test_one_agent_and_the_meta_device_are_refused_at_construction():
+    # Issue 24: N = 1 crashed at reset, and device="meta" raised NotImplementedError at the first reset.
+    with pytest.raises(ArgumentError, match=r"^n_agents: expected an integer in \[2, "):
+        ConsensusTorchEnv(topology="complete", n_agents=1)
+    with pytest.raises(ArgumentError, match=r"^device: expected a device that holds values \(cpu, cuda\), got 'meta'"):
+        ConsensusTorchEnv(scenario="paper_fig1", device="meta")
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"options": {"x0": np.zeros(6)}}, {"options": {"bogus": 1}}, {"x0": np.zeros(6)}],
+    ids=["options x0", "options bogus", "x0"],
+)
+def test_reset_keywords_are_refused_by_name_and_nothing_changes(kwargs):
+    # TorchRL hands reset's keywords to _reset, which read none of them: an intended initial state was
+    # silently dropped (issue 24).
+    env = ConsensusTorchEnv(scenario="paper_fig1", batch_size=2, seed=0)
+    td = env.reset()
+    td.set((GROUP, "action"), torch.zeros((2, env.n_agents, 2), dtype=torch.float64))
+    env.step(td)
+    state, k = env.engine.state.clone(), env.engine.k
+    name = next(iter(kwargs))
+    with pytest.raises(ArgumentError, match=rf"^{name}: ConsensusTorchEnv.reset takes no keyword options"):
+        env.reset(**kwargs)
+    assert torch.equal(env.engine.state, state) and env.engine.k == k == 1

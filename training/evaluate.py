@@ -158,8 +158,16 @@ def evaluate_command(args: argparse.Namespace) -> int:
     custom = {k: v for k, v in env_kwargs.items() if v is not None}
     if custom and args.suite is not None:
         raise ArgumentError("--suite: give a named suite or environment flags, not both")
+    if custom:
+        make_config(**custom)  # every flag together, through the Python API's checks (README, "Bad input")
     # The learned policy's own settings (the reference keeps its schedule and modes).
     learned = {k: custom.pop(k) for k in ("action_mode", "obs_mode", "schedule") if k in custom}
+    if learned and args.policy == "reference":
+        flag = "--" + next(iter(learned)).replace("_", "-")
+        raise ArgumentError(
+            f"{flag}: sets a learned policy's setting (--policy FILE or --runs); the reference keeps its own "
+            "schedule and modes, so leave it out with --policy reference"
+        )
     if "n_intervals" in custom:
         raise ArgumentError("--n-intervals: the budgets K come from --budgets")
     if custom:

@@ -323,6 +323,11 @@ def _topology(merged: dict[str, Any], topology_seed: Any) -> tuple[Topology, Any
         mean_in_degree=merged["mean_in_degree"],
         period=merged["topology_period"],
     )
+    if topology.n_agents < validation.MIN_AGENTS:  # a graph or Topology of one node (n_agents was checked)
+        raise ArgumentError(
+            f"topology: expected at least {validation.MIN_AGENTS} agents (consensus is agreement between agents), "
+            f"got a graph of {topology.n_agents}"
+        )
     return topology, None
 
 
@@ -413,7 +418,7 @@ def make_config(
     formation = _formation(merged.get("formation_offsets"), topo.n_agents, dim_value, n_states)
     dtype = ARGUMENTS["obs_dtype"].check(obs_dtype)
     limit = validation.FLOAT32_STATE_LIMIT if (dtype, obs_mode) == ("float32", "raw") else validation.STATE_LIMIT
-    return EnvConfig(
+    config = EnvConfig(
         topology=topo,
         family=family,
         schedule=sched,
@@ -438,6 +443,29 @@ def make_config(
         agent_model=model_name,
         formation=formation,
     )
+    if model is not None:
+        _check_steering(config, merged)
+    return config
+
+
+def _check_steering(config: EnvConfig, merged: dict[str, Any]) -> None:
+    """Build the model's interval maps now, blaming the model's parameter when they cannot be built.
+
+    A parameter far outside the physical range (``frequency=2**70``) leaves the controllability
+    Gramian of the schedule's intervals singular in float64; the maps' own message names
+    ``intervals``, which the user did not give, so the model's parameter is named instead.
+    """
+    try:
+        config.interval_maps  # noqa: B018 (cached on the config: the engine reads it)
+    except ArgumentError as error:
+        named = [key for key in ("order", "damping", "frequency") if merged.get(key) is not None]
+        if not named:
+            raise
+        shown = ", ".join(f"{key} = {merged[key]!r}" for key in named)
+        raise ArgumentError(
+            f"{'/'.join(named)}: expected a value with which {config.agent_model!r} agents can be steered over "
+            f"every sampling interval; {shown} gives {error}"
+        ) from None
 
 
 def _agent_model(merged: dict[str, Any]) -> tuple[str, LinearModel | None]:

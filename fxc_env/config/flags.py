@@ -79,6 +79,8 @@ def env_kwargs_from(args: argparse.Namespace) -> dict[str, Any]:
     if args.family is not None:
         if "topology" in kwargs:
             raise ArgumentError("--family: draws the topology; leave out --topology")
+        if args.family != "random" and "mean_in_degree" in kwargs:
+            raise ArgumentError(f"--mean-in-degree: shapes --family random only, got --family {args.family}")
         family: dict[str, Any] = {"family": args.family}
         for key in ("mean_in_degree", "topology_period"):
             if key in kwargs:

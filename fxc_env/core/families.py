@@ -36,6 +36,16 @@ from fxc_env.core.graphs import Topology, make_topology, random_topology
 from fxc_env.core.validation import ArgumentError
 
 FAMILY_KINDS = ("ring", "path", "star", "complete", "random")
+#: The keys of each family's mapping beside ``family``: ``mean_in_degree`` shapes ``random`` only,
+#: and ``relabel`` the structured families whose labels matter (every labelling of a complete
+#: graph is the same graph; ``random`` draws its labels with its tree). Any other key is refused.
+FAMILY_KEYS = {
+    "ring": ("period", "relabel"),
+    "path": ("period", "relabel"),
+    "star": ("period", "relabel"),
+    "complete": ("period",),
+    "random": ("mean_in_degree", "period"),
+}
 
 
 def _range(name: str, value: Any, kind: type, minimum: float) -> tuple[Any, Any]:
@@ -152,8 +162,9 @@ def make_family(spec: Any, argument: str = "topology") -> AnyFamily:
 
     ``spec`` is a :class:`TopologyFamily` or :class:`TopologyMixture`, or a mapping:
     ``{"family": "random", "mean_in_degree": (1.5, 3.0), "period": (1, 3), "relabel": True}``
-    (every key but ``family`` optional), or ``{"mixture": [(family_spec, weight), ...],
-    "name": "..."}``.
+    (every key but ``family`` optional; :data:`FAMILY_KEYS` lists the keys each family uses), or
+    ``{"mixture": [(family_spec, weight), ...], "name": "..."}``, where a member's ``family_spec``
+    may also be a bare family name (``("random", 2.0)`` means ``({"family": "random"}, 2.0)``).
     """
     if isinstance(spec, TopologyFamily | TopologyMixture):
         return spec
@@ -174,7 +185,8 @@ def make_family(spec: Any, argument: str = "topology") -> AnyFamily:
         for member in members:
             if not isinstance(member, Sequence) or isinstance(member, str) or len(member) != 2:
                 raise ArgumentError(f"{argument}: each mixture entry must be a (family, weight) pair, got {member!r}")
-            family = make_family(member[0], argument)
+            # A bare name is the family with its defaults: ("random", 2.0) is ({"family": "random"}, 2.0).
+            family = make_family({"family": member[0]} if isinstance(member[0], str) else member[0], argument)
             if isinstance(family, TopologyMixture):
                 raise ArgumentError(f"{argument}: a mixture's members must be families, not mixtures")
             families.append(family)
@@ -191,6 +203,10 @@ def make_family(spec: Any, argument: str = "topology") -> AnyFamily:
             f"{argument}: unknown key(s) {sorted(unknown)}; expected 'family', 'mean_in_degree', 'period', 'relabel'"
         )
     kind = validation.choice(f"{argument}['family']", spec.get("family"), FAMILY_KINDS)
+    unused = [key for key in spec if key != "family" and key not in FAMILY_KEYS[kind]]
+    if unused:
+        takes = ", ".join(repr(key) for key in ("family", *FAMILY_KEYS[kind]))
+        raise ArgumentError(f"{argument}: the {kind!r} family does not use {unused!r}; its keys are {takes}")
     relabel = spec.get("relabel", True)
     if not isinstance(relabel, bool):
         raise ArgumentError(f"{argument}['relabel']: expected True or False, got {relabel!r}")

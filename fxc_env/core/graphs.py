@@ -283,6 +283,13 @@ def _digraph_nodes(graph: Any, argument: str, position: str) -> list[int]:
 
 def _digraph_edges(graph: Any, argument: str, position: str) -> list[tuple[int, int]]:
     _digraph_nodes(graph, argument, position)
+    for u, v, weight in graph.edges(data="weight", default=1):
+        # The paper's graphs are unweighted (a_ij = 1 on every edge): a weight would be dropped silently.
+        if isinstance(weight, bool | np.bool_) or not isinstance(weight, int | float | np.number) or weight != 1:
+            raise ArgumentError(
+                f"{argument}: expected an unweighted networkx graph (the paper's graphs are unweighted: no "
+                f"'weight' attribute, or weight 1); {position} has edge ({u}, {v}) with weight {weight!r}"
+            )
     return [(int(u), int(v)) for u, v in graph.edges()]
 
 

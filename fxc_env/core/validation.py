@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 import operator
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -42,6 +42,9 @@ NOISE_MARGIN = 17
 MAX_SETTLING_TIME = 1e30
 #: Most sampling intervals K (the engine keeps per-instant arrays of K + 1 rows).
 MAX_INTERVALS = 10**6
+#: Fewest agents of an environment: consensus is agreement between agents, and one agent's
+#: disagreement is zero before any step (every reward 0, no graph for a gain design).
+MIN_AGENTS = 2
 #: Most agents in one episode (node indices of a topology lie in ``[0, MAX_AGENTS)``).
 MAX_AGENTS = 10**8
 #: Most graphs in one switching period.
@@ -113,6 +116,38 @@ def choice(name: str, value: Any, options: Sequence[str]) -> str:
     """``value`` if it is one of ``options``."""
     if not isinstance(value, str) or value not in options:
         raise ArgumentError(f"{name}: expected one of {tuple(options)}, got {value!r}")
+    return value
+
+
+#: The keys ``reset(options=...)`` reads: a fixed initial state for the episode (README, "Using the environment").
+RESET_OPTION_KEYS = ("x0", "v0")
+#: PettingZoo's API tests (``api_test``, ``parallel_api_test``) call ``reset(options={"options": 1})``
+#: only to see that reset takes options: that exact probe is accepted and reads nothing.
+PETTINGZOO_OPTIONS_PROBE = {"options": 1}
+
+
+def reset_options(name: str, value: Any) -> Mapping[str, Any]:
+    """``reset``'s ``options``: None (read as ``{}``) or a mapping whose keys are among :data:`RESET_OPTION_KEYS`.
+
+    An unknown key (``"X0"``, ``"v00"``) is refused naming the known ones, so an intended
+    initial state is never silently dropped; only PettingZoo's API-test probe
+    (:data:`PETTINGZOO_OPTIONS_PROBE`) reads as ``{}``. The values are checked by the engine
+    (:func:`state_array`).
+    """
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise ArgumentTypeError(f"{name}: expected a dict or None, got {type(value).__name__}")
+    if (
+        len(value) == 1
+        and type(value.get("options")) is int
+        and value["options"] == PETTINGZOO_OPTIONS_PROBE["options"]
+    ):
+        return {}
+    unknown = [key for key in value if key not in RESET_OPTION_KEYS]
+    if unknown:
+        known = ", ".join(repr(key) for key in RESET_OPTION_KEYS)
+        raise ArgumentError(f"{name}: unknown key(s) {unknown!r}; expected only {known} (a fixed initial state)")
     return value
 
 

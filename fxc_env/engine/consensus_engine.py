@@ -121,6 +121,10 @@ class ConsensusEngine:
     """
 
     def __init__(self, config: EnvConfig, n_episodes: int = 1, *, device: Any = None, dtype: str = "float64") -> None:
+        if not isinstance(config, EnvConfig):  # one way in: the settings make_config validated
+            shown = f"the name {config!r}" if isinstance(config, str) else f"a {type(config).__name__}"
+            hint = f"make_config({config!r})" if isinstance(config, str) else "make_config(...)"
+            raise ArgumentTypeError(f"config: expected an EnvConfig ({hint}), got {shown}")
         self.config = config
         self.n_episodes = b = validation.integer("n_episodes", n_episodes, 1, validation.MAX_AGENTS)
         self.layout = config.layout

@@ -381,9 +381,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
         # Every argument is checked before anything changes.
         seed = validation.optional_seed("seed", seed)
-        if options is not None and not isinstance(options, Mapping):
-            raise ArgumentTypeError(f"options: expected a dict or None, got {type(options).__name__}")
-        options = options or {}
+        options = validation.reset_options("options", options)
         x0 = self.engine.validate_state("options['x0']", options["x0"]) if "x0" in options else None
         v0 = self.engine.validate_state("options['v0']", options["v0"]) if "v0" in options else None
         if seed is not None or self._rng is None:

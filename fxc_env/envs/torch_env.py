@@ -53,7 +53,7 @@ TORCH_ARGUMENTS: tuple[Argument, ...] = (
         "Any",
         "cpu",
         help="torch device of every tensor",
-        card='torch device of every tensor (``"cuda"``, ``"meta"`` for shapes only)',
+        card='torch device of every tensor (``"cpu"``, ``"cuda"``; not ``"meta"``, which holds no values)',
         card_type="``str \\| torch.device``",
     ),
     Argument(
@@ -226,9 +226,14 @@ class ConsensusTorchEnv(EnvBase):
         self.check_values = bool(check_values)
         #: Whether every reset and step adds the current graph's edge tensors (README, "Graph tensors").
         self.graph_tensors = GRAPH_TENSORS.check(graph_tensors)
-        self.engine = ConsensusEngine(self.config, size, device=device, dtype=dtype)
-        spec_device = "cpu" if self.engine.device.type == "meta" else self.engine.device
-        super().__init__(device=spec_device, batch_size=torch.Size([size]), allow_done_after_reset=False)
+        engine = ConsensusEngine(self.config, size, device=device, dtype=dtype)
+        if engine.device.type == "meta":
+            raise validation.ArgumentError(
+                "device: expected a device that holds values (cpu, cuda), got 'meta': TorchRL reads values at reset "
+                "and step (shape-only checks run on ConsensusEngine(config, B, device='meta'))"
+            )
+        self.engine = engine
+        super().__init__(device=engine.device, batch_size=torch.Size([size]), allow_done_after_reset=False)
         self._host_rng = np.random.default_rng(seed)
         self._observation_dtype = getattr(torch, self.config.obs_dtype)
         self._make_specs()
@@ -241,10 +246,6 @@ class ConsensusTorchEnv(EnvBase):
 
     def _make_specs(self) -> None:
         c, layout, device = self.config, self.config.layout, self.engine.device
-        if device.type == "meta":
-            # torchrl's specs read values when built; the meta engine (shapes only, for the check
-            # that a step never waits on the host) is driven through _reset/_step directly.
-            device = torch.device("cpu")
         b, n = self.batch_size[0], c.n_agents
         low, high = _observation_bounds(c)
         observation = Bounded(
@@ -317,11 +318,20 @@ class ConsensusTorchEnv(EnvBase):
         self._host_rng = np.random.default_rng(seed)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        # TorchRL passes reset's keywords on: this environment reads none (set_state, TorchRL's own, is
+        # left to it), so a keyword such as options={"x0": ...} is refused rather than silently dropped.
+        unknown = sorted(set(kwargs) - {"set_state"})
+        if unknown:
+            raise validation.ArgumentError(
+                f"{unknown[0]}: ConsensusTorchEnv.reset takes no keyword options, got {unknown!r}; initial states "
+                "come from position_range / velocity_range or initial_state (the parallel env's reset takes "
+                "options={'x0': ..., 'v0': ...})"
+            )
         engine = self.engine
         episodes = None
         if tensordict is not None and "_reset" in tensordict.keys():
             episodes = self._reset_mask(tensordict.get("_reset"))
-            if self.engine.device.type != "meta" and bool(episodes.all()):
+            if bool(episodes.all()):
                 episodes = None  # one read of a [B] flag: a full reset keeps the lock-step fast path
         if self.check_values:
             engine.raise_if_invalid()
@@ -417,14 +427,12 @@ class ConsensusTorchEnv(EnvBase):
         Each call reads them off the device and adds them to their trails
         (:class:`~fxc_env.envs.rendering.SnapshotView`), so calling it after every reset and step,
         as ``torchrl.record.PixelRenderTransform`` does, draws the trails; nothing is recorded on
-        the step path. Raises ``RuntimeError`` before the first reset and on the meta device.
+        the step path. Raises ``RuntimeError`` before the first reset.
         """
         from fxc_env.envs.rendering import GRID_EPISODES, SnapshotView
 
         if not hasattr(self, "_cycles"):
             raise RuntimeError("render: there is no episode to draw yet; call reset() first")
-        if self.engine.device.type == "meta":
-            raise RuntimeError("render: the meta device holds no values to draw")
         view = self.__dict__.get("_snapshots")
         if view is None:
             view = self._snapshots = SnapshotView(self.config, min(self.batch_size[0], GRID_EPISODES))

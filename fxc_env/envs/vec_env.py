@@ -12,7 +12,7 @@ environment, but it steps every agent through Python dicts, and SB3's ``seed``,
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -216,6 +216,8 @@ class ConsensusVecEnv(VecEnv):
                 raise ArgumentError(
                     f"options: expected one entry per sub-environment ({self.num_envs}), got {len(options)}"
                 )
+            for entry in options:  # the keys of every entry, read or not (an unknown key is a typo)
+                validation.reset_options("options", entry)
         chosen = [options] if options is None or isinstance(options, dict) else options[:: self.n_agents]
         for entry in chosen:
             if entry:
@@ -247,8 +249,7 @@ class ConsensusVecEnv(VecEnv):
         return self._observe()
 
     def _initial_state_options(self, options: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
-        if not isinstance(options, Mapping):
-            raise ArgumentTypeError(f"options: expected a dict or None, got {type(options).__name__}")
+        options = validation.reset_options("options", options)
         validate = self.engine.validate_state
         x0 = validate("options['x0']", options["x0"]) if "x0" in options else None
         v0 = validate("options['v0']", options["v0"]) if "v0" in options else None
