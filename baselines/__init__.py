@@ -18,7 +18,10 @@ source paper, the graph class it is proven for, and its parameters:
   N: N - 1), in ``plan`` or ``accel`` mode, raw or normalized;
 - :class:`SignallingPolicy` (:mod:`fxc_env.baselines.signalling`): this project's law on the
   energy-accuracy frontier: agents agree on the mean of the free-motion predictions by signalling
-  numbers through small motions, then steer once with the minimum-energy input (a few × ``E*``).
+  numbers through small motions, then steer once with the minimum-energy input (a few × ``E*``);
+- :class:`GraphAgnosticPolicy` (:mod:`fxc_env.baselines.graph_agnostic`): the same motions carry a
+  virtual consensus iteration whose limit each agent reads off its own shortest recurrence (Yuan et
+  al. 2013): exact without knowing the graph, given an upper bound ``max_agents`` on N.
 
 :mod:`fxc_env.core.optimality` gives the bounds every law is measured against: the least energy
 ``E*`` of an exact consensus at ``T_s`` and the fewest intervals (the propagation bound).
@@ -35,6 +38,7 @@ policies (:func:`load_policy`) on one suite (:mod:`fxc_env.baselines.suite`).
 from __future__ import annotations
 
 from fxc_env.baselines.finite_time import FiniteTimePolicy
+from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
 from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
@@ -45,6 +49,7 @@ from fxc_env.baselines.suite import load_policy
 
 __all__ = [
     "FiniteTimePolicy",
+    "GraphAgnosticPolicy",
     "LinearConsensusPolicy",
     "MinimumTimePolicy",
     "PrescribedTimePolicy",

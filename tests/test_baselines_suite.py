@@ -50,6 +50,7 @@ def test_contender_settings_reach_the_environment():
         "saturation_aware",
         "minimum_time",
         "signalling",
+        "graph_agnostic",
     }  # the budget sweep
 
 

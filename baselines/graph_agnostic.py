@@ -1,0 +1,345 @@
+"""Exact consensus without knowing the graph: a virtual iteration carried by motion, a recurrence, one steer.
+
+Law (after Yuan, Stan, Shi, Barahona & Gonçalves, "Decentralised minimum-time consensus",
+Automatica 49(5), 2013, carried by the motions of :mod:`fxc_env.baselines.signalling`; README,
+"Exact consensus without knowing the graph"):
+
+1. **A virtual iteration carried by motion.** Per axis, agent i holds the complex register
+   ``w_i = p_{i,x} + i T_s p_{i,v}`` (m) of its free-motion prediction ``p_i = (x_i + T_s v_i, v_i)``,
+   whose start it does not know absolutely; it tracks the change ``c_i(k) = w_i(k) - w_i(0)`` and
+   signals it as a deviation from coasting ``ε (Re c, Im c / T_s)``, which its in-neighbours read
+   exactly from their relative rows (the signalling law's step 1). Every agent runs
+   ``w <- W w``, ``W = D^{-1} A``: the mean of its in-neighbours' registers (its own weights only;
+   an agent with no in-neighbour keeps its value). ``w_i(k + 1)`` is known at instant k.
+2. **Its own recurrence.** Agent i's sequence ``w_i(0), w_i(1), …`` obeys the minimal polynomial of
+   ``W`` seen from i, ``q(λ) = (λ - 1) p(λ)``, degree ``≤ N`` (1 is a simple eigenvalue of ``W`` under a
+   directed spanning tree), so the differences ``Δw_i(k)`` obey ``p``. From ``L = 2 max_agents + 2``
+   values the agent finds the shortest such recurrence: the smallest degree whose Hankel matrix of its
+   own differences (every axis, both parts of the register, stacked) has a singular value below
+   ``rank_tolerance`` times their norm; ``β`` spans its kernel. Then ``Σ_m β_m w_i(k + m) = p(1) w*`` for
+   every k: the common limit ``w* = ξᵀ w(0)`` (``ξ`` the left null vector of ``I - W``) is read off the
+   latest window, where modes the test may have missed have decayed most.
+3. **Steering once.** At instant ``L - 2`` (``t_L``) agent i knows ``w* - w_i(0)``, the consensus
+   point less its own prediction; over ``[t_L, T_s]`` it plays the minimum-energy input to it
+   (the signalling law's step 4). Energy ``≈ E* (T_s / (T_s - t_L))³`` when ``ξ`` is uniform (a directed
+   ring), more when it is not (the target ``ξᵀ p`` is then not the mean of the predictions that ``E*``
+   steers to).
+
+The agent reads only its own observation rows (its in-neighbours' relative states, their mask, the
+clock) and its memory: it is never given the graph, its spectrum or N. Its one prior is
+``max_agents``, an upper bound on N that sets the listening window; a directed ring of N at
+``max_agents = N`` listens ``2 N`` intervals (4.0 s of 20 at K = 200, uniform).
+
+Measured (K = 200, T_s = 20 s, uniform schedule, 20 seeds, medians of the relative deadline error and
+of energy / E*; ``python -m fxc_env.baselines.graph_agnostic``): see README, "Exact consensus without
+knowing the graph".
+
+- Source: Yuan et al. 2013 (the recurrence and the final-value formula), carried by this project's
+  signalling through small motions.
+- Proven graph class: a fixed digraph with a directed spanning tree and at most ``max_agents`` agents,
+  ideal double-integrator agents, exact in exact arithmetic; in float64 the error is set by the
+  reading error (about ``1e-16 |z| / ε``) and the rank test. It agrees on ``ξᵀ p``, which is the
+  E*-optimal point only where ``ξ`` is uniform.
+- It refuses what it cannot honour, by name: switching topologies (no fixed recurrence), topology
+  families, ``u_max``, ``obs_noise``, ``link_dropout``, agent models other than the double
+  integrator, ``obs_mode='normalized'``, ``max_agents`` below the environment's N, and K shorter than
+  the listening window.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+
+from fxc_env.baselines.policy import describe_law
+from fxc_env.baselines.signalling import (
+    advance,
+    current_instant,
+    deviation_of,
+    initial_offset,
+    plan_action,
+    predicted_register,
+    read_deviation,
+    register_of,
+    signal_plan,
+    steer_plan,
+)
+from fxc_env.config import config_of
+from fxc_env.core import validation
+from fxc_env.core.validation import ArgumentError
+
+__all__ = ["DEFAULT_AMPLITUDE", "DEFAULT_RANK_TOLERANCE", "GraphAgnosticPolicy", "listening_values", "recurrence_limit"]
+
+#: Default signalling amplitude ε: three times the signalling law's (its window is longer and its rank test
+#: wants the cleaner reads; the ring N = 20 then ends near 5e-10 at 2.4 x E*, the signalling energy ~1e-2 of it).
+DEFAULT_AMPLITUDE = 3e-6
+
+#: Default rank-test tolerance: a Hankel singular value below this fraction of the differences' norm
+#: counts as zero (reading errors at the default amplitude are about 1e-10 of the registers).
+DEFAULT_RANK_TOLERANCE = 1e-8
+
+
+def listening_values(max_agents: int) -> int:
+    """``L = 2 max_agents + 2``: the values ``w_i(0..L-1)`` an agent records before it steers.
+
+    The minimal polynomial seen from an agent has degree at most N, so the differences obey a
+    recurrence of degree ``d <= N - 1``; its Hankel matrix of ``d + 2`` columns needs ``d + 2`` rows of
+    ``L - 1`` differences: ``L = 2 max_agents + 2``.
+    """
+    return 2 * max_agents + 2
+
+
+def recurrence_limit(values: np.ndarray, max_degree: int, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """The limit of each recorded sequence from its shortest recurrence (Yuan et al. 2013).
+
+    Args:
+        values: ``(M, C, L)`` real: M agents' recorded sequences, C channels each that share one
+            recurrence (the same iteration on different initial values), L values.
+        max_degree: the largest degree ``d`` of ``p`` tried (``N - 1`` at most).
+        tolerance: a Hankel singular value below ``tolerance`` times the differences' norm is zero.
+
+    Returns:
+        ``(limits (M, C), degrees (M,))``: ``Σ_m β_m w(k + m) / Σ_m β_m`` on the latest window, and the
+        degree ``d`` of the recurrence ``Σ_m β_m Δw(k + m) = 0`` found (the smallest-σ degree when no
+        Hankel passes the test).
+    """
+    M, C, L = values.shape
+    diffs = np.diff(values, axis=-1)  # (M, C, L - 1)
+    scale = np.sqrt(np.sum(diffs**2, axis=(1, 2)))  # (M,)
+    degrees = np.full(M, -1, dtype=np.int64)
+    kernels: list[np.ndarray | None] = [None] * M
+    best = np.full(M, np.inf)
+    fallback: list[tuple[int, np.ndarray] | None] = [None] * M
+    for d in range(min(max_degree, (L - 2) // 2) + 1):
+        todo = np.flatnonzero(degrees < 0)
+        if len(todo) == 0:
+            break
+        rows = L - 1 - d  # windows per channel
+        window = np.lib.stride_tricks.sliding_window_view(diffs[todo], d + 1, axis=-1)  # (m, C, rows, d + 1)
+        hankel = window.reshape(len(todo), C * rows, d + 1)
+        _, sigma, vh = np.linalg.svd(hankel, full_matrices=False)
+        smallest = sigma[:, -1] if sigma.shape[1] == d + 1 else np.zeros(len(todo))
+        relative = smallest / np.where(scale[todo] > 0, scale[todo], 1.0)
+        for n, agent in enumerate(todo):
+            if relative[n] <= tolerance:
+                degrees[agent] = d
+                kernels[agent] = vh[n, -1]
+            elif relative[n] < best[agent]:
+                best[agent] = relative[n]
+                fallback[agent] = (d, vh[n, -1])
+    limits = np.empty((M, C))
+    for agent in range(M):
+        if degrees[agent] < 0:
+            degrees[agent], kernels[agent] = fallback[agent]
+        beta = kernels[agent]
+        d = int(degrees[agent])
+        latest = values[agent, :, L - 1 - d :]  # w(k + m), m = 0..d, on the latest window
+        limits[agent] = latest @ beta / np.sum(beta)
+    return limits, degrees
+
+
+class GraphAgnosticPolicy:
+    """The graph-agnostic law on the local observation, raw rows, ``plan`` or ``accel`` actions.
+
+    Like :class:`~fxc_env.baselines.SignallingPolicy` the law has memory, so it is called with **every
+    agent's** observation at once, ``(..., N, obs_size)`` in agent order, one instant after the other from
+    ``k = 0``; agent i's action depends only on its own observations and memory.
+
+    Args:
+        env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with ideal
+            double-integrator agents, ``obs_mode="raw"``, and K at least the listening window.
+        max_agents: an upper bound on N, the law's one prior (None: the environment's N). It sets the
+            listening window, ``2 max_agents + 2`` recorded values (:func:`listening_values`).
+        amplitude: the signalling amplitude ε (dimensionless, > 0; None: :data:`DEFAULT_AMPLITUDE`).
+        rank_tolerance: the rank test's relative tolerance (in (0, 1); None: :data:`DEFAULT_RANK_TOLERANCE`).
+
+    Raises:
+        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``,
+        ``agent_model``, ``obs_mode``, ``action_mode``, ``max_agents``, ``n_intervals``, ``amplitude`` or
+        ``rank_tolerance`` for what the law cannot honour.
+    """
+
+    NAME: ClassVar[str] = "graph_agnostic"
+    LAW: ClassVar[str] = (
+        "virtual iteration w <- D⁻¹A w on registers w_i = p_i, carried at amplitude ε by motions read from own rows; "
+        "each agent's shortest recurrence of its own differences (Hankel rank test over 2 max_agents + 2 values) "
+        "gives the limit; then one minimum-energy steer to it"
+    )
+    SOURCE: ClassVar[str] = (
+        "Yuan, Stan, Shi, Barahona & Gonçalves 2013 (decentralised minimum-time consensus), carried by this "
+        "project's signalling through small motions"
+    )
+    GRAPH_CLASS: ClassVar[str] = (
+        "fixed digraph with a directed spanning tree and at most max_agents agents, ideal agents, graph unknown: "
+        "exact up to rounding / ε at ξᵀ p (the mean prediction where ξ is uniform)"
+    )
+
+    def __init__(
+        self,
+        env: Any,
+        max_agents: int | None = None,
+        amplitude: float | None = None,
+        rank_tolerance: float | None = None,
+    ) -> None:
+        config = config_of(env, type(self).__name__)
+        _refuse_what_it_cannot_honour(config)
+        n = config.n_agents
+        max_agents = validation.integer("max_agents", n if max_agents is None else max_agents, 1)
+        if max_agents < n:
+            raise ArgumentError(
+                f"max_agents: an upper bound on the number of agents, at least the environment's N = {n}; "
+                f"got {max_agents}"
+            )
+        amplitude = validation.real("amplitude", DEFAULT_AMPLITUDE if amplitude is None else amplitude, positive=True)
+        rank_tolerance = DEFAULT_RANK_TOLERANCE if rank_tolerance is None else rank_tolerance
+        rank_tolerance = validation.real("rank_tolerance", rank_tolerance, positive=True)
+        if rank_tolerance >= 1.0:
+            raise ArgumentError(f"rank_tolerance: a relative tolerance in (0, 1), got {rank_tolerance!r}")
+        #: Values ``w_i(0..L-1)`` recorded; the steer starts at instant ``L - 2``, when the last is known.
+        self.listening = listening_values(max_agents)
+        if self.listening - 1 > config.n_intervals:
+            raise ArgumentError(
+                f"n_intervals: the graph-agnostic law listens {self.listening - 2} intervals and steers at least one "
+                f"(2 max_agents + 1 with max_agents = {max_agents}); got {config.n_intervals}"
+            )
+        self.max_agents = max_agents
+        self.amplitude = amplitude
+        self.rank_tolerance = rank_tolerance
+        self.config = config
+        self.layout = config.layout
+        self._times = np.asarray(config.schedule.times, dtype=np.float64)
+        self._intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
+        self._memory: dict[str, np.ndarray] | None = None
+        self._next_instant = 0
+        #: Per agent of the last episode batch, the degree of the recurrence its rank test found ``(..., N)``.
+        self.degrees: np.ndarray | None = None
+
+    # ----------------------------------------------------------------------------- acting
+    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
+        """Actions ``(..., N, 2 dim)`` for every agent's observation ``(..., N, obs_size)`` (flat or dict)."""
+        return self.act(self.layout.flat(observation))
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""
+        obs = np.asarray(obs, dtype=np.float64)
+        memory = None if self._memory is None else self._memory["d"].shape[:-2]
+        k, rows = current_instant(obs, self.config, "the graph-agnostic law", self._next_instant, memory)
+        _, mask, _ = self.layout.split(obs)
+        if k == 0:
+            self._reset(obs.shape[:-1])
+        plan = self._plan(k, rows, mask)
+        self._next_instant = k + 1
+        return plan_action(plan, self.config, self._intervals[k])
+
+    def _reset(self, lead: tuple[int, ...]) -> None:
+        dim, slots = self.config.dim, self.layout.slots
+        self._memory = {
+            "base": np.zeros((*lead, slots, 2, dim)),  # z_j(0) - z_i(0) per row slot
+            "history": np.zeros((*lead, self.listening, dim), dtype=complex),  # c_i(k) = w_i(k) - w_i(0)
+            "goal": np.zeros((*lead, dim), dtype=complex),  # w* - w_i(0), known at the steer
+            "d": np.zeros((*lead, 2, dim)),  # own deviation from coasting
+        }
+        self.degrees = None
+
+    def _plan(self, k: int, rows: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """The plan ``(a_x, a_v)`` ``(..., N, 2, dim)`` of every agent at instant k; updates the memory."""
+        memory = self._memory
+        assert memory is not None
+        T_s, eps = self.config.settling_time, self.amplitude
+        t, T = self._times[k], self._intervals[k]
+        d, history = memory["d"], memory["history"]
+        steer_at = self.listening - 2
+        if k <= steer_at:  # read every in-neighbour and take one step of the iteration
+            if k == 0:  # nobody has deviated yet: the rows give z_j(0) - z_i(0)
+                memory["base"] = initial_offset(rows, t)
+            heard = register_of(read_deviation(rows, memory["base"], d[..., None, :, :], t), eps, T_s)
+            if k == 0:
+                heard = np.zeros_like(heard)  # c_j(0) = 0 exactly
+            registers = predicted_register(memory["base"], T_s) + heard  # w_j(k) - w_i(0)
+            degree = np.sum(mask, axis=-1)[..., None]
+            mean = np.sum(mask[..., None] * registers, axis=-2) / np.maximum(degree, 1.0)
+            history[..., k + 1, :] = np.where(degree > 0, mean, history[..., k, :])
+        if k == steer_at:
+            self._find_goal()
+        if k < steer_at:  # signal c_i(k + 1): set the deviation at t_{k+1} to ε (Re c, Im c / T_s)
+            plan = signal_plan(deviation_of(history[..., k + 1, :], eps, T_s), d, T)
+        else:  # steer: the piece over [t_k, t_k+1] of the minimum-energy input to w* - w_i(0) at T_s
+            plan = steer_plan(deviation_of(memory["goal"], 1.0, T_s), d, t, T, T_s)
+        memory["d"] = advance(d, plan, T)
+        return plan
+
+    def _find_goal(self) -> None:
+        """Every agent's limit from its own recorded history (its shortest recurrence)."""
+        memory = self._memory
+        assert memory is not None
+        history = memory["history"]  # (..., N, L, dim)
+        lead, L, dim = history.shape[:-2], history.shape[-2], history.shape[-1]
+        channels = np.concatenate([history.real, history.imag], axis=-1)  # (..., N, L, 2 dim)
+        values = np.moveaxis(channels, -1, -2).reshape(-1, 2 * dim, L)
+        limits, degrees = recurrence_limit(values, self.max_agents - 1, self.rank_tolerance)
+        limits = limits.reshape(*lead, 2 * dim)
+        memory["goal"] = limits[..., :dim] + 1j * limits[..., dim:]
+        self.degrees = degrees.reshape(lead)
+
+    # ----------------------------------------------------------------------------- describing
+    def parameters(self) -> dict[str, float]:
+        """The design: the prior, the window, the steer's start, the amplitude and the rank tolerance."""
+        return {
+            "max_agents": float(self.max_agents),
+            "listening_values": float(self.listening),
+            "steer_start_s": float(self._times[self.listening - 2]),
+            "amplitude": self.amplitude,
+            "rank_tolerance": self.rank_tolerance,
+        }
+
+    def describe(self) -> dict[str, str]:
+        """Law, source, proven graph class and parameters, for tables and logs."""
+        return describe_law(self)
+
+    def guarantee(self) -> str:
+        t_l = self._times[self.listening - 2]
+        bound = (self.config.settling_time / (self.config.settling_time - t_l)) ** 3
+        return (
+            f"graph unknown: exact (rounding / ε aside) for N <= max_agents = {self.max_agents} after listening "
+            f"{self.listening - 2} intervals (t_L = {t_l:.3g} s), then one minimum-energy steer "
+            f"(about E* x {bound:.3g} where ξ is uniform)"
+        )
+
+
+def _refuse_what_it_cannot_honour(config: Any) -> None:
+    name = "GraphAgnosticPolicy"
+    if config.family is not None:
+        raise ArgumentError(
+            f"topology: {name} needs one fixed graph for its recurrence; a family draws a new graph per episode"
+        )
+    if config.topology.period != 1:
+        raise ArgumentError(
+            f"topology: {name} finds the recurrence of one fixed iteration; a switching period of "
+            f"{config.topology.period} graphs changes the iteration every interval"
+        )
+    if config.switching != "periodic":
+        raise ArgumentError(f"switching: {name} needs one fixed graph, not switching={config.switching!r}")
+    if config.u_max_choices is not None:
+        raise ArgumentError(f"u_max: {name} plans exact changes and cannot honour an input limit")
+    if config.obs_noise != 0:
+        raise ArgumentError(
+            f"obs_noise: {name} reads numbers from exact relative measurements and its rank test needs them; "
+            f"got obs_noise={config.obs_noise!r}"
+        )
+    if config.link_dropout != 0:
+        raise ArgumentError(
+            f"link_dropout: {name} reads numbers from every link of its graph; got link_dropout={config.link_dropout!r}"
+        )
+    if config.model is not None:
+        raise ArgumentError(
+            f"agent_model: {name} is designed for the double integrator; got agent_model={config.agent_model!r}"
+        )
+    if config.obs_mode != "raw":
+        raise ArgumentError(
+            f"obs_mode: {name} subtracts the coasting prediction from physical rows and needs obs_mode='raw', "
+            f"got {config.obs_mode!r}"
+        )
+    if config.action_mode not in ("plan", "accel"):
+        raise ArgumentError(f"action_mode: {name} supports 'plan' and 'accel', got {config.action_mode!r}")
