@@ -81,33 +81,43 @@ DEFAULT_AMPLITUDE = 3e-6
 DEFAULT_RANK_TOLERANCE = 1e-8
 
 
-def listening_values(max_agents: int) -> int:
-    """``L = 2 max_agents + 2``: the values ``w_i(0..L-1)`` an agent records before it steers.
+def listening_values(max_agents: int, channels: int = 1) -> int:
+    """``L = max_agents + ceil((max_agents + 1) / C) + 1``: the values ``w_i(0..L-1)`` recorded before the steer.
 
     The minimal polynomial seen from an agent has degree at most N, so the differences obey a
-    recurrence of degree ``d <= N - 1``; its Hankel matrix of ``d + 2`` columns needs ``d + 2`` rows of
-    ``L - 1`` differences: ``L = 2 max_agents + 2``.
+    recurrence ``p`` of degree ``d <= N - 1``; its Hankel matrix has ``d + 1`` columns, and C channels
+    that share the recurrence (independent initial values) give ``C (L - 1 - d)`` rows, which must exceed
+    the columns (by one) for every ``d <= max_agents - 1``. One channel: ``L = 2 max_agents + 2`` (Yuan et
+    al.); the ``2 dim`` parts of the register (position and velocity of each axis): about 1.5 max_agents in
+    one dimension.
     """
-    return 2 * max_agents + 2
+    return max_agents + -(-(max_agents + 1) // channels) + 1
 
 
-def recurrence_limit(values: np.ndarray, max_degree: int, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+def recurrence_limit(
+    values: np.ndarray, max_degree: int, tolerance: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The limit of each recorded sequence from its shortest recurrence (Yuan et al. 2013).
 
     Args:
         values: ``(M, C, L)`` real: M agents' recorded sequences, C channels each that share one
             recurrence (the same iteration on different initial values), L values.
         max_degree: the largest degree ``d`` of ``p`` tried (``N - 1`` at most).
-        tolerance: a Hankel singular value below ``tolerance`` times the differences' norm is zero.
+        tolerance: a singular value below ``tolerance`` times the differences' norm is zero.
 
     Returns:
-        ``(limits (M, C), degrees (M,))``: ``Σ_m β_m w(k + m) / Σ_m β_m`` on the latest window, and the
-        degree ``d`` of the recurrence ``Σ_m β_m Δw(k + m) = 0`` found (the smallest-σ degree when no
-        Hankel passes the test).
+        ``(limits (M, C), degrees (M,), certified (M,))``: ``Σ_m β_m w(k + m) / Σ_m β_m`` on the latest
+        window; the degree ``d`` of the recurrence ``Σ_m β_m Δw(k + m) = 0`` found (the smallest-σ degree when
+        no Hankel passes the test); and whether the kernel is backed by more windows than unknowns counting
+        only the numerically independent channels (dependent channels, as when every velocity is equal, add
+        no information).
     """
     M, C, L = values.shape
     diffs = np.diff(values, axis=-1)  # (M, C, L - 1)
     scale = np.sqrt(np.sum(diffs**2, axis=(1, 2)))  # (M,)
+    safe_scale = np.where(scale > 0, scale, 1.0)
+    channel_sigma = np.linalg.svd(diffs, compute_uv=False)  # (M, min(C, L - 1))
+    independent = np.sum(channel_sigma > tolerance * safe_scale[:, None], axis=-1)
     degrees = np.full(M, -1, dtype=np.int64)
     kernels: list[np.ndarray | None] = [None] * M
     best = np.full(M, np.inf)
@@ -118,10 +128,8 @@ def recurrence_limit(values: np.ndarray, max_degree: int, tolerance: float) -> t
             break
         rows = L - 1 - d  # windows per channel
         window = np.lib.stride_tricks.sliding_window_view(diffs[todo], d + 1, axis=-1)  # (m, C, rows, d + 1)
-        hankel = window.reshape(len(todo), C * rows, d + 1)
-        _, sigma, vh = np.linalg.svd(hankel, full_matrices=False)
-        smallest = sigma[:, -1] if sigma.shape[1] == d + 1 else np.zeros(len(todo))
-        relative = smallest / np.where(scale[todo] > 0, scale[todo], 1.0)
+        _, sigma, vh = np.linalg.svd(window.reshape(len(todo), C * rows, d + 1), full_matrices=False)
+        relative = sigma[:, -1] / safe_scale[todo]
         for n, agent in enumerate(todo):
             if relative[n] <= tolerance:
                 degrees[agent] = d
@@ -129,6 +137,7 @@ def recurrence_limit(values: np.ndarray, max_degree: int, tolerance: float) -> t
             elif relative[n] < best[agent]:
                 best[agent] = relative[n]
                 fallback[agent] = (d, vh[n, -1])
+    certified = (degrees >= 0) & (np.maximum(independent, 1) * (L - 1 - np.maximum(degrees, 0)) >= degrees + 2)
     limits = np.empty((M, C))
     for agent in range(M):
         if degrees[agent] < 0:
@@ -137,7 +146,7 @@ def recurrence_limit(values: np.ndarray, max_degree: int, tolerance: float) -> t
         d = int(degrees[agent])
         latest = values[agent, :, L - 1 - d :]  # w(k + m), m = 0..d, on the latest window
         limits[agent] = latest @ beta / np.sum(beta)
-    return limits, degrees
+    return limits, degrees, certified
 
 
 class GraphAgnosticPolicy:
@@ -197,12 +206,15 @@ class GraphAgnosticPolicy:
         rank_tolerance = validation.real("rank_tolerance", rank_tolerance, positive=True)
         if rank_tolerance >= 1.0:
             raise ArgumentError(f"rank_tolerance: a relative tolerance in (0, 1), got {rank_tolerance!r}")
-        #: Values ``w_i(0..L-1)`` recorded; the steer starts at instant ``L - 2``, when the last is known.
-        self.listening = listening_values(max_agents)
-        if self.listening - 1 > config.n_intervals:
+        #: Values ``w_i(0..L-1)`` recorded with the ``2 dim`` register parts as channels; the steer starts at
+        #: instant ``L - 2``, when the last is known.
+        self.listening = listening_values(max_agents, 2 * config.dim)
+        #: The one-channel window ``2 max_agents + 2``: agents whose register parts turn out dependent listen on.
+        self.full_listening = listening_values(max_agents)
+        if self.full_listening - 1 > config.n_intervals:
             raise ArgumentError(
-                f"n_intervals: the graph-agnostic law listens {self.listening - 2} intervals and steers at least one "
-                f"(2 max_agents + 1 with max_agents = {max_agents}); got {config.n_intervals}"
+                f"n_intervals: the graph-agnostic law may listen {self.full_listening - 2} intervals (2 max_agents, "
+                f"max_agents = {max_agents}) and steers at least one; got {config.n_intervals}"
             )
         self.max_agents = max_agents
         self.amplitude = amplitude
@@ -237,7 +249,8 @@ class GraphAgnosticPolicy:
         dim, slots = self.config.dim, self.layout.slots
         self._memory = {
             "base": np.zeros((*lead, slots, 2, dim)),  # z_j(0) - z_i(0) per row slot
-            "history": np.zeros((*lead, self.listening, dim), dtype=complex),  # c_i(k) = w_i(k) - w_i(0)
+            "history": np.zeros((*lead, self.full_listening, dim), dtype=complex),  # c_i(k) = w_i(k) - w_i(0)
+            "late": np.zeros(lead, dtype=bool),  # listening on to the one-channel window
             "goal": np.zeros((*lead, dim), dtype=complex),  # w* - w_i(0), known at the steer
             "d": np.zeros((*lead, 2, dim)),  # own deviation from coasting
         }
@@ -249,9 +262,9 @@ class GraphAgnosticPolicy:
         assert memory is not None
         T_s, eps = self.config.settling_time, self.amplitude
         t, T = self._times[k], self._intervals[k]
-        d, history = memory["d"], memory["history"]
-        steer_at = self.listening - 2
-        if k <= steer_at:  # read every in-neighbour and take one step of the iteration
+        d, history, late = memory["d"], memory["history"], memory["late"]
+        steer_at, full_at = self.listening - 2, self.full_listening - 2
+        if k <= steer_at or (k <= full_at and late.any()):  # read every in-neighbour, one step of the iteration
             if k == 0:  # nobody has deviated yet: the rows give z_j(0) - z_i(0)
                 memory["base"] = initial_offset(rows, t)
             heard = register_of(read_deviation(rows, memory["base"], d[..., None, :, :], t), eps, T_s)
@@ -262,26 +275,38 @@ class GraphAgnosticPolicy:
             mean = np.sum(mask[..., None] * registers, axis=-2) / np.maximum(degree, 1.0)
             history[..., k + 1, :] = np.where(degree > 0, mean, history[..., k, :])
         if k == steer_at:
-            self._find_goal()
-        if k < steer_at:  # signal c_i(k + 1): set the deviation at t_{k+1} to ε (Re c, Im c / T_s)
-            plan = signal_plan(deviation_of(history[..., k + 1, :], eps, T_s), d, T)
-        else:  # steer: the piece over [t_k, t_k+1] of the minimum-energy input to w* - w_i(0) at T_s
-            plan = steer_plan(deviation_of(memory["goal"], 1.0, T_s), d, t, T, T_s)
+            certified = self._find_goal(self.listening, np.ones(late.shape, dtype=bool))
+            # Dependent register parts (every velocity equal, say) leave too few independent windows: those
+            # agents listen on to the one-channel window; every agent sees such initial states alike.
+            late[...] = ~certified & (full_at > steer_at)
+        elif k == full_at and late.any():
+            self._find_goal(self.full_listening, late)
+        steering = (k >= full_at) | ((k >= steer_at) & ~late)
+        # Signal c_i(k + 1) (set the deviation at t_{k+1} to ε (Re c, Im c / T_s)), or steer: the piece over
+        # [t_k, t_k+1] of the minimum-energy input to w* - w_i(0) at T_s.
+        plan = steer_plan(deviation_of(memory["goal"], 1.0, T_s), d, t, T, T_s)
+        if not steering.all():
+            signal = signal_plan(deviation_of(history[..., k + 1, :], eps, T_s), d, T)
+            plan = np.where(steering[..., None, None], plan, signal)
         memory["d"] = advance(d, plan, T)
         return plan
 
-    def _find_goal(self) -> None:
-        """Every agent's limit from its own recorded history (its shortest recurrence)."""
+    def _find_goal(self, length: int, agents: np.ndarray) -> np.ndarray:
+        """The limit of the chosen agents' ``(..., N)`` first ``length`` recorded values (their shortest
+        recurrence) into their goal; returns whether each agent's recurrence is certified ``(..., N)``."""
         memory = self._memory
         assert memory is not None
-        history = memory["history"]  # (..., N, L, dim)
-        lead, L, dim = history.shape[:-2], history.shape[-2], history.shape[-1]
-        channels = np.concatenate([history.real, history.imag], axis=-1)  # (..., N, L, 2 dim)
-        values = np.moveaxis(channels, -1, -2).reshape(-1, 2 * dim, L)
-        limits, degrees = recurrence_limit(values, self.max_agents - 1, self.rank_tolerance)
-        limits = limits.reshape(*lead, 2 * dim)
-        memory["goal"] = limits[..., :dim] + 1j * limits[..., dim:]
-        self.degrees = degrees.reshape(lead)
+        history = memory["history"][..., :length, :][agents]  # (M, L, dim)
+        dim = history.shape[-1]
+        values = np.moveaxis(np.concatenate([history.real, history.imag], axis=-1), -1, -2)  # (M, 2 dim, L)
+        limits, degrees, certified = recurrence_limit(values, self.max_agents - 1, self.rank_tolerance)
+        memory["goal"][agents] = limits[:, :dim] + 1j * limits[:, dim:]
+        if self.degrees is None:
+            self.degrees = np.full(agents.shape, -1, dtype=np.int64)
+        self.degrees[agents] = degrees
+        result = np.ones(agents.shape, dtype=bool)
+        result[agents] = certified
+        return result
 
     # ----------------------------------------------------------------------------- describing
     def parameters(self) -> dict[str, float]:
@@ -289,6 +314,7 @@ class GraphAgnosticPolicy:
         return {
             "max_agents": float(self.max_agents),
             "listening_values": float(self.listening),
+            "full_listening_values": float(self.full_listening),
             "steer_start_s": float(self._times[self.listening - 2]),
             "amplitude": self.amplitude,
             "rank_tolerance": self.rank_tolerance,
@@ -303,8 +329,8 @@ class GraphAgnosticPolicy:
         bound = (self.config.settling_time / (self.config.settling_time - t_l)) ** 3
         return (
             f"graph unknown: exact (rounding / ε aside) for N <= max_agents = {self.max_agents} after listening "
-            f"{self.listening - 2} intervals (t_L = {t_l:.3g} s), then one minimum-energy steer "
-            f"(about E* x {bound:.3g} where ξ is uniform)"
+            f"{self.listening - 2} intervals (t_L = {t_l:.3g} s; {self.full_listening - 2} when the register parts are "
+            f"dependent), then one minimum-energy steer (about E* x {bound:.3g} where ξ is uniform)"
         )
 
 

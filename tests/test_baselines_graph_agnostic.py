@@ -39,23 +39,45 @@ def test_it_reaches_exact_consensus_without_the_graph_on_a_small_ring_and_a_rand
     policy, _, metrics = episodes({"max_agents": factor * graph["n_agents"]}, n_intervals=60, **graph)
     assert np.max(metrics["relative_deadline_error"]) <= 1e-8
     assert np.all(metrics["energy_ratio"] >= 1.0)  # E* bounds every exact consensus
-    assert policy.listening == 2 * factor * graph["n_agents"] + 2
+    # The window: about 1.5 max_agents values with both register parts as channels (2 max_agents + 2 with one).
+    assert policy.listening == listening_values(factor * graph["n_agents"], 2) < policy.full_listening
+    assert policy.full_listening == 2 * factor * graph["n_agents"] + 2
     # The rank test found the degree of the minimal polynomial seen from each agent, at most N - 1.
     assert np.all(policy.degrees <= graph["n_agents"] - 1)
 
 
-def test_on_a_ring_it_steers_once_to_the_mean_prediction_after_listening_2n_intervals():
+def test_on_a_ring_it_steers_once_to_the_mean_prediction_after_its_window():
     policy, engine, metrics = episodes(topology="ring", n_agents=6, dim=2, n_intervals=60)
     x0, v0 = engine.z0[:, :, 0], engine.z0[:, :, 1]  # (B, N, dim)
     mean_prediction = (x0 + 20.0 * v0).mean(axis=1)
     assert np.max(np.abs(engine.x - mean_prediction[:, None, :])) <= 1e-8
     t_l = policy.parameters()["steer_start_s"]
-    assert t_l == pytest.approx(2 * 6 * 20.0 / 60)  # instant 2 max_agents
+    assert policy.listening == 6 + 2 + 1  # four channels (two axes, position and velocity): 6 + ceil(7 / 4) + 1
+    assert t_l == pytest.approx((policy.listening - 2) * 20.0 / 60)
     steer = energy_bound(x0 + t_l * v0, v0, 20.0 - t_l)  # the least energy of one steer from t_L
     assert np.all(metrics["energy"] >= steer)
     np.testing.assert_allclose(metrics["energy"], steer, rtol=1e-2)  # plus the signalling, ~ε²
     # A directed ring of N: every agent's recurrence is λ^N - 1, so p has degree N - 1.
     assert np.all(policy.degrees == 5)
+
+
+@pytest.mark.parametrize("velocity", ["zero", "affine"])
+def test_when_the_register_parts_are_dependent_every_agent_listens_on_to_the_one_channel_window(velocity):
+    # Every velocity equal (or an affine function of the position): the velocity part of the register adds no
+    # information, every agent sees it alike and listens 2 max_agents intervals before it steers: still exact.
+    config = make_config(**SETTINGS, topology="ring", n_agents=8, n_intervals=60)
+    policy = GraphAgnosticPolicy(config)
+    engine = ConsensusEngine(config, n_episodes=3)
+    x0 = np.random.default_rng(0).normal(size=(3, 8, 1))
+    v0 = np.full_like(x0, 0.3) if velocity == "zero" else 0.5 * x0 - 1.0
+    engine.reset(x0, v0)
+    while not engine.done:
+        engine.step(np.asarray(policy(engine.observations()), dtype=np.float64))
+    metrics = engine.batch_metrics()
+    assert np.max(metrics["relative_deadline_error"]) <= 1e-8
+    t_full = (policy.full_listening - 2) * 20.0 / 60
+    steer = energy_bound(x0 + t_full * v0, v0, 20.0 - t_full)
+    assert np.all(metrics["energy"] >= steer)  # nobody steered before the one-channel window
 
 
 def recorded_observations(config, seed=0):
@@ -120,8 +142,8 @@ def test_it_refuses_by_name_what_it_cannot_honour(kwargs, policy_kwargs, name):
     settings = {k: v for k, v in settings.items() if v is not None}
     with pytest.raises(ArgumentError, match=rf"^{name}:"):
         GraphAgnosticPolicy(make_config(**settings), **policy_kwargs)
-    assert GraphAgnosticPolicy(make_config(**SETTINGS, topology="ring", n_agents=6, n_intervals=13)).listening == 14
-    assert listening_values(6) == 14
+    fitting = GraphAgnosticPolicy(make_config(**SETTINGS, topology="ring", n_agents=6, n_intervals=13))
+    assert fitting.full_listening == listening_values(6) == 14
 
 
 def test_its_memory_needs_every_agent_at_once_from_the_first_instant():
