@@ -13,25 +13,36 @@ Automatica 49(5), 2013, carried by the motions of :mod:`fxc_env.baselines.signal
    an agent with no in-neighbour keeps its value). ``w_i(k + 1)`` is known at instant k.
 2. **Its own recurrence.** Agent i's sequence ``w_i(0), w_i(1), …`` obeys the minimal polynomial of
    ``W`` seen from i, ``q(λ) = (λ - 1) p(λ)``, degree ``≤ N`` (1 is a simple eigenvalue of ``W`` under a
-   directed spanning tree), so the differences ``Δw_i(k)`` obey ``p``. From ``L = 2 max_agents + 2``
-   values the agent finds the shortest such recurrence: the smallest degree whose Hankel matrix of its
-   own differences (every axis, both parts of the register, stacked) has a singular value below
-   ``rank_tolerance`` times their norm; ``β`` spans its kernel. Then ``Σ_m β_m w_i(k + m) = p(1) w*`` for
-   every k: the common limit ``w* = ξᵀ w(0)`` (``ξ`` the left null vector of ``I - W``) is read off the
-   latest window, where modes the test may have missed have decayed most.
+   directed spanning tree), so the differences ``Δw_i(k)`` obey ``p``; so do the ``2 dim`` real parts of
+   the register (position and velocity part of every axis: the same iteration on other initial values).
+   The agent finds the shortest recurrence shared by its channels: the smallest degree whose block Hankel
+   matrix of its own differences has a singular value below ``rank_tolerance`` times their norm; ``β``
+   spans its kernel. Then ``Σ_m β_m w_i(k + m) = p(1) w*`` for every k: the common limit
+   ``w* = ξᵀ w(0)`` (``ξ`` the left null vector of ``I - W``) is read off the latest window, where modes
+   the test may have missed have decayed most. With ``C = 2 dim`` independent channels
+   ``L = max_agents + ceil((max_agents + 1) / C) + 1`` values suffice (:func:`listening_values`; one
+   channel: Yuan et al.'s ``2 max_agents + 2``). When an agent's channels are dependent (every velocity
+   equal, or an affine function of the position: every agent with a nonconstant sequence sees it alike)
+   and its kernel is not backed by enough independent windows, it listens on to ``2 max_agents + 2``.
 3. **Steering once.** At instant ``L - 2`` (``t_L``) agent i knows ``w* - w_i(0)``, the consensus
    point less its own prediction; over ``[t_L, T_s]`` it plays the minimum-energy input to it
-   (the signalling law's step 4). Energy ``≈ E* (T_s / (T_s - t_L))³`` when ``ξ`` is uniform (a directed
-   ring), more when it is not (the target ``ξᵀ p`` is then not the mean of the predictions that ``E*``
-   steers to).
+   (the signalling law's step 4). Energy: the least energy of one steer from ``t_L`` when ``ξ`` is
+   uniform (a directed ring), more when it is not (the target ``ξᵀ p`` is then not the mean of the
+   predictions that ``E*`` steers to).
+
+``W = D^{-1} A`` rather than the lazy ``(D + I)^{-1} (A + I)``: both work (the recurrence is exact,
+periodicity does not matter), and on a ring ``D^{-1} A`` is a shift whose modes never decay, the
+best-conditioned case for the rank test.
 
 The agent reads only its own observation rows (its in-neighbours' relative states, their mask, the
 clock) and its memory: it is never given the graph, its spectrum or N. Its one prior is
-``max_agents``, an upper bound on N that sets the listening window; a directed ring of N at
-``max_agents = N`` listens ``2 N`` intervals (4.0 s of 20 at K = 200, uniform).
+``max_agents``, an upper bound on N that sets the listening window; at ``max_agents = N = 20`` it
+listens 30 intervals (3.0 s of 20 at K = 200, uniform).
 
 Measured (K = 200, T_s = 20 s, uniform schedule, 20 seeds, medians of the relative deadline error and
-of energy / E*; ``python -m fxc_env.baselines.graph_agnostic``): see README, "Exact consensus without
+of energy / E*, :func:`goal_table`): directed ring N = 20 2.9e-10 at 1.91, N = 30 4.5e-10 at 2.73;
+random strongly connected N = 20 2.3e-9 at 1.94, N = 40 4.3e-10 at 4.02; at ``max_agents = 2N`` the
+window doubles and the energy grows (ring N = 20: 8.6e-10 at 4.03). README, "Exact consensus without
 knowing the graph".
 
 - Source: Yuan et al. 2013 (the recurrence and the final-value formula), carried by this project's
@@ -43,7 +54,7 @@ knowing the graph".
 - It refuses what it cannot honour, by name: switching topologies (no fixed recurrence), topology
   families, ``u_max``, ``obs_noise``, ``link_dropout``, agent models other than the double
   integrator, ``obs_mode='normalized'``, ``max_agents`` below the environment's N, and K shorter than
-  the listening window.
+  ``2 max_agents + 1`` (the window when the register parts are dependent, and one interval to steer).
 """
 
 from __future__ import annotations
@@ -158,9 +169,9 @@ class GraphAgnosticPolicy:
 
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with ideal
-            double-integrator agents, ``obs_mode="raw"``, and K at least the listening window.
+            double-integrator agents, ``obs_mode="raw"``, and ``K >= 2 max_agents + 1``.
         max_agents: an upper bound on N, the law's one prior (None: the environment's N). It sets the
-            listening window, ``2 max_agents + 2`` recorded values (:func:`listening_values`).
+            listening window (:func:`listening_values`; ``2 max_agents + 2`` values where the register parts are dependent).
         amplitude: the signalling amplitude ε (dimensionless, > 0; None: :data:`DEFAULT_AMPLITUDE`).
         rank_tolerance: the rank test's relative tolerance (in (0, 1); None: :data:`DEFAULT_RANK_TOLERANCE`).
 
@@ -173,7 +184,8 @@ class GraphAgnosticPolicy:
     NAME: ClassVar[str] = "graph_agnostic"
     LAW: ClassVar[str] = (
         "virtual iteration w <- D⁻¹A w on registers w_i = p_i, carried at amplitude ε by motions read from own rows; "
-        "each agent's shortest recurrence of its own differences (Hankel rank test over 2 max_agents + 2 values) "
+        "each agent's shortest recurrence of its own differences (block Hankel rank test over its register parts, "
+        "about 1.5 max_agents values) "
         "gives the limit; then one minimum-energy steer to it"
     )
     SOURCE: ClassVar[str] = (
