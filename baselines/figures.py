@@ -39,10 +39,13 @@ COLOURS = (
     "#bcbd22",
     "#7f7f7f",
     "#000000",
+    "#aec7e8",
+    "#8c6d31",
 )
 #: One marker per policy where points of several policies may coincide (the optimality figure).
-#: Eleven markers and eleven colours: the first eleven contenders differ in both, later ones repeat.
-MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">", "h")
+#: Thirteen markers and thirteen colours (the optimality suite's 13 contenders): the first thirteen contenders
+#: differ in both, later ones repeat.
+MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">", "h", "p", "d")
 
 
 def _colour(contenders: list[Contender], name: str) -> str:
