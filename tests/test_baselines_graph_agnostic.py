@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fxc_env.baselines import GraphAgnosticPolicy
-from fxc_env.baselines.graph_agnostic import listening_values, strongly_connected_random
+from fxc_env.baselines.graph_agnostic import listening_values, recurrence_limit, strongly_connected_random
 from fxc_env.baselines.jobs import Job, run_job
 from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, load_policy, optimality_contenders
 from fxc_env.config import make_config
@@ -78,6 +78,28 @@ def test_when_the_register_parts_are_dependent_every_agent_listens_on_to_the_one
     t_full = (policy.full_listening - 2) * 20.0 / 60
     steer = energy_bound(x0 + t_full * v0, v0, 20.0 - t_full)
     assert np.all(metrics["energy"] >= steer)  # nobody steered before the one-channel window
+
+
+def test_each_agent_reads_the_limit_of_the_iteration_off_its_own_shortest_recurrence():
+    # Yuan et al. 2013 on the bare iteration w <- D^-1 A w of a random strongly connected digraph: every agent's
+    # own values (two channels, 1.5 N + 1 of them) give xi^T w(0), xi the left Perron vector, and the degree of
+    # the minimal polynomial it sees (at most N - 1 for the differences).
+    config = make_config(**SETTINGS, **RANDOM_8)
+    adjacency = config.topology.adjacency(0).toarray()
+    W = adjacency / adjacency.sum(axis=1, keepdims=True)
+    values, vectors = np.linalg.eig(W.T)
+    xi = np.real(vectors[:, np.argmin(np.abs(values - 1.0))])
+    xi /= xi.sum()
+    w = np.random.default_rng(0).normal(size=(8, 2))  # two channels
+    L = listening_values(8, 2)
+    sequence = [w]
+    for _ in range(L - 1):
+        sequence.append(W @ sequence[-1])
+    recorded = np.stack(sequence, axis=-1)  # (N agents, 2 channels, L values)
+    limits, degrees, certified = recurrence_limit(recorded, 7, 1e-10)
+    np.testing.assert_allclose(limits, np.broadcast_to(xi @ w, (8, 2)), atol=1e-10)
+    assert np.all(degrees <= 7) and np.all(certified)
+    assert not np.allclose(xi, 1 / 8)  # a weighted limit, not the mean
 
 
 def recorded_observations(config, seed=0):
