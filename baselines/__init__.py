@@ -22,7 +22,10 @@ source paper, the graph class it is proven for, and its parameters:
   (time-respecting) shortest-path tree; exact after exactly the radius, the bound for every law;
 - :class:`SignallingPolicy` (:mod:`fxc_env.baselines.signalling`): this project's law on the
   energy-accuracy frontier: agents agree on the mean of the free-motion predictions by signalling
-  numbers through small motions, then steer once with the minimum-energy input (a few × ``E*``).
+  numbers through small motions, then steer once with the minimum-energy input (a few × ``E*``);
+- :class:`GraphAgnosticPolicy` (:mod:`fxc_env.baselines.graph_agnostic`): the same motions carry a
+  virtual consensus iteration whose limit each agent reads off its own shortest recurrence (Yuan et
+  al. 2013): exact without knowing the graph, given an upper bound ``max_agents`` on N.
 
 :mod:`fxc_env.core.optimality` gives the bounds every law is measured against: the least energy
 ``E*`` of an exact consensus at ``T_s`` and the fewest intervals (the radius, for every law; the
@@ -40,6 +43,7 @@ policies (:func:`load_policy`) on one suite (:mod:`fxc_env.baselines.suite`).
 from __future__ import annotations
 
 from fxc_env.baselines.finite_time import FiniteTimePolicy
+from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
 from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
 from fxc_env.baselines.minimum_time import MinimumTimePolicy
@@ -51,6 +55,7 @@ from fxc_env.baselines.suite import load_policy
 
 __all__ = [
     "FiniteTimePolicy",
+    "GraphAgnosticPolicy",
     "LeaderFollowerPolicy",
     "LinearConsensusPolicy",
     "MinimumTimePolicy",

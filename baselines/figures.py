@@ -40,11 +40,13 @@ COLOURS = (
     "#7f7f7f",
     "#000000",
     "#393b79",
+    "#aec7e8",
+    "#8c6d31",
 )
 #: One marker per policy where points of several policies may coincide (the optimality figure).
-#: Twelve markers and twelve colours (the optimality suite's twelve laws, leader_follower the twelfth):
-#: the first twelve contenders differ in both, later ones repeat.
-MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">", "h", "d")
+#: Fourteen markers and fourteen colours (the optimality suite's 14 contenders): the first fourteen
+#: contenders differ in both, later ones repeat.
+MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">", "h", "p", "d", "8")
 
 
 def _colour(contenders: list[Contender], name: str) -> str:

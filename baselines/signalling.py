@@ -111,7 +111,22 @@ from fxc_env.core.graphs import Topology
 from fxc_env.core.optimality import root_set
 from fxc_env.core.validation import ArgumentError
 
-__all__ = ["SignallingPolicy", "averaging_weights", "leja_order", "register_eigenvalues"]
+__all__ = [
+    "SignallingPolicy",
+    "advance",
+    "averaging_weights",
+    "current_instant",
+    "deviation_of",
+    "initial_offset",
+    "leja_order",
+    "plan_action",
+    "predicted_register",
+    "read_deviation",
+    "register_eigenvalues",
+    "register_of",
+    "signal_plan",
+    "steer_plan",
+]
 
 #: Default signalling amplitude ε: a deviation of 1e-6 of the register, read about 1e10 above the
 #: float64 rounding of a row (1e-16 relative), at an energy about 1e-12 of the state scale squared.
@@ -119,6 +134,102 @@ DEFAULT_AMPLITUDE = 1e-6
 
 #: The amplitudes the law accepts, ``(smallest, largest)``: outside, it loses accuracy for nothing (module docstring).
 AMPLITUDE_RANGE = (1e-12, 1.0)
+
+
+# ----------------------------------------------------------------------------- numbers carried by motion
+# The machinery every law that signals through small motions shares (this law and
+# :mod:`fxc_env.baselines.graph_agnostic`). Arrays end in ``(2, dim)``: position and velocity parts.
+
+
+def initial_offset(row: np.ndarray, t: float) -> np.ndarray:
+    """``z_j(0) - z_i(0)`` ``(..., 2, dim)`` from a row measured at ``t`` before anyone deviated from coasting."""
+    return np.stack([row[..., 0, :] - t * row[..., 1, :], row[..., 1, :]], axis=-2)
+
+
+def read_deviation(row: np.ndarray, base: np.ndarray, own: np.ndarray, t: float) -> np.ndarray:
+    """The neighbour's deviation from coasting ``d_j(t)`` ``(..., 2, dim)``: its row at ``t`` less the coasted
+    initial offset ``Φ(t) base``, plus the reader's own deviation ``own`` (which the row subtracts)."""
+    dev_x = row[..., 0, :] - (base[..., 0, :] + t * base[..., 1, :]) + own[..., 0, :]
+    dev_v = row[..., 1, :] - base[..., 1, :] + own[..., 1, :]
+    return np.stack([dev_x, dev_v], axis=-2)
+
+
+def register_of(deviation: np.ndarray, amplitude: float, settling_time: float) -> np.ndarray:
+    """The complex register ``(..., dim)`` a deviation ``ε (Re c, Im c / T_s)`` carries."""
+    return deviation[..., 0, :] / amplitude + 1j * (settling_time * deviation[..., 1, :] / amplitude)
+
+
+def deviation_of(register: np.ndarray, amplitude: float, settling_time: float) -> np.ndarray:
+    """The deviation ``ε (Re c, Im c / T_s)`` ``(..., 2, dim)`` that carries a complex register (inverse of
+    :func:`register_of`; with ``ε = 1`` the deviation at ``T_s`` that moves ``p_i`` by ``c``)."""
+    return np.stack([amplitude * register.real, amplitude * register.imag / settling_time], axis=-2)
+
+
+def predicted_register(base: np.ndarray, settling_time: float) -> np.ndarray:
+    """``q_j(0) - q_i(0)`` ``(..., dim)`` from ``z_j(0) - z_i(0)``: the free-motion prediction's difference
+    ``(x + T_s v, v)`` as a register ``p_x + i T_s p_v``."""
+    velocity = settling_time * base[..., 1, :]
+    return base[..., 0, :] + velocity + 1j * velocity
+
+
+def signal_plan(target: np.ndarray, d: np.ndarray, interval: float) -> np.ndarray:
+    """The plan ``(a_x, a_v)`` ``(..., 2, dim)`` that sets the deviation at the interval's end to ``target``."""
+    return np.stack([target[..., 0, :] - d[..., 0, :] - interval * d[..., 1, :], target[..., 1, :] - d[..., 1, :]], -2)
+
+
+def steer_plan(goal: np.ndarray, d: np.ndarray, t: float, interval: float, settling_time: float) -> np.ndarray:
+    """The piece over ``[t, t + T]`` of the minimum-energy input (paper Remark 1) from deviation ``d`` at ``t``
+    to deviation ``goal`` at ``T_s``, as a plan ``(..., 2, dim)``: the input ``λ_1 (H - s) + λ_2``,
+    ``λ = G(H)^{-1} Δ``, ``H = T_s - t``, is affine on the interval, so the environment realises it exactly."""
+    H, T = settling_time - t, interval
+    need_x = goal[..., 0, :] - d[..., 0, :] - H * d[..., 1, :]
+    need_v = goal[..., 1, :] - d[..., 1, :]
+    lam1 = 12.0 * need_x / H**3 - 6.0 * need_v / H**2
+    lam2 = -6.0 * need_x / H**2 + 4.0 * need_v / H
+    a_x = lam1 * (H * T**2 / 2.0 - T**3 / 6.0) + lam2 * T**2 / 2.0
+    a_v = lam1 * (H * T - T**2 / 2.0) + lam2 * T
+    return np.stack([a_x, a_v], axis=-2)
+
+
+def advance(d: np.ndarray, plan: np.ndarray, interval: float) -> np.ndarray:
+    """The deviation at the interval's end: coasted ``P_k d`` plus the plan."""
+    return np.stack([d[..., 0, :] + interval * d[..., 1, :] + plan[..., 0, :], d[..., 1, :] + plan[..., 1, :]], -2)
+
+
+def current_instant(
+    obs: np.ndarray, config: Any, law: str, next_instant: int, memory: tuple[int, ...] | None
+) -> tuple[int, np.ndarray]:
+    """The instant k of every agent's observation ``(..., N, obs_size)`` and its rows, checked against the memory.
+
+    A law with memory is called with every agent's observation at once, one instant after the other from
+    ``k = 0`` (which starts a new episode); ``memory`` is the lead shape ``(..., N)`` its memory holds (None:
+    none yet). Raises ArgumentError naming ``observation`` otherwise.
+    """
+    layout = config.layout
+    if obs.ndim < 2 or obs.shape[-2] != config.n_agents:
+        raise ArgumentError(
+            f"observation: {law} has memory and needs every agent's observation at once, "
+            f"shape (..., {config.n_agents}, {layout.size}); got {obs.shape}"
+        )
+    rows, _, clock = layout.split(obs)
+    ks = np.rint(clock[..., 2] * config.n_intervals).astype(np.int64)
+    k = int(ks.reshape(-1)[0])
+    if np.any(ks != k):
+        raise ArgumentError("observation: every agent and episode of one call must be at the same instant")
+    if k != 0 and (memory is None or k != next_instant or memory != obs.shape[:-1]):
+        raise ArgumentError(
+            f"observation: instant k = {k}, but the law's memory expects k = {next_instant} of the "
+            "same batch (call it from k = 0, one instant after the other)"
+        )
+    return k, rows
+
+
+def plan_action(plan: np.ndarray, config: Any, interval: float) -> np.ndarray:
+    """The action ``(..., 2 dim)`` of a plan ``(..., 2, dim)``: the plan itself, or its end inputs in ``accel`` mode."""
+    plan_x, plan_v = plan[..., 0, :], plan[..., 1, :]
+    if config.action_mode == "plan":
+        return np.concatenate([plan_x, plan_v], axis=-1)
+    return np.concatenate(input_from_plan(plan_x, plan_v, interval), axis=-1)
 
 
 def averaging_weights(topology: Topology) -> np.ndarray:
@@ -278,31 +389,14 @@ class SignallingPolicy:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""
-        c = self.config
         obs = np.asarray(obs, dtype=np.float64)
-        if obs.ndim < 2 or obs.shape[-2] != c.n_agents:
-            raise ArgumentError(
-                f"observation: the signalling law has memory and needs every agent's observation at once, "
-                f"shape (..., {c.n_agents}, {self.layout.size}); got {obs.shape}"
-            )
-        rows, _, clock = self.layout.split(obs)
-        ks = np.rint(clock[..., 2] * c.n_intervals).astype(np.int64)
-        k = int(ks.reshape(-1)[0])
-        if np.any(ks != k):
-            raise ArgumentError("observation: every agent and episode of one call must be at the same instant")
+        memory = None if self._memory is None else self._memory["c"].shape[:-1]
+        k, rows = current_instant(obs, self.config, "the signalling law", self._next_instant, memory)
         if k == 0:
             self._reset(obs.shape[:-1])
-        elif self._memory is None or k != self._next_instant or self._memory["c"].shape[:-1] != obs.shape[:-1]:
-            raise ArgumentError(
-                f"observation: instant k = {k}, but the law's memory expects k = {self._next_instant} of the "
-                "same batch (call it from k = 0, one instant after the other)"
-            )
         plan = self._plan(k, rows)
         self._next_instant = k + 1
-        plan_x, plan_v = plan[..., 0, :], plan[..., 1, :]
-        if c.action_mode == "plan":
-            return np.concatenate([plan_x, plan_v], axis=-1)
-        return np.concatenate(input_from_plan(plan_x, plan_v, self._intervals[k]), axis=-1)
+        return plan_action(plan, self.config, self._intervals[k])
 
     def _reset(self, lead: tuple[int, ...]) -> None:
         dim = self.config.dim
@@ -331,7 +425,7 @@ class SignallingPolicy:
                 heard, mine = memory["heard"], (memory["c"] if update < n_first else memory["second"])
                 if update < n_first:  # stage 1: differences of the unknown q_i(0) plus changes
                     base = memory["base"]
-                    initial = (base[..., 0, :] + T_s * base[..., 1, :]) + 1j * T_s * base[..., 1, :]
+                    initial = predicted_register(base, T_s)
                     differences = initial + heard - mine[..., None, :]
                 else:  # stage 2: registers of known values
                     differences = heard - mine[..., None, :]
@@ -348,19 +442,10 @@ class SignallingPolicy:
         if k >= last_update and self.two_stages:
             register = memory["c"] + memory["second"]  # o_i + xi^T gamma: the roots' mean minus q_i(0)
         if k < last_update:  # signal: set the deviation at t_{k+1} to ε (Re c, Im c / T_s)
-            target = np.stack([eps * register.real, eps * register.imag / T_s], axis=-2)
-            plan = np.stack([target[..., 0, :] - d[..., 0, :] - T * d[..., 1, :], target[..., 1, :] - d[..., 1, :]], -2)
+            plan = signal_plan(deviation_of(register, eps, T_s), d, T)
         else:  # steer: the piece over [t_k, t_k+1] of the minimum-energy input to the agreed point at T_s
-            H = T_s - t
-            goal = np.stack([register.real, register.imag / T_s], axis=-2)  # p̄ - p_i, the deviation wanted at T_s
-            need_x = goal[..., 0, :] - d[..., 0, :] - H * d[..., 1, :]
-            need_v = goal[..., 1, :] - d[..., 1, :]
-            lam1 = 12.0 * need_x / H**3 - 6.0 * need_v / H**2
-            lam2 = -6.0 * need_x / H**2 + 4.0 * need_v / H
-            a_x = lam1 * (H * T**2 / 2.0 - T**3 / 6.0) + lam2 * T**2 / 2.0
-            a_v = lam1 * (H * T - T**2 / 2.0) + lam2 * T
-            plan = np.stack([a_x, a_v], axis=-2)
-        memory["d"] = np.stack([d[..., 0, :] + T * d[..., 1, :] + plan[..., 0, :], d[..., 1, :] + plan[..., 1, :]], -2)
+            plan = steer_plan(deviation_of(register, 1.0, T_s), d, t, T, T_s)  # p̄ - p_i, wanted at T_s
+        memory["d"] = advance(d, plan, T)
         return plan
 
     def _read(self, k: int, rows: np.ndarray) -> None:
@@ -378,14 +463,10 @@ class SignallingPolicy:
             where = slot_map[agents, s]
             row = rows[..., agents, s, :, :]  # (..., A, 2, dim)
             if k < m:  # first period: nobody has deviated yet; the row is Φ(t_k) (z_j(0) - z_i(0))
-                first_v = row[..., 1, :]
-                base[..., agents, where, :, :] = np.stack([row[..., 0, :] - t * first_v, first_v], axis=-2)
+                base[..., agents, where, :, :] = initial_offset(row, t)
                 continue
-            b = base[..., agents, where, :, :]
-            own = d[..., agents, :, :]
-            dev_x = row[..., 0, :] - (b[..., 0, :] + t * b[..., 1, :]) + own[..., 0, :]
-            dev_v = row[..., 1, :] - b[..., 1, :] + own[..., 1, :]
-            memory["heard"][..., agents, where, :] = dev_x / eps + 1j * (T_s * dev_v / eps)
+            deviation = read_deviation(row, base[..., agents, where, :, :], d[..., agents, :, :], t)
+            memory["heard"][..., agents, where, :] = register_of(deviation, eps, T_s)
 
     # ----------------------------------------------------------------------------- describing
     def parameters(self) -> dict[str, float]:

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.baselines.finite_time import FiniteTimePolicy
+from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
 from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
 from fxc_env.baselines.linear import LinearConsensusPolicy
 from fxc_env.baselines.minimum_time import MinimumTimePolicy
@@ -51,6 +52,7 @@ BASELINES = {
         MinimumTimePolicy,
         LeaderFollowerPolicy,
         SignallingPolicy,
+        GraphAgnosticPolicy,
     )
 }
 
@@ -65,6 +67,7 @@ BUILTIN_SETTINGS = {
     "minimum_time": (True, "uniform", "plan", "normalized"),
     "leader_follower": (True, "uniform", "plan", "normalized"),
     "signalling": (True, "uniform", "plan", "raw"),
+    "graph_agnostic": (True, "uniform", "plan", "raw"),
 }
 
 
@@ -414,7 +417,7 @@ def quick_optimality_suite(n_seeds: int = 5, fine_intervals: int = 1000) -> Suit
 
 
 def optimality_contenders() -> list[Contender]:
-    """The reference, the minimum-time and signalling laws on both schedules, and the other analytic laws with their settings."""
+    """The reference, the minimum-time, signalling and graph-agnostic laws on both schedules, and the other analytic laws with their settings."""
     both = [
         Contender("reference", "reference", True, "paper", "plan", "normalized"),
         Contender("reference/uniform", "reference", True, "uniform", "plan", "normalized"),
@@ -422,8 +425,12 @@ def optimality_contenders() -> list[Contender]:
         Contender("minimum_time/paper", "minimum_time", True, "paper", "plan", "normalized"),
         Contender("signalling", "signalling", True, "uniform", "plan", "raw"),
         Contender("signalling/paper", "signalling", True, "paper", "plan", "raw"),
+        Contender("graph_agnostic", "graph_agnostic", True, "uniform", "plan", "raw"),
+        Contender("graph_agnostic/paper", "graph_agnostic", True, "paper", "plan", "raw"),
     ]
-    others = [name for name in BUILTIN_SETTINGS if name not in ("reference", "minimum_time", "signalling")]
+    others = [
+        name for name in BUILTIN_SETTINGS if name not in ("reference", "minimum_time", "signalling", "graph_agnostic")
+    ]
     return both + builtin_contenders(others)
 
 

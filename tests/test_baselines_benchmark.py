@@ -44,13 +44,16 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     # Every policy ran every quick case with the settings and notes the README's benchmark table lists.
     suite = quick_suite()
     assert len(rows) == len(make_jobs(suite, builtin_contenders()))
-    assert all(r["error"] == "" for r in rows if r["policy"] not in ("minimum_time", "signalling"))
+    assert all(r["error"] == "" for r in rows if r["policy"] not in ("minimum_time", "signalling", "graph_agnostic"))
     # The minimum-time law is designed for one fixed graph: it refuses the switching cases, by name.
     refused = {r["case"] for r in rows if r["error"] and r["policy"] == "minimum_time"}
     assert refused == {"paper_fig1 N=6", "random (switching) N=6", "random (switching) N=20"}
     assert all(r["error"].startswith("topology:") for r in rows if r["error"] and r["policy"] == "minimum_time")
     # The signalling law needs its agreement's intervals: it refuses too small a K, by name.
     assert all(r["error"].startswith("n_intervals:") for r in rows if r["error"] and r["policy"] == "signalling")
+    # The graph-agnostic law needs one fixed graph and its listening window: refusals by name.
+    agnostic = [r["error"] for r in rows if r["error"] and r["policy"] == "graph_agnostic"]
+    assert all(e.startswith(("n_intervals:", "topology:")) for e in agnostic)
     names = ("linear_sampled", "linear", "finite_time", "prescribed_time", "saturation_aware", "minimum_time")
     for name in (*names, "leader_follower"):
         assert f"- **{name}** — settings:" in printed

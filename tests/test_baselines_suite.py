@@ -51,6 +51,7 @@ def test_contender_settings_reach_the_environment():
         "minimum_time",
         "leader_follower",
         "signalling",
+        "graph_agnostic",
     }  # the budget sweep
 
 

@@ -1,0 +1,442 @@
+"""Exact consensus without knowing the graph: a virtual iteration carried by motion, a recurrence, one steer.
+
+Law (after Yuan, Stan, Shi, Barahona & Gonçalves, "Decentralised minimum-time consensus",
+Automatica 49(5), 2013, carried by the motions of :mod:`fxc_env.baselines.signalling`; README,
+"Exact consensus without knowing the graph"):
+
+1. **A virtual iteration carried by motion.** Per axis, agent i holds the complex register
+   ``w_i = p_{i,x} + i T_s p_{i,v}`` (m) of its free-motion prediction ``p_i = (x_i + T_s v_i, v_i)``,
+   whose start it does not know absolutely; it tracks the change ``c_i(k) = w_i(k) - w_i(0)`` and
+   signals it as a deviation from coasting ``ε (Re c, Im c / T_s)``, which its in-neighbours read
+   exactly from their relative rows (the signalling law's step 1). Every agent runs
+   ``w <- W w``, ``W = D^{-1} A``: the mean of its in-neighbours' registers (its own weights only;
+   an agent with no in-neighbour keeps its value). ``w_i(k + 1)`` is known at instant k.
+2. **Its own recurrence.** Agent i's sequence ``w_i(0), w_i(1), …`` obeys the minimal polynomial of
+   ``W`` seen from i, ``q(λ) = (λ - 1) p(λ)``, degree ``≤ N`` (1 is a simple eigenvalue of ``W`` under a
+   directed spanning tree), so the differences ``Δw_i(k)`` obey ``p``; so do the ``2 dim`` real parts of
+   the register (position and velocity part of every axis: the same iteration on other initial values).
+   The agent finds the shortest recurrence shared by its channels: the smallest degree whose block Hankel
+   matrix of its own differences has a singular value below ``rank_tolerance`` times their norm; ``β``
+   spans its kernel. Then ``Σ_m β_m w_i(k + m) = p(1) w*`` for every k: the common limit
+   ``w* = ξᵀ w(0)`` (``ξ`` the left null vector of ``I - W``) is read off the latest window, where modes
+   the test may have missed have decayed most. With ``C = 2 dim`` independent channels
+   ``L = max_agents + ceil((max_agents + 1) / C) + 1`` values suffice (:func:`listening_values`; one
+   channel: Yuan et al.'s ``2 max_agents + 2``). When an agent's channels are dependent (every velocity
+   equal, or an affine function of the position: every agent with a nonconstant sequence sees it alike)
+   and its kernel is not backed by enough independent windows, it listens on to ``2 max_agents + 2``.
+3. **Steering once.** At instant ``L - 2`` (``t_L``) agent i knows ``w* - w_i(0)``, the consensus
+   point less its own prediction; over ``[t_L, T_s]`` it plays the minimum-energy input to it
+   (the signalling law's step 4). Energy: the least energy of one steer from ``t_L`` when ``ξ`` is
+   uniform (a directed ring), more when it is not (the target ``ξᵀ p`` is then not the mean of the
+   predictions that ``E*`` steers to).
+
+``W = D^{-1} A`` rather than the lazy ``(D + I)^{-1} (A + I)``: both work (the recurrence is exact,
+periodicity does not matter), and on a ring ``D^{-1} A`` is a shift whose modes never decay, the
+best-conditioned case for the rank test.
+
+The agent reads only its own observation rows (its in-neighbours' relative states, their mask, the
+clock) and its memory: it is never given the graph, its spectrum or N. Its one prior is
+``max_agents``, an upper bound on N that sets the listening window; at ``max_agents = N = 20`` it
+listens 30 intervals (3.0 s of 20 at K = 200, uniform).
+
+Measured (K = 200, T_s = 20 s, uniform schedule, 20 seeds, medians of the relative deadline error and
+of energy / E*, :func:`goal_table`): directed ring N = 20 2.9e-10 at 1.91, N = 30 4.5e-10 at 2.73;
+random strongly connected N = 20 2.3e-9 at 1.94, N = 40 4.3e-10 at 4.02; at ``max_agents = 2N`` the
+window doubles and the energy grows (ring N = 20: 8.6e-10 at 4.03). README, "Exact consensus without
+knowing the graph".
+
+- Source: Yuan et al. 2013 (the recurrence and the final-value formula), carried by this project's
+  signalling through small motions.
+- Proven graph class: a fixed digraph with a directed spanning tree and at most ``max_agents`` agents,
+  ideal double-integrator agents, exact in exact arithmetic; in float64 the error is set by the
+  reading error (about ``1e-16 |z| / ε``) and the rank test. It agrees on ``ξᵀ p``, which is the
+  E*-optimal point only where ``ξ`` is uniform.
+- It refuses what it cannot honour, by name: switching topologies (no fixed recurrence), topology
+  families, ``u_max``, ``obs_noise``, ``link_dropout``, agent models other than the double
+  integrator, ``obs_mode='normalized'``, ``max_agents`` below the environment's N, and K shorter than
+  ``2 max_agents + 1`` (the window when the register parts are dependent, and one interval to steer).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+
+from fxc_env.baselines.policy import describe_law
+from fxc_env.baselines.signalling import (
+    advance,
+    current_instant,
+    deviation_of,
+    initial_offset,
+    plan_action,
+    predicted_register,
+    read_deviation,
+    register_of,
+    signal_plan,
+    steer_plan,
+)
+from fxc_env.config import config_of
+from fxc_env.core import validation
+from fxc_env.core.validation import ArgumentError
+
+__all__ = ["DEFAULT_AMPLITUDE", "DEFAULT_RANK_TOLERANCE", "GraphAgnosticPolicy", "listening_values", "recurrence_limit"]
+
+#: Default signalling amplitude ε: three times the signalling law's (its window is longer and its rank test
+#: wants the cleaner reads; the ring N = 20 then ends near 5e-10 at 2.4 x E*, the signalling energy ~1e-2 of it).
+DEFAULT_AMPLITUDE = 3e-6
+
+#: Default rank-test tolerance: a Hankel singular value below this fraction of the differences' norm
+#: counts as zero (reading errors at the default amplitude are about 1e-10 of the registers).
+DEFAULT_RANK_TOLERANCE = 1e-8
+
+
+def listening_values(max_agents: int, channels: int = 1) -> int:
+    """``L = max_agents + ceil((max_agents + 1) / C) + 1``: the values ``w_i(0..L-1)`` recorded before the steer.
+
+    The minimal polynomial seen from an agent has degree at most N, so the differences obey a
+    recurrence ``p`` of degree ``d <= N - 1``; its Hankel matrix has ``d + 1`` columns, and C channels
+    that share the recurrence (independent initial values) give ``C (L - 1 - d)`` rows, which must exceed
+    the columns (by one) for every ``d <= max_agents - 1``. One channel: ``L = 2 max_agents + 2`` (Yuan et
+    al.); the ``2 dim`` parts of the register (position and velocity of each axis): about 1.5 max_agents in
+    one dimension.
+    """
+    return max_agents + -(-(max_agents + 1) // channels) + 1
+
+
+def recurrence_limit(
+    values: np.ndarray, max_degree: int, tolerance: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The limit of each recorded sequence from its shortest recurrence (Yuan et al. 2013).
+
+    Args:
+        values: ``(M, C, L)`` real: M agents' recorded sequences, C channels each that share one
+            recurrence (the same iteration on different initial values), L values.
+        max_degree: the largest degree ``d`` of ``p`` tried (``N - 1`` at most).
+        tolerance: a singular value below ``tolerance`` times the differences' norm is zero.
+
+    Returns:
+        ``(limits (M, C), degrees (M,), certified (M,))``: ``Σ_m β_m w(k + m) / Σ_m β_m`` on the latest
+        window; the degree ``d`` of the recurrence ``Σ_m β_m Δw(k + m) = 0`` found (the smallest-σ degree when
+        no Hankel passes the test); and whether the kernel is backed by more windows than unknowns counting
+        only the numerically independent channels (dependent channels, as when every velocity is equal, add
+        no information).
+    """
+    M, C, L = values.shape
+    diffs = np.diff(values, axis=-1)  # (M, C, L - 1)
+    scale = np.sqrt(np.sum(diffs**2, axis=(1, 2)))  # (M,)
+    safe_scale = np.where(scale > 0, scale, 1.0)
+    channel_sigma = np.linalg.svd(diffs, compute_uv=False)  # (M, min(C, L - 1))
+    independent = np.sum(channel_sigma > tolerance * safe_scale[:, None], axis=-1)
+    degrees = np.full(M, -1, dtype=np.int64)
+    kernels: list[np.ndarray | None] = [None] * M
+    best = np.full(M, np.inf)
+    fallback: list[tuple[int, np.ndarray] | None] = [None] * M
+    for d in range(max_degree + 1):
+        todo = np.flatnonzero(degrees < 0)
+        if len(todo) == 0 or C * (L - 1 - d) < d + 2:  # done, or too few windows to tell a kernel
+            break
+        rows = L - 1 - d  # windows per channel
+        window = np.lib.stride_tricks.sliding_window_view(diffs[todo], d + 1, axis=-1)  # (m, C, rows, d + 1)
+        _, sigma, vh = np.linalg.svd(window.reshape(len(todo), C * rows, d + 1), full_matrices=False)
+        relative = sigma[:, -1] / safe_scale[todo]
+        for n, agent in enumerate(todo):
+            if relative[n] <= tolerance:
+                degrees[agent] = d
+                kernels[agent] = vh[n, -1]
+            elif relative[n] < best[agent]:
+                best[agent] = relative[n]
+                fallback[agent] = (d, vh[n, -1])
+    certified = (degrees >= 0) & (np.maximum(independent, 1) * (L - 1 - np.maximum(degrees, 0)) >= degrees + 2)
+    limits = np.empty((M, C))
+    for agent in range(M):
+        if degrees[agent] < 0:
+            degrees[agent], kernels[agent] = fallback[agent]
+        beta = kernels[agent]
+        d = int(degrees[agent])
+        latest = values[agent, :, L - 1 - d :]  # w(k + m), m = 0..d, on the latest window
+        limits[agent] = latest @ beta / np.sum(beta)
+    return limits, degrees, certified
+
+
+class GraphAgnosticPolicy:
+    """The graph-agnostic law on the local observation, raw rows, ``plan`` or ``accel`` actions.
+
+    Like :class:`~fxc_env.baselines.SignallingPolicy` the law has memory, so it is called with **every
+    agent's** observation at once, ``(..., N, obs_size)`` in agent order, one instant after the other from
+    ``k = 0``; agent i's action depends only on its own observations and memory.
+
+    Args:
+        env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with ideal
+            double-integrator agents, ``obs_mode="raw"``, and ``K >= 2 max_agents + 1``.
+        max_agents: an upper bound on N, the law's one prior (None: the environment's N). It sets the
+            listening window (:func:`listening_values`; ``2 max_agents + 2`` values where the register parts are dependent).
+        amplitude: the signalling amplitude ε (dimensionless, > 0; None: :data:`DEFAULT_AMPLITUDE`).
+        rank_tolerance: the rank test's relative tolerance (in (0, 1); None: :data:`DEFAULT_RANK_TOLERANCE`).
+
+    Raises:
+        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``,
+        ``agent_model``, ``obs_mode``, ``action_mode``, ``max_agents``, ``n_intervals``, ``amplitude`` or
+        ``rank_tolerance`` for what the law cannot honour.
+    """
+
+    NAME: ClassVar[str] = "graph_agnostic"
+    LAW: ClassVar[str] = (
+        "virtual iteration w <- D⁻¹A w on registers w_i = p_i, carried at amplitude ε by motions read from own rows; "
+        "each agent's shortest recurrence of its own differences (block Hankel rank test over its register parts, "
+        "about 1.5 max_agents values) "
+        "gives the limit; then one minimum-energy steer to it"
+    )
+    SOURCE: ClassVar[str] = (
+        "Yuan, Stan, Shi, Barahona & Gonçalves 2013 (decentralised minimum-time consensus), carried by this "
+        "project's signalling through small motions"
+    )
+    GRAPH_CLASS: ClassVar[str] = (
+        "fixed digraph with a directed spanning tree and at most max_agents agents, ideal agents, graph unknown: "
+        "exact up to rounding / ε at ξᵀ p (the mean prediction where ξ is uniform)"
+    )
+
+    def __init__(
+        self,
+        env: Any,
+        max_agents: int | None = None,
+        amplitude: float | None = None,
+        rank_tolerance: float | None = None,
+    ) -> None:
+        config = config_of(env, type(self).__name__)
+        _refuse_what_it_cannot_honour(config)
+        n = config.n_agents
+        max_agents = validation.integer("max_agents", n if max_agents is None else max_agents, 1)
+        if max_agents < n:
+            raise ArgumentError(
+                f"max_agents: an upper bound on the number of agents, at least the environment's N = {n}; "
+                f"got {max_agents}"
+            )
+        amplitude = validation.real("amplitude", DEFAULT_AMPLITUDE if amplitude is None else amplitude, positive=True)
+        rank_tolerance = DEFAULT_RANK_TOLERANCE if rank_tolerance is None else rank_tolerance
+        rank_tolerance = validation.real("rank_tolerance", rank_tolerance, positive=True)
+        if rank_tolerance >= 1.0:
+            raise ArgumentError(f"rank_tolerance: a relative tolerance in (0, 1), got {rank_tolerance!r}")
+        #: Values ``w_i(0..L-1)`` recorded with the ``2 dim`` register parts as channels; the steer starts at
+        #: instant ``L - 2``, when the last is known.
+        self.listening = listening_values(max_agents, 2 * config.dim)
+        #: The one-channel window ``2 max_agents + 2``: agents whose register parts turn out dependent listen on.
+        self.full_listening = listening_values(max_agents)
+        if self.full_listening - 1 > config.n_intervals:
+            raise ArgumentError(
+                f"n_intervals: the graph-agnostic law may listen {self.full_listening - 2} intervals (2 max_agents, "
+                f"max_agents = {max_agents}) and steers at least one; got {config.n_intervals}"
+            )
+        self.max_agents = max_agents
+        self.amplitude = amplitude
+        self.rank_tolerance = rank_tolerance
+        self.config = config
+        self.layout = config.layout
+        self._times = np.asarray(config.schedule.times, dtype=np.float64)
+        self._intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
+        self._memory: dict[str, np.ndarray] | None = None
+        self._next_instant = 0
+        #: Per agent of the last episode batch, the degree of the recurrence its rank test found ``(..., N)``.
+        self.degrees: np.ndarray | None = None
+
+    # ----------------------------------------------------------------------------- acting
+    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
+        """Actions ``(..., N, 2 dim)`` for every agent's observation ``(..., N, obs_size)`` (flat or dict)."""
+        return self.act(self.layout.flat(observation))
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""
+        obs = np.asarray(obs, dtype=np.float64)
+        memory = None if self._memory is None else self._memory["d"].shape[:-2]
+        k, rows = current_instant(obs, self.config, "the graph-agnostic law", self._next_instant, memory)
+        _, mask, _ = self.layout.split(obs)
+        if k == 0:
+            self._reset(obs.shape[:-1])
+        plan = self._plan(k, rows, mask)
+        self._next_instant = k + 1
+        return plan_action(plan, self.config, self._intervals[k])
+
+    def _reset(self, lead: tuple[int, ...]) -> None:
+        dim, slots = self.config.dim, self.layout.slots
+        self._memory = {
+            "base": np.zeros((*lead, slots, 2, dim)),  # z_j(0) - z_i(0) per row slot
+            "history": np.zeros((*lead, self.full_listening, dim), dtype=complex),  # c_i(k) = w_i(k) - w_i(0)
+            "late": np.zeros(lead, dtype=bool),  # listening on to the one-channel window
+            "goal": np.zeros((*lead, dim), dtype=complex),  # w* - w_i(0), known at the steer
+            "d": np.zeros((*lead, 2, dim)),  # own deviation from coasting
+        }
+        self.degrees = None
+
+    def _plan(self, k: int, rows: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """The plan ``(a_x, a_v)`` ``(..., N, 2, dim)`` of every agent at instant k; updates the memory."""
+        memory = self._memory
+        assert memory is not None
+        T_s, eps = self.config.settling_time, self.amplitude
+        t, T = self._times[k], self._intervals[k]
+        d, history, late = memory["d"], memory["history"], memory["late"]
+        steer_at, full_at = self.listening - 2, self.full_listening - 2
+        if k <= steer_at or (k <= full_at and late.any()):  # read every in-neighbour, one step of the iteration
+            if k == 0:  # nobody has deviated yet: the rows give z_j(0) - z_i(0)
+                memory["base"] = initial_offset(rows, t)
+            heard = register_of(read_deviation(rows, memory["base"], d[..., None, :, :], t), eps, T_s)
+            if k == 0:
+                heard = np.zeros_like(heard)  # c_j(0) = 0 exactly
+            registers = predicted_register(memory["base"], T_s) + heard  # w_j(k) - w_i(0)
+            degree = np.sum(mask, axis=-1)[..., None]
+            mean = np.sum(mask[..., None] * registers, axis=-2) / np.maximum(degree, 1.0)
+            history[..., k + 1, :] = np.where(degree > 0, mean, history[..., k, :])
+        if k == steer_at:
+            certified = self._find_goal(self.listening, np.ones(late.shape, dtype=bool))
+            # Dependent register parts (every velocity equal, say) leave too few independent windows: those
+            # agents listen on to the one-channel window; every agent sees such initial states alike.
+            late[...] = ~certified & (full_at > steer_at)
+        elif k == full_at and late.any():
+            self._find_goal(self.full_listening, late)
+        steering = (k >= full_at) | ((k >= steer_at) & ~late)
+        # Signal c_i(k + 1) (set the deviation at t_{k+1} to ε (Re c, Im c / T_s)), or steer: the piece over
+        # [t_k, t_k+1] of the minimum-energy input to w* - w_i(0) at T_s.
+        plan = steer_plan(deviation_of(memory["goal"], 1.0, T_s), d, t, T, T_s)
+        if not steering.all():
+            signal = signal_plan(deviation_of(history[..., k + 1, :], eps, T_s), d, T)
+            plan = np.where(steering[..., None, None], plan, signal)
+        memory["d"] = advance(d, plan, T)
+        return plan
+
+    def _find_goal(self, length: int, agents: np.ndarray) -> np.ndarray:
+        """The limit of the chosen agents' ``(..., N)`` first ``length`` recorded values (their shortest
+        recurrence) into their goal; returns whether each agent's recurrence is certified ``(..., N)``."""
+        memory = self._memory
+        assert memory is not None
+        history = memory["history"][..., :length, :][agents]  # (M, L, dim)
+        dim = history.shape[-1]
+        values = np.moveaxis(np.concatenate([history.real, history.imag], axis=-1), -1, -2)  # (M, 2 dim, L)
+        limits, degrees, certified = recurrence_limit(values, self.max_agents - 1, self.rank_tolerance)
+        memory["goal"][agents] = limits[:, :dim] + 1j * limits[:, dim:]
+        if self.degrees is None:
+            self.degrees = np.full(agents.shape, -1, dtype=np.int64)
+        self.degrees[agents] = degrees
+        result = np.ones(agents.shape, dtype=bool)
+        result[agents] = certified
+        return result
+
+    # ----------------------------------------------------------------------------- describing
+    def parameters(self) -> dict[str, float]:
+        """The design: the prior, the window, the steer's start, the amplitude and the rank tolerance."""
+        return {
+            "max_agents": float(self.max_agents),
+            "listening_values": float(self.listening),
+            "full_listening_values": float(self.full_listening),
+            "steer_start_s": float(self._times[self.listening - 2]),
+            "amplitude": self.amplitude,
+            "rank_tolerance": self.rank_tolerance,
+        }
+
+    def describe(self) -> dict[str, str]:
+        """Law, source, proven graph class and parameters, for tables and logs."""
+        return describe_law(self)
+
+    def guarantee(self) -> str:
+        t_l = self._times[self.listening - 2]
+        bound = (self.config.settling_time / (self.config.settling_time - t_l)) ** 3
+        return (
+            f"graph unknown: exact (rounding / ε aside) for N <= max_agents = {self.max_agents} after listening "
+            f"{self.listening - 2} intervals (t_L = {t_l:.3g} s; {self.full_listening - 2} when the register parts are "
+            f"dependent), then one minimum-energy steer (about E* x {bound:.3g} where ξ is uniform)"
+        )
+
+
+def _refuse_what_it_cannot_honour(config: Any) -> None:
+    name = "GraphAgnosticPolicy"
+    if config.family is not None:
+        raise ArgumentError(
+            f"topology: {name} needs one fixed graph for its recurrence; a family draws a new graph per episode"
+        )
+    if config.topology.period != 1:
+        raise ArgumentError(
+            f"topology: {name} finds the recurrence of one fixed iteration; a switching period of "
+            f"{config.topology.period} graphs changes the iteration every interval"
+        )
+    if config.switching != "periodic":
+        raise ArgumentError(f"switching: {name} needs one fixed graph, not switching={config.switching!r}")
+    if config.u_max_choices is not None:
+        raise ArgumentError(f"u_max: {name} plans exact changes and cannot honour an input limit")
+    if config.obs_noise != 0:
+        raise ArgumentError(
+            f"obs_noise: {name} reads numbers from exact relative measurements and its rank test needs them; "
+            f"got obs_noise={config.obs_noise!r}"
+        )
+    if config.link_dropout != 0:
+        raise ArgumentError(
+            f"link_dropout: {name} reads numbers from every link of its graph; got link_dropout={config.link_dropout!r}"
+        )
+    if config.model is not None:
+        raise ArgumentError(
+            f"agent_model: {name} is designed for the double integrator; got agent_model={config.agent_model!r}"
+        )
+    if config.obs_mode != "raw":
+        raise ArgumentError(
+            f"obs_mode: {name} subtracts the coasting prediction from physical rows and needs obs_mode='raw', "
+            f"got {config.obs_mode!r}"
+        )
+    if config.action_mode not in ("plan", "accel"):
+        raise ArgumentError(f"action_mode: {name} supports 'plan' and 'accel', got {config.action_mode!r}")
+
+
+# ----------------------------------------------------------------------------- the goal table
+def strongly_connected_random(n_agents: int, mean_in_degree: float) -> tuple[Any, int]:
+    """The first ``random`` digraph (topology seed 0, 1, …) of N agents that is strongly connected, and its seed."""
+    from scipy.sparse import csgraph
+
+    from fxc_env.core.graphs import random_topology
+
+    for seed in range(10_000):
+        topology = random_topology(n_agents, seed=seed, mean_in_degree=mean_in_degree)
+        if csgraph.connected_components(topology.adjacency(0), directed=True, connection="strong")[0] == 1:
+            return topology, seed
+    raise ArgumentError(f"mean_in_degree: no strongly connected random digraph of {n_agents} agents in 10,000 seeds")
+
+
+def goal_row(settings: dict[str, Any], max_factor: int, seeds: range) -> tuple[float, float] | str:
+    """Median relative deadline error and energy / E* of the law on seeded episodes, or its refusal."""
+    from fxc_env.config import make_config
+    from fxc_env.engine import ConsensusEngine
+
+    config = make_config(**settings)
+    try:
+        policy = GraphAgnosticPolicy(config, max_agents=max_factor * config.n_agents)
+    except ArgumentError as exc:
+        return f"refused: {str(exc).split(':')[0]}"
+    engine = ConsensusEngine(config, n_episodes=len(seeds))
+    engine.reset_from_draws([engine.draw_episode(np.random.default_rng(seed)) for seed in seeds])
+    while not engine.done:
+        engine.step(np.asarray(policy(engine.observations()), dtype=np.float64))
+    metrics = engine.batch_metrics()
+    return float(np.median(metrics["relative_deadline_error"])), float(np.median(metrics["energy_ratio"]))
+
+
+def goal_table(n_seeds: int = 20) -> str:
+    """The README's goal table: K = 200, T_s = 20 s, raw plans, medians over ``n_seeds`` seeded initial states."""
+    common = {"n_intervals": 200, "settling_time": 20.0, "action_mode": "plan", "obs_mode": "raw"}
+    uniform = {**common, "scenario": None, "schedule": "uniform"}
+    random_20, seed_20 = strongly_connected_random(20, 2.0)
+    random_40, seed_40 = strongly_connected_random(40, 3.0)
+    cases = [
+        ("directed ring N = 20", {**uniform, "topology": "ring", "n_agents": 20}),
+        ("directed ring N = 30", {**uniform, "topology": "ring", "n_agents": 30}),
+        (f"random strongly connected N = 20 (in-degree 2, seed {seed_20})", {**uniform, "topology": random_20}),
+        (f"random strongly connected N = 40 (in-degree 3, seed {seed_40})", {**uniform, "topology": random_40}),
+        ("directed ring N = 20, paper schedule", {**common, "scenario": None, "topology": "ring", "n_agents": 20}),
+        ("paper_fig1 (periodic switching)", {**common, "scenario": "paper_fig1", "schedule": "uniform"}),
+    ]
+    lines = [
+        "| case | max_agents = N: error, energy / E* | max_agents = 2N: error, energy / E* |",
+        "|---|---|---|",
+    ]
+    for label, settings in cases:
+        cells = []
+        for factor in (1, 2):
+            row = goal_row(settings, factor, range(n_seeds))
+            cells.append(row if isinstance(row, str) else f"{row[0]:.1e}, {row[1]:.3g}")
+        lines.append(f"| {label} | {cells[0]} | {cells[1]} |")
+    return "\n".join(lines)
