@@ -34,9 +34,10 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test]"
 	touch $(STAMP)
 
-# The tests need TorchRL (the native env) and the bench contenders (MPE2, VMAS: fxc speed's tables).
+# The tests need TorchRL (the native env), the bench contenders (MPE2, VMAS: fxc speed's tables) and
+# Tianshou (tests/test_clients.py).
 $(TORCHRL_STAMP): $(STAMP)
-	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test,torchrl,bench]"
+	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test,torchrl,bench,tianshou]"
 	touch $(TORCHRL_STAMP)
 
 $(RLLIB_STAMP): pyproject.toml constraints-rllib.txt

@@ -197,12 +197,12 @@ def test_initial_scales_span_decades_and_normalized_observations_ignore_them():
     np.testing.assert_allclose(seen[2], seen[0], rtol=1e-12, atol=1e-15)
 
 
-def test_reset_infos_report_the_drawn_graphs_and_replaying_them_gives_the_same_episode():
+def test_episode_edges_and_the_infos_u_max_report_the_draw_and_replaying_them_gives_the_same_episode():
     import fxc_env
 
     env = fxc_env.parallel_env(scenario="generalist", u_max=(10.0, 100.0))
     observations, infos = env.reset(seed=5)
-    edges, limit = infos["agent_0"]["edges"], infos["agent_0"]["u_max"]
+    edges, limit = env.episode_edges(), infos["agent_0"]["u_max"]
     replay = fxc_env.parallel_env(scenario="generalist", topology=edges, u_max=limit)
     replayed, _ = replay.reset(seed=5, options={"x0": env.unwrapped.engine.x0[0], "v0": env.unwrapped.engine.v0[0]})
     assert "edges" not in _["agent_0"]
@@ -223,13 +223,12 @@ def test_each_vecenv_episode_draws_its_own_graph_from_its_seed():
     venv.seed(7)
     venv.reset()
     n = 20
-    drawn = [venv.reset_infos[b * n]["edges"] for b in range(3)]
-    assert len({repr(e) for e in drawn}) == 3
-    assert all(venv.reset_infos[b * n + 1]["edges"] == drawn[b] for b in range(3))
+    drawn = [venv.episode_edges(b) for b in range(3)]
+    assert len({repr(e) for e in drawn}) == 3 and n == venv.n_agents
     again = ConsensusVecEnv(3, scenario="generalist")
     again.seed(7)
     again.reset()
-    assert [again.reset_infos[b * n]["edges"] for b in range(3)] == drawn
+    assert [again.episode_edges(b) for b in range(3)] == drawn
 
 
 @pytest.mark.parametrize(

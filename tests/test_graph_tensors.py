@@ -7,7 +7,13 @@ import pytest
 import torch
 
 from fxc_env import ConsensusEngine, ReferencePolicy, make_config
-from fxc_env.engine.graph_tensors import GRAPH_TENSOR_KEYS, edge_feature_size, episode_graph, graph_tensors
+from fxc_env.engine.graph_tensors import (
+    GRAPH_TENSOR_KEYS,
+    edge_capacity,
+    edge_feature_size,
+    episode_graph,
+    graph_tensors,
+)
 
 FAMILY = {"family": "random", "mean_in_degree": (1.5, 3.0), "period": (1, 3)}
 
@@ -96,7 +102,7 @@ def test_switching_follows_the_schedule_s_period():
         engine.step(policy.act(engine.observations()))
 
 
-def test_padding_is_masked_with_zero_indices_and_features():
+def test_padding_is_the_extra_node_n_with_zero_features():
     config = make_config(topology=FAMILY, n_agents=8)
     engine = started(config, b=6, seed=3)
     edge_index, edge_mask, n_edges, edge_attr = host(graph_tensors(engine))
@@ -105,7 +111,9 @@ def test_padding_is_masked_with_zero_indices_and_features():
     assert len(set(n_edges.tolist())) > 1  # the episodes' graphs differ in size: some rows are padded
     for b in range(6):
         assert not edge_mask[b, n_edges[b] :].any()
-        assert (edge_index[b, :, n_edges[b] :] == 0).all() and (edge_attr[b, n_edges[b] :] == 0).all()
+        # Padding is the edge N -> N (one past the last agent), never an edge between agents.
+        assert (edge_index[b, :, n_edges[b] :] == 8).all() and (edge_attr[b, n_edges[b] :] == 0).all()
+        assert (edge_index[b, :, : n_edges[b]] < 8).all()
     assert edge_index.dtype == np.int64 and edge_mask.dtype == bool and n_edges.dtype == np.int64
 
 
@@ -123,7 +131,7 @@ def test_dropped_links_are_not_listed():
             if m
         }
         assert {tuple(pair) for pair in edge_index[b, :, : n_edges[b]].T.tolist()} == received
-        assert edge_mask[b].sum() == n_edges[b] and (edge_index[b, :, n_edges[b] :] == 0).all()
+        assert edge_mask[b].sum() == n_edges[b] and (edge_index[b, :, n_edges[b] :] == 6).all()
         assert (edge_attr[b, n_edges[b] :] == 0).all()
 
 
@@ -285,17 +293,23 @@ def test_graph_tensors_must_be_a_bool_named_in_the_error():
 
 
 def check_info_graph(env, observations, infos, k):
-    """Every agent's info holds instant k's graph, and its features are the observations' rows."""
+    """Every agent's info holds instant k's graph padded to the env's fixed E, features the observations' rows."""
     topology = env.engine.topologies[0]
     g = k % topology.period
-    layout = env.config.layout
+    layout, n, e = env.config.layout, env.config.n_agents, edge_capacity(env.config)
     first = infos["agent_0"]
-    assert first["edge_index"].dtype == np.int64 and first["edge_attr"].dtype == env.config.observation_dtype
-    np.testing.assert_array_equal(first["edge_index"].T, topology.edges[g])
+    count = first["n_edges"]
+    assert type(count) is int and count == len(topology.edges[g])
+    assert first["edge_index"].shape == (2, e) and first["edge_index"].dtype == np.int64
+    assert first["edge_mask"].shape == (e,) and first["edge_mask"].dtype == bool
+    assert first["edge_attr"].shape == (e, layout.row_size) and first["edge_attr"].dtype == env.config.observation_dtype
+    np.testing.assert_array_equal(first["edge_index"][:, :count].T, topology.edges[g])
+    assert (first["edge_index"][:, count:] == n).all() and (first["edge_attr"][count:] == 0).all()
+    assert first["edge_mask"].tolist() == [True] * count + [False] * (e - count)
     for agent in env.possible_agents:
-        assert infos[agent]["edge_index"] is first["edge_index"] and infos[agent]["edge_attr"] is first["edge_attr"]
+        assert all(infos[agent][key] is first[key] for key in GRAPH_TENSOR_KEYS)
     flat = {agent: layout.flat(observation) for agent, observation in observations.items()}
-    for (j, i), attr in zip(first["edge_index"].T.tolist(), first["edge_attr"], strict=True):
+    for (j, i), attr in zip(first["edge_index"][:, :count].T.tolist(), first["edge_attr"], strict=False):
         rows, _, _ = layout.split(flat[f"agent_{i}"])
         slot = list(topology.neighbour_index[g, i][topology.neighbour_mask[g, i]]).index(j)
         np.testing.assert_array_equal(attr, rows[slot].ravel())
@@ -307,6 +321,7 @@ def check_info_graph(env, observations, infos, k):
         {"scenario": "paper_fig1"},
         {"scenario": "paper_fig1", "obs_format": "dict", "obs_dtype": "float32", "dim": 2},
         {"topology": "random", "n_agents": 8, "topology_period": 2, "obs_mode": "raw"},
+        {"topology": FAMILY, "n_agents": 6},
     ],
 )
 @pytest.mark.parametrize("small_n_path", [True, False])
@@ -346,7 +361,8 @@ def test_aec_env_infos_carry_the_graph_too():
 
     env = fxc_env.env(scenario="paper_fig1", graph_tensors=True)
     env.reset(seed=0)
-    np.testing.assert_array_equal(env.infos["agent_0"]["edge_index"].T, env.unwrapped.config.topology.edges[0])
+    info = env.infos["agent_0"]
+    np.testing.assert_array_equal(info["edge_index"][:, : info["n_edges"]].T, env.unwrapped.config.topology.edges[0])
 
 
 def test_parallel_env_refuses_a_non_bool_graph_tensors_by_name():
@@ -357,18 +373,46 @@ def test_parallel_env_refuses_a_non_bool_graph_tensors_by_name():
         fxc_env.parallel_env(scenario="paper_fig1", graph_tensors="yes")
 
 
-def test_the_readme_s_message_pass_sums_each_agent_s_in_neighbour_messages():
+def test_the_readme_s_summing_convolution_equals_the_one_over_the_true_edges():
     from fxc_env import ConsensusTorchEnv
 
+    # README, "Graph tensors": GraphConv(aggr="add") in plain torch, over N + 1 node rows per episode.
     env = ConsensusTorchEnv(scenario="generalist", batch_size=8, graph_tensors=True, seed=0)
     td = env.reset()
-    b, n = env.batch_size[0], env.n_agents
-    layer = torch.nn.Linear(td["edge_attr"].shape[-1], 16, dtype=torch.float64)
-    messages = layer(td["edge_attr"]) * td["edge_mask"][..., None]
-    target = td["edge_index"][:, 1] + n * torch.arange(b)[:, None]
-    nodes = torch.zeros(b * n, 16, dtype=torch.float64).index_add_(0, target.flatten(), messages.flatten(0, 1))
-    nodes = nodes.reshape(b, n, 16)
-    # The same sum through the observation: agent i's rows of its real slots, through the layer.
-    rows, mask, _ = env.config.layout.split(td["agents", "observation"])
-    per_slot = layer(rows.flatten(-2)) * mask[..., None]  # [B, N, slots, 16]
-    torch.testing.assert_close(nodes, per_slot.sum(dim=2), rtol=1e-12, atol=1e-12)
+    x = td["agents", "observation"]  # [B, N, obs_size]: the node features
+    b, n, f = x.shape
+    root, rel = torch.nn.Linear(f, 16, dtype=x.dtype), torch.nn.Linear(f, 16, bias=False, dtype=x.dtype)
+    table = torch.cat([x, x.new_zeros(b, 1, f)], dim=1).flatten(0, 1)  # [B (N + 1), F]
+    offset = (n + 1) * torch.arange(b)[:, None, None]
+    source, target = (td["edge_index"] + offset).unbind(1)  # [B, E] each
+    summed = torch.zeros_like(table).index_add_(0, target.flatten(), table[source.flatten()])
+    out = root(x) + rel(summed.reshape(b, n + 1, f)[:, :n])  # [B, N, 16]
+    # The same convolution over each episode's true edges only (its first n_edges).
+    assert (td["n_edges"] < td["edge_index"].shape[-1]).all()  # every episode has padding
+    for episode in range(b):
+        count = int(td["n_edges"][episode])
+        j, i = td["edge_index"][episode, :, :count]
+        true_sum = torch.zeros(n, f, dtype=x.dtype).index_add_(0, i, x[episode, j])
+        torch.testing.assert_close(out[episode], root(x[episode]) + rel(true_sum), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "settings", [{"topology": FAMILY, "n_agents": 7}, {"topology": "complete", "n_agents": 6, "link_dropout": 0.4}]
+)
+def test_a_sum_over_the_padded_edges_equals_the_sum_over_the_true_edges(settings):
+    engine = started(make_config(**settings), b=5, seed=2)
+    edge_index, _, n_edges, edge_attr = host(graph_tensors(engine, width=edge_capacity(engine.config)))
+    n = engine.config.n_agents
+    assert (n_edges < edge_index.shape[-1]).all()  # padded everywhere
+    x = np.random.default_rng(0).normal(size=(5, n + 1, 3))
+    for b in range(5):
+        # A scatter-add over every column, padding included, into N + 1 rows: row N takes the padding.
+        padded = np.zeros((n + 1, 3))
+        np.add.at(padded, edge_index[b, 1], x[b, edge_index[b, 0]] + edge_attr[b, :, :1])  # zero features on padding
+        true = np.zeros((n, 3))
+        j, i = edge_index[b, :, : n_edges[b]]
+        np.add.at(true, i, x[b, j] + edge_attr[b, : n_edges[b], :1])
+        np.testing.assert_array_equal(padded[:n], true)
+        # On a node table of N rows a padded edge is out of range: it raises, it never adds to agent 0.
+        with pytest.raises(IndexError):
+            np.add.at(np.zeros((n, 3)), edge_index[b, 1], x[b, :n][edge_index[b, 0]])

@@ -11,7 +11,7 @@ name            shape, dtype      meaning
 ==============  ================  ================================================================
 ``edge_index``  ``(B, 2, E)``     int64; row 0 the source j, row 1 the target i (i measures j),
                                   agents numbered ``0 .. N-1`` within each episode
-``edge_mask``   ``(B, E)``        bool; True for an edge, False for padding (whose indices are 0)
+``edge_mask``   ``(B, E)``        bool; True for an edge, False for padding (whose indices are ``N``)
 ``n_edges``     ``(B,)``          int64; the edges of each episode: entries ``0 .. n_edges - 1``
 ``edge_attr``   ``(B, E, F)``     the observation's row of that edge: ``z_j - z_i`` as agent i
                                   observes it at ``t_k`` (``F = n dim``, see below)
@@ -22,6 +22,13 @@ name            shape, dtype      meaning
 first in each episode, sorted by target then source (the topology's order,
 :attr:`fxc_env.core.graphs.Topology.edges`); padding follows. With ``link_dropout`` an edge lost
 at ``t_k`` (its observation mask is 0) is not listed: the tensors hold what the agents receive.
+
+**Padding** is the edge ``N -> N`` (``N``: the index one past the last agent) with
+zero features. It can never pass for an edge between agents: a message pass over a node table of
+``N + 1`` rows sends padding's messages into the extra row ``N``, which the consumer drops, so a
+summing aggregation (PyG ``GraphConv(aggr="add")``, a scatter-add) over the padded tensors equals
+the one over the true edges without ``edge_mask``; over a table of ``N`` rows the index is out of
+range and the gather or scatter raises instead of adding to agent 0.
 
 **Edge features.** ``edge_attr[b, e]`` is the row of slot ``r`` of agent i's flat observation
 (:class:`fxc_env.config.layout.ObservationLayout`), read out of the observation itself, so it
@@ -85,7 +92,7 @@ class _EdgeTable:
     position ``i * slots + r`` of each edge in the flat ``(N * slots)`` rows of an observation.
     """
 
-    def __init__(self, graphs: Any, slots: int, width: int | None) -> None:
+    def __init__(self, graphs: Any, slots: int, width: int | None, n_agents: int) -> None:
         rows: dict[int, Any] = {}
         for offset, topology in zip(graphs.offset_host.tolist(), graphs.topologies, strict=True):
             rows.setdefault(int(offset), topology)
@@ -97,7 +104,7 @@ class _EdgeTable:
             )
         width = largest if width is None else width
         g = len(blocks)
-        index = np.zeros((g, 2, width), dtype=np.int64)
+        index = np.full((g, 2, width), n_agents, dtype=np.int64)
         mask = np.zeros((g, width), dtype=bool)
         count = np.zeros(g, dtype=np.int64)
         slot = np.zeros((g, width), dtype=np.int64)
@@ -127,7 +134,7 @@ _TABLES: weakref.WeakKeyDictionary[Any, dict[int | None, _EdgeTable]] = weakref.
 def _edge_table(engine: Any, width: int | None) -> _EdgeTable:
     tables = _TABLES.setdefault(engine.graphs, {})
     if width not in tables:
-        tables[width] = _EdgeTable(engine.graphs, engine.layout.slots, width)
+        tables[width] = _EdgeTable(engine.graphs, engine.layout.slots, width, engine.config.n_agents)
     return tables[width]
 
 
@@ -165,7 +172,7 @@ def graph_tensors(engine: Any, observations: Any = None, width: int | None = Non
         edge_mask = xp.take_along_axis(edge_mask, order, axis=1)
         slot = xp.take_along_axis(slot, order, axis=1)
         edge_index = xp.take_along_axis(edge_index, xp.stack([order, order], axis=1), axis=2)
-        edge_index = xp.where(edge_mask[:, None, :], edge_index, xp.zeros_like(edge_index))
+        edge_index = xp.where(edge_mask[:, None, :], edge_index, xp.full_like(edge_index, n))
         n_edges = xp.sum(xp.astype(edge_mask, xp.int64), axis=1)
     edge_attr = rows[table.episodes, slot]
     edge_attr = xp.where(edge_mask[..., None], edge_attr, xp.zeros_like(edge_attr))

@@ -190,6 +190,10 @@ class ConsensusAECEnv(AECEnv, EzPickle):
         self.agent_selection = self.agents[0]
         self._deads_step_first()
 
+    def episode_edges(self) -> list[list[list[int]]]:
+        """The episode's graphs as lists of ``[j, i]`` pairs (:meth:`ConsensusParallelEnv.episode_edges`)."""
+        return self.parallel.episode_edges()
+
     # ----------------------------------------------------------------- state
     def state(self) -> np.ndarray:
         """The global state of the parallel form (raw or normalized, see ``global_state``)."""

@@ -26,7 +26,7 @@ from fxc_env.core.families import edge_lists
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw, with_initial_state
-from fxc_env.engine.graph_tensors import episode_graph
+from fxc_env.engine.graph_tensors import GRAPH_TENSOR_KEYS, edge_capacity
 from fxc_env.engine.graph_tensors import graph_tensors as current_graph
 from fxc_env.envs.rendering import EpisodeView
 from fxc_env.envs.small_n import SmallInterval, applies, checked_values
@@ -57,17 +57,13 @@ def episode_metrics_rows(engine: ConsensusEngine) -> list[dict[str, float | int]
 
 
 def episode_draw_info(draw: EpisodeDraw) -> dict[str, Any]:
-    """What a reset drew beyond the initial state, for the reset infos (empty when nothing is drawn).
+    """What a reset drew that every info of the episode carries (empty when nothing is drawn).
 
-    ``edges``: the family's graphs as lists of ``[j, i]`` pairs (``topology=edges`` replays
-    the episode on a fixed topology); ``u_max``: the input limit drawn from a set.
+    ``u_max``: the input limit drawn from a set (a float, the same at reset and every step). The
+    drawn graphs are no info (their length changes with the draw, and replay buffers need one
+    shape per key): :meth:`ConsensusParallelEnv.episode_edges` gives them.
     """
-    info: dict[str, Any] = {}
-    if draw.topology is not None:
-        info["edges"] = edge_lists(draw.topology)
-    if draw.u_max is not None:
-        info["u_max"] = draw.u_max
-    return info
+    return {} if draw.u_max is None else {"u_max": float(draw.u_max)}
 
 
 def normalized_state(engine: ConsensusEngine) -> np.ndarray:
@@ -171,7 +167,9 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     rings, paths and stars with random agent labels, complete graphs, random digraphs with a
     mean in-degree drawn from a range; a switching period ``m`` drawn from a range deals the
     union's edges to ``m`` graphs, so only the union need span (Theorem 2). Every draw spans
-    jointly by construction. The reset infos carry the drawn ``edges`` (and a drawn ``u_max``).
+    jointly by construction. ``env.episode_edges()`` gives the episode's graphs (lists of ``[j, i]``
+    pairs; ``topology=env.episode_edges()`` replays the episode on a fixed topology); a ``u_max``
+    drawn from a set is in every info (``u_max``).
 
     ## Rewards
     Team reward, the same for every agent: ``log(D(t_k) + f) - log(D(t_{k+1}) + f)`` with the
@@ -209,16 +207,25 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     than ``nan``, so no info value is ever NaN and two identically seeded runs give equal
     infos.
 
+    Every key of the reset infos is in every step's infos with the same type and shape (what
+    replay buffers such as Tianshou's need); only ``episode`` joins at the end. Variable-length
+    data stays out: the episode's graphs are ``env.episode_edges()``.
+
     **Graph tensors** (``graph_tensors=True``, for graph neural networks; README, "Graph
     tensors"): every info at reset and after every step also holds the coming interval's
-    graph in PyTorch Geometric's convention, ``edge_index`` ``(2, E)`` int64 (row 0 the source
-    j, row 1 the target i: i measures j; agents ``0 .. N-1``) and ``edge_attr`` ``(E, n dim)``
-    (each edge's observation row ``z_j - z_i`` as agent i observes it, in ``obs_mode``'s
-    scaling and ``obs_dtype``), no padding; the same two arrays in every agent's dict. They
+    graph in PyTorch Geometric's convention, padded to a fixed ``E`` (``edge_capacity``: the
+    topology's largest graph, ``N slots`` for a family): ``edge_index`` ``(2, E)`` int64 (row 0
+    the source j, row 1 the target i: i measures j; agents ``0 .. N-1``, padding the edge
+    ``N -> N``), ``edge_mask`` ``(E,)`` bool (True for an edge), ``n_edges`` (an int: the edges
+    come first) and ``edge_attr`` ``(E, n dim)`` (each edge's observation row ``z_j - z_i`` as
+    agent i observes it, in ``obs_mode``'s scaling and ``obs_dtype``; zeros for padding); the
+    same arrays in every agent's dict. Padding points at the extra node ``N``, so a summing
+    message pass over ``N + 1`` node rows (drop the last) equals the one over the true edges,
+    and over ``N`` rows it raises; ``edge_index[:, :n_edges]`` is the unpadded graph. They
     follow the switching schedule, and a link lost to ``link_dropout`` is not listed. They
     are infos, not observations: the graph is global while an observation is one agent's
     local measurement, and the observation spaces stay the fixed Boxes that SuperSuit, SB3
-    and TorchRL's wrapper expect (``E`` changes with the graph).
+    and TorchRL's wrapper expect.
 
     ## State
     ``state()`` with ``global_state="raw"`` (default): ``(N, 2 dim)`` float64 rows
@@ -356,6 +363,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         self._rng: np.random.Generator | None = None
         self._has_reset = False
         self._steps = 0
+        #: What the reset drew that every info of the episode carries (:func:`episode_draw_info`).
+        self._drawn: dict[str, Any] = {}
         obs_space, act_space = observation_space(self.config), action_space(self.config)
         self.observation_spaces = dict.fromkeys(self.possible_agents, obs_space)
         self.action_spaces = dict.fromkeys(self.possible_agents, act_space)
@@ -402,8 +411,9 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             agent: {"t": 0.0, "interval": 0, "energy": 0.0, "peak_u": 0.0, "saturated_fraction": 0.0}
             for agent in self.agents
         }
+        self._drawn = episode_draw_info(draw)
         for info in infos.values():
-            info.update(episode_draw_info(draw))
+            info.update(self._drawn)
         if self.render_mode == "human":
             self.render()
         flat = self._flat_observations()
@@ -417,12 +427,23 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         return self.engine.observations()[0].astype(self.config.observation_dtype, copy=False)
 
     def _add_graph(self, infos: dict[str, dict[str, Any]], flat: np.ndarray) -> None:
-        """With ``graph_tensors``: the current graph's ``edge_index`` and ``edge_attr`` in every info (Infos)."""
+        """With ``graph_tensors``: the current graph's padded tensors in every info (Infos, Graph tensors)."""
         if self.graph_tensors:
-            edge_index, edge_attr = episode_graph(current_graph(self.engine, flat[None]))
-            edge_index, edge_attr = np.ascontiguousarray(edge_index), np.ascontiguousarray(edge_attr)
+            tensors = current_graph(self.engine, flat[None], edge_capacity(self.config))
+            graph = {key: np.ascontiguousarray(value[0]) for key, value in zip(GRAPH_TENSOR_KEYS, tensors, strict=True)}
+            graph["n_edges"] = int(tensors.n_edges[0])
             for info in infos.values():
-                info["edge_index"], info["edge_attr"] = edge_index, edge_attr
+                info.update(graph)
+
+    def episode_edges(self) -> list[list[list[int]]]:
+        """The episode's graphs ``G_0 .. G_{m-1}`` as lists of ``[j, i]`` pairs (j -> i: i measures j).
+
+        A topology family draws new graphs at every reset; ``topology=env.episode_edges()`` replays
+        the episode on that fixed topology. Not an info: its length changes from draw to draw.
+        """
+        if not self._has_reset:
+            raise RuntimeError("episode_edges: there is no episode yet; call reset() first")
+        return edge_lists(self.engine.topologies[0])
 
     def _observe(self, obs: np.ndarray | None = None) -> dict[str, Any]:
         if obs is None:
@@ -505,6 +526,9 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             agent: {"t": t, "interval": interval, "energy": e, "peak_u": p, "saturated_fraction": f}
             for agent, e, p, f in zip(self.possible_agents, energy, peak, saturated, strict=True)
         }
+        if self._drawn:
+            for info in infos.values():
+                info.update(self._drawn)
         if terminated or truncated:
             episode = episode_metrics_rows(engine)[0]
             for info in infos.values():

@@ -131,7 +131,7 @@ class ConsensusTorchEnv(EnvBase):
     | ``("agents", "reward")`` | ``[B, N, 1]`` | the team reward ``log(D(t_k) + f) - log(D(t_{k+1}) + f)``, the same for every agent |
     | ``"done"``, ``"terminated"``, ``"truncated"`` | ``[B, 1]`` | the deadline ``T_s`` reached / ``max_cycles`` cut |
     | ``"state"`` | ``[B, N * 2 dim + 3]`` | with ``global_state="normalized"``: the scale-free global state (centralised critics) |
-    | ``"edge_index"`` | ``[B, 2, E]`` int64 | with ``graph_tensors=True``: the coming interval's edges, row 0 the source j, row 1 the target i (i measures j), padding 0 |
+    | ``"edge_index"`` | ``[B, 2, E]`` int64 | with ``graph_tensors=True``: the coming interval's edges, row 0 the source j, row 1 the target i (i measures j), padding ``N -> N`` |
     | ``"edge_mask"`` | ``[B, E]`` bool | with ``graph_tensors=True``: True for an edge (the first ``n_edges``), False for padding |
     | ``"n_edges"`` | ``[B]`` int64 | with ``graph_tensors=True``: each episode's edge count |
     | ``"edge_attr"`` | ``[B, E, n dim]`` | with ``graph_tensors=True``: each edge's observation row ``z_j - z_i`` as agent i observes it, in ``obs_dtype`` |
@@ -144,8 +144,11 @@ class ConsensusTorchEnv(EnvBase):
     ``N slots`` for a family, whose graphs change at every reset. ``edge_attr`` is read out of
     the observation rows (normalized or raw as ``obs_mode`` says; ``F = n dim``: ``[x_j - x_i,
     v_j - v_i]`` per axis block); with ``link_dropout`` a link lost at ``t_k`` is not listed.
-    Off (the default) nothing is computed. One episode's PyG graph:
-    ``td["edge_index"][b, :, :td["n_edges"][b]]``, or ``edge_index[:, edge_mask]``.
+    Off (the default) nothing is computed. Padding is the edge ``N -> N`` (one past the last
+    agent) with zero features: a summing message pass over ``N + 1`` node rows per episode (drop
+    the last) equals the one over the true edges, and over ``N`` rows the index is out of range.
+    One episode's PyG graph: ``td["edge_index"][b, :, :td["n_edges"][b]]``, or
+    ``edge_index[:, edge_mask]``.
 
     ## When a bad value is reported
     Shapes are checked at once (they are known on the host). Values are not read on the
@@ -295,7 +298,7 @@ class ConsensusTorchEnv(EnvBase):
         e, features = self.n_edges_max, edge_feature_size(c)
         attr_bound = 1.0 if c.obs_mode == "normalized" else torch.inf
         return {
-            "edge_index": Bounded(0, max(c.n_agents - 1, 0), shape=(b, 2, e), dtype=torch.int64, device=device),
+            "edge_index": Bounded(0, c.n_agents, shape=(b, 2, e), dtype=torch.int64, device=device),  # padding N
             "edge_mask": Categorical(n=2, shape=(b, e), dtype=torch.bool, device=device),
             "n_edges": Bounded(0, e, shape=(b,), dtype=torch.int64, device=device),
             "edge_attr": Bounded(

@@ -29,6 +29,7 @@ from fxc_env.config.arguments import (
     with_arguments_table,
 )
 from fxc_env.core import validation
+from fxc_env.core.families import edge_lists
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome, with_initial_state
 from fxc_env.envs.parallel import (
@@ -274,6 +275,17 @@ class ConsensusVecEnv(VecEnv):
         n = self.config.n_agents
         self.reset_infos = [episode_draw_info(draws[i // n]) for i in range(self.num_envs)]
         self._view.start(self.engine)
+
+    def episode_edges(self, episode: int) -> list[list[list[int]]]:
+        """Episode ``episode``'s graphs as lists of ``[j, i]`` pairs (:meth:`ConsensusParallelEnv.episode_edges`).
+
+        Sub-environment ``i`` belongs to episode ``i // N``. Not in :attr:`reset_infos` (which
+        carry only a drawn ``u_max``): the lists' length changes from draw to draw.
+        """
+        if self._needs_reset:
+            raise RuntimeError("episode_edges: there is no episode yet; call reset() first")
+        episode = validation.integer("episode", episode, minimum=0, maximum=self.n_envs - 1)
+        return edge_lists(self.engine.topologies[episode])
 
     def _empty_infos(self) -> list[dict[str, Any]]:
         """One empty dict per sub-environment, reused across steps while they stay empty.

@@ -198,17 +198,21 @@ class MessagePassingActor(nn.Module):
         n, lead, width = obs.shape[-2], obs.shape[:-2], edge_index.shape[-1]
         edge_index = torch.broadcast_to(edge_index, (*lead, 2, width)).reshape(-1, 2, width)
         weight = torch.broadcast_to(edge_mask, (*lead, width)).reshape(-1).to(obs.dtype)
-        offset = (torch.arange(edge_index.shape[0], device=obs.device) * n)[:, None]
+        graphs = edge_index.shape[0]
+        # N + 1 node rows per graph: padding is the edge N -> N (graph_tensors), into a row dropped at the end.
+        offset = (torch.arange(graphs, device=obs.device) * (n + 1))[:, None]
         source = (edge_index[:, 0] + offset).reshape(-1)
         target = (edge_index[:, 1] + offset).reshape(-1)
-        nodes = edge_index.shape[0] * n
+        nodes = graphs * (n + 1)
         degree = torch.zeros(nodes, dtype=obs.dtype, device=obs.device).index_add_(0, target, weight)
         scale = (1.0 / (degree + 1.0))[:, None]
-        features = self.activation(self.embed(obs.reshape(nodes, self.obs_size)))
+        features = self.activation(self.embed(obs.reshape(graphs, n, self.obs_size)))
+        features = torch.cat([features, features.new_zeros(graphs, 1, self.embed_size)], dim=1).reshape(nodes, -1)
         for own, message in zip(self.own, self.message, strict=True):
             sent = message(features)[source] * weight[:, None]
             received = torch.zeros_like(features).index_add_(0, target, sent)
             features = self.activation(own(features) + scale * received)
+        features = features.reshape(graphs, n + 1, self.embed_size)[:, :n]
         return self.head(features.reshape(*lead, n, self.embed_size), obs)
 
 
