@@ -58,9 +58,9 @@ from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
+from fxc_env.policies.domain import training_domain
 from fxc_env.policies.reference import ReferencePolicy
 from fxc_env.policies.torch_memory import RecurrentActor
-from fxc_env.policies.domain import training_domain
 from fxc_env.policies.torch_policy import POLICY_FORMAT, TorchPolicy, load_torch_policy
 from fxc_env.training import rings
 

@@ -49,8 +49,8 @@ from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
-from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum
 from fxc_env.policies.domain import training_domain
+from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum
 from fxc_env.policies.policy_files import training_settings
 from fxc_env.policies.reference import ReferencePolicy
 

@@ -75,8 +75,8 @@ from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.graph_tensors import edge_capacity
-from fxc_env.policies.torch_memory import GRU_INPUTS, MessagePassingActor, RecurrentActor, interval_graph
 from fxc_env.policies.domain import training_domain
+from fxc_env.policies.torch_memory import GRU_INPUTS, MessagePassingActor, RecurrentActor, interval_graph
 from fxc_env.policies.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp
 from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.run_dir import RunDir

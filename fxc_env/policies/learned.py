@@ -718,8 +718,7 @@ def load_learned_policy(
     skip = ("dim",) if per_axis else ()
     if slots is not None and slots != target.slots and policy.action_size == (2 if per_axis else config.action_size):
         check_settings(trained, config, path, skip=(*skip, "obs_slots"))
-        check_domain(policy.training_domain, config, path, allow_out_of_domain)
-        policy = adapt_slots(policy, config, target, slots, path)
+        policy = adapt_slots(policy, config, target, slots, path, allow_out_of_domain=allow_out_of_domain)
         if per_axis:
             policy = PerAxisPolicy(policy, config)
     elif per_axis:
@@ -734,7 +733,9 @@ def load_learned_policy(
     return policy
 
 
-def adapt_slots(policy: Any, config: Any, layout: Any, slots: int, source: Any) -> SlotAdaptedPolicy:
+def adapt_slots(
+    policy: Any, config: Any, layout: Any, slots: int, source: Any, *, allow_out_of_domain: bool | None = None
+) -> SlotAdaptedPolicy:
     """``policy`` (trained on ``slots`` neighbour slots) on observations of ``layout``: :class:`SlotAdaptedPolicy`.
 
     A fixed-width network (an MLP) is refused, naming its architecture, its width and the
@@ -743,6 +744,8 @@ def adapt_slots(policy: Any, config: Any, layout: Any, slots: int, source: Any) 
     environment built with ``obs_slots=slots`` pads it). A gain-scheduled network reads any
     number of rows; beyond ``slots`` it acts by its per-row structure (:class:`SlotAdaptedPolicy`)
     and warns (:class:`PolicyAdaptedWarning`) that this extrapolates past the trained in-degrees.
+    With ``allow_out_of_domain`` given, the policy's training domain is checked
+    (:func:`fxc_env.policies.domain.check_domain`) once the width fits, before any warning.
     """
     name, reads_any_rows = architecture_of(policy)
     degree = largest_in_degree(config)
@@ -760,6 +763,8 @@ def adapt_slots(policy: Any, config: Any, layout: Any, slots: int, source: Any) 
             "padded exactly, more cannot be read by this architecture: use a gain-scheduled policy "
             "(generalist, saturated) or one trained with enough obs_slots"
         )
+    if allow_out_of_domain is not None:
+        check_domain(getattr(policy, "training_domain", None), config, source, allow_out_of_domain, stacklevel=4)
     adapted = SlotAdaptedPolicy(policy, layout, slots, reads_any_rows)
     if degree > slots:
         warnings.warn(
