@@ -21,6 +21,7 @@ from helpers import torch_mlp_policy_file
 
 from fxc_env import make_config
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.domain import training_domain
 from fxc_env.policies.learned import (
     LearnedPolicy,
     PerAxisPolicy,
@@ -174,6 +175,8 @@ def test_an_activation_known_only_from_a_pickle_needs_the_metadata_that_save_mod
     path = save_model(model, tmp_path / "saved.zip")
     record = json.loads(members(path)[METADATA_MEMBER])
     assert record["activation"] == "relu" and record["env"]["scenario"] == "paper_fig1"
+    # Its training domain (fxc_env.policies.domain), from the environment under the model.
+    assert record["domain"] == training_domain(make_config("paper_fig1", obs_slots=4, n_intervals=10))
     obs = np.random.default_rng(3).uniform(-1, 1, size=(32, 15))
     trained = make_config("paper_fig1", obs_slots=4, n_intervals=record["env"]["n_intervals"])
     policy = LearnedPolicy(path, trained)
