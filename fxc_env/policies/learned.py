@@ -15,9 +15,13 @@ author put in it (README, "Training learned policies").
 **A policy meets the settings it was trained for.** A file that records its training
 environment (SB3 ``.zip`` files saved by ``fxc train`` or
 :func:`~fxc_env.policies.policy_files.save_model`, torch policies) is refused in an environment
-whose schedule, action or observation mode, input-limit feature, agent model, dimension or
+whose action or observation mode, input-limit feature, agent model, dimension or
 observation slots differ (:data:`fxc_env.policies.policy_files.CHECKED_SETTINGS`), with an
-error naming the setting and both values. :func:`load_learned_policy` adapts two of them:
+error naming the setting and both values, and in one outside its **training domain** (graphs,
+N, switching, schedule, K, limits, noise: :mod:`fxc_env.policies.domain`), naming every
+difference, unless ``allow_out_of_domain=True`` (then an
+:class:`~fxc_env.policies.domain.OutOfDomainWarning` names them). :func:`load_learned_policy`
+adapts two settings:
 
 * **any obs_slots and N** (:class:`SlotAdaptedPolicy`): the observation is rebuilt in the
   trained layout. Fewer rows than trained with are padded exactly as an environment built
@@ -663,8 +667,8 @@ def load_learned_policy(
 
     Nothing in the file is unpickled unless ``trusted`` (see the module): ``fxc evaluate``
     and ``fxc benchmark`` should pass it only for ``--trust-policy-file``. With ``env``, the
-    policy must fit it: sizes, and the training settings the file records (schedule, modes,
-    input-limit feature, agent model, dim). Another ``obs_slots`` (and so any N and graph) is
+    policy must fit it: sizes, and the training settings the file records (modes, input-limit
+    feature, agent model, dim). Another ``obs_slots`` (and so any in-degree) is
     adapted (:func:`adapt_slots`, :class:`SlotAdaptedPolicy`): exactly for fewer rows than
     trained with, by the gain networks' per-row structure for more (a warning), refused by
     name for a fixed-width network whose width the environment's in-degree exceeds. A model
