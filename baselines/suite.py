@@ -200,7 +200,7 @@ def learned_contender(
     """
     path = model_path(spec)
     try:
-        policy = load_learned_policy(path, trusted=trusted)
+        policy = load_learned_policy(path, trusted=trusted, allow_out_of_domain=allow_out_of_domain)
     except (FileNotFoundError, ArgumentError) as exc:
         raise ArgumentError(_renamed(str(exc), name)) from exc
     obs_size = policy.obs_size

@@ -177,6 +177,8 @@ def test_a_fixed_graph_is_inside_a_family_it_could_be_drawn_from():
     assert domain_differences(domain, make_config(None, topology=relabelled_star)) == []
     with pytest.raises(ArgumentError, match=r"^allow_out_of_domain: expected True or False, got 'yes'"):
         check_domain(domain, dense, "here", "yes")
+    with pytest.raises(ArgumentError, match=r"^allow_out_of_domain: expected True or False, got 1"):
+        load_learned_policy("generalist", allow_out_of_domain=1)
 
 
 def test_fxc_evaluate_refuses_an_environment_outside_the_domain_and_runs_it_with_allow_out_of_domain(tmp_path, capsys):

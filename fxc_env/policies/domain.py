@@ -222,8 +222,7 @@ def check_domain(
     training range and this environment's value) unless ``allow_out_of_domain`` or every
     difference is exact by construction; then warns (:class:`OutOfDomainWarning`) naming them.
     """
-    if not isinstance(allow_out_of_domain, bool):
-        raise ArgumentError(f"allow_out_of_domain: expected True or False, got {allow_out_of_domain!r}")
+    checked_allow(allow_out_of_domain)
     differences = domain_differences(domain, config)
     if not differences:
         return differences
@@ -237,6 +236,13 @@ def check_domain(
     label = "outside its training domain" if not all(e for *_, e in differences) else "beyond its training domain"
     warnings.warn(f"policy: {source} runs {label}: {text}", OutOfDomainWarning, stacklevel=stacklevel)
     return differences
+
+
+def checked_allow(value: Any) -> bool:
+    """``allow_out_of_domain`` once it is True or False; else the error naming it."""
+    if not isinstance(value, bool):
+        raise ArgumentError(f"allow_out_of_domain: expected True or False, got {value!r}")
+    return value
 
 
 def _time_rescales(config: Any) -> bool:

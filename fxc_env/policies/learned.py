@@ -52,7 +52,7 @@ import numpy as np
 
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core.validation import ArgumentError
-from fxc_env.policies.domain import check_domain, domain_from_settings, training_domain
+from fxc_env.policies.domain import check_domain, checked_allow, domain_from_settings, training_domain
 from fxc_env.policies.policy_files import (
     TRUST_HINT,
     check_settings,
@@ -688,6 +688,7 @@ def load_learned_policy(
     (naming the sizes, or the setting and both values), or ``env`` lies outside its training
     domain without ``allow_out_of_domain``.
     """
+    checked_allow(allow_out_of_domain)
     path = pretrained_path(str(path)) if str(path) in SHIPPED and not Path(path).exists() else Path(path)
     from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
 
