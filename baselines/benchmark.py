@@ -172,6 +172,12 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         "VecNormalize .pkl): unpickling runs code from the file, so only for files you made or trust",
     )
     parser.add_argument(
+        "--allow-out-of-domain",
+        action="store_true",
+        help="run learned policies on cases outside the training domain their files record (graphs, N, switching, "
+        "schedule, K, ...), with a warning naming every difference; without it such cases are reported as not run",
+    )
+    parser.add_argument(
         "--learned-schedule",
         choices=("paper", "uniform"),
         help="schedule of learned policies (default: the one a shipped policy was trained on, else paper)",
@@ -231,6 +237,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
                 obs_mode=args.learned_obs_mode,
                 name="--policy",
                 trusted=args.trust_policy_file,
+                allow_out_of_domain=args.allow_out_of_domain,
             )
         )
     command = "fxc benchmark " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["benchmark"] else None

@@ -150,6 +150,9 @@ class Contender:
             None for the topology's largest in-degree.
         trusted: load a saved policy whose format must unpickle (``--trust-policy-file``; see
             :func:`fxc_env.policies.learned.load_learned_policy`).
+        allow_out_of_domain: run a learned policy on cases outside its recorded training domain,
+            with a warning (``--allow-out-of-domain``); without it such a case is not run, and the
+            table says why (:mod:`fxc_env.policies.domain`).
     """
 
     name: str
@@ -160,6 +163,7 @@ class Contender:
     obs_mode: str
     obs_slots: int | None = None
     trusted: bool = False
+    allow_out_of_domain: bool = False
 
     def settings(self) -> str:
         """The environment settings (but K) as text."""
@@ -184,6 +188,7 @@ def learned_contender(
     obs_mode: str = "normalized",
     name: str = "policy",
     trusted: bool = False,
+    allow_out_of_domain: bool = False,
 ) -> Contender:
     """A saved policy (``pretrained``, an SB3 ``.zip``, an RLlib checkpoint or run directory) as a
     sampled contender, named after its file or directory.
@@ -196,10 +201,12 @@ def learned_contender(
     here, so a missing, empty or corrupt file raises :class:`ArgumentError` naming ``name``
     (``--policy`` on the command line) before any job runs. ``trusted`` allows formats that
     unpickle (RLlib checkpoints, pickled SB3 entries); without it they are refused by name.
+    ``allow_out_of_domain`` runs it on cases outside its recorded training domain (with a
+    warning); without it those cases are reported as not run, naming every difference.
     """
     path = model_path(spec)
     try:
-        policy = load_learned_policy(path, trusted=trusted)
+        policy = load_learned_policy(path, trusted=trusted, allow_out_of_domain=allow_out_of_domain)
     except (FileNotFoundError, ArgumentError) as exc:
         raise ArgumentError(_renamed(str(exc), name)) from exc
     obs_size = policy.obs_size
@@ -210,7 +217,9 @@ def learned_contender(
         slots = None
     label = path.name if path.is_dir() else path.stem
     schedule = SHIPPED_SCHEDULES.get(spec, "paper") if schedule is None else schedule
-    return Contender(f"learned:{label}", str(path), True, schedule, action_mode, obs_mode, slots, trusted)
+    return Contender(
+        f"learned:{label}", str(path), True, schedule, action_mode, obs_mode, slots, trusted, allow_out_of_domain
+    )
 
 
 def _renamed(message: str, name: str) -> str:
@@ -447,15 +456,15 @@ def contender_config(contender: Contender, case: BenchmarkCase, n_intervals: int
     )
 
 
-def load_policy(spec: str, config: EnvConfig, trusted: bool = False) -> Policy:
+def load_policy(spec: str, config: EnvConfig, trusted: bool = False, allow_out_of_domain: bool = False) -> Policy:
     """A policy for ``config``: ``reference``, a baseline name, ``pretrained`` or a saved policy's path.
 
     Saved policies (an SB3 PPO or SAC ``.zip``, an RLlib checkpoint or run directory) load
     through :func:`fxc_env.policies.learned.load_learned_policy`, which checks that the model's
     observation and action sizes fit ``config``. Raises :class:`ArgumentError` (a
     ``ValueError``) naming ``policy`` when the spec is unknown, nothing is saved at the path,
-    the file is not a readable model, or the model does not fit; ``trusted`` as in
-    :func:`learned_contender`.
+    the file is not a readable model, the model does not fit, or ``config`` lies outside its
+    training domain; ``trusted`` and ``allow_out_of_domain`` as in :func:`learned_contender`.
     """
     if spec == "reference":
         return ReferencePolicy(config)
@@ -464,7 +473,7 @@ def load_policy(spec: str, config: EnvConfig, trusted: bool = False) -> Policy:
     path = model_path(spec)
     if spec in SHIPPED or path.suffix == ".zip" or path.exists():
         try:
-            return load_learned_policy(path, config, trusted=trusted)
+            return load_learned_policy(path, config, trusted=trusted, allow_out_of_domain=allow_out_of_domain)
         except FileNotFoundError as exc:
             raise ArgumentError(str(exc)) from exc
     raise ArgumentError(

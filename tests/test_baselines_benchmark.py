@@ -83,7 +83,9 @@ def test_every_policy_meets_the_same_initial_states():
 
 @pytest.mark.slow
 def test_a_learned_policy_runs_as_a_contender_or_says_why_not():
-    contender = learned_contender("pretrained")
+    refused = run_job(Job(learned_contender("pretrained"), BenchmarkCase("paper_fig1", 6), 50, (0, 1), 20.0, False))
+    assert "n_agents: trained on 20, this environment has 6" in refused.error  # the generalist's domain: N = 20
+    contender = learned_contender("pretrained", allow_out_of_domain=True)
     ran = run_job(Job(contender, BenchmarkCase("paper_fig1", 6), 50, (0, 1), 20.0, False))
     assert ran.error is None and ran.guarantee.startswith("learned")
     assert np.all(np.isfinite(ran.metrics["relative_deadline_error"]))

@@ -70,8 +70,11 @@ def test_learned_policy_plugs_in_with_its_observation_width():
     contender = learned_contender("pretrained")
     assert contender.sampled and contender.obs_slots is None  # a gain network: each case's own slots
     assert learned_contender("paper_fig1").obs_slots == 4  # an MLP: its fixed width
-    config = contender_config(contender, full_suite().cases[0], 200, 20.0)
-    policy = load_policy(contender.spec, config)
+    config = contender_config(contender, full_suite().cases[0], 200, 20.0)  # paper_fig1: N = 6, trained on 20
+    with pytest.raises(ValueError, match="n_agents: trained on 20, this environment has 6"):
+        load_policy(contender.spec, config)
+    with pytest.warns(UserWarning, match="runs outside its training domain"):
+        policy = load_policy(contender.spec, config, allow_out_of_domain=True)
     assert isinstance(policy, SlotAdaptedPolicy) and isinstance(policy.policy, LearnedPolicy)
     obs = np.zeros((3, config.n_agents, config.layout.size))
     assert policy(obs).shape == (3, config.n_agents, 2)

@@ -12,7 +12,8 @@ from fxc_env.training.evaluate import EVALUATION_CASES
 
 @pytest.mark.slow
 def test_evaluate_pretrained_prints_and_writes_the_comparison(tmp_path, capsys):
-    code = cli.main(["evaluate", "--policy", "pretrained", "--seeds", "3", "--out", str(tmp_path), "--no-progress"])
+    argv = ["evaluate", "--policy", "pretrained", "--seeds", "3", "--out", str(tmp_path), "--no-progress"]
+    code = cli.main([*argv, "--allow-out-of-domain"])  # paper_fig1 (N = 6): outside the generalist's N = 20
     out = capsys.readouterr().out
     assert code == 0
     assert "| reference | 200 |" in out and "| learned:generalist | 200 |" in out
@@ -62,12 +63,12 @@ def test_evaluate_checks_everything_before_it_runs(tmp_path, capsys, monkeypatch
 
 @pytest.mark.slow
 def test_evaluate_on_environment_flags_scores_that_one_environment(tmp_path, capsys):
-    argv = ["evaluate", "--policy", "saturated", "--family", "ring", "--topology-period", "2,3", "--n-agents", "8"]
+    argv = ["evaluate", "--policy", "saturated", "--family", "ring", "--topology-period", "2,3", "--n-agents", "6"]
     argv += ["--u-max", "10,100", "--seeds", "2", "--out", str(tmp_path), "--no-progress"]
     assert cli.main(argv) == 0
     rows = list(csv.DictReader((tmp_path / "results.csv").open()))
     assert {r["policy"] for r in rows} == {"reference", "learned:saturated"}
-    assert {r["case"] for r in rows} == {"ring_m2-3 (drawn) N=8, u_max={10, 100}"}
+    assert {r["case"] for r in rows} == {"ring_m2-3 (drawn) N=6, u_max={10, 100}"}
     learned = next(r for r in rows if r["policy"] == "learned:saturated")
     assert learned["schedule"] == "uniform"  # the schedule the shipped policy was trained on
 

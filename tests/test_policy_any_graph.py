@@ -21,6 +21,7 @@ import fxc_env
 from fxc_env import cli
 from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.domain import OutOfDomainWarning
 from fxc_env.policies.learned import (
     LearnedPolicy,
     PerAxisPolicy,
@@ -47,10 +48,11 @@ def episode(policy, env, seed=0):
     return np.stack(taken), infos["agent_0"]["episode"]
 
 
-def load_quietly(name, env):
+def load_quietly(name, env, allow_out_of_domain=False):
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # no warning: reading fewer rows is exact
-        return load_learned_policy(name, env)
+        warnings.simplefilter("error", PolicyAdaptedWarning)  # no warning: reading fewer rows is exact
+        warnings.simplefilter("error" if not allow_out_of_domain else "ignore", OutOfDomainWarning)
+        return load_learned_policy(name, env, allow_out_of_domain=allow_out_of_domain)
 
 
 @pytest.mark.slow
@@ -58,11 +60,12 @@ def load_quietly(name, env):
 def test_a_gain_network_in_a_ring_of_20_with_any_slots_plays_the_four_slot_episode(name):
     """Default obs_slots (1: the ring's in-degree) and 8 give the actions of obs_slots=4, bit for bit."""
     four = fxc_env.parallel_env(**RING, **SETTINGS[name], obs_slots=4)
-    expected_actions, expected = episode(load_quietly(name, four), four)
+    allow = name == "saturated"  # trained on N = 6
+    expected_actions, expected = episode(load_quietly(name, four, allow), four)
     for slots in (None, 8):
         env = fxc_env.parallel_env(**RING, **SETTINGS[name], obs_slots=slots)
         assert env.observation_space("agent_0").shape[0] != four.observation_space("agent_0").shape[0]
-        policy = load_quietly(name, env)
+        policy = load_quietly(name, env, allow)
         assert isinstance(policy, SlotAdaptedPolicy)
         actions, metrics = episode(policy, env)
         np.testing.assert_array_equal(actions, expected_actions)
@@ -76,8 +79,9 @@ def test_a_gain_network_in_a_ring_of_20_with_any_slots_plays_the_four_slot_episo
 def test_a_gain_network_reads_more_rows_than_it_was_trained_with_and_meets_the_deadline(name):
     """A complete graph of 8 (in-degree 7 > 4 slots): a warning, and D(T_s)/D(0) below 1e-9 (the reference: 0)."""
     env = fxc_env.parallel_env(topology="complete", n_agents=8, n_intervals=100, **SETTINGS[name])
-    with pytest.warns(PolicyAdaptedWarning, match="trained with 4 neighbour slots, acting on 7"):
-        policy = load_learned_policy(name, env)
+    with pytest.warns(OutOfDomainWarning, match="n_agents: trained on .*n_intervals: trained on 200.*graphs: "):
+        with pytest.warns(PolicyAdaptedWarning, match="trained with 4 neighbour slots, acting on 7"):
+            policy = load_learned_policy(name, env, allow_out_of_domain=True)
     _, metrics = episode(policy, env)
     assert metrics["relative_deadline_error"] < 1e-9
 
@@ -127,19 +131,24 @@ def test_vecnormalize_statistics_per_slot_keep_the_four_slot_actions(tmp_path):
     add_metadata(path, record)
     kwargs = {**RING, "n_agents": 8, "n_intervals": 30}
     four = fxc_env.parallel_env(**kwargs, obs_slots=4)
-    old = LearnedPolicy(path, four)  # the path without adaptation
-    assert old._stats is not None and load_learned_policy(path, four).__class__ is LearnedPolicy
+    with warnings.catch_warnings():  # N = 8 and K = 30: outside the generalist's domain (N = 20, K = 200)
+        warnings.simplefilter("ignore", OutOfDomainWarning)
+        old = LearnedPolicy(path, four, allow_out_of_domain=True)  # the path without adaptation
+        assert old._stats is not None
+        assert load_learned_policy(path, four, allow_out_of_domain=True).__class__ is LearnedPolicy
+        adapted = load_learned_policy(path, fxc_env.parallel_env(**kwargs), allow_out_of_domain=True)
     expected, _ = episode(old, four)
-    actions, _ = episode(load_learned_policy(path, fxc_env.parallel_env(**kwargs)), fxc_env.parallel_env(**kwargs))
+    actions, _ = episode(adapted, fxc_env.parallel_env(**kwargs))
     np.testing.assert_array_equal(actions, expected)
 
 
 def test_a_gain_network_in_the_plane_acts_per_axis_on_any_slots():
     kwargs = {"topology": "random", "n_agents": 6, "mean_in_degree": 2.0, "dim": 2, "n_intervals": 15}
-    with pytest.warns(PolicyAdaptedWarning, match="acting per axis in dim 2"):
-        four = load_learned_policy("generalist", fxc_env.parallel_env(**kwargs, obs_slots=4))
-    with pytest.warns(PolicyAdaptedWarning, match="acting per axis in dim 2"):
-        policy = load_learned_policy("generalist", env := fxc_env.parallel_env(**kwargs))
+    allow = {"allow_out_of_domain": True}  # N = 6, K = 15: outside the generalist's domain
+    with pytest.warns(OutOfDomainWarning), pytest.warns(PolicyAdaptedWarning, match="acting per axis in dim 2"):
+        four = load_learned_policy("generalist", fxc_env.parallel_env(**kwargs, obs_slots=4), **allow)
+    with pytest.warns(OutOfDomainWarning), pytest.warns(PolicyAdaptedWarning, match="acting per axis in dim 2"):
+        policy = load_learned_policy("generalist", env := fxc_env.parallel_env(**kwargs), **allow)
     assert isinstance(policy, PerAxisPolicy) and isinstance(policy.policy, SlotAdaptedPolicy)
     assert env.unwrapped.config.layout.slots != 4
     expected, _ = episode(four, fxc_env.parallel_env(**kwargs, obs_slots=4))
@@ -177,8 +186,14 @@ def test_a_torch_mlp_names_its_width_and_loads_padded(tmp_path):
     with pytest.raises(ArgumentError, match=r"a torch MLP .* up to 5 in-neighbours"):
         load_learned_policy(path, make_config(topology="complete", n_agents=6))
     kwargs = {"n_intervals": 20}
-    expected, _ = episode(load_learned_policy(path, four := fxc_env.parallel_env(**kwargs, obs_slots=4)), four)
-    actions, _ = episode(load_learned_policy(path, env := fxc_env.parallel_env(**kwargs)), env)
+    with pytest.warns(OutOfDomainWarning, match="n_intervals: trained on 200, this environment has 20"):
+        four_slots = load_learned_policy(
+            path, four := fxc_env.parallel_env(**kwargs, obs_slots=4), allow_out_of_domain=True
+        )
+    with pytest.warns(OutOfDomainWarning, match="n_intervals: trained on 200, this environment has 20"):
+        one_slot = load_learned_policy(path, env := fxc_env.parallel_env(**kwargs), allow_out_of_domain=True)
+    expected, _ = episode(four_slots, four)
+    actions, _ = episode(one_slot, env)
     np.testing.assert_array_equal(actions, expected)
 
 
@@ -203,7 +218,7 @@ def test_fxc_evaluate_the_generalist_on_a_ring_of_20(tmp_path, capsys):
 
 
 def test_masked_rows_are_ignored_and_a_fixed_width_network_refuses_a_real_row_beyond_its_width():
-    config = make_config(topology="ring", n_agents=10, obs_slots=8)
+    config = make_config(scenario="paper_fig1", obs_slots=6)  # paper_fig1: inside its domain
     layout = config.layout
     obs = np.zeros((3, layout.size))
     obs[:, :2] = [[0.5, -1.0], [1.0, 0.25], [-0.75, 0.5]]  # slot 0's row
@@ -212,7 +227,7 @@ def test_masked_rows_are_ignored_and_a_fixed_width_network_refuses_a_real_row_be
     garbage = obs.copy()
     garbage[:, 2 : layout.rows_end] = 1e6  # rows of masked slots
     for name in ("generalist", "paper_fig1"):
-        policy = load_quietly(name, config)
+        policy = load_learned_policy(name, config, allow_out_of_domain=True)
         np.testing.assert_array_equal(policy(garbage), policy(obs))
     real_beyond = obs.copy()
     real_beyond[:, layout.rows_end + 5] = 1.0  # a real row in slot 5, past the MLP's 4
@@ -221,8 +236,8 @@ def test_masked_rows_are_ignored_and_a_fixed_width_network_refuses_a_real_row_be
 
 
 def test_dict_observations_give_the_flat_observations_actions():
-    flat = fxc_env.parallel_env(**RING, n_intervals=10)
-    nested = fxc_env.parallel_env(**RING, n_intervals=10, obs_format="dict")
+    flat = fxc_env.parallel_env(**RING)
+    nested = fxc_env.parallel_env(**RING, obs_format="dict")
     expected, _ = episode(load_quietly("generalist", flat), flat)
     actions, _ = episode(load_quietly("generalist", nested), nested)
     np.testing.assert_array_equal(actions, expected)
@@ -232,9 +247,9 @@ def test_sb3s_own_loader_adapts_the_same_way():
     """trusted=True (SB3's PPO.load) rebuilds the same network: the same adapted actions on in-degree 5."""
     env = fxc_env.parallel_env(topology="complete", n_agents=6)
     obs = np.stack(list(env.reset(seed=1)[0].values()))
-    with pytest.warns(PolicyAdaptedWarning):
-        safe = load_learned_policy("generalist", env)
-    with pytest.warns(PolicyAdaptedWarning):
-        trusted = load_learned_policy(pretrained_path("generalist"), env, trusted=True)
+    with pytest.warns(OutOfDomainWarning), pytest.warns(PolicyAdaptedWarning):
+        safe = load_learned_policy("generalist", env, allow_out_of_domain=True)
+    with pytest.warns(OutOfDomainWarning), pytest.warns(PolicyAdaptedWarning):
+        trusted = load_learned_policy(pretrained_path("generalist"), env, trusted=True, allow_out_of_domain=True)
     assert isinstance(trusted, SlotAdaptedPolicy)
     np.testing.assert_allclose(trusted(obs), safe(obs), rtol=1e-6, atol=1e-7)

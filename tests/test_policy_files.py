@@ -21,6 +21,7 @@ from helpers import torch_mlp_policy_file
 
 from fxc_env import make_config
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.domain import training_domain
 from fxc_env.policies.learned import (
     LearnedPolicy,
     PerAxisPolicy,
@@ -174,8 +175,11 @@ def test_an_activation_known_only_from_a_pickle_needs_the_metadata_that_save_mod
     path = save_model(model, tmp_path / "saved.zip")
     record = json.loads(members(path)[METADATA_MEMBER])
     assert record["activation"] == "relu" and record["env"]["scenario"] == "paper_fig1"
+    # Its training domain (fxc_env.policies.domain), from the environment under the model.
+    assert record["domain"] == training_domain(make_config("paper_fig1", obs_slots=4, n_intervals=10))
     obs = np.random.default_rng(3).uniform(-1, 1, size=(32, 15))
-    policy = LearnedPolicy(path, make_config("paper_fig1", obs_slots=4))
+    trained = make_config("paper_fig1", obs_slots=4, n_intervals=record["env"]["n_intervals"])
+    policy = LearnedPolicy(path, trained)
     assert np.array_equal(policy(obs), model.predict(obs, deterministic=True)[0])
     with pytest.raises(ArgumentError, match=r"action_mode: trained with 'plan', this environment has 'accel'"):
         LearnedPolicy(path, make_config("paper_fig1", obs_slots=4, action_mode="accel"))
@@ -185,7 +189,7 @@ def test_an_activation_known_only_from_a_pickle_needs_the_metadata_that_save_mod
 @pytest.mark.parametrize(
     ("name", "env", "message"),
     [
-        ("saturated", {"u_max": 10.0}, r"schedule: trained with 'uniform', this environment has 'paper'"),
+        ("saturated", {"u_max": 10.0}, r"schedule: trained on 'uniform', this environment has 'paper'"),
         ("paper_fig1", {"action_mode": "accel"}, r"action_mode: trained with 'plan', this environment has 'accel'"),
         ("paper_fig1", {"obs_mode": "raw"}, r"obs_mode: trained with 'normalized', this environment has 'raw'"),
         (
@@ -216,7 +220,7 @@ def test_a_policy_refuses_settings_it_was_not_trained_for_naming_the_setting_and
     ("name", "env"),
     [
         ("paper_fig1", {}),
-        ("generalist", {"topology": "ring", "n_agents": 8}),
+        ("generalist", {"topology": "ring", "n_agents": 20}),
         ("saturated", {"schedule": "uniform", "u_max": 10.0}),
     ],
 )
@@ -228,15 +232,16 @@ def test_matching_settings_load(name, env):
 
 
 def test_a_one_axis_policy_in_the_plane_acts_per_axis_and_says_so():
-    config = make_config("paper_fig1", obs_slots=4, dim=2)
+    config = make_config(None, topology="ring", n_agents=20, obs_slots=4, dim=2)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         policy = load_learned_policy(pretrained_path("generalist"), config)
     assert isinstance(policy, PerAxisPolicy) and policy.adaptation == "trained in dim 1, acting per axis in dim 2"
     assert [w.category for w in caught] == [PolicyAdaptedWarning]
-    with pytest.raises(ArgumentError, match=r"schedule: trained with 'paper', this environment has 'uniform'"):
+    with pytest.raises(ArgumentError, match=r"schedule: trained on 'paper', this environment has 'uniform'"):
         load_learned_policy(
-            pretrained_path("generalist"), make_config("paper_fig1", obs_slots=4, dim=2, schedule="uniform")
+            pretrained_path("generalist"),
+            make_config(None, topology="ring", n_agents=20, obs_slots=4, dim=2, schedule="uniform"),
         )
 
 
@@ -253,7 +258,7 @@ def test_a_torch_policy_refuses_settings_other_than_its_recorded_env(tmp_path):
         load_learned_policy(path, make_config("paper_fig1", obs_slots=4, action_mode="accel"))
     from fxc_env.policies.torch_policy import load_torch_policy
 
-    with pytest.raises(ArgumentError, match=r"schedule: trained with 'paper', this environment has 'uniform'"):
+    with pytest.raises(ArgumentError, match=r"schedule: trained on 'paper', this environment has 'uniform'"):
         load_torch_policy(path, make_config("paper_fig1", obs_slots=4, schedule="uniform"))
     assert load_torch_policy(path, make_config("paper_fig1", obs_slots=4)).training_settings["obs_slots"] == 4
 
@@ -296,7 +301,8 @@ def test_a_sac_model_loads_from_its_plain_fields_as_sb3_acts(tmp_path):
     obs = np.random.default_rng(5).uniform(-1, 1, size=(32, 15))
     expected, _ = model.predict(obs, deterministic=True)
     for path in (tmp_path / "plain.zip", save_model(model, tmp_path / "saved.zip")):
-        assert np.array_equal(LearnedPolicy(path, make_config("paper_fig1", obs_slots=4))(obs), expected)
+        config = make_config("paper_fig1", obs_slots=4, n_intervals=10)
+        assert np.array_equal(LearnedPolicy(path, config)(obs), expected)
 
 
 def test_a_malformed_description_is_refused_naming_the_file(tmp_path):

@@ -8,6 +8,8 @@ controller's (eq. 11) on the same seeded episodes, through the same jobs as ``fx
 from __future__ import annotations
 
 import json
+import re
+import warnings
 
 import numpy as np
 import pytest
@@ -20,6 +22,7 @@ from fxc_env.core.families import TopologyFamily
 from fxc_env.core.graphs import named_topology
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine.consensus_engine import ConsensusEngine
+from fxc_env.policies.domain import OutOfDomainWarning
 from fxc_env.policies.interval_gains import IntervalGainPolicy, read_interval_gains
 from fxc_env.policies.learned import load_learned_policy, pretrained_path
 from fxc_env.policies.policy_files import training_settings
@@ -92,31 +95,53 @@ def test_masked_rows_are_ignored():
 @pytest.mark.parametrize(
     ("override", "setting", "ours", "theirs"),
     [
-        ({"n_agents": 24}, "n_agents", "20", "24"),
-        ({"n_intervals": 100}, "n_intervals", "200", "100"),
-        ({"settling_time": 10.0}, "settling_time", "20.0", "10.0"),
-        ({"schedule": "uniform"}, "schedule", "'paper'", "'uniform'"),
         ({"action_mode": "accel"}, "action_mode", "'plan'", "'accel'"),
         ({"obs_mode": "raw"}, "obs_mode", "'normalized'", "'raw'"),
         ({"dim": 2}, "dim", "dim=1", "dim=2"),
         ({"u_max": 10.0}, "u_max", "limit_feature=False", "limit_feature=True"),
-        ({"topology": {"family": "path"}}, "topology", "'ring'", "'path'"),
-        ({"topology": {"family": "ring", "period": (2, 3)}}, "topology", "'ring'", "period (2, 3)"),
     ],
 )
-def test_the_rings_policy_refuses_settings_it_was_not_trained_for_by_name(override, setting, ours, theirs):
+def test_the_rings_policy_refuses_settings_its_table_cannot_read_by_name(override, setting, ours, theirs):
     config = make_config(None, **{**TASK, "topology": TopologyFamily("ring"), **override})
     with pytest.raises(ArgumentError, match=setting) as raised:
-        load_learned_policy("rings", config)
+        load_learned_policy("rings", config, allow_out_of_domain=True)
     assert str(raised.value).startswith(setting) and ours in str(raised.value) and theirs in str(raised.value)
 
 
-def test_a_fixed_graph_must_have_the_trained_spectrum():
+@pytest.mark.parametrize(
+    ("override", "difference"),
+    [
+        ({"n_agents": 24}, "n_agents: trained on 20, this environment has 24"),
+        ({"n_intervals": 100}, "n_intervals: trained on 200, this environment has 100"),
+        ({"schedule": "uniform"}, "schedule: trained on 'paper', this environment has 'uniform'"),
+        ({"obs_noise": 0.01}, "obs_noise: trained on 0, this environment has 0.01"),
+        ({"topology": {"family": "path"}}, "graphs: trained on ring (period 1), this environment has the family path"),
+        ({"topology": {"family": "ring", "period": (2, 3)}}, "this environment has the family ring (period 2 to 3)"),
+        ({"topology": named_topology("path", 20)}, "this environment has the fixed topology 'path' (path, period 1"),
+    ],
+)
+def test_the_rings_policy_refuses_an_environment_outside_its_domain_unless_allowed(override, difference):
+    config = make_config(None, **{**TASK, "topology": TopologyFamily("ring"), **override})
+    with pytest.raises(ArgumentError, match=r"^policy: .*rings\.npz was trained on another domain") as raised:
+        load_learned_policy("rings", config)
+    assert difference in str(raised.value)
+    with pytest.warns(OutOfDomainWarning, match=re.escape(difference)):
+        assert isinstance(load_learned_policy("rings", config, allow_out_of_domain=True), IntervalGainPolicy)
+
+
+def test_a_fixed_directed_ring_in_any_labelling_is_inside_the_domain_and_another_t_s_is_exact():
     ring = make_config(None, **{**TASK, "topology": "ring"})
-    assert isinstance(load_learned_policy("rings", ring), IntervalGainPolicy)
-    path = make_config(None, **{**TASK, "topology": named_topology("path", 20)})
-    with pytest.raises(ArgumentError, match=r"^topology: .*another spectrum"):
-        load_learned_policy("rings", path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert isinstance(load_learned_policy("rings", ring), IntervalGainPolicy)
+    relabelled = TopologyFamily("ring").draw(20, np.random.default_rng(3))
+    assert isinstance(
+        load_learned_policy("rings", make_config(None, **{**TASK, "topology": relabelled})), IntervalGainPolicy
+    )
+    # Time rescales away in normalized units (every observation and plan is in units of the coming interval).
+    slower = make_config(None, **{**TASK, "topology": "ring", "settling_time": 10.0})
+    with pytest.warns(OutOfDomainWarning, match=r"settling_time: trained on 20, this environment has 10 \(exact"):
+        load_learned_policy("rings", slower)
 
 
 @pytest.mark.slow

@@ -36,9 +36,13 @@ def test_pretrained_means_the_generalist():
 @pytest.mark.parametrize("case", generalisation_cases(), ids=lambda s: s.key)
 @pytest.mark.slow
 def test_the_generalist_is_within_a_decade_of_the_reference_on_every_family_of_the_generalisation_suite(case):
-    """The goal asks this where the reference reaches below 1e-6; it holds on the slow rings too."""
+    """The goal asks this where the reference reaches below 1e-6; it holds on the slow rings too.
+
+    The suite measures generalisation: most cases lie outside the generalist's training domain (N = 20,
+    K = 200, its four families), so it runs there by ``allow_out_of_domain``.
+    """
     reference = log_error(builtin_contenders(["reference"])[0], case)
-    assert log_error(learned_contender("generalist"), case) <= reference + 1.0
+    assert log_error(learned_contender("generalist", allow_out_of_domain=True), case) <= reference + 1.0
 
 
 def best_analytic_log_error(case) -> float:
@@ -63,7 +67,7 @@ def best_analytic_log_error(case) -> float:
 )
 @pytest.mark.slow
 def test_the_saturated_policy_beats_the_five_analytic_laws_tenfold_where_the_limit_binds(case):
-    learned = log_error(learned_contender("saturated"), case)
+    learned = log_error(learned_contender("saturated", allow_out_of_domain=case.n_agents != 6), case)  # trained N = 6
     assert learned <= best_analytic_log_error(case) - 1.0
 
 
@@ -71,7 +75,7 @@ def test_the_saturated_policy_beats_the_five_analytic_laws_tenfold_where_the_lim
 def test_the_saturated_policy_stays_within_a_decade_of_the_reference_where_the_limit_does_not_bind():
     case = BenchmarkCase("random", 20, conditions=(("u_max", 100.0),))
     reference = log_error(builtin_contenders(["reference"])[0], case)
-    assert log_error(learned_contender("saturated"), case) <= reference + 1.0
+    assert log_error(learned_contender("saturated", allow_out_of_domain=True), case) <= reference + 1.0  # N = 20
 
 
 def test_the_saturated_policy_sees_its_limit_and_runs_on_the_uniform_schedule():

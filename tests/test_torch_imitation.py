@@ -61,7 +61,9 @@ def test_the_trained_record_is_a_gru_policy_file_that_knows_its_task(tmp_path):
     )
     assert made["sizes"] == [4] and "round_0" in made
     torch.save(record, tmp_path / "policy.pt")
-    policy = load_torch_policy(tmp_path, recurrent_imitation.task_config(20))  # trained on 4, fits 20: N is not read
+    with pytest.warns(UserWarning, match="n_agents: trained on 4, this environment has 20"):  # N is not read
+        policy = load_torch_policy(tmp_path, recurrent_imitation.task_config(20), allow_out_of_domain=True)
+    assert policy.training_domain["n_agents"] == [4, 4]  # the trainer records its domain
     assert policy.arch == "gru" and policy.training_settings["obs_slots"] == 1
     assert policy.training_settings["schedule"] == "paper" and policy.action_bound == 20.0
     with pytest.raises(ArgumentError, match=r"schedule"):

@@ -92,6 +92,12 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
         help="allow saved policies whose format must unpickle (RLlib checkpoints, SB3 zips without fxc_policy.json, "
         "VecNormalize .pkl): unpickling runs code from the file, so only for files you made or trust",
     )
+    parser.add_argument(
+        "--allow-out-of-domain",
+        action="store_true",
+        help="run learned policies on cases outside the training domain their files record (graphs, N, switching, "
+        "schedule, K, ...), with a warning naming every difference; without it such cases are reported as not run",
+    )
     parser.add_argument("--suite", choices=SUITES, help="a named suite (default 'evaluate' without environment flags)")
     parser.add_argument("--seeds", type=int, default=20, help="seeded episodes per case")
     parser.add_argument("--budgets", default="200", help="comma-separated K values (default 200)")
@@ -192,10 +198,20 @@ def evaluate_command(args: argparse.Namespace) -> int:
 
         runs = [seed_evaluation.resolve_run(entry) for entry in seed_evaluation.expand_runs(args.runs)]
         label = args.label or seed_evaluation.default_label(runs)
-        own = seed_evaluation.seed_contenders(runs, label, trusted=args.trust_policy_file, **learned)
+        own = seed_evaluation.seed_contenders(
+            runs, label, trusted=args.trust_policy_file, allow_out_of_domain=args.allow_out_of_domain, **learned
+        )
         contenders += own
     elif args.policy != "reference":
-        contenders.append(learned_contender(args.policy, name="--policy", trusted=args.trust_policy_file, **learned))
+        contenders.append(
+            learned_contender(
+                args.policy,
+                name="--policy",
+                trusted=args.trust_policy_file,
+                allow_out_of_domain=args.allow_out_of_domain,
+                **learned,
+            )
+        )
     command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["evaluate"] else None
     try:
         out.mkdir(parents=True, exist_ok=True)

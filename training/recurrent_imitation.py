@@ -58,6 +58,7 @@ from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
+from fxc_env.policies.domain import training_domain
 from fxc_env.policies.reference import ReferencePolicy
 from fxc_env.policies.torch_memory import RecurrentActor
 from fxc_env.policies.torch_policy import POLICY_FORMAT, TorchPolicy, load_torch_policy
@@ -265,6 +266,7 @@ def train(
         "actor": {k: v.detach().clone() for k, v in actor.state_dict().items()},
         "log_std": torch.full((configs[0].action_size,), -3.0),
         "env": env_record(int(sizes[0])),
+        "domain": training_domain(*configs),
         "timesteps": 0,
         "imitation": json.dumps(record),
     }

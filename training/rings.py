@@ -49,6 +49,7 @@ from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
+from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum
 from fxc_env.policies.policy_files import training_settings
 from fxc_env.policies.reference import ReferencePolicy
@@ -229,6 +230,7 @@ def train(
     header = {
         "name": "rings",
         "env": training_settings(config),
+        "domain": training_domain(config),
         "topology": {"family": "ring", "relabel": True, "period": 1},
         "position_range": list(TASK["position_range"]),
         "velocity_range": list(TASK["velocity_range"]),

@@ -200,6 +200,7 @@ def seed_contenders(
     label: str,
     *,
     trusted: bool = False,
+    allow_out_of_domain: bool = False,
     schedule: str | None = None,
     action_mode: str | None = None,
     obs_mode: str | None = None,
@@ -230,7 +231,9 @@ def seed_contenders(
         }
         if settings["schedule"] not in ("paper", "uniform"):
             settings["schedule"] = None  # a custom or unrecorded schedule: the benchmark's default for it
-        contender = learned_contender(run.spec, name=name, trusted=trusted, **settings)
+        contender = learned_contender(
+            run.spec, name=name, trusted=trusted, allow_out_of_domain=allow_out_of_domain, **settings
+        )
         contenders.append(replace(contender, name=f"learned:{label}-seed{run.seed}"))
     return contenders
 

@@ -75,6 +75,7 @@ from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.graph_tensors import edge_capacity
+from fxc_env.policies.domain import training_domain
 from fxc_env.policies.torch_memory import GRU_INPUTS, MessagePassingActor, RecurrentActor, interval_graph
 from fxc_env.policies.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp
 from fxc_env.training.args import TrainArgs, check_train_args
@@ -561,6 +562,7 @@ class Trainer:
             "actor": {k: v.detach().cpu().clone() for k, v in self.model.actor.state_dict().items()},
             "log_std": self.model.log_std.detach().cpu().clone(),
             "env": dict(self.env_kwargs),
+            "domain": training_domain(self.config),
             "timesteps": self.timesteps,
         }
 

@@ -13,15 +13,18 @@ float64 (the units of the normalized observation and plan: ``alpha_x = a_x / s_i
 ``alpha_v = T_{k+1} a_v / s_i``). The paper's controller (eq. 11) is the table
 ``G_k = [[1, 1], [0, 1]]`` in these units (the coasting matrix ``P_k``, scaled); the minimum-time law (:mod:`fxc_env.baselines.minimum_time`) is another table, one factor
 per eigenvalue of ``(D + I)^{-1} L``. A table is tied to the graph's spectrum and to the schedule,
-``K`` and ``N`` it was learned on, and the policy refuses any other, by name.
+``K`` and ``N`` it was learned on: its training domain (:mod:`fxc_env.policies.domain`), outside
+which it is refused by name unless ``allow_out_of_domain=True``.
 
 **File format** (``.npz``, read with ``allow_pickle=False``: nothing in it runs): ``gains``
 ``(K, 2, 2)`` float64 and ``header``, a JSON string: ``format`` (:data:`FORMAT`), ``name``,
 ``env`` (:func:`fxc_env.policies.policy_files.training_settings` of the training environment:
 schedule, modes, ``dim``, ``obs_slots`` (for the record: the table reads any), ``n_agents``, ``n_intervals``, ``settling_time``,
 ``u_max``), ``topology`` (the graph family, e.g. ``{"family": "ring", "relabel": true}``),
-``eigenvalues`` (the spectrum of ``(D + I)^{-1} L`` it was trained on, ``[[re, im], ...]``, 0 included)
-and ``training`` (how it was made: command, method, wall time, figures).
+``eigenvalues`` (the spectrum of ``(D + I)^{-1} L`` it was trained on, ``[[re, im], ...]``, 0 included),
+``domain`` (:func:`fxc_env.policies.domain.training_domain` of the training environment; derived
+from ``env`` and ``topology`` for a file without it) and ``training`` (how it was made: command,
+method, wall time, figures).
 """
 
 from __future__ import annotations
@@ -37,12 +40,9 @@ from fxc_env.core.validation import ArgumentError
 
 #: The ``format`` entry of a gain-schedule file's header.
 FORMAT = "fxc_env.interval_gains/1"
-#: Settings of the environment a gain schedule must meet exactly, with the keyword that sets each.
+#: Settings of the environment a gain schedule must meet exactly (what its inputs and outputs mean),
+#: with the keyword that sets each; where it was trained (N, K, T_s, schedule, graphs) is its domain.
 MATCHED_SETTINGS = {
-    "n_agents": "n_agents",
-    "n_intervals": "n_intervals",
-    "settling_time": "settling_time",
-    "schedule": "schedule",
     "action_mode": "action_mode",
     "obs_mode": "obs_mode",
     "dim": "dim",
@@ -90,6 +90,24 @@ class IntervalGainPolicy:
     def n_intervals(self) -> int:
         return len(self.gains)
 
+    @property
+    def training_domain(self) -> dict[str, Any]:
+        """Where the table was learned (:mod:`fxc_env.policies.domain`): the header's ``domain``, or for a
+        file without one its ``env`` settings and ``topology`` family on ideal agents with periodic switching."""
+        if self.header.get("domain"):
+            return dict(self.header["domain"])
+        from fxc_env.policies.domain import domain_from_settings
+
+        domain = dict(domain_from_settings(self.training_settings) or {})
+        family = dict(self.header.get("topology", {}))
+        if "family" in family:
+            period = family.get("period", 1)
+            period = [int(period), int(period)] if isinstance(period, int | float) else [int(p) for p in period]
+            domain["graphs"] = [{"family": family["family"], "period": period}]
+        domain.update(switching=["periodic"], obs_noise=[0.0, 0.0], link_dropout=[0.0, 0.0])
+        domain.pop("partial", None)
+        return domain
+
     def read_slots(self, slots: int) -> None:
         """Read observations with ``slots`` neighbour slots (any ``obs_slots``: ``r_i`` sums the real rows only).
 
@@ -120,15 +138,19 @@ class IntervalGainPolicy:
         np.savez_compressed(path, gains=self.gains, header=np.array(json.dumps(header, sort_keys=True)))
         return path
 
-    def check(self, env: Any) -> None:
+    def check(self, env: Any, allow_out_of_domain: bool = False) -> None:
         """Refuse an environment this table was not trained for, naming the setting and both values.
 
-        Checks every setting of :data:`MATCHED_SETTINGS`, the ideal agents (no ``obs_noise``,
-        ``link_dropout`` or random switching) and the graph: a family must be the trained one
-        (kind and switching period), a fixed graph must have the trained spectrum of
-        ``(D + I)^{-1} L`` (the gains cancel those modes and no others).
+        Checks every setting of :data:`MATCHED_SETTINGS` (what the table's inputs and outputs
+        mean), then its training domain (:func:`fxc_env.policies.domain.check_domain`: N, K, T_s,
+        schedule, ideal agents without ``obs_noise`` or ``link_dropout``, no switching, and the
+        graph: a family must be the trained one, a fixed graph a directed ring in any labelling,
+        whose ``(D + I)^{-1} L`` has the trained spectrum: the gains cancel those modes and no
+        others). ``allow_out_of_domain`` runs it outside its domain with a warning naming every
+        difference.
         """
         from fxc_env.config import config_of
+        from fxc_env.policies.domain import check_domain
         from fxc_env.policies.policy_files import training_settings
 
         config = config_of(env, "IntervalGainPolicy")
@@ -141,41 +163,9 @@ class IntervalGainPolicy:
                     f"{keyword}: the {name} policy was trained with {key}={trained!r}; this environment has "
                     f"{key}={got!r} (its gain table fits only the setting it was learned on)"
                 )
-        for key in ("obs_noise", "link_dropout"):
-            if getattr(config, key) != 0:
-                raise ArgumentError(
-                    f"{key}: the {name} policy was trained on ideal agents ({key}=0); got {key}={getattr(config, key)!r}"
-                )
-        if config.switching != "periodic":
-            raise ArgumentError(f"switching: the {name} policy was trained on fixed graphs; got {config.switching!r}")
-        self._check_topology(config, name)
-
-    def _check_topology(self, config: Any, name: str) -> None:
-        family = dict(self.header.get("topology", {}))
-        if config.family is not None:
-            kind = getattr(config.family, "kind", None)
-            period = tuple(getattr(config.family, "period", (0, 0)))
-            got = f"{config.family.name!r}" if kind is None else f"family {kind!r} with period {period}"
-            if kind != family.get("family") or period != (1, 1):
-                raise ArgumentError(
-                    f"topology: the {name} policy was trained on fixed graphs of family {family.get('family')!r}; "
-                    f"this environment draws {got}"
-                )
-            return
-        if config.topology.period != 1:
-            raise ArgumentError(
-                f"topology: the {name} policy was trained on one fixed graph per episode; this environment switches "
-                f"between {config.topology.period} graphs"
-            )
-        trained = np.asarray(self.header["eigenvalues"], dtype=np.float64)
-        trained = trained[:, 0] + 1j * trained[:, 1]
-        got = spectrum(config.topology)
-        if len(got) != len(trained) or _distance(got, trained) > 1e-6 or _distance(trained, got) > 1e-6:
-            raise ArgumentError(
-                f"topology: the {name} policy's gains cancel the modes of the graph it was trained on "
-                f"({family.get('family')!r}); this environment's {config.topology.name!r} has another spectrum of "
-                "(D + I)^-1 L"
-            )
+        check_domain(
+            self.training_domain, config, self.source or f"the {name} policy", allow_out_of_domain, stacklevel=4
+        )
 
 
 def spectrum(topology: Any) -> np.ndarray:
@@ -184,11 +174,6 @@ def spectrum(topology: Any) -> np.ndarray:
     laplacian = laplacian.toarray() if hasattr(laplacian, "toarray") else np.asarray(laplacian)
     w_hat = laplacian / (np.asarray(topology.in_degree[0], dtype=np.float64)[:, None] + 1.0)
     return np.linalg.eigvals(w_hat)
-
-
-def _distance(points: np.ndarray, targets: np.ndarray) -> float:
-    """The largest distance from a point to its nearest target (one side of the Hausdorff distance)."""
-    return float(np.max(np.min(np.abs(points[:, None] - targets[None, :]), axis=1))) if len(points) else 0.0
 
 
 def read_interval_gains(path: str | Path) -> IntervalGainPolicy:
@@ -207,11 +192,15 @@ def read_interval_gains(path: str | Path) -> IntervalGainPolicy:
     return IntervalGainPolicy(gains, header, source=path)
 
 
-def load_interval_gains(path: str | Path, env: Any = None, *, check: bool = True) -> IntervalGainPolicy:
+def load_interval_gains(
+    path: str | Path, env: Any = None, *, check: bool = True, allow_out_of_domain: bool = False
+) -> IntervalGainPolicy:
     """Read the policy at ``path``; with ``env``, refuse it (:meth:`IntervalGainPolicy.check`) unless it fits.
 
-    ``check=False`` skips the settings and graph checks (the observation size must still fit): for
-    measuring how a table transfers to settings it was not trained for.
+    ``allow_out_of_domain`` runs it outside its training domain with a warning naming every
+    difference. ``check=False`` skips the settings and domain checks, silently (the observation
+    size must still fit): for measuring, in training code, how a table transfers to settings it
+    was not trained for.
     """
     policy = read_interval_gains(path)
     if env is not None:
@@ -219,7 +208,7 @@ def load_interval_gains(path: str | Path, env: Any = None, *, check: bool = True
 
         config = config_of(env, "policy")
         if check:
-            policy.check(config)
+            policy.check(config, allow_out_of_domain)
         policy.read_slots(config.layout.slots)
         if (config.layout.size, config.action_size) != (policy.obs_size, policy.action_size):
             raise ArgumentError(

@@ -15,9 +15,13 @@ author put in it (README, "Training learned policies").
 **A policy meets the settings it was trained for.** A file that records its training
 environment (SB3 ``.zip`` files saved by ``fxc train`` or
 :func:`~fxc_env.policies.policy_files.save_model`, torch policies) is refused in an environment
-whose schedule, action or observation mode, input-limit feature, agent model, dimension or
+whose action or observation mode, input-limit feature, agent model, dimension or
 observation slots differ (:data:`fxc_env.policies.policy_files.CHECKED_SETTINGS`), with an
-error naming the setting and both values. :func:`load_learned_policy` adapts two of them:
+error naming the setting and both values, and in one outside its **training domain** (graphs,
+N, switching, schedule, K, limits, noise: :mod:`fxc_env.policies.domain`), naming every
+difference, unless ``allow_out_of_domain=True`` (then an
+:class:`~fxc_env.policies.domain.OutOfDomainWarning` names them). :func:`load_learned_policy`
+adapts two settings:
 
 * **any obs_slots and N** (:class:`SlotAdaptedPolicy`): the observation is rebuilt in the
   trained layout. Fewer rows than trained with are padded exactly as an environment built
@@ -39,6 +43,7 @@ import re
 import warnings
 import zipfile
 import zlib
+from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -47,6 +52,7 @@ import numpy as np
 
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.domain import check_domain, checked_allow, domain_from_settings, training_domain
 from fxc_env.policies.policy_files import (
     TRUST_HINT,
     check_settings,
@@ -147,15 +153,27 @@ class LearnedPolicy:
             saved with its statistics in ``fxc_policy.json`` uses those without this argument.
         trusted: allow formats that unpickle (SB3's loader, VecNormalize's pickle); they run
             any code a crafted file holds.
+        allow_out_of_domain: run in an ``env`` outside the training domain the model records,
+            with an :class:`~fxc_env.policies.domain.OutOfDomainWarning` naming every difference
+            (refused by name otherwise; :func:`fxc_env.policies.domain.check_domain`).
 
     Attributes:
         training_settings: the settings of the environment it was trained on
             (:func:`fxc_env.policies.policy_files.training_settings`), or None when the file
             records none.
+        training_domain: where it was trained (:func:`fxc_env.policies.domain.training_domain`;
+            for a file that records only its settings, the N, K, T_s, schedule and limits they
+            hold), or None.
     """
 
     def __init__(
-        self, model: Any, env: Any = None, vecnormalize: str | Path | None = None, *, trusted: bool = False
+        self,
+        model: Any,
+        env: Any = None,
+        vecnormalize: str | Path | None = None,
+        *,
+        trusted: bool = False,
+        allow_out_of_domain: bool = False,
     ) -> None:
         self.source = model if isinstance(model, str | Path) else None
         self.model = load_model(model, trusted=trusted) if isinstance(model, str | Path) else model
@@ -163,16 +181,18 @@ class LearnedPolicy:
         self.action_size = int(np.prod(self.model.action_space.shape))
         self.training_settings = _recorded_settings(self.model)
         self._stats = getattr(self.model, "normalization", None)
+        self.training_domain = _recorded_domain(self.model, self.training_settings)
         if self.source is not None and trusted:  # SB3's loader: the plain record still says how it was trained
             record = read_metadata(self.source) or {}
             self.training_settings = self.training_settings or record.get("env")
+            self.training_domain = record.get("domain") or domain_from_settings(self.training_settings)
             self._stats = self._stats or record.get("normalization")
         if self._stats is not None:
             self._stats = normalization_stats(self._stats, self.obs_size, self.source)
         if vecnormalize is not None:
             self._stats = read_normalization(vecnormalize, self.obs_size, trusted=trusted)
         if env is not None:
-            check_fit(self, env, "LearnedPolicy")
+            check_fit(self, env, "LearnedPolicy", allow_out_of_domain=allow_out_of_domain)
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
         """Actions ``(..., action_size)`` for observations ``(..., obs_size)``."""
@@ -200,6 +220,24 @@ def _recorded_settings(model: Any) -> dict[str, Any] | None:
         return training_settings(vec)
     except (ArgumentError, AttributeError):
         return None
+
+
+def _recorded_domain(model: Any, settings: Any) -> dict[str, Any] | None:
+    """The training domain a model records (a SavedModel's), an in-memory model's env's, or the part its settings give."""
+    recorded = getattr(model, "domain", None)
+    if recorded:
+        return recorded
+    if not hasattr(model, "training"):  # SB3's own model in memory: its training environment, if it has one
+        get_env = getattr(model, "get_env", None)
+        vec = get_env() if callable(get_env) else None
+        while vec is not None and hasattr(vec, "venv"):
+            vec = vec.venv
+        if vec is not None:
+            try:
+                return training_domain(vec)
+            except (ArgumentError, AttributeError):
+                pass
+    return domain_from_settings(settings)
 
 
 def read_normalization(path: str | Path, obs_size: int, *, trusted: bool = False) -> dict[str, Any]:
@@ -270,12 +308,16 @@ def check_sizes(env: Any, obs_size: int, action_size: int, who: str, note: str =
         )
 
 
-def check_fit(policy: Any, env: Any, who: str = "policy", skip: tuple[str, ...] = ()) -> None:
-    """Refuse an environment that ``policy`` does not fit: its sizes, then its recorded training settings.
+def check_fit(
+    policy: Any, env: Any, who: str = "policy", skip: tuple[str, ...] = (), *, allow_out_of_domain: bool = False
+) -> None:
+    """Refuse an environment that ``policy`` does not fit: its sizes, its recorded training settings, its domain.
 
     The size error names the sizes (and, where the policy records them, the settings behind
     them); the settings error names each setting that differs and both values
-    (:func:`fxc_env.policies.policy_files.check_settings`).
+    (:func:`fxc_env.policies.policy_files.check_settings`); an environment outside the
+    policy's ``training_domain`` is refused naming every difference unless
+    ``allow_out_of_domain`` (then a warning names them; :func:`fxc_env.policies.domain.check_domain`).
     """
     from fxc_env.config import config_of
 
@@ -285,6 +327,7 @@ def check_fit(policy: Any, env: Any, who: str = "policy", skip: tuple[str, ...] 
     differences = setting_differences(trained, config, skip)
     check_sizes(config, policy.obs_size, policy.action_size, who, describe_differences(differences))
     check_settings(trained, config, source, skip)
+    check_domain(getattr(policy, "training_domain", None), config, source, allow_out_of_domain, stacklevel=4)
 
 
 def rllib_checkpoint(path: str | Path) -> Path | None:
@@ -335,6 +378,7 @@ class RLlibPolicy:
             )
         self.source = found
         self.training_settings: dict[str, Any] | None = None
+        self.training_domain: dict[str, Any] | None = None  # an RLlib checkpoint records none
         module_dir = found / "learner_group" / "learner" / "rl_module" / module_id
         if not module_dir.is_dir():
             raise ArgumentError(f"policy: the RLlib checkpoint {found} has no module {module_id!r}")
@@ -489,6 +533,7 @@ class SlotAdaptedPolicy:
         self.action_size = policy.action_size
         self.source = getattr(policy, "source", None)
         self.training_settings = getattr(policy, "training_settings", None)
+        self.training_domain = getattr(policy, "training_domain", None)
         self.adaptation = f"trained with {slots} neighbour slots, acting on {layout.slots}"
 
     def trained_observation(self, observation: Any) -> np.ndarray:
@@ -530,8 +575,15 @@ class SlotAdaptedPolicy:
         out[beyond] = picked
         return out
 
-    def __call__(self, observation: Any) -> np.ndarray:
-        """Actions ``(..., action_size)`` for observations ``(..., obs_size)`` of the environment's layout."""
+    def __call__(self, observation: Any) -> Any:
+        """Actions ``(..., action_size)`` for observations ``(..., obs_size)`` of the environment's layout.
+
+        A mapping ``{agent: observation}`` (a PettingZoo env's observations) gives ``{agent: action}``,
+        the agents acting as one batch.
+        """
+        agents = agent_observations(observation)
+        if agents is not None:
+            return dict(zip(agents, self(np.stack([self.layout.flat(agents[a]) for a in agents])), strict=True))
         return np.asarray(self.policy(self.trained_observation(observation)), dtype=np.float64)
 
     def reset(self) -> None:
@@ -568,11 +620,27 @@ class PerAxisPolicy:
         self.action_size = config.action_size
         self.source = getattr(policy, "source", None)
         self.training_settings = getattr(policy, "training_settings", None)
+        self.training_domain = getattr(policy, "training_domain", None)
         self.adaptation = f"trained in dim 1, acting per axis in dim {config.dim}"
 
-    def __call__(self, observation: np.ndarray) -> np.ndarray:
+    def __call__(self, observation: Any) -> Any:
+        """Actions ``(..., 2 dim)`` for observations ``(..., obs_size)`` (flat or dict), or ``{agent: action}``
+        for ``{agent: observation}``.
+
+        A policy with a memory (a torch ``gru``) keeps one per agent and axis: it is refused one
+        agent's observation alone (called agent by agent, every agent would run through one memory).
+        """
+        agents = agent_observations(observation)
+        if agents is not None:
+            return dict(zip(agents, self(np.stack([self.layout.flat(agents[a]) for a in agents])), strict=True))
         obs = self.layout.flat(observation)
         lead, dim = obs.shape[:-1], self.config.dim
+        if not lead and has_memory(self.policy):
+            raise ArgumentError(
+                f"observations: this policy keeps a memory per agent and axis ({self.adaptation}); pass every "
+                f"agent's observations at once, [N, {self.obs_size}] or a dict agent -> observation, not one "
+                f"agent's ({self.obs_size},)"
+            )
         rows, mask, clock = self.layout.split(obs)  # rows (..., slots, 2, dim)
         sigma = np.max(np.abs(rows), axis=(-3, -2))  # (..., dim)
         scaled = rows / np.where(sigma > 0, sigma, 1.0)[..., None, None, :]
@@ -592,15 +660,15 @@ class PerAxisPolicy:
 
 
 def load_learned_policy(
-    path: str | Path, env: Any = None, *, trusted: bool = False
+    path: str | Path, env: Any = None, *, trusted: bool = False, allow_out_of_domain: bool = False
 ) -> LearnedPolicy | RLlibPolicy | PerAxisPolicy:
     """A saved policy: a torch policy (``policy.pt`` or a ``--backend torch`` run directory), an RLlib
     checkpoint or run directory (only with ``trusted=True``), else an SB3 PPO/SAC ``.zip``.
 
     Nothing in the file is unpickled unless ``trusted`` (see the module): ``fxc evaluate``
     and ``fxc benchmark`` should pass it only for ``--trust-policy-file``. With ``env``, the
-    policy must fit it: sizes, and the training settings the file records (schedule, modes,
-    input-limit feature, agent model, dim). Another ``obs_slots`` (and so any N and graph) is
+    policy must fit it: sizes, and the training settings the file records (modes, input-limit
+    feature, agent model, dim). Another ``obs_slots`` (and so any in-degree) is
     adapted (:func:`adapt_slots`, :class:`SlotAdaptedPolicy`): exactly for fewer rows than
     trained with, by the gain networks' per-row structure for more (a warning), refused by
     name for a fixed-width network whose width the environment's in-degree exceeds. A model
@@ -608,18 +676,26 @@ def load_learned_policy(
     otherwise the same settings, acts on every axis alone (:class:`PerAxisPolicy`; it warns
     once, and says so in ``adaptation``).
 
+    **The training domain.** A policy file records where it was trained (graphs, N, switching,
+    schedule, K, T_s, limits, noise: :mod:`fxc_env.policies.domain`). An ``env`` outside it is
+    refused, naming every difference, unless ``allow_out_of_domain=True`` (``fxc evaluate`` and
+    ``fxc benchmark``: ``--allow-out-of-domain``); then an
+    :class:`~fxc_env.policies.domain.OutOfDomainWarning` names every difference.
+
     Raises ``FileNotFoundError`` naming ``policy`` when nothing is saved at ``path``, and
     :class:`~fxc_env.core.validation.ArgumentError` naming ``policy`` when the file is empty,
-    damaged, not a PPO/SAC model, needs unpickling without ``trusted``, or does not fit
-    ``env`` (naming the sizes, or the setting and both values).
+    damaged, not a PPO/SAC model, needs unpickling without ``trusted``, does not fit ``env``
+    (naming the sizes, or the setting and both values), or ``env`` lies outside its training
+    domain without ``allow_out_of_domain``.
     """
+    checked_allow(allow_out_of_domain)
     path = pretrained_path(str(path)) if str(path) in SHIPPED and not Path(path).exists() else Path(path)
     from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
 
     if path.suffix == ".npz":
         from fxc_env.policies.interval_gains import load_interval_gains
 
-        return load_interval_gains(path, env)  # type: ignore[return-value]
+        return load_interval_gains(path, env, allow_out_of_domain=allow_out_of_domain)  # type: ignore[return-value]
     if is_torch_policy(path):
         policy: Any = load_torch_policy(path)
     elif path.is_dir():
@@ -647,21 +723,24 @@ def load_learned_policy(
     skip = ("dim",) if per_axis else ()
     if slots is not None and slots != target.slots and policy.action_size == (2 if per_axis else config.action_size):
         check_settings(trained, config, path, skip=(*skip, "obs_slots"))
-        policy = adapt_slots(policy, config, target, slots, path)
+        policy = adapt_slots(policy, config, target, slots, path, allow_out_of_domain=allow_out_of_domain)
         if per_axis:
             policy = PerAxisPolicy(policy, config)
     elif per_axis:
         check_settings(trained, config, path, skip=skip)
+        check_domain(policy.training_domain, config, path, allow_out_of_domain)
         policy = PerAxisPolicy(policy, config)
     else:
-        check_fit(policy, config, "policy")
+        check_fit(policy, config, "policy", allow_out_of_domain=allow_out_of_domain)
         return policy
     if per_axis:
         warnings.warn(f"policy: {path} was {policy.adaptation} (PerAxisPolicy)", PolicyAdaptedWarning, stacklevel=2)
     return policy
 
 
-def adapt_slots(policy: Any, config: Any, layout: Any, slots: int, source: Any) -> SlotAdaptedPolicy:
+def adapt_slots(
+    policy: Any, config: Any, layout: Any, slots: int, source: Any, *, allow_out_of_domain: bool | None = None
+) -> SlotAdaptedPolicy:
     """``policy`` (trained on ``slots`` neighbour slots) on observations of ``layout``: :class:`SlotAdaptedPolicy`.
 
     A fixed-width network (an MLP) is refused, naming its architecture, its width and the
@@ -670,6 +749,8 @@ def adapt_slots(policy: Any, config: Any, layout: Any, slots: int, source: Any) 
     environment built with ``obs_slots=slots`` pads it). A gain-scheduled network reads any
     number of rows; beyond ``slots`` it acts by its per-row structure (:class:`SlotAdaptedPolicy`)
     and warns (:class:`PolicyAdaptedWarning`) that this extrapolates past the trained in-degrees.
+    With ``allow_out_of_domain`` given, the policy's training domain is checked
+    (:func:`fxc_env.policies.domain.check_domain`) once the width fits, before any warning.
     """
     name, reads_any_rows = architecture_of(policy)
     degree = largest_in_degree(config)
@@ -687,6 +768,8 @@ def adapt_slots(policy: Any, config: Any, layout: Any, slots: int, source: Any) 
             "padded exactly, more cannot be read by this architecture: use a gain-scheduled policy "
             "(generalist, saturated) or one trained with enough obs_slots"
         )
+    if allow_out_of_domain is not None:
+        check_domain(getattr(policy, "training_domain", None), config, source, allow_out_of_domain, stacklevel=4)
     adapted = SlotAdaptedPolicy(policy, layout, slots, reads_any_rows)
     if degree > slots:
         warnings.warn(
@@ -697,6 +780,26 @@ def adapt_slots(policy: Any, config: Any, layout: Any, slots: int, source: Any) 
             stacklevel=3,
         )
     return adapted
+
+
+def agent_observations(observation: Any) -> dict[Any, Any] | None:
+    """``observation`` when it maps agents to observations (a PettingZoo env's), else None.
+
+    A dict observation of one agent (``obs_format="dict"``: ``neighbours``, ``mask``, ``clock``
+    [, ``input_limit``]) is not one: it is the agent's observation.
+    """
+    if isinstance(observation, Mapping) and "neighbours" not in observation:
+        return dict(observation)
+    return None
+
+
+def has_memory(policy: Any) -> bool:
+    """Whether ``policy`` (or the policy it wraps) carries a memory from call to call (a torch ``gru``)."""
+    while policy is not None:
+        if getattr(policy, "arch", None) == "gru":
+            return True
+        policy = getattr(policy, "policy", None)
+    return False
 
 
 class PolicyAdaptedWarning(UserWarning):

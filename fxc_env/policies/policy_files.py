@@ -23,6 +23,7 @@ as plain JSON beside the weights by :func:`save_model`: the member :data:`METADA
     action         {"shape": [action_size], "low": [...], "high": [...]}
     normalization  null, or VecNormalize's {"mean", "var", "epsilon", "clip_obs"} (observations)
     env            the training environment's settings (:func:`training_settings`)
+    domain         the training domain (:func:`fxc_env.policies.domain.training_domain`)
 
 :func:`check_settings` compares a policy's training settings with an environment's
 (:data:`CHECKED_SETTINGS`) and refuses a mismatch, naming the setting and both values.
@@ -74,10 +75,12 @@ PARAMETER_PREFIXES = {
 #: Activations by name (SB3's defaults: tanh for actor-critic policies, relu for SAC).
 ACTIVATION_NAMES = ("tanh", "relu", "elu", "leaky_relu")
 #: The settings of the training environment a loaded policy must meet (README, "Training learned
-#: policies"): schedule name, action and observation modes, whether the observation carries the
-#: input-limit (``u_max``) feature, the agent model, the dimension and the observation slots
-#: (:func:`fxc_env.policies.learned.load_learned_policy` adapts the last two where it can).
-CHECKED_SETTINGS = ("schedule", "action_mode", "obs_mode", "limit_feature", "agent_model", "dim", "obs_slots")
+#: policies"): the meaning of its inputs and outputs (action and observation modes, whether the
+#: observation carries the input-limit (``u_max``) feature, the agent model), the dimension and the
+#: observation slots (:func:`fxc_env.policies.learned.load_learned_policy` adapts the last two where
+#: it can). Where the policy was trained (graphs, N, K, schedule, ...) is its training domain,
+#: checked by :func:`fxc_env.policies.domain.check_domain`.
+CHECKED_SETTINGS = ("action_mode", "obs_mode", "limit_feature", "agent_model", "dim", "obs_slots")
 #: How a setting is named in refusals.
 SETTING_LABELS = {"limit_feature": "the u_max feature (limit_feature)"}
 #: The keyword of :func:`fxc_env.make_config` that sets each checked setting, for the hint.
@@ -197,6 +200,8 @@ class SavedModel:
         normalization: VecNormalize's observation statistics, or None.
         training: the training environment's settings (:func:`training_settings`), or None
             for a file without :data:`METADATA_MEMBER`.
+        domain: the training domain (:func:`fxc_env.policies.domain.training_domain`), or None
+            for a file that records none.
         metadata: :data:`METADATA_MEMBER`'s record, or None.
     """
 
@@ -221,6 +226,7 @@ class SavedModel:
         self.num_timesteps = int(data.get("num_timesteps", 0) or 0)
         self.normalization = spec.get("normalization")
         self.training = spec.get("env")
+        self.domain = spec.get("domain")
         self.metadata = spec.get("metadata")
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True):
@@ -376,6 +382,7 @@ def _architecture(path: Path, data: Mapping[str, Any], metadata: Any, weights: M
             action=metadata.get("action"),
             normalization=metadata.get("normalization"),
             env=metadata.get("env"),
+            domain=metadata.get("domain"),
             metadata=dict(metadata),
         )
         for key in ("observation", "action"):
@@ -421,6 +428,7 @@ def _architecture(path: Path, data: Mapping[str, Any], metadata: Any, weights: M
             "action": _readable_space(path, data, "action_space"),
             "normalization": None,
             "env": None,
+            "domain": None,
             "metadata": None,
         }
     if spec["algorithm"] not in KNOWN_POLICIES or spec["policy_class"] not in KNOWN_POLICIES[spec["algorithm"]]:
@@ -567,12 +575,14 @@ def policy_metadata(model: Any, env: Any = None) -> dict[str, Any]:
             "clip_obs": float(vec.clip_obs),
         }
     source = env if env is not None else _innermost(vec)
-    settings = None
+    settings = domain = None
     if source is not None:
+        from fxc_env.policies.domain import training_domain
+
         try:
-            settings = training_settings(source)
+            settings, domain = training_settings(source), training_domain(source)
         except ArgumentError:
-            settings = None
+            settings = domain = None
     return {
         "format": METADATA_FORMAT,
         "algorithm": type(model).__name__,
@@ -585,6 +595,7 @@ def policy_metadata(model: Any, env: Any = None) -> dict[str, Any]:
         "normalization": normalization,
         "num_timesteps": int(model.num_timesteps),
         "env": settings,
+        "domain": domain,
     }
 
 

@@ -5,7 +5,9 @@ of a plain dictionary that loads with ``weights_only=True``: ``format``
 (:data:`POLICY_FORMAT`), ``obs_size``, ``action_size``, ``action_bound``, ``hidden`` (the
 widths), ``activation``, ``actor`` (the state dict of the mean network, an ``nn.Sequential``
 of ``Linear`` and activation layers), ``log_std``, ``env`` (``scenario`` and the environment
-keywords it was trained on) and ``timesteps``; ``arch`` (absent: ``mlp``) names the actor, ``gru``
+keywords it was trained on), ``domain`` (its training domain,
+:func:`fxc_env.policies.domain.training_domain`; absent in older files, then derived from ``env``)
+and ``timesteps``; ``arch`` (absent: ``mlp``) names the actor, ``gru``
 (``gru_size``, ``clock_index``) or ``gnn`` (``embed_size``, ``rounds``) of
 :mod:`fxc_env.policies.torch_memory`. The trainer lives in :mod:`fxc_env.training.torch_ppo`;
 this module is what evaluation needs.
@@ -76,6 +78,7 @@ class TorchPolicy:
         self.module.load_state_dict(record["actor"])
         self.module.eval().requires_grad_(False)
         self._settings: dict[str, Any] | None = None
+        self._domain: dict[str, Any] | None = record.get("domain")
         self._hidden: torch.Tensor | None = None  # gru: the memory of the episodes under way
 
     @property
@@ -86,6 +89,19 @@ class TorchPolicy:
 
             self._settings = settings_from_env_kwargs(self.env)
         return self._settings
+
+    @property
+    def training_domain(self) -> dict[str, Any] | None:
+        """Where it was trained (:mod:`fxc_env.policies.domain`): the record's ``domain``, else the one ``env`` makes."""
+        if self._domain is None and self.env:
+            from fxc_env.config import make_config
+            from fxc_env.policies.domain import training_domain
+
+            try:
+                self._domain = training_domain(make_config(**self.env))
+            except (ArgumentError, TypeError):
+                return None
+        return self._domain
 
     def reset(self) -> None:
         """Forget the memory (``gru``); an episode's first observation (clock ``k/K = 0``) also resets it."""
@@ -102,10 +118,15 @@ class TorchPolicy:
         ``{agent: observation}`` (a PettingZoo env's observations) gives ``{agent: action}``, the
         agents acting as one batch; a ``gru`` refuses one agent's observation alone (its memory
         is per agent: calling it agent by agent would run one memory through every agent's rows).
+        Dict observations (``obs_format="dict"``: ``neighbours``, ``mask``, ``clock`` [,
+        ``input_limit``]) are read as their flat form, alone or as the values of such a mapping.
         """
         if isinstance(observations, Mapping):
+            if "neighbours" in observations:  # one dict observation (obs_format="dict")
+                return self(flat_observation(observations), graph)
             agents = list(observations)
-            stacked = np.stack([np.asarray(observations[agent]) for agent in agents]) if agents else np.zeros((0,))
+            rows = [flat_observation(observations[agent]) for agent in agents]
+            stacked = np.stack(rows) if agents else np.zeros((0,))
             return dict(zip(agents, self(stacked, graph), strict=True))
         numpy_in = not isinstance(observations, torch.Tensor)
         x = torch.as_tensor(np.asarray(observations) if numpy_in else observations)
@@ -142,14 +163,35 @@ class TorchPolicy:
         return actions.to(x.dtype) if x.is_floating_point() else actions
 
 
-def load_torch_policy(path: str | Path, env: Any = None) -> TorchPolicy:
+def flat_observation(observation: Any) -> np.ndarray:
+    """A flat observation ``(..., obs_size)`` from a flat one or a dict one (``obs_format="dict"``).
+
+    The dict's ``neighbours`` ``(..., slots, row)``, ``mask``, ``clock`` and ``input_limit`` (when
+    present) in the flat layout's order (:meth:`fxc_env.config.layout.ObservationLayout.flat`).
+    """
+    if not isinstance(observation, Mapping):
+        return np.asarray(observation)
+    missing = [key for key in ("neighbours", "mask", "clock") if key not in observation]
+    if missing:
+        raise ArgumentError(
+            f"observations: a dict observation needs 'neighbours', 'mask' and 'clock' (obs_format='dict'); "
+            f"missing {missing}"
+        )
+    from fxc_env.config.layout import ObservationLayout
+
+    layout = ObservationLayout(1, 1, limit_feature="input_limit" in observation)
+    return layout.flat(observation)
+
+
+def load_torch_policy(path: str | Path, env: Any = None, *, allow_out_of_domain: bool = False) -> TorchPolicy:
     """The deterministic policy of ``path``: a run directory (its ``policy.pt``), a ``policy.pt`` or a checkpoint.
 
     Returns a :class:`TorchPolicy`: ``policy(obs)`` maps ``[..., obs_size]`` (numpy or torch)
     to actions ``[..., action_size]``, the clipped mean of the trained Gaussian. With ``env``
     (an fxc_env environment or EnvConfig) the policy must fit it: its sizes and the settings
     its ``env`` record makes (:func:`fxc_env.policies.learned.check_fit`, an
-    :class:`ArgumentError` naming the setting and both values otherwise).
+    :class:`ArgumentError` naming the setting and both values otherwise), and ``env`` must lie
+    inside its training domain unless ``allow_out_of_domain`` (:mod:`fxc_env.policies.domain`).
     """
     path = Path(path)
     if path.is_dir():
@@ -181,7 +223,7 @@ def load_torch_policy(path: str | Path, env: Any = None) -> TorchPolicy:
         from fxc_env.policies.learned import check_fit, check_width
 
         check_width(policy, env, path)  # a fixed-width network: another obs_slots is refused by name
-        check_fit(policy, env, "policy")
+        check_fit(policy, env, "policy", allow_out_of_domain=allow_out_of_domain)
     return policy
 
 
