@@ -189,7 +189,7 @@ def test_a_gain_network_saved_by_the_previous_release_loads_and_acts_as_the_ship
     from fxc_env.config import make_config
     from fxc_env.policies.learned import LearnedPolicy, load_model, pretrained_path
 
-    config = make_config("paper_fig1", obs_slots=4, topology="ring", n_agents=8)
+    config = make_config("generalist")  # the shipped file's own training domain
     path = old_release_file(tmp_path)
     forget("fxc_env.gain_policy")
     if trusted:  # SB3 unpickles the class reference: the old module path answers, with its warning
