@@ -90,7 +90,10 @@ def test_sb3_resume_reads_a_run_directory_without_running_its_code(tmp_path, cap
     assert after > before > 0
 
     marker = tmp_path / "ran-code"
-    crafted = {":type:": "<class 'abc.ABCMeta'>", ":serialized:": base64.b64encode(pickle.dumps(CreatesFile(marker))).decode()}
+    crafted = {
+        ":type:": "<class 'abc.ABCMeta'>",
+        ":serialized:": base64.b64encode(pickle.dumps(CreatesFile(marker))).decode(),
+    }
 
     # A crafted config.json (a policy class to import, nesting too deep to parse) is read as data only.
     run = tmp_path / "config"
