@@ -205,6 +205,10 @@ def test_runs_pooled_as_seeds_must_be_one_policy_and_non_policy_files_are_not_ru
     zips = [copy("generalist", f"g-seed{k}.zip") for k in (0, 1)]
     (tmp_path / "g-seed0.log").write_text("training log\n")
     assert expand_runs([str(tmp_path / "g-seed*")]) == zips
+    assert [c.name for c in seed_contenders([resolve_run(z) for z in zips], "g")] == [
+        "learned:g-seed0",
+        "learned:g-seed1",
+    ]
     assert f"--runs: skipping {str(tmp_path / 'g-seed0.log')!r}" in capsys.readouterr().err
     with pytest.raises(ArgumentError, match=r"^--runs: '.*g-seed0.log' is neither a saved policy \(.zip, .pt, .npz\)"):
         expand_runs([str(tmp_path / "g-seed0.log")])

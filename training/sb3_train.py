@@ -7,7 +7,8 @@ directory is :mod:`fxc_env.training.run_dir`'s (config.json, versions.json, prog
 TensorBoard events from SB3's logger, training_curve.png), plus:
 
     runs/<name>/checkpoints/model_<steps>_steps.zip  policy, optimiser and step count (SB3's ``save``),
-                                                     VecNormalize statistics beside it when used
+                                                     VecNormalize statistics beside it when used: SB3's
+                                                     ``.pkl`` and the ``.json`` record ``--resume`` reads
     runs/<name>/model.zip                            the final policy (+ vecnormalize.pkl)
 
 ``--backend rllib`` trains PPO in Ray RLlib instead (:mod:`fxc_env.training.rllib_train`),

@@ -296,17 +296,21 @@ def pooled_identity(policy: Any) -> dict[str, Any]:
 
 def check_pooled(runs: Sequence[TrainedRun], policies: Sequence[Any], name: str = "--runs") -> None:
     """Refuse runs that are not training seeds of one policy: the first :data:`POOLED_FIELDS` entry that
-    differs from the first run's is named, with both runs and both values."""
+    differs from the first run's is named, with both runs and both values. What a file does not
+    record (a scenario, a setting an older file lacks) is not taken for a difference."""
     first = pooled_identity(policies[0]) if policies else {}
     for run, policy in zip(runs[1:], policies[1:], strict=True):
         other = pooled_identity(policy)
         for field in POOLED_FIELDS:
-            if other[field] == first[field]:
-                continue
             ours, theirs, label = first[field], other[field], field
-            if field == "settings":
-                label = next(k for k in sorted({*ours, *theirs}) if ours.get(k) != theirs.get(k))
-                label, ours, theirs = f"setting {label}", ours.get(label), theirs.get(label)
+            if field == "settings":  # the settings both files record (an older file records fewer)
+                both = [k for k in (*CHECKED_SETTINGS, "model_A", "model_B") if k in ours and k in theirs]
+                label = next((k for k in both if ours[k] != theirs[k]), None)
+                if label is None:
+                    continue
+                label, ours, theirs = f"setting {label}", ours[label], theirs[label]
+            elif ours is None or theirs is None or ours == theirs:  # unrecorded (None) is not a difference
+                continue
             elif field == "parameter shapes":
                 ours, theirs = (", ".join(v[:4]) + (", ..." if len(v) > 4 else "") for v in (ours, theirs))
             raise ArgumentError(
