@@ -214,6 +214,9 @@ def benchmark_command(args: argparse.Namespace) -> int:
         unknown = [n for n in names if n not in BUILTIN_SETTINGS]
         if unknown:
             raise ArgumentError(f"--policies: unknown name(s) {unknown}; expected some of {tuple(BUILTIN_SETTINGS)}")
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ArgumentError(f"--policies: {twice[0]!r} is named twice in {args.policies!r}")
         if not names and not args.policy:
             raise ArgumentError(f"--policies: expected at least one of {tuple(BUILTIN_SETTINGS)} (or a --policy)")
     suites = {"full": full_suite, "realism": realism_suite, "models": models_suite, "optimality": optimality_suite}

@@ -121,3 +121,17 @@ def test_environment_flags_carry_the_agent_model_into_the_case_and_refuse_format
     assert not any(name == "agent_model" for name, _ in plain.conditions)
     with pytest.raises(ValueError, match=r"--scenario: .*formation"):
         custom_case({"scenario": "formation_hexagon"})
+
+
+def test_a_policy_named_twice_in_policies_is_refused_before_anything_runs(tmp_path, capsys, monkeypatch):
+    import fxc_env.baselines.benchmark as benchmark
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("the benchmark ran before the arguments were checked")
+
+    monkeypatch.setattr(benchmark, "run_benchmark", no_run)
+    argv = ["benchmark", "--quick", "--no-progress", "--policies", "reference,reference", "--out", str(tmp_path / "b")]
+    assert cli.main(argv) == 2
+    assert capsys.readouterr().err == (
+        "fxc benchmark: error: --policies: 'reference' is named twice in 'reference,reference'\n"
+    )

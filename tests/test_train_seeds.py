@@ -182,3 +182,41 @@ def test_evaluate_takes_one_policy_or_the_seeds_of_one(tmp_path, capsys):
     assert main(["evaluate", "--runs", str(tmp_path / "a-seed1"), str(tmp_path / "b-seed1"), *out]) == 2
     assert "were both trained with seed 1" in capsys.readouterr().err
     assert not (tmp_path / "ev").exists()
+
+
+def test_runs_pooled_as_seeds_must_be_one_policy_and_non_policy_files_are_not_runs(tmp_path, capsys):
+    from fxc_env.policies.learned import pretrained_path
+    from fxc_env.training.seed_evaluation import seed_contenders
+
+    def copy(name, target):
+        (tmp_path / target).write_bytes(pretrained_path(name).read_bytes())
+        return str(tmp_path / target)
+
+    # An SB3 generalist and a torch rings_gru are not two seeds of one policy; nor are two SB3 networks.
+    for first, second, differs in [
+        (("generalist", "x-seed0.zip"), ("rings_gru", "x-seed1.pt"), "format 'an SB3 model' vs 'a torch policy"),
+        (("generalist", "y-seed0.zip"), ("paper_fig1", "y-seed1.zip"), "architecture 'the gain-scheduled network"),
+    ]:
+        runs = [resolve_run(entry) for entry in expand_runs([copy(*first), copy(*second)])]
+        with pytest.raises(ArgumentError, match=rf"^--runs: .* are not training seeds of one policy: {differs}"):
+            seed_contenders(runs, "x")
+
+    # A glob that also catches a log skips it with a note; a log named by itself is refused by name.
+    zips = [copy("generalist", f"g-seed{k}.zip") for k in (0, 1)]
+    (tmp_path / "g-seed0.log").write_text("training log\n")
+    assert expand_runs([str(tmp_path / "g-seed*")]) == zips
+    assert [c.name for c in seed_contenders([resolve_run(z) for z in zips], "g")] == [
+        "learned:g-seed0",
+        "learned:g-seed1",
+    ]
+    assert f"--runs: skipping {str(tmp_path / 'g-seed0.log')!r}" in capsys.readouterr().err
+    with pytest.raises(ArgumentError, match=r"^--runs: '.*g-seed0.log' is neither a saved policy \(.zip, .pt, .npz\)"):
+        expand_runs([str(tmp_path / "g-seed0.log")])
+
+    # A damaged config.json seed is refused by name, not taken as a seed.
+    for seed in (-1, True, 2**70):
+        run = tmp_path / "r-seed1"
+        run.mkdir(exist_ok=True)
+        (run / "config.json").write_text(json.dumps({"args": {"seed": seed}}))
+        with pytest.raises(ArgumentError, match=r"^--runs: the seed in '.*r-seed1/config.json': expected an integer"):
+            resolve_run(str(run))

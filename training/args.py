@@ -65,6 +65,12 @@ class TrainArgs:
     resume: bool = arg(
         False, "Continue from the newest checkpoint in ``run_dir`` (same step count, optimiser state, statistics)."
     )
+    trust_policy_file: bool = arg(
+        False,
+        "With ``--resume``: also read run-directory files that only unpickling reads (RLlib checkpoints, SB3's "
+        "loaders and VecNormalize .pkl, torch checkpoints beyond plain tensors); unpickling runs code from the "
+        "file, so only for run directories you made or trust. Your own sb3 and torch runs resume without it.",
+    )
     hyperparams: str = arg(str(HYPERPARAMS), "YAML file of hyperparameters keyed by scenario then algorithm.")
     n_envs: int | None = arg(None, "Parallel episodes; overrides the hyperparameter file.")
     progress_bar: bool = arg(True, "Show SB3's progress bar (torch: one line per rollout).")
@@ -193,6 +199,11 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
         integer(name("n_envs"), args.n_envs, 1)
     integer(name("num_env_runners"), args.num_env_runners, 0)
     integer(name("envs_per_runner"), args.envs_per_runner, 1)
+    if args.trust_policy_file and not args.resume:
+        raise ArgumentError(
+            f"{name('trust_policy_file')}: only --resume reads files from a run directory; a fresh run would ignore it "
+            "(add --resume, or leave it out)"
+        )
     if args.backend != "rllib":
         for field in RLLIB_ONLY:
             value, default = getattr(args, field), TrainArgs.__dataclass_fields__[field].default

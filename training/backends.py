@@ -20,7 +20,10 @@ def train(args: TrainArgs) -> Path:
     backend = validation.choice("backend", canonical_backend(args.backend), BACKENDS)  # the back end checks the rest
     args = dataclasses.replace(args, backend=backend)
     if backend == "rllib":
+        from fxc_env.training.run_dir import RunDir
         from fxc_env.utils.cluster import import_ray
+
+        RunDir.of(args).resume_checkpoint(args.resume, args)  # an RLlib checkpoint needs the trust flag, Ray or not
 
         import_ray("--backend rllib")
         from fxc_env.training.rllib_train import train_rllib

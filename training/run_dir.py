@@ -14,6 +14,28 @@ A back end reads top to bottom with it: ``run = RunDir.of(args)``; ``run.resume_
 ``run.start(record)`` for a fresh run; the loop inside ``run.progress(...)`` (one row a unit of
 work) and ``run.interruptible(unit, save)`` (Ctrl-C finishes the unit under way, saves a
 checkpoint and stops; a second Ctrl-C stops at once); ``run.finish(...)``.
+
+**Resuming runs no code from the run directory** unless the user passes ``--trust-policy-file``
+(:data:`TRAIN_TRUST_HINT`; ``TrainArgs.trust_policy_file``), the flag ``fxc evaluate`` has. A run
+directory is only files, and anyone who could write one could have written any of them, so a
+checksum manifest kept inside it (sha256 of each file as it is written) would be rewritten
+together with the files it vouches for: it would catch a damaged file, not a crafted one. So
+instead every file a resume needs is *read* in a form that cannot run code:
+
+* ``config.json`` with ``json`` (nothing in it is imported or called: the model is rebuilt from
+  this run's hyperparameter file, not from the ``policy`` class it records);
+* an sb3 checkpoint ``.zip`` without unpickling its ``data``
+  (:func:`fxc_env.policies.policy_files.read_sb3_zip`, then the state dicts with
+  ``torch.load(..., weights_only=True)``: :func:`fxc_env.training.sb3_train.restore_checkpoint`),
+  and its VecNormalize statistics from the plain-JSON record written beside SB3's ``.pkl``;
+* a torch checkpoint ``.pt`` with ``torch.load(..., weights_only=True)``.
+
+What only unpickling can read is refused without the flag, naming it: an sb3 checkpoint of a
+network the safe reader does not rebuild (a custom policy class), VecNormalize statistics kept
+only as a ``.pkl`` (run directories written before the ``.json`` record), a torch checkpoint
+holding objects other than tensors and plain values, and every RLlib checkpoint (RLlib restores
+an algorithm by unpickling). With the flag, sb3 resumes with SB3's own loaders and torch with
+``weights_only=False``: only for run directories you made or trust.
 """
 
 from __future__ import annotations
@@ -38,6 +60,11 @@ from fxc_env.training.args import TrainArgs, canonical_backend, default_run_dir
 CHECKPOINT_NAMES = {"sb3": "model_{}_steps.zip", "torch": "model_{}_steps.pt", "rllib": "rllib_{}_steps"}
 #: A checkpoint directory is whole once this file is in it (RLlib writes it last).
 _COMPLETE = {"rllib": "rllib_checkpoint.json"}
+#: The end of every refusal to read a run directory's file that only unpickling would read.
+TRAIN_TRUST_HINT = (
+    "nothing in it was run; pass --trust-policy-file (TrainArgs.trust_policy_file) only if you trust whoever "
+    "wrote the run directory"
+)
 
 
 def versions() -> dict[str, str]:
@@ -92,7 +119,9 @@ class RunDir:
 
         With ``args``, a resumed run must keep the scenario and the critic that ``config.json``
         records (``scenario``, ``critic``: both values named), and its ``timesteps`` must lie
-        beyond the checkpoint's (a target already reached would train nothing).
+        beyond the checkpoint's (a target already reached would train nothing). An RLlib
+        checkpoint restores only by unpickling: refused unless ``args.trust_policy_file``
+        (see the module).
         """
         if not resume:
             return None
@@ -101,6 +130,11 @@ class RunDir:
             expected = self.checkpoint_name.format("<timesteps>")
             raise ArgumentError(f"resume: no checkpoint in {self.checkpoints} (expected {expected})")
         if args is not None:
+            if self.backend == "rllib" and not args.trust_policy_file:
+                raise ArgumentError(
+                    f"resume: {checkpoint} is an RLlib checkpoint, which RLlib restores by unpickling "
+                    f"(running code from the files); {TRAIN_TRUST_HINT}"
+                )
             self._check_resumed_args(checkpoint, args)
         return checkpoint
 
@@ -108,8 +142,10 @@ class RunDir:
         config = self.path / "config.json"
         try:
             started = json.loads(config.read_text()).get("args", {}) if config.is_file() else {}
-        except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+        except (OSError, UnicodeDecodeError, ValueError, AttributeError, RecursionError):
             started = {}  # a damaged config.json: the checkpoint's own checks still apply
+        if not isinstance(started, dict):
+            started = {}
         for field in ("scenario", "critic"):
             before, now = started.get(field), getattr(args, field)
             if before is not None and before != now:

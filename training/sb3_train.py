@@ -7,7 +7,8 @@ directory is :mod:`fxc_env.training.run_dir`'s (config.json, versions.json, prog
 TensorBoard events from SB3's logger, training_curve.png), plus:
 
     runs/<name>/checkpoints/model_<steps>_steps.zip  policy, optimiser and step count (SB3's ``save``),
-                                                     VecNormalize statistics beside it when used
+                                                     VecNormalize statistics beside it when used: SB3's
+                                                     ``.pkl`` and the ``.json`` record ``--resume`` reads
     runs/<name>/model.zip                            the final policy (+ vecnormalize.pkl)
 
 ``--backend rllib`` trains PPO in Ray RLlib instead (:mod:`fxc_env.training.rllib_train`),
@@ -18,22 +19,29 @@ TensorBoard events from SB3's logger, training_curve.png), plus:
 from __future__ import annotations
 
 import dataclasses
+import json
+import math
 import pickle
 import zipfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecNormalize
 
 from fxc_env.core.validation import ArgumentError
-from fxc_env.policies.policy_files import save_model
+from fxc_env.policies.policy_files import TRUST_HINT, read_sb3_zip, save_model
 from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.imitation import imitate_reference
-from fxc_env.training.run_dir import RunDir
+from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir
 
 #: ``policy_kwargs.activation_fn`` as written in the hyperparameter file.
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu")
+#: The format of the plain-JSON VecNormalize record beside each checkpoint, and its float settings.
+VECNORMALIZE_FORMAT = "fxc_env.vecnormalize/1"
+VECNORMALIZE_FLOATS = ("clip_obs", "clip_reward", "gamma", "epsilon")
 
 
 # ------------------------------------------------------------------------ environment and model
@@ -92,16 +100,90 @@ def save_checkpoint(model: Any, run: RunDir) -> Path:
     save_model(model, path)  # SB3's save plus fxc_policy.json: loads without unpickling
     env = model.get_env()
     if isinstance(env, VecNormalize):
-        env.save(str(vecnormalize_path(path)))
+        env.save(str(vecnormalize_path(path)))  # SB3's pickle, for SB3's own tools and --trust-policy-file
+        vecnormalize_record_path(path).write_text(json.dumps(vecnormalize_record(env)) + "\n")  # what resume reads
     return path
 
 
-def load_checkpoint(algo_class: Any, checkpoint: Path, venv: Any) -> tuple[Any, Any]:
+def vecnormalize_record_path(checkpoint: Path) -> Path:
+    """Where the plain-JSON copy of the VecNormalize statistics of ``checkpoint`` is kept (``.json`` beside SB3's ``.pkl``)."""
+    return vecnormalize_path(checkpoint).with_suffix(".json")
+
+
+def vecnormalize_record(venv: VecNormalize) -> dict[str, Any]:
+    """VecNormalize's running statistics and settings as plain JSON (what :func:`restore_vecnormalize` reads)."""
+
+    def stats(rms: Any) -> dict[str, Any]:
+        return {"mean": np.asarray(rms.mean).tolist(), "var": np.asarray(rms.var).tolist(), "count": float(rms.count)}
+
+    return {
+        "format": VECNORMALIZE_FORMAT,
+        "obs_rms": stats(venv.obs_rms),
+        "ret_rms": stats(venv.ret_rms),
+        **{key: float(getattr(venv, key)) for key in VECNORMALIZE_FLOATS},
+        "norm_obs": bool(venv.norm_obs),
+        "norm_reward": bool(venv.norm_reward),
+    }
+
+
+def restore_vecnormalize(venv: VecNormalize, path: Path) -> None:
+    """Set ``venv``'s running statistics from the plain-JSON record at ``path`` (nothing is unpickled).
+
+    A record that is damaged, of another format, of another observation shape or of other
+    normalisation settings than ``venv`` is refused as ``resume``, naming the path.
+    """
+    try:
+        record = json.loads(path.read_text())
+        if not isinstance(record, dict) or record.get("format") != VECNORMALIZE_FORMAT:
+            raise ValueError(f"not a {VECNORMALIZE_FORMAT!r} record")
+        for flag in ("norm_obs", "norm_reward"):
+            if record[flag] is not getattr(venv, flag):
+                raise ValueError(f"{flag} {record[flag]!r}, this run's VecNormalize has {getattr(venv, flag)!r}")
+        for name, shape in (("obs_rms", venv.observation_space.shape), ("ret_rms", ())):
+            mean, var = (np.asarray(record[name][key], dtype=np.float64) for key in ("mean", "var"))
+            count = float(record[name]["count"])
+            if mean.shape != shape or var.shape != shape:
+                raise ValueError(f"{name} of shape {mean.shape}, this run's observations have {shape}")
+            if not (np.all(np.isfinite(mean)) and np.all(var >= 0) and math.isfinite(count) and count > 0):
+                raise ValueError(f"{name} holds a non-finite mean, a negative variance or a count <= 0")
+            rms = getattr(venv, name)
+            rms.mean, rms.var, rms.count = mean, var, count
+        for key in VECNORMALIZE_FLOATS:
+            setattr(venv, key, float(record[key]))
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, RecursionError) as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise ArgumentError(f"resume: cannot read the VecNormalize statistics {str(path)!r} ({first})") from exc
+
+
+def load_checkpoint(
+    algo_class: Any, checkpoint: Path, venv: Any, *, trusted: bool = False, model: Any = None
+) -> tuple[Any, Any]:
     """The model saved at ``checkpoint`` on ``venv`` (with its VecNormalize statistics when ``venv`` normalizes).
 
-    A damaged or truncated file (not a zip, a zip without SB3's entries, statistics that do not
-    unpickle) is refused as ``resume``, naming the path.
+    Without ``trusted`` nothing in the run directory is unpickled (see
+    :mod:`fxc_env.training.run_dir`): ``model``, this run's fresh model, takes the checkpoint's
+    weights, optimiser state and step count (:func:`restore_checkpoint`), and ``venv`` its
+    statistics from the plain-JSON record beside it (:func:`restore_vecnormalize`). With
+    ``trusted`` it is SB3's own ``load`` and ``VecNormalize.load``, which unpickle the files (and
+    so run whatever code a crafted file holds). A damaged or truncated file is refused as
+    ``resume``, naming the path.
     """
+    if not trusted:
+        if isinstance(venv, VecNormalize):
+            record = vecnormalize_record_path(checkpoint)
+            if not record.is_file():
+                pickled = vecnormalize_path(checkpoint)
+                raise ArgumentError(
+                    f"resume: the VecNormalize statistics of {checkpoint.name} are "
+                    + (
+                        f"only in {str(pickled)!r}, a pickle (reading it runs code from the file); "
+                        if pickled.is_file()
+                        else f"missing ({record.name}); "
+                    )
+                    + TRAIN_TRUST_HINT
+                )
+            restore_vecnormalize(venv, record)
+        return restore_checkpoint(model, checkpoint), venv
     path = checkpoint
     try:
         if isinstance(venv, VecNormalize):
@@ -112,6 +194,53 @@ def load_checkpoint(algo_class: Any, checkpoint: Path, venv: Any) -> tuple[Any, 
     except (OSError, EOFError, KeyError, ValueError, RuntimeError, zipfile.BadZipFile, pickle.UnpicklingError) as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         raise ArgumentError(f"resume: cannot read the checkpoint {str(path)!r} ({first})") from exc
+
+
+def restore_checkpoint(model: Any, checkpoint: Path) -> Any:
+    """``model`` (this run's, freshly built) with the weights, optimiser state and step count of ``checkpoint``.
+
+    Nothing is unpickled: :func:`~fxc_env.policies.policy_files.read_sb3_zip` checks that the
+    zip is a network this project rebuilds from plain JSON (refused otherwise, naming
+    ``--trust-policy-file``), the state dicts load with ``torch.load(..., weights_only=True)``
+    (SB3's ``load_from_zip_file`` without its pickled ``data``), and the step counts come from
+    ``data``'s plain JSON. The checkpoint must be of this run's algorithm and network.
+    """
+    from stable_baselines3.common.save_util import load_from_zip_file, recursive_getattr
+
+    try:
+        saved = read_sb3_zip(checkpoint)
+    except (ArgumentError, FileNotFoundError) as exc:
+        reason = str(exc).removeprefix("policy: ").replace(TRUST_HINT, TRAIN_TRUST_HINT)
+        raise ArgumentError(f"resume: cannot read the checkpoint {str(checkpoint)!r} ({reason})") from exc
+    algorithm = type(model).__name__
+    if saved.algorithm != algorithm:
+        raise ArgumentError(
+            f"algo: the checkpoint {str(checkpoint)!r} is a {saved.algorithm} model, this run trains {algorithm}"
+        )
+    try:
+        _, params, variables = load_from_zip_file(checkpoint, load_data=False, device="cpu")
+        with zipfile.ZipFile(checkpoint) as archive:
+            data = json.loads(archive.read("data"))
+        names, variable_names = model._get_torch_save_params()
+        if set(params) != set(names):
+            raise ValueError(f"it holds the state of {sorted(params)}, a {algorithm} run saves {sorted(names)}")
+        model.set_parameters(params, exact_match=True, device="cpu")
+        for name in variable_names:
+            value = (variables or {}).get(name)
+            if not isinstance(value, torch.Tensor):
+                raise ValueError(f"it lacks the tensor {name!r}")
+            recursive_getattr(model, name).data.copy_(value.data)
+        model.num_timesteps = saved.num_timesteps
+        updates = data.get("_n_updates", 0)
+        model._n_updates = updates if isinstance(updates, int) and not isinstance(updates, bool) else 0
+    except (pickle.UnpicklingError, RuntimeError, ValueError, KeyError, TypeError, OSError) as exc:
+        first = " ".join((str(exc).strip().splitlines() or [type(exc).__name__])[:1])
+        hint = f"; {TRAIN_TRUST_HINT}" if isinstance(exc, pickle.UnpicklingError) else ""
+        raise ArgumentError(
+            f"resume: the checkpoint {str(checkpoint)!r} does not fit this run's {algorithm} network and "
+            f"hyperparameters ({first}){hint}"
+        ) from exc
+    return model
 
 
 class RolloutCheckpoint(BaseCallback):
@@ -160,14 +289,14 @@ def train_sb3(args: TrainArgs) -> Path:
     # ------------------------------------------------------------------ set-up
     venv = build_env(args, params)
     algo_class = {"ppo": PPO, "sac": SAC}[args.algo]
+    kwargs = dict(params["algo"])  # this run's hyperparameter file (never the run directory's config.json)
+    policy = policy_class(kwargs.pop("policy", "MlpPolicy"))
+    kwargs["policy_kwargs"] = with_activation_class(kwargs.get("policy_kwargs", {}))
+    model = algo_class(policy, venv, seed=args.seed, device="cpu", verbose=0, **kwargs)
     if checkpoint is not None:
-        model, venv = load_checkpoint(algo_class, checkpoint, venv)
+        model, venv = load_checkpoint(algo_class, checkpoint, venv, trusted=args.trust_policy_file, model=model)
         run.announce_resume(checkpoint, f"{model.num_timesteps} timesteps")
     else:
-        kwargs = dict(params["algo"])
-        policy = policy_class(kwargs.pop("policy", "MlpPolicy"))
-        kwargs["policy_kwargs"] = with_activation_class(kwargs.get("policy_kwargs", {}))
-        model = algo_class(policy, venv, seed=args.seed, device="cpu", verbose=0, **kwargs)
         record = {"args": dataclasses.asdict(args), "hyperparams": params, "num_envs": venv.num_envs}
         if params["imitation"] is not None:
             fit = imitate_reference(model, venv, params["imitation"], args.seed)

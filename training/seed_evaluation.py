@@ -37,6 +37,7 @@ import glob
 import json
 import math
 import re
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -47,8 +48,9 @@ import numpy as np
 from fxc_env.baselines.report import number_text
 from fxc_env.baselines.suite import Contender, Suite, learned_contender, model_path
 from fxc_env.core import statistics
-from fxc_env.core.validation import ArgumentError
-from fxc_env.policies.learned import SHIPPED, load_learned_policy
+from fxc_env.core.validation import ArgumentError, integer
+from fxc_env.policies.learned import SHIPPED, architecture_of, load_learned_policy
+from fxc_env.policies.policy_files import CHECKED_SETTINGS
 
 #: Training seed of each shipped policy (its recipe in ``fxc_env/pretrained/README.md``: ``--seed 0``;
 #: ``rings``: ``python -m fxc_env.training.rings --seed 0``, the default).
@@ -57,6 +59,13 @@ SHIPPED_SEEDS = {"pretrained": 0, "generalist": 0, "saturated": 0, "paper_fig1":
 _SEED_IN_NAME = re.compile(r"seed(\d+)")
 #: Files that make a directory a run (else it is read as a folder of ``*-seed<k>`` runs).
 _RUN_FILES = ("model.zip", "policy.pt", "config.json", "checkpoints")
+#: Saved policies by suffix: an SB3 model, a torch policy, a gain schedule (anything else, a log say, is no run).
+POLICY_SUFFIXES = (".zip", ".pt", ".npz")
+_NOT_A_RUN = "neither a saved policy (" + ", ".join(POLICY_SUFFIXES) + ") nor a run directory"
+#: What runs pooled as training seeds of one policy must share, in the order they are compared
+#: (:func:`pooled_identity`): the saved format, the algorithm, the network (its description and
+#: its parameter shapes), the training scenario and the training settings the file records.
+POOLED_FIELDS = ("format", "algorithm", "architecture", "parameter shapes", "scenario", "settings")
 #: The step count in a checkpoint's name (``model_4000000_steps.zip``, ``rllib_4000_steps``).
 _CHECKPOINT_STEPS = re.compile(r"_(\d+)_steps")
 #: Floor of the log column (the benchmark's ``log10(max(error, 1e-12))``).
@@ -98,9 +107,16 @@ def expand_runs(entries: Sequence[str], name: str = "--runs") -> list[str]:
             matches = sorted(glob.glob(entry), key=_seed_order)
             if not matches:
                 raise ArgumentError(f"{name}: no run matches {entry!r}")
-            found += matches
+            runs = [m for m in matches if _is_policy(Path(m))]
+            for other in (m for m in matches if m not in runs):
+                print(f"{name}: skipping {other!r}, which {entry!r} matches: {_NOT_A_RUN}", file=sys.stderr)
+            if not runs:
+                raise ArgumentError(f"{name}: {entry!r} matches no run, only {matches} ({_NOT_A_RUN})")
+            found += runs
         elif not Path(entry).exists():
             raise ArgumentError(f"{name}: nothing at {entry!r} (expected a run directory, a saved policy or a glob)")
+        elif Path(entry).is_file() and not _is_policy(Path(entry)):
+            raise ArgumentError(f"{name}: {entry!r} is {_NOT_A_RUN}")
         elif Path(entry).is_dir() and not _is_run(Path(entry)) and not _is_rllib_run(Path(entry)):
             children = sorted((str(p) for p in Path(entry).glob("*-seed*") if p.is_dir()), key=_seed_order)
             if not children:
@@ -115,6 +131,13 @@ def expand_runs(entries: Sequence[str], name: str = "--runs") -> list[str]:
     if twice:
         raise ArgumentError(f"{name}: {twice[0]!r} is named twice")
     return found
+
+
+def _is_policy(path: Path) -> bool:
+    """Whether ``path`` is a saved policy (:data:`POLICY_SUFFIXES`) or a run directory."""
+    if path.is_dir():
+        return _is_run(path) or _is_rllib_run(path)
+    return path.suffix in POLICY_SUFFIXES
 
 
 def _is_run(path: Path) -> bool:
@@ -140,9 +163,12 @@ def resolve_run(entry: str, name: str = "--runs") -> TrainedRun:
     path = Path(entry)
     spec = str(path / "model.zip") if path.is_dir() and (path / "model.zip").is_file() else entry
     run_dir = path if path.is_dir() else path.parent
-    recorded = _read_config(run_dir / "config.json") if entry not in SHIPPED or path.exists() else {}
+    config = run_dir / "config.json"
+    recorded = _read_config(config) if entry not in SHIPPED or path.exists() else {}
     seed = recorded.get("seed")
-    if not isinstance(seed, int):
+    if seed is not None:  # fxc train checks it as TrainArgs.seed: a damaged config.json is refused by name
+        integer(f"{name}: the seed in {str(config)!r}", seed, 0, 2**32 - 1)
+    else:
         named = [path.name] if path.is_dir() else [path.stem, path.parent.name]  # runs/x-seed1/model.zip
         match = next((m for m in map(_SEED_IN_NAME.search, named) if m), None)
         seed = int(match.group(1)) if match else SHIPPED_SEEDS.get(entry)
@@ -156,7 +182,7 @@ def resolve_run(entry: str, name: str = "--runs") -> TrainedRun:
 def _read_config(path: Path) -> dict[str, Any]:
     try:
         args = json.loads(path.read_text()).get("args", {}) if path.is_file() else {}
-    except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError, RecursionError):
         return {}
     return args if isinstance(args, dict) else {}
 
@@ -180,7 +206,7 @@ def _timesteps(spec: str, recorded: dict[str, Any]) -> int:
     if saved:
         return max(saved)
     steps = recorded.get("timesteps")
-    return int(steps) if isinstance(steps, int) else 0
+    return int(steps) if isinstance(steps, int) and not isinstance(steps, bool) and steps >= 0 else 0
 
 
 def default_label(runs: Sequence[TrainedRun]) -> str:
@@ -217,13 +243,16 @@ def seed_contenders(
     if repeated:
         twins = [run.entry for run in runs if run.seed == repeated[0]]
         raise ArgumentError(f"{name}: {twins[0]!r} and {twins[1]!r} were both trained with seed {repeated[0]}")
-    contenders = []
+    policies = []
     for run in runs:
         try:
-            trained = getattr(load_learned_policy(model_path(run.spec), trusted=trusted), "training_settings", None)
+            policies.append(load_learned_policy(model_path(run.spec), trusted=trusted))
         except (FileNotFoundError, ArgumentError) as exc:
             raise ArgumentError(f"{name}: {str(exc).removeprefix('policy: ')}") from exc
-        trained = trained or {}
+    check_pooled(runs, policies, name)
+    contenders = []
+    for run, policy in zip(runs, policies, strict=True):
+        trained = getattr(policy, "training_settings", None) or {}
         settings = {
             "schedule": schedule or trained.get("schedule"),
             "action_mode": action_mode or trained.get("action_mode", "plan"),
@@ -236,6 +265,61 @@ def seed_contenders(
         )
         contenders.append(replace(contender, name=f"learned:{label}-seed{run.seed}"))
     return contenders
+
+
+def pooled_identity(policy: Any) -> dict[str, Any]:
+    """What a loaded policy must share with the other seeds it is pooled with (:data:`POOLED_FIELDS`)."""
+    model = getattr(policy, "model", None)
+    kind = type(policy).__name__
+    formats = {
+        "LearnedPolicy": "an SB3 model",
+        "TorchPolicy": "a torch policy (fxc train --backend torch)",
+        "RLlibPolicy": "an RLlib checkpoint",
+        "IntervalGainPolicy": "a gain schedule (.npz)",
+    }
+    if model is not None:
+        algorithm = getattr(model, "algorithm", None) or type(model).__name__
+    else:
+        algorithm = "PPO" if kind in ("TorchPolicy", "RLlibPolicy") else None
+    module = getattr(policy, "module", None) or getattr(model, "policy", None)
+    if hasattr(module, "state_dict"):
+        shapes = [f"{key} {tuple(value.shape)}" for key, value in module.state_dict().items()]
+    else:
+        shapes = [f"gains {np.shape(getattr(policy, 'gains', ()))}"]
+    trained = getattr(policy, "training_settings", None) or {}
+    return {
+        "format": formats.get(kind, kind),
+        "algorithm": algorithm,
+        "architecture": architecture_of(policy)[0],
+        "parameter shapes": shapes,
+        "scenario": trained.get("scenario"),
+        "settings": {key: trained.get(key) for key in (*CHECKED_SETTINGS, "model_A", "model_B") if key in trained},
+    }
+
+
+def check_pooled(runs: Sequence[TrainedRun], policies: Sequence[Any], name: str = "--runs") -> None:
+    """Refuse runs that are not training seeds of one policy: the first :data:`POOLED_FIELDS` entry that
+    differs from the first run's is named, with both runs and both values. What a file does not
+    record (a scenario, a setting an older file lacks) is not taken for a difference."""
+    first = pooled_identity(policies[0]) if policies else {}
+    for run, policy in zip(runs[1:], policies[1:], strict=True):
+        other = pooled_identity(policy)
+        for field in POOLED_FIELDS:
+            ours, theirs, label = first[field], other[field], field
+            if field == "settings":  # the settings both files record (an older file records fewer)
+                both = [k for k in (*CHECKED_SETTINGS, "model_A", "model_B") if k in ours and k in theirs]
+                label = next((k for k in both if ours[k] != theirs[k]), None)
+                if label is None:
+                    continue
+                label, ours, theirs = f"setting {label}", ours[label], theirs[label]
+            elif ours is None or theirs is None or ours == theirs:  # unrecorded (None) is not a difference
+                continue
+            elif field == "parameter shapes":
+                ours, theirs = (", ".join(v[:4]) + (", ..." if len(v) > 4 else "") for v in (ours, theirs))
+            raise ArgumentError(
+                f"{name}: {runs[0].entry!r} and {run.entry!r} are not training seeds of one policy: {label} "
+                f"{ours!r} vs {theirs!r} (runs pooled as seeds share {', '.join(POOLED_FIELDS)})"
+            )
 
 
 # ------------------------------------------------------------------------------- the scores

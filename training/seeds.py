@@ -95,7 +95,7 @@ def plan_seed_runs(args: TrainArgs, *, flags: bool = True) -> list[SeedRun]:
             continue
         checkpoint = run.newest_checkpoint()
         if checkpoint is None:
-            one = dataclasses.replace(one, resume=False)
+            one = dataclasses.replace(one, resume=False, trust_policy_file=False)  # nothing to read
             check_train_args(one, flags=flags)
             planned.append(SeedRun(one, "train", "no checkpoint yet, so it starts afresh"))
             continue

@@ -77,9 +77,9 @@ from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.graph_tensors import edge_capacity
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.torch_memory import GRU_INPUTS, MessagePassingActor, RecurrentActor, interval_graph
-from fxc_env.policies.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp
+from fxc_env.policies.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp, one_line
 from fxc_env.training.args import TrainArgs, check_train_args
-from fxc_env.training.run_dir import RunDir
+from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves all).
 PROGRESS_COLUMNS = (
@@ -605,15 +605,21 @@ class Trainer:
         partial.replace(path)  # a checkpoint is either whole or absent
         return path
 
-    def load_checkpoint(self, path: Path) -> None:
+    def load_checkpoint(self, path: Path, *, trusted: bool = False) -> None:
+        """Go on from the checkpoint at ``path``: read with ``weights_only=True`` (tensors and plain values, no
+        code), or, with ``trusted`` (``--trust-policy-file``), unpickled (:mod:`fxc_env.training.run_dir`)."""
         try:
-            record = torch.load(path, map_location="cpu", weights_only=True)
-        except (OSError, EOFError, RuntimeError, ValueError, pickle.UnpicklingError) as exc:  # garbage or cut short
+            record = torch.load(path, map_location="cpu", weights_only=not trusted)
+        except pickle.UnpicklingError as exc:  # weights_only met a pickled object (a crafted file) or garbage
+            raise ArgumentError(
+                f"resume: cannot read the checkpoint {str(path)!r} as tensors and plain values ({one_line(exc, 160)}); "
+                f"{TRAIN_TRUST_HINT}"
+            ) from exc
+        except (OSError, EOFError, RuntimeError, ValueError) as exc:  # garbage or cut short
             first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
             raise ArgumentError(f"resume: cannot read the checkpoint {str(path)!r} ({first})") from exc
         if not isinstance(record, dict) or record.get("format") != CHECKPOINT_FORMAT:
             raise ArgumentError(f"resume: {str(path)!r} is not a torch back-end checkpoint")
-        from fxc_env.policies.torch_policy import one_line
 
         rng = record.get("rng")
         missing = [
@@ -670,7 +676,7 @@ def train_torch(args: TrainArgs) -> Path:
     trainer = Trainer(args, params, settings, device)
     per_rollout = settings.rollout_steps * trainer.n_envs * trainer.n_agents
     if checkpoint is not None:
-        trainer.load_checkpoint(checkpoint)
+        trainer.load_checkpoint(checkpoint, trusted=args.trust_policy_file)
         run.announce_resume(checkpoint, f"{trainer.timesteps} timesteps")
     else:
         run.start(

@@ -77,7 +77,7 @@ def test_two_iterations_with_two_env_runners_write_the_run_directory(trained):
 def test_resume_restores_the_checkpoint_and_continues_its_count(trained, tmp_path, capsys):
     run_dir = shutil.copytree(trained, tmp_path / "run")
     before = RLlibPolicy(run_dir, trusted=True)  # RLlib restores by unpickling: our own checkpoint
-    train(rllib_args(tmp_path, timesteps=3 * PER_ITERATION, resume=True))
+    train(rllib_args(tmp_path, timesteps=3 * PER_ITERATION, resume=True, trust_policy_file=True))
     out = capsys.readouterr().out
     assert f"resuming {run_dir} from rllib_{2 * PER_ITERATION}_steps at iteration 2" in out
     assert [int(r["time/env_steps"]) for r in progress(run_dir)] == [BATCH, 2 * BATCH, 3 * BATCH]
