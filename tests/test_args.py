@@ -72,6 +72,7 @@ def test_a_command_line_reaches_every_field_with_its_type(parser):
         "run_dir": "runs/x",
         "checkpoint_every": 99,
         "resume": True,
+        "trust_policy_file": True,
         "hyperparams": "h.yml",
         "n_envs": 3,
         "progress_bar": False,
