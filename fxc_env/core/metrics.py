@@ -434,6 +434,10 @@ class EpisodeMetrics:
     below :data:`SETTLED_TOLERANCE` (``inf`` if it is not below by now), to compare with
     ``propagation_bound``, the fewest intervals in which every agent can have heard from every root
     of the episode's graph (NaN for random switching, and above 2000 agents, where it is not computed).
+    With measurement noise, ``noise_floor`` is the least expected ``D(T_s) / D(0)`` any controller
+    leaves (the least-squares floor, :func:`fxc_env.core.floors.noise_floor`); with an input limit,
+    ``input_floor`` is the least ``u_max`` (m/s²) for which any controller reaches exact consensus
+    (:func:`fxc_env.core.floors.input_floor`). Both are NaN when their setting is off.
     """
 
     final_position_spread: float
@@ -453,6 +457,8 @@ class EpisodeMetrics:
     energy_ratio: float
     settled_interval: float
     propagation_bound: float
+    noise_floor: float = math.nan
+    input_floor: float = math.nan
 
     def as_dict(self) -> dict[str, float | int | None]:
         """Plain dict for JSON (non-finite values become ``None``)."""

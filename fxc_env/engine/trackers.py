@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig
+from fxc_env.core.floors import input_floor, noise_floor
 from fxc_env.core.graphs import DENSE_LIMIT
 from fxc_env.core.linear import LinearModel, final_value, model_matrices
 from fxc_env.core.metrics import TRACKED_THRESHOLDS, reward_floor, spread
@@ -59,6 +60,10 @@ class EpisodeTrackers:
         self._model = model
         #: ``(topology, propagation_bound)`` by the topology's id (a graph's bound is computed once).
         self._propagation: dict[int, tuple[Any, float]] = {}
+        #: ``(topology, noise floor at sigma = 1 in metres)`` by the topology's id, likewise.
+        self._noise: dict[int, tuple[Any, float]] = {}
+        #: Each episode's input floor (m/s^2), computed on first use after its reset (NaN: not yet), ``(B,)``.
+        self._input_floor = np.full(backend.n_episodes, np.nan)
 
     def restart(self, x0: Any, v0: Any, fresh: Any, disagreement: Any, episodes: Any = None) -> None:
         """Start the trackers of ``episodes`` (a ``(B,)`` mask; None: all) from ``x0, v0`` and state ``fresh``.
@@ -73,6 +78,7 @@ class EpisodeTrackers:
         log_disagreement = xp.log(disagreement + floor)
         last_above = xp.zeros((len(TRACKED_THRESHOLDS), b), dtype=xp.int64, device=backend.device)
         if episodes is None:
+            self._input_floor[:] = np.nan
             self.z0[...] = fresh
             self.x0[...] = x0
             self.v0[...] = v0
@@ -86,6 +92,7 @@ class EpisodeTrackers:
             self.last_above = last_above
             self.saturated_time = backend.zeros((b, n))
             return
+        self._input_floor[to_host(episodes)] = np.nan
         keep = xp.reshape(episodes, (-1, 1, 1))
         self.x0 = xp.where(keep, x0, self.x0)
         self.v0 = xp.where(keep, v0, self.v0)
@@ -174,7 +181,45 @@ class EpisodeTrackers:
             "energy_ratio": ratio,
             "settled_interval": settled,
             "propagation_bound": np.array([self._propagation_bound(topology) for topology in topologies]),
+            "noise_floor": self._noise_floor(topologies),
+            "input_floor": self._input_floors(),
         }
+
+    def _noise_floor(self, topologies: list) -> np.ndarray:
+        """``noise_floor``: the least expected ``D(T_s) / D(0)`` under ``obs_noise`` (:func:`fxc_env.core.floors.noise_floor`).
+
+        NaN without noise, for other agent models, with random switching and above
+        :data:`fxc_env.core.floors.NOISE_LIMIT` agents; cached per topology (at sigma = 1).
+        """
+        c = self.config
+        if c.obs_noise == 0 or c.model is not None or c.switching != "periodic":
+            return np.full(len(topologies), np.nan)
+        floors = []
+        for topology in topologies:
+            cached = self._noise.get(id(topology))
+            if cached is None or cached[0] is not topology:
+                if len(self._noise) >= 64:
+                    self._noise.clear()
+                cached = self._noise[id(topology)] = (topology, noise_floor(topology, c.schedule.times, 1.0, c.dim))
+            floors.append(cached[1])
+        with np.errstate(invalid="ignore"):
+            return c.obs_noise * np.array(floors) * to_host(self.inverse_d0)
+
+    def _input_floors(self) -> np.ndarray:
+        """``input_floor``: the least ``u_max`` (m/s^2) of exact consensus (:func:`fxc_env.core.floors.input_floor`).
+
+        A linear programme per episode (about 40 ms of CPU at N = 20), solved once per episode
+        on first use; NaN without an input limit and for other agent models.
+        """
+        c = self.config
+        if c.u_max_choices is None or c.model is not None:
+            return np.full(self.backend.n_episodes, np.nan)
+        missing = np.flatnonzero(np.isnan(self._input_floor))
+        if len(missing):
+            z0 = to_host(self.z0)
+            for b in missing:
+                self._input_floor[b] = input_floor(z0[b, :, 0], z0[b, :, 1], c.settling_time)
+        return self._input_floor.copy()
 
     def _propagation_bound(self, topology: Any) -> float:
         if self.config.switching != "periodic" or topology.n_agents > DENSE_LIMIT:
