@@ -212,6 +212,9 @@ class MinimumTimePolicy:
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with ideal
             double-integrator agents (any schedule, ``dim``, modes, formation offsets).
+        allow_noise: run under ``obs_noise`` too (off by default: the design assumes exact rows).
+            The law is linear, so the noise passes through its gains and the deadline error grows
+            linearly with sigma (README, "How far from optimal", measured on the ring of 20).
 
     Raises:
         ArgumentError naming ``topology``, ``u_max``, ``obs_noise``, ``link_dropout``,
@@ -228,9 +231,11 @@ class MinimumTimePolicy:
         "fixed digraph with a directed spanning tree, ideal agents: exact after one interval per nonzero eigenvalue"
     )
 
-    def __init__(self, env: Any) -> None:
+    def __init__(self, env: Any, allow_noise: bool = False) -> None:
         config = config_of(env, type(self).__name__)
-        _refuse_what_it_cannot_honour(config)
+        if not isinstance(allow_noise, bool):
+            raise ArgumentError(f"allow_noise: expected True or False, got {allow_noise!r}")
+        _refuse_what_it_cannot_honour(config, allow_noise)
         self.config = config
         self.layout = config.layout
         intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
@@ -289,7 +294,7 @@ class MinimumTimePolicy:
         return f"exact in exact arithmetic after {self.needed_intervals} intervals (round-off aside)"
 
 
-def _refuse_what_it_cannot_honour(config: Any) -> None:
+def _refuse_what_it_cannot_honour(config: Any, allow_noise: bool = False) -> None:
     name = "MinimumTimePolicy"
     if config.family is not None:
         raise ArgumentError(
@@ -306,8 +311,11 @@ def _refuse_what_it_cannot_honour(config: Any) -> None:
         )
     if config.u_max_choices is not None:
         raise ArgumentError(f"u_max: {name} plans exact changes and cannot honour an input limit")
-    if config.obs_noise != 0:
-        raise ArgumentError(f"obs_noise: {name} needs exact relative measurements; got obs_noise={config.obs_noise!r}")
+    if config.obs_noise != 0 and not allow_noise:
+        raise ArgumentError(
+            f"obs_noise: {name} needs exact relative measurements; got obs_noise={config.obs_noise!r} "
+            "(allow_noise=True runs it anyway: its error then grows linearly with the noise)"
+        )
     if config.link_dropout != 0:
         raise ArgumentError(
             f"link_dropout: {name} needs every link of its graph; got link_dropout={config.link_dropout!r}"

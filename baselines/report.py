@@ -191,13 +191,38 @@ def case_table(results: list[JobResult], suite: Suite, contenders: list[Contende
     return _table(header, rows)
 
 
+def floor_text(metrics: dict[str, np.ndarray]) -> str:
+    """The floors of one job's episodes (medians): ``noise ≥ …`` on D(T_s)/D(0), ``u_max ≥ …`` (m/s²); ``—`` without either."""
+    parts = []
+    noise = quantiles(np.asarray(metrics.get("noise_floor", [np.nan]), dtype=float))[0]
+    if not math.isnan(noise):
+        parts.append(f"D/D(0) ≥ {number_text(noise)}")
+    limit = quantiles(np.asarray(metrics.get("input_floor", [np.nan]), dtype=float))[0]
+    if not math.isnan(limit):
+        parts.append(f"u_max ≥ {number_text(limit)}")
+    return ", ".join(parts) or "—"
+
+
+def _case_floors(results: list[JobResult], case: Any) -> str:
+    """The floors of a case, per schedule where they differ (the noise floor depends on the instants)."""
+    by_schedule: dict[str, str] = {}
+    for r in _ran(results):
+        if r.job.case == case:
+            by_schedule.setdefault(r.job.contender.schedule, floor_text(r.metrics))
+    texts = set(by_schedule.values())
+    if len(texts) <= 1:
+        return texts.pop() if texts else "—"
+    return "; ".join(f"{text} ({schedule})" for schedule, text in by_schedule.items())
+
+
 def realism_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
-    """Per case and condition, each policy's median deadline error, saturated time share and energy."""
+    """Per case and condition: the floors of any controller (:mod:`fxc_env.core.floors`), and each policy's
+    median deadline error, saturated time share and energy."""
     names = [c.name for c in contenders]
-    header = ["case", "condition", *names]
+    header = ["case", "condition", "floor", *names]
     rows = []
     for case in suite.cases:
-        row = [f"{case.family} N={case.n_agents}", case.condition]
+        row = [f"{case.family} N={case.n_agents}", case.condition, _case_floors(results, case)]
         for name in names:
             match = [r for r in _headline_results(results, suite, name) if r.job.case == case]
             if not match:
@@ -215,6 +240,9 @@ def realism_table(results: list[JobResult], suite: Suite, contenders: list[Conte
 def optimality_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
     """Per case and policy: deadline error, energy / E*, intervals used against the propagation bound."""
     header = ["case", "E* (m²/s³)", "policy", "K", "D(T_s)/D(0)", "energy / E*", "intervals used", "bound"]
+    conditions = any(case.conditions for case in suite.cases)
+    if conditions:
+        header.append("floor")
     rows = []
     for case in suite.cases:
         for contender in contenders:
@@ -233,6 +261,7 @@ def optimality_table(results: list[JobResult], suite: Suite, contenders: list[Co
                     spread_cell(m["energy_ratio"]),
                     "not by T_s" if math.isinf(settled) else f"{settled:.0f}",
                     f"{quantiles(m['propagation_bound'])[0]:.0f}",
+                    *([floor_text(m)] if conditions else []),
                 ]
             )
     return _table(header, rows)
@@ -353,6 +382,9 @@ def markdown_report(
             "",
             realism_table(results, suite, contenders),
             "",
+            "Floor: what no controller, centralised or not, beats under the condition (medians over seeds): the "
+            "least expected D(T_s)/D(0) under measurement noise, and the least u_max of exact consensus at T_s.",
+            "",
         ]
     if suite.name.startswith("optimality"):
         parts += [
@@ -363,7 +395,10 @@ def markdown_report(
             "E*: the least energy of any exact consensus at T_s from the episode's initial state (steer every "
             "agent once, minimum-energy, to the mean of the coasted states). Intervals used: median over seeds "
             "of the interval after which D(t_k)/D(0) stayed below 1e-9 ('not by T_s' when the median episode "
-            "did not). Bound: the fewest intervals after which every agent can have heard from every root.",
+            "did not). Bound: the fewest intervals after which every agent can have heard from every root. "
+            "Floor (cases with noise or an input limit): D/D(0) ≥ the least expected error any controller leaves "
+            "under the noise (least squares on every row the team receives); u_max ≥ the least input limit for "
+            "which any controller reaches exact consensus (a linear programme).",
             "",
         ]
     parts += [

@@ -49,7 +49,7 @@ __all__ = ["INPUT_FACETS", "NOISE_DRAWS", "NOISE_LIMIT", "input_floor", "input_f
 #: Draws of the least-squares error whose mean disagreement is the noise floor (fixed generator, seed 0).
 NOISE_DRAWS = 4096
 #: Largest N for which :func:`noise_floor` is computed (dense ``2N x 2N`` information matrix).
-NOISE_LIMIT = 500
+NOISE_LIMIT = 200
 #: Switching instants ``tau = j T / m`` of the polygons of :func:`input_floor_bounds` (m).
 INPUT_FACETS = 1024
 
