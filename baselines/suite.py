@@ -430,8 +430,13 @@ def quick_optimality_suite(n_seeds: int = 5, fine_intervals: int = 1000) -> Suit
     return replace(optimality_suite(n_seeds, fine_intervals), cases=optimality_cases((20,)), name="optimality-quick")
 
 
-#: Laws run only by explicit opt-in where they would otherwise refuse a setting: spec -> (class, keyword arguments).
-OPT_IN = {"minimum_time/noisy": ("minimum_time", {"allow_noise": True})}
+#: Laws run only by explicit opt-in where they would otherwise refuse a setting:
+#: spec -> (law, keyword arguments, the setting it is run under; without that setting it is the law itself).
+OPT_IN = {
+    "minimum_time/noisy": ("minimum_time", {"allow_noise": True}, "obs_noise"),
+    "signalling/limited": ("signalling", {"allow_limit": True}, "u_max"),
+    "signalling/paper/limited": ("signalling", {"allow_limit": True}, "u_max"),
+}
 
 
 def optimality_contenders() -> list[Contender]:
@@ -445,6 +450,8 @@ def optimality_contenders() -> list[Contender]:
         Contender("minimum_time/noisy", "minimum_time/noisy", True, "uniform", "plan", "normalized"),
         Contender("signalling", "signalling", True, "uniform", "plan", "raw"),
         Contender("signalling/paper", "signalling", True, "paper", "plan", "raw"),
+        Contender("signalling/limited", "signalling/limited", True, "uniform", "plan", "raw"),
+        Contender("signalling/paper/limited", "signalling/paper/limited", True, "paper", "plan", "raw"),
     ]
     others = [name for name in BUILTIN_SETTINGS if name not in ("reference", "minimum_time", "signalling")]
     return both + builtin_contenders(others)
@@ -478,9 +485,9 @@ def load_policy(spec: str, config: EnvConfig, trusted: bool = False) -> Policy:
     if spec in BASELINES:
         return BASELINES[spec](config)
     if spec in OPT_IN:
-        name, options = OPT_IN[spec]
-        if config.obs_noise == 0:
-            raise ArgumentError(f"obs_noise: {spec} is {name} opted in under noise; without noise it is {name} itself")
+        name, options, setting = OPT_IN[spec]
+        if (config.obs_noise == 0) if setting == "obs_noise" else (config.u_max_choices is None):
+            raise ArgumentError(f"{setting}: {spec} is {name} opted in under {setting}; without it it is {name} itself")
         return BASELINES[name](config, **options)
     path = model_path(spec)
     if spec in SHIPPED or path.suffix == ".zip" or path.exists():

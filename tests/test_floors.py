@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import scipy.optimize
 import scipy.sparse
 
 import fxc_env
+from fxc_env.baselines.jobs import Job, run_job
+from fxc_env.baselines.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.signalling import SignallingPolicy
+from fxc_env.baselines.suite import BenchmarkCase, Contender, load_policy
 from fxc_env.config import make_config
 from fxc_env.core.floors import input_floor, input_floor_bounds, noise_floor
 from fxc_env.core.graphs import make_topology
@@ -136,3 +142,37 @@ def test_the_episode_infos_carry_the_floors_of_the_settings_they_have():
     limited = episode_end(u_max=0.3)
     assert limited["input_floor"] == pytest.approx(input_floor(x, v, T_S)) and "noise_floor" not in limited
     assert not {"noise_floor", "input_floor"} & set(episode_end())
+
+
+def opted_in(spec: str, schedule: str, case: BenchmarkCase, seeds: tuple[int, ...] = (0, 1, 2)) -> dict:
+    obs_mode = "normalized" if spec.startswith("minimum_time") else "raw"
+    result = run_job(Job(Contender(spec, spec, True, schedule, "plan", obs_mode), case, 200, seeds, T_S, False))
+    assert result.error is None, result.error
+    return result.metrics
+
+
+def test_minimum_time_runs_under_noise_only_when_asked_and_degrades_linearly():
+    noisy = make_config(topology="ring", n_agents=20, n_intervals=200, schedule="uniform", obs_noise=1e-6)
+    with pytest.raises(ArgumentError, match=r"obs_noise.*allow_noise=True"):
+        MinimumTimePolicy(noisy)
+    ring = BenchmarkCase("ring", 20)
+    errors = [
+        np.median(
+            opted_in("minimum_time/noisy", "uniform", replace(ring, conditions=(("obs_noise", s),)))[
+                "relative_deadline_error"
+            ]
+        )
+        for s in (1e-6, 1e-4)
+    ]
+    assert 1e-7 < errors[0] < 1e-5 and errors[1] / errors[0] == pytest.approx(100, rel=0.05)
+    with pytest.raises(ArgumentError, match="obs_noise"):
+        load_policy("minimum_time/noisy", make_config(topology="ring", n_agents=20))
+
+
+def test_signalling_runs_under_an_input_limit_only_when_asked_and_is_exact_where_the_limit_never_binds():
+    limited = make_config(scenario="paper_fig1", schedule="uniform", obs_mode="raw", u_max=10.0)
+    with pytest.raises(ArgumentError, match=r"u_max.*allow_limit=True"):
+        SignallingPolicy(limited)
+    metrics = opted_in("signalling/limited", "uniform", BenchmarkCase("paper_fig1", 6, conditions=(("u_max", 10.0),)))
+    assert np.max(metrics["relative_deadline_error"]) < 1e-9 and np.max(metrics["saturated_fraction"]) == 0
+    assert np.max(metrics["peak_input"]) < 10.0
