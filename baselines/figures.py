@@ -176,7 +176,7 @@ def _condition(case, name: str) -> float | None:
 
 def _sweep_panel(ax, results: list[JobResult], contenders: list[Contender], name: str) -> dict[str, list]:
     """Median error against one condition (``obs_noise`` or ``u_max``) on the directed ring of 20; the floors seen."""
-    floors: dict[str, list] = {}
+    floors: dict[str, list] = {}  # by schedule and K (the noise floor depends on the instants)
     for contender in contenders:
         mine = [
             r
@@ -197,7 +197,8 @@ def _sweep_panel(ax, results: list[JobResult], contenders: list[Contender], name
         ax.scatter(values, error, s=28, marker=marker, facecolors="none", edgecolors=colour)
         floor = "noise_floor" if name == "obs_noise" else "input_floor"
         for r, value in zip(mine, values, strict=True):
-            floors.setdefault(contender.schedule, []).append((value, quantiles(r.metrics[floor])))
+            key = f"{contender.schedule}, K={r.job.n_intervals}"
+            floors.setdefault(key, []).append((value, quantiles(r.metrics[floor])))
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.grid(alpha=0.3, which="both")
@@ -242,23 +243,26 @@ def optimality_figure(results: list[JobResult], contenders: list[Contender], pat
     energy_ax.set_xlim(left=0.3)
     energy_ax.set_xlabel("energy / E* (median over seeds)")
     energy_ax.set_ylabel("relative deadline error D(T_s)/D(0) (median over seeds)")
-    energy_ax.set_title(f"ideal agents: error against energy over the bound; 0 drawn at {DISPLAY_FLOOR:g}", fontsize=9)
+    energy_ax.set_title(
+        f"ideal agents: error against energy / E*\n(one point per law and case; 0 drawn at {DISPLAY_FLOOR:g})",
+        fontsize=9,
+    )
     energy_ax.grid(alpha=0.3, which="both")
 
-    styles = {"uniform": "--", "paper": ":"}
-    for schedule, points in sorted(_sweep_panel(noise_ax, results, contenders, "obs_noise").items()):
+    styles = ("--", ":", "-.", (0, (5, 1, 1, 1, 1, 1)))
+    for index, (key, points) in enumerate(sorted(_sweep_panel(noise_ax, results, contenders, "obs_noise").items())):
         points = sorted(dict(points).items())
         noise_ax.plot(
             [p for p, _ in points],
             [q[0] for _, q in points],
-            styles.get(schedule, "-."),
+            linestyle=styles[index % len(styles)],
             color="black",
             lw=1.2,
-            label=f"noise floor ({schedule} schedule)",
+            label=f"noise floor ({key})",
         )
     noise_ax.set_xlabel("measurement noise obs_noise σ (m, m/s)")
     noise_ax.set_ylabel("D(T_s)/D(0) (median over seeds)")
-    noise_ax.set_title("ring N=20: error against noise; below the floor no controller, on average", fontsize=9)
+    noise_ax.set_title("ring N=20 under noise\n(below a floor: no controller, on average)", fontsize=9)
 
     floors = [q for points in _sweep_panel(limit_ax, results, contenders, "u_max").values() for _, q in points]
     if floors:
@@ -267,7 +271,7 @@ def optimality_figure(results: list[JobResult], contenders: list[Contender], pat
         limit_ax.axvspan(low, high, color="grey", alpha=0.2)
     limit_ax.set_xlabel("input limit u_max (m/s²)")
     limit_ax.set_ylabel("D(T_s)/D(0) (median over seeds)")
-    limit_ax.set_title("ring N=20: error against the input limit; left of the floor no controller is exact", fontsize=9)
+    limit_ax.set_title("ring N=20 under an input limit\n(left of the floor: no controller is exact)", fontsize=9)
 
     handles, labels = [], []
     for ax in (energy_ax, noise_ax, limit_ax):

@@ -40,5 +40,5 @@ def test_the_figure_has_its_legend_outside_the_axes_and_both_floors(tmp_path, mo
     box = legend.get_window_extent()
     assert all(box.x0 >= ax.get_window_extent().x1 for ax in fig.axes)  # nothing of any panel hidden
     labels = [t.get_text() for t in legend.get_texts()]
-    assert "noise floor (paper schedule)" in labels and any(label.startswith("input floor") for label in labels)
+    assert "noise floor (paper, K=200)" in labels and any(label.startswith("input floor") for label in labels)
     assert {c.name for c in contenders} <= set(labels)
