@@ -176,3 +176,14 @@ def test_signalling_runs_under_an_input_limit_only_when_asked_and_is_exact_where
     metrics = opted_in("signalling/limited", "uniform", BenchmarkCase("paper_fig1", 6, conditions=(("u_max", 10.0),)))
     assert np.max(metrics["relative_deadline_error"]) < 1e-9 and np.max(metrics["saturated_fraction"]) == 0
     assert np.max(metrics["peak_input"]) < 10.0
+
+
+def test_fxc_simulate_prints_the_floors_of_its_settings(tmp_path, capsys):
+    from fxc_env.cli.main import main
+
+    args = ["simulate", "--scenario", "paper_fig1", "--n-intervals", "20", "--out", str(tmp_path)]
+    assert main([*args, "--u-max", "10", "--obs-noise", "1e-3"]) == 0
+    text = capsys.readouterr().out
+    assert "D(T_s)/D(0) under the noise" in text and "u_max of exact consensus (m/s²)" in text
+    assert main(args) == 0
+    assert "under the noise" not in capsys.readouterr().out
