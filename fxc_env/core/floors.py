@@ -16,6 +16,7 @@ optimal"); each has a floor that holds for every law:
   disagreement ``E[D(T_s)]`` of that Gaussian error (``D = e_x + T_s e_v``), linear in ``sigma``.
   ``E[D]`` (a mean of diameters) has no closed form: it is the mean over :data:`NOISE_DRAWS`
   draws of a fixed generator (relative sampling error about 0.3%), the same number on every call.
+  Link dropout only removes rows, so the floor without it bounds runs with it too.
 - **Input limit** (:func:`input_floor`). With ``|u_i| <= U`` per component, agent i can move its
   free-motion prediction ``p_i = (x_i + T v_i, v_i)`` by ``(d, w) = (int (T - t) u dt, int u dt)``
   in ``U R``, where ``R`` (``U = 1``) is bounded by the bang-bang inputs: ``+1`` until ``tau``

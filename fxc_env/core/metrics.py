@@ -437,7 +437,9 @@ class EpisodeMetrics:
     With measurement noise, ``noise_floor`` is the least expected ``D(T_s) / D(0)`` any controller
     leaves (the least-squares floor, :func:`fxc_env.core.floors.noise_floor`); with an input limit,
     ``input_floor`` is the least ``u_max`` (m/s²) for which any controller reaches exact consensus
-    (:func:`fxc_env.core.floors.input_floor`). Both are NaN when their setting is off.
+    (:func:`fxc_env.core.floors.input_floor`). Both are NaN when their setting is off, for agent
+    models other than the double integrator, and ``noise_floor`` also with random switching and
+    above 200 agents, where it is not computed.
     """
 
     final_position_spread: float

@@ -62,8 +62,8 @@ class EpisodeTrackers:
         self._propagation: dict[int, tuple[Any, float]] = {}
         #: ``(topology, noise floor at sigma = 1 in metres)`` by the topology's id, likewise.
         self._noise: dict[int, tuple[Any, float]] = {}
-        #: Each episode's input floor (m/s^2), computed on first use after its reset (NaN: not yet), ``(B,)``.
-        self._input_floor = np.full(backend.n_episodes, np.nan)
+        #: The initial states (host) the input floors were computed for, and the floors (m/s^2), ``(B,)``.
+        self._input_floor: tuple[np.ndarray, np.ndarray] | None = None
 
     def restart(self, x0: Any, v0: Any, fresh: Any, disagreement: Any, episodes: Any = None) -> None:
         """Start the trackers of ``episodes`` (a ``(B,)`` mask; None: all) from ``x0, v0`` and state ``fresh``.
@@ -78,7 +78,6 @@ class EpisodeTrackers:
         log_disagreement = xp.log(disagreement + floor)
         last_above = xp.zeros((len(TRACKED_THRESHOLDS), b), dtype=xp.int64, device=backend.device)
         if episodes is None:
-            self._input_floor[:] = np.nan
             self.z0[...] = fresh
             self.x0[...] = x0
             self.v0[...] = v0
@@ -92,7 +91,6 @@ class EpisodeTrackers:
             self.last_above = last_above
             self.saturated_time = backend.zeros((b, n))
             return
-        self._input_floor[to_host(episodes)] = np.nan
         keep = xp.reshape(episodes, (-1, 1, 1))
         self.x0 = xp.where(keep, x0, self.x0)
         self.v0 = xp.where(keep, v0, self.v0)
@@ -208,18 +206,21 @@ class EpisodeTrackers:
     def _input_floors(self) -> np.ndarray:
         """``input_floor``: the least ``u_max`` (m/s^2) of exact consensus (:func:`fxc_env.core.floors.input_floor`).
 
-        A linear programme per episode (about 40 ms of CPU at N = 20), solved once per episode
-        on first use; NaN without an input limit and for other agent models.
+        A linear programme per episode (40-190 ms of CPU at N = 20 to 1000), solved once per
+        initial state on first use; NaN without an input limit and for other agent models.
         """
         c = self.config
         if c.u_max_choices is None or c.model is not None:
             return np.full(self.backend.n_episodes, np.nan)
-        missing = np.flatnonzero(np.isnan(self._input_floor))
-        if len(missing):
-            z0 = to_host(self.z0)
-            for b in missing:
-                self._input_floor[b] = input_floor(z0[b, :, 0], z0[b, :, 1], c.settling_time)
-        return self._input_floor.copy()
+        z0 = np.array(to_host(self.z0), dtype=np.float64)
+        if self._input_floor is None:
+            known, floors = np.full_like(z0, np.nan), np.full(len(z0), np.nan)
+        else:
+            known, floors = self._input_floor
+        for b in np.flatnonzero(np.any(z0 != known, axis=(1, 2, 3))):
+            floors[b] = input_floor(z0[b, :, 0], z0[b, :, 1], c.settling_time)
+        self._input_floor = (z0, floors)
+        return floors.copy()
 
     def _propagation_bound(self, topology: Any) -> float:
         if self.config.switching != "periodic" or topology.n_agents > DENSE_LIMIT:
