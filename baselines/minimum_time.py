@@ -33,8 +33,9 @@ design plays the subset that leaves the smallest predicted residual (:func:`budg
   arithmetic after the factors; float64 round-off grows with the partial products, so large slow
   rings lose digits).
 - It refuses what it cannot honour, by name: switching topologies and topology families (the design
-  needs the one graph), ``u_max``, ``obs_noise``, ``link_dropout``, ``switching='random'`` and agent
-  models other than the double integrator.
+  needs the one graph), ``u_max``, ``obs_noise`` (unless ``allow_noise=True``: the error then grows
+  linearly with the noise, 2.2e-6 at sigma = 1e-6 on the ring of 20), ``link_dropout``,
+  ``switching='random'`` and agent models other than the double integrator.
 
 Its price is energy: the early factors of a slow graph move agents far (README figures).
 """

@@ -89,7 +89,8 @@ paper_fig1 (own x0)    1.0        8.9e-3     1.4e-4     9.0e-14    1.6e-9     1.
   the error falls like ``σ/ε`` while the energy grows like ``ε²``. That is off the
   frontier, so the law refuses ``obs_noise`` unless the caller chooses ``amplitude`` explicitly.
 - It refuses what it cannot honour, by name: a graph (or period union) without a directed spanning
-  tree, topology families, ``switching='random'``, ``u_max``, ``obs_noise`` (without an explicit
+  tree, topology families, ``switching='random'``, ``u_max`` (unless ``allow_limit=True``: exact
+  wherever its inputs stay within the limit), ``obs_noise`` (without an explicit
   ``amplitude``), ``link_dropout``, agent models
   other than the double integrator, ``obs_mode='normalized'``, and too few intervals.
 """
