@@ -180,10 +180,11 @@ def headline_table(results: list[JobResult], suite: Suite, contenders: list[Cont
 def case_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
     """Deadline error per case (rows) and policy (columns) at the headline budget."""
     names = [c.name for c in contenders]
-    header = ["case", *names]
+    conditions = any(case.conditions for case in suite.cases)
+    header = ["case", *(["floor"] if conditions else []), *names]
     rows = []
     for case in suite.cases:
-        row = [case.key]
+        row = [case.key, *([_case_floors(results, case)] if conditions else [])]
         for name in names:
             match = [r for r in _headline_results(results, suite, name) if r.job.case == case]
             row.append(spread_cell(match[0].metrics["relative_deadline_error"]) if match else "—")

@@ -10,7 +10,7 @@ import scipy.optimize
 import scipy.sparse
 
 import fxc_env
-from fxc_env.baselines.jobs import Job, run_job
+from fxc_env.baselines.jobs import Job, JobResult, run_job
 from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.baselines.signalling import SignallingPolicy
 from fxc_env.baselines.suite import BenchmarkCase, Contender, load_policy
@@ -187,3 +187,28 @@ def test_fxc_simulate_prints_the_floors_of_its_settings(tmp_path, capsys):
     assert "D(T_s)/D(0) under the noise" in text and "u_max of exact consensus (m/s²)" in text
     assert main(args) == 0
     assert "under the noise" not in capsys.readouterr().out
+
+
+def test_the_benchmark_tables_carry_the_floors_of_cases_with_noise_or_a_limit():
+    from fxc_env.baselines import report
+    from fxc_env.baselines.suite import floor_cases, optimality_contenders, quick_optimality_suite
+
+    suite = quick_optimality_suite(2)
+    contenders = optimality_contenders()[:2]
+    results = []
+    for case in suite.cases:
+        for contender in contenders:
+            result = JobResult(Job(contender, case, 200, (0, 1), T_S, False))
+            ones = np.ones(2)
+            result.metrics = {
+                name: ones
+                for name in ("relative_deadline_error", "saturated_fraction", "energy", "energy_bound", "energy_ratio")
+            }
+            result.metrics |= {"settled_interval": np.full(2, np.inf), "propagation_bound": 19 * ones}
+            result.metrics["noise_floor"] = 2e-5 * ones if "obs_noise" in case.key else np.full(2, np.nan)
+            result.metrics["input_floor"] = 0.23 * ones if "u_max" in case.key else np.full(2, np.nan)
+            results.append(result)
+    assert set(floor_cases()) <= set(suite.cases)
+    for table in (report.case_table, report.realism_table, report.optimality_table):
+        text = table(results, suite, contenders)
+        assert "D/D(0) ≥ 2e-05" in text and "u_max ≥ 0.23" in text, table.__name__
