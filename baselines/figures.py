@@ -8,7 +8,8 @@
 3. ``disagreement_vs_time.png``: median ``D(t) / D(0)`` over seeds on the trace case,
    every policy on one axis.
 4. ``error_vs_energy_ratio.png`` (optimality suite): deadline error against energy / E*, the
-   bound E* drawn.
+   bound E* drawn; error against measurement noise with the noise floor, and against the input
+   limit with the input floor (:func:`optimality_figure`).
 """
 
 from __future__ import annotations
@@ -39,14 +40,16 @@ COLOURS = (
     "#bcbd22",
     "#7f7f7f",
     "#000000",
-    "#393b79",
     "#aec7e8",
-    "#8c6d31",
+    "#ff9896",
+    "#98df8a",
+    "#c5b0d5",
+    "#c49c94",
+    "#f7b6d2",
 )
 #: One marker per policy where points of several policies may coincide (the optimality figure).
-#: Fourteen markers and fourteen colours (the optimality suite's 14 contenders): the first fourteen
-#: contenders differ in both, later ones repeat.
-MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">", "h", "p", "d", "8")
+#: Seventeen markers and seventeen colours: the first seventeen contenders differ in both, later ones repeat.
+MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">", "h", "p", "d", "8", "H", "$\\triangle$", "$\\diamond$")
 
 
 def _colour(contenders: list[Contender], name: str) -> str:
@@ -161,43 +164,126 @@ def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list
     return save_figure(fig, path)
 
 
-def optimality_figure(results: list[JobResult], contenders: list[Contender], path: Path) -> Path:
-    """Deadline error against energy / E* (log-log), one point per (policy, case), medians over seeds.
+def optimality_style(contenders: list[Contender], name: str) -> tuple[str, str]:
+    """``(marker, colour)`` of a law in the optimality figure: its own pair for each of the first
+    :data:`MARKERS`-many contenders (the figure draws every registered law; see its test)."""
+    index = [c.name for c in contenders].index(name)
+    return MARKERS[index % len(MARKERS)], COLOURS[index % len(COLOURS)]
 
-    Exact consensus costs at least E* (:func:`fxc_env.core.optimality.energy_bound`): no point
-    with an error at round-off lies left of the bound line at energy / E* = 1.
-    """
-    fig = new_figure(7.5, 5.0)
-    ax = fig.subplots()
+
+def _condition(case, name: str) -> float | None:
+    return dict(case.conditions).get(name)
+
+
+def _sweep_panel(ax, results: list[JobResult], contenders: list[Contender], name: str) -> dict[str, list]:
+    """Median error against one condition (``obs_noise`` or ``u_max``) on the directed ring of 20; the floors seen."""
+    floors: dict[str, list] = {}  # by schedule and K (the noise floor depends on the instants)
     for contender in contenders:
-        mine = [r for r in results if r.error is None and r.job.contender.name == contender.name]
+        mine = [
+            r
+            for r in results
+            if r.error is None
+            and r.job.contender.name == contender.name
+            and r.job.case.family == "ring"
+            and r.job.case.n_agents == 20
+            and _condition(r.job.case, name) is not None
+        ]
         if not mine:
             continue
+        mine.sort(key=lambda r: _condition(r.job.case, name))
+        values = [_condition(r.job.case, name) for r in mine]
+        error = [_visible(quantiles(r.metrics["relative_deadline_error"])[0]) for r in mine]
+        marker, colour = optimality_style(contenders, contender.name)
+        ax.plot(values, error, "-", color=colour, lw=0.8, alpha=0.6)
+        ax.scatter(values, error, s=28, marker=marker, facecolors="none", edgecolors=colour)
+        floor = "noise_floor" if name == "obs_noise" else "input_floor"
+        for r, value in zip(mine, values, strict=True):
+            key = f"{contender.schedule}, K={r.job.n_intervals}"
+            floors.setdefault(key, []).append((value, quantiles(r.metrics[floor])))
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.grid(alpha=0.3, which="both")
+    return floors
+
+
+def optimality_figure(results: list[JobResult], contenders: list[Contender], path: Path) -> Path:
+    """Three panels, medians over seeds, one marker and colour per law, the legend outside the axes.
+
+    1. Deadline error against energy / E* (ideal cases), one point per (policy, case): exact
+       consensus costs at least E* (:func:`fxc_env.core.optimality.energy_bound`), so no point with an
+       error at round-off lies left of the line at energy / E* = 1.
+    2. Error against ``obs_noise`` sigma on the directed ring of 20, with the noise floor of each
+       schedule (:func:`fxc_env.core.floors.noise_floor`): no controller lies below it on average.
+    3. Error against ``u_max`` on the directed ring of 20, with the input floor
+       (:func:`fxc_env.core.floors.input_floor`): left of it no controller is exact.
+    """
+    fig = new_figure(17.0, 5.0)
+    energy_ax, noise_ax, limit_ax = fig.subplots(1, 3)
+    for contender in contenders:
+        mine = [
+            r
+            for r in results
+            if r.error is None and r.job.contender.name == contender.name and not r.job.case.conditions
+        ]
         ratio = [_visible(quantiles(r.metrics["energy_ratio"])[0]) for r in mine]
         error = [_visible(quantiles(r.metrics["relative_deadline_error"])[0]) for r in mine]
-        index = [c.name for c in contenders].index(contender.name)
-        ax.scatter(
+        marker, colour = optimality_style(contenders, contender.name)
+        energy_ax.scatter(
             ratio,
             error,
             s=28,
-            marker=MARKERS[index % len(MARKERS)],
+            marker=marker,
             facecolors="none",
-            edgecolors=_colour(contenders, contender.name),
+            edgecolors=colour,
             label=contender.name if contender.sampled else f"{contender.name} (fine K)",
         )
-    ax.axvline(1.0, color="black", lw=1.0, ls="--", label="E* (least energy of exact consensus)")
-    ax.axvspan(1e-3, 1.0, color="grey", alpha=0.12)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlim(left=0.3)
-    ax.set_xlabel("energy / E* (median over seeds)")
-    ax.set_ylabel("relative deadline error D(T_s)/D(0) (median over seeds)")
-    ax.set_title(
-        f"error against energy over the bound: one point per policy and case; 0 drawn at {DISPLAY_FLOOR:g}", fontsize=9
+    energy_ax.axvline(1.0, color="black", lw=1.0, ls="--", label="E* (least energy of exact consensus)")
+    energy_ax.axvspan(1e-3, 1.0, color="grey", alpha=0.12)
+    energy_ax.set_xscale("log")
+    energy_ax.set_yscale("log")
+    energy_ax.set_xlim(left=0.3)
+    energy_ax.set_xlabel("energy / E* (median over seeds)")
+    energy_ax.set_ylabel("relative deadline error D(T_s)/D(0) (median over seeds)")
+    energy_ax.set_title(
+        f"ideal agents: error against energy / E*\n(one point per law and case; 0 drawn at {DISPLAY_FLOOR:g})",
+        fontsize=9,
     )
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7)
-    return save_figure(fig, path)
+    energy_ax.grid(alpha=0.3, which="both")
+
+    styles = ("--", ":", "-.", (0, (5, 1, 1, 1, 1, 1)))
+    for index, (key, points) in enumerate(sorted(_sweep_panel(noise_ax, results, contenders, "obs_noise").items())):
+        points = sorted(dict(points).items())
+        noise_ax.plot(
+            [p for p, _ in points],
+            [q[0] for _, q in points],
+            linestyle=styles[index % len(styles)],
+            color="black",
+            lw=1.2,
+            label=f"noise floor ({key})",
+        )
+    noise_ax.set_xlabel("measurement noise obs_noise σ (m, m/s)")
+    noise_ax.set_ylabel("D(T_s)/D(0) (median over seeds)")
+    noise_ax.set_title("ring N=20 under noise\n(below a floor: no controller, on average)", fontsize=9)
+
+    floors = [q for points in _sweep_panel(limit_ax, results, contenders, "u_max").values() for _, q in points]
+    if floors:
+        median, low, high = floors[0]
+        limit_ax.axvline(median, color="black", lw=1.2, ls="--", label=f"input floor (median {median:.2g} m/s²)")
+        limit_ax.axvspan(low, high, color="grey", alpha=0.2)
+    limit_ax.set_xlabel("input limit u_max (m/s²)")
+    limit_ax.set_ylabel("D(T_s)/D(0) (median over seeds)")
+    limit_ax.set_title("ring N=20 under an input limit\n(left of the floor: no controller is exact)", fontsize=9)
+
+    handles, labels = [], []
+    for ax in (energy_ax, noise_ax, limit_ax):
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            if label not in labels:
+                handles.append(handle)
+                labels.append(label)
+    fig.legend(handles, labels, loc="center left", bbox_to_anchor=(0.83, 0.5), fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0.0, 0.0, 0.83, 1.0))
+    fig.savefig(path)
+    return path
 
 
 def write_figures(results: list[JobResult], suite: Suite, contenders: list[Contender], out_dir: Path) -> list[Path]:

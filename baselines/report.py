@@ -189,10 +189,11 @@ def bounds_cell(results: list[JobResult], case: Any) -> str:
 def case_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
     """Deadline error per case (rows) and policy (columns) at the headline budget, and the case's intervals bounds."""
     names = [c.name for c in contenders]
-    header = ["case", *names, BOUNDS_TITLE]
+    conditions = any(case.conditions for case in suite.cases)
+    header = ["case", *(["floor"] if conditions else []), *names, BOUNDS_TITLE]
     rows = []
     for case in suite.cases:
-        row = [case.key]
+        row = [case.key, *([_case_floors(results, case)] if conditions else [])]
         for name in names:
             match = [r for r in _headline_results(results, suite, name) if r.job.case == case]
             row.append(spread_cell(match[0].metrics["relative_deadline_error"]) if match else "—")
@@ -200,13 +201,38 @@ def case_table(results: list[JobResult], suite: Suite, contenders: list[Contende
     return _table(header, rows)
 
 
+def floor_text(metrics: dict[str, np.ndarray]) -> str:
+    """The floors of one job's episodes (medians): ``noise ≥ …`` on D(T_s)/D(0), ``u_max ≥ …`` (m/s²); ``—`` without either."""
+    parts = []
+    noise = quantiles(np.asarray(metrics.get("noise_floor", [np.nan]), dtype=float))[0]
+    if not math.isnan(noise):
+        parts.append(f"D/D(0) ≥ {number_text(noise)}")
+    limit = quantiles(np.asarray(metrics.get("input_floor", [np.nan]), dtype=float))[0]
+    if not math.isnan(limit):
+        parts.append(f"u_max ≥ {number_text(limit)}")
+    return ", ".join(parts) or "—"
+
+
+def _case_floors(results: list[JobResult], case: Any) -> str:
+    """The floors of a case, per schedule where they differ (the noise floor depends on the instants)."""
+    by_schedule: dict[str, str] = {}
+    for r in _ran(results):
+        if r.job.case == case:
+            by_schedule.setdefault(r.job.contender.schedule, floor_text(r.metrics))
+    texts = set(by_schedule.values())
+    if len(texts) <= 1:
+        return texts.pop() if texts else "—"
+    return "; ".join(f"{text} ({schedule})" for schedule, text in by_schedule.items())
+
+
 def realism_table(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> str:
-    """Per case and condition, each policy's median deadline error, saturated time share and energy."""
+    """Per case and condition: the floors of any controller (:mod:`fxc_env.core.floors`), and each policy's
+    median deadline error, saturated time share and energy."""
     names = [c.name for c in contenders]
-    header = ["case", "condition", *names, BOUNDS_TITLE]
+    header = ["case", "condition", "floor", *names, BOUNDS_TITLE]
     rows = []
     for case in suite.cases:
-        row = [f"{case.family} N={case.n_agents}", case.condition]
+        row = [f"{case.family} N={case.n_agents}", case.condition, _case_floors(results, case)]
         for name in names:
             match = [r for r in _headline_results(results, suite, name) if r.job.case == case]
             if not match:
@@ -234,6 +260,9 @@ def optimality_table(results: list[JobResult], suite: Suite, contenders: list[Co
         "radius bound",
         "all-roots bound",
     ]
+    conditions = any(case.conditions for case in suite.cases)
+    if conditions:
+        header.append("floor")
     rows = []
     for case in suite.cases:
         for contender in contenders:
@@ -253,6 +282,7 @@ def optimality_table(results: list[JobResult], suite: Suite, contenders: list[Co
                     "not by T_s" if math.isinf(settled) else f"{settled:.0f}",
                     number_text(quantiles(m["radius_bound"])[0]),
                     number_text(quantiles(m["all_roots_bound"])[0]),
+                    *([floor_text(m)] if conditions else []),
                 ]
             )
     return _table(header, rows)
@@ -373,6 +403,9 @@ def markdown_report(
             "",
             realism_table(results, suite, contenders),
             "",
+            "Floor: what no controller, centralised or not, beats under the condition (medians over seeds): the "
+            "least expected D(T_s)/D(0) under measurement noise, and the least u_max of exact consensus at T_s.",
+            "",
         ]
     if suite.name.startswith("optimality"):
         parts += [
@@ -386,7 +419,10 @@ def markdown_report(
             "did not). Radius bound: the fewest intervals in which any law can be exact (the graph's radius: one "
             "agent's information must reach every agent). All-roots bound: the fewest after which every agent can "
             "have heard from every root, a bound only for laws whose value depends on every root (the paper's, "
-            "the E*-optimal mean); n/a for random switching.",
+            "the E*-optimal mean); n/a for random switching. ",
+            "Floor (cases with noise or an input limit): D/D(0) ≥ the least expected error any controller leaves "
+            "under the noise (least squares on every row the team receives); u_max ≥ the least input limit for "
+            "which any controller reaches exact consensus (a linear programme).",
             "",
         ]
     parts += [

@@ -89,7 +89,8 @@ paper_fig1 (own x0)    1.0        8.9e-3     1.4e-4     9.0e-14    1.6e-9     1.
   the error falls like ``σ/ε`` while the energy grows like ``ε²``. That is off the
   frontier, so the law refuses ``obs_noise`` unless the caller chooses ``amplitude`` explicitly.
 - It refuses what it cannot honour, by name: a graph (or period union) without a directed spanning
-  tree, topology families, ``switching='random'``, ``u_max``, ``obs_noise`` (without an explicit
+  tree, topology families, ``switching='random'``, ``u_max`` (unless ``allow_limit=True``: exact
+  wherever its inputs stay within the limit), ``obs_noise`` (without an explicit
   ``amplitude``), ``link_dropout``, agent models
   other than the double integrator, ``obs_mode='normalized'``, and too few intervals.
 """
@@ -311,6 +312,11 @@ class SignallingPolicy:
         amplitude: the signalling amplitude ε (dimensionless, in :data:`AMPLITUDE_RANGE`, ``1e-12 <= ε <= 1``;
             None: :data:`DEFAULT_AMPLITUDE`). Under ``obs_noise`` the law runs only with an explicit amplitude
             (the frontier point is the user's choice).
+        allow_limit: run under ``u_max`` too (off by default: the law plans exact changes). Its
+            signals are small and its steer is the minimum-energy one, so wherever every input stays
+            within the limit the clip never acts and the law is as exact as without it; where the
+            steer needs more (a late steer on the paper's schedule, a limit near the input floor)
+            the clip breaks the landing (README, "How far from optimal", for measured figures).
 
     Raises:
         ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``, ``agent_model``,
@@ -329,9 +335,11 @@ class SignallingPolicy:
         "unweighted mean of the predictions (all agents' when strongly connected), up to rounding / ε"
     )
 
-    def __init__(self, env: Any, amplitude: float | None = None) -> None:
+    def __init__(self, env: Any, amplitude: float | None = None, allow_limit: bool = False) -> None:
         config = config_of(env, type(self).__name__)
-        _refuse_what_it_cannot_honour(config)
+        if not isinstance(allow_limit, bool):
+            raise ArgumentError(f"allow_limit: expected True or False, got {allow_limit!r}")
+        _refuse_what_it_cannot_honour(config, allow_limit)
         if config.obs_noise != 0 and amplitude is None:
             raise ArgumentError(
                 f"obs_noise: {type(self).__name__} reads numbers from exact relative measurements; with noise σ each "
@@ -519,7 +527,7 @@ def _union(topology: Topology) -> sp.csr_array:
     return union
 
 
-def _refuse_what_it_cannot_honour(config: Any) -> None:
+def _refuse_what_it_cannot_honour(config: Any, allow_limit: bool = False) -> None:
     name = "SignallingPolicy"
     if config.family is not None:
         raise ArgumentError(
@@ -529,8 +537,11 @@ def _refuse_what_it_cannot_honour(config: Any) -> None:
         raise ArgumentError(
             f"switching: {name} reads each neighbour on the instants the period gives it, not switching={config.switching!r}"
         )
-    if config.u_max_choices is not None:
-        raise ArgumentError(f"u_max: {name} plans exact changes and cannot honour an input limit")
+    if config.u_max_choices is not None and not allow_limit:
+        raise ArgumentError(
+            f"u_max: {name} plans exact changes and cannot honour an input limit (allow_limit=True runs it "
+            "anyway: exact wherever its inputs stay within the limit)"
+        )
     if config.link_dropout != 0:
         raise ArgumentError(
             f"link_dropout: {name} reads numbers from every link of its graph; got link_dropout={config.link_dropout!r}"

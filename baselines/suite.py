@@ -399,9 +399,29 @@ def generalisation_suite(n_seeds: int = 20, budgets: tuple[int, ...] = (200,)) -
     )
 
 
+#: Noise levels and input limits of the optimality suite's floor cases (ring N = 20; README, "How far from optimal").
+FLOOR_NOISE = (1e-6, 1e-4, 1e-3)
+FLOOR_LIMITS = (0.3, 0.5, 1.0, 10.0)
+
+
+def floor_cases() -> tuple[BenchmarkCase, ...]:
+    """The directed ring of 20 under each of :data:`FLOOR_NOISE` and :data:`FLOOR_LIMITS`, and ``paper_fig1`` at ``u_max = 10``.
+
+    Their episodes carry ``noise_floor`` or ``input_floor`` (:mod:`fxc_env.core.floors`): what no
+    controller can beat under that setting.
+    """
+    ring = BenchmarkCase("ring", 20)
+    return (
+        *(replace(ring, conditions=(("obs_noise", sigma),)) for sigma in FLOOR_NOISE),
+        *(replace(ring, conditions=(("u_max", limit),)) for limit in FLOOR_LIMITS),
+        BenchmarkCase("paper_fig1", 6, conditions=(("u_max", 10.0),)),
+    )
+
+
 def optimality_cases(sizes: tuple[int, ...] = (20, 100)) -> tuple[BenchmarkCase, ...]:
-    """``paper_fig1`` and directed rings and random digraphs at each size: slow and fast mixing."""
-    return (BenchmarkCase("paper_fig1", 6), *(BenchmarkCase(f, n) for n in sizes for f in ("ring", "random")))
+    """``paper_fig1`` and directed rings and random digraphs at each size (slow and fast mixing), then :func:`floor_cases`."""
+    ideal = (BenchmarkCase("paper_fig1", 6), *(BenchmarkCase(f, n) for n in sizes for f in ("ring", "random")))
+    return (*ideal, *floor_cases())
 
 
 def optimality_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
@@ -425,15 +445,29 @@ def quick_optimality_suite(n_seeds: int = 5, fine_intervals: int = 1000) -> Suit
     return replace(optimality_suite(n_seeds, fine_intervals), cases=optimality_cases((20,)), name="optimality-quick")
 
 
+#: Laws run only by explicit opt-in where they would otherwise refuse a setting:
+#: spec -> (law, keyword arguments, the setting it is run under; without that setting it is the law itself).
+OPT_IN = {
+    "minimum_time/noisy": ("minimum_time", {"allow_noise": True}, "obs_noise"),
+    "signalling/limited": ("signalling", {"allow_limit": True}, "u_max"),
+    "signalling/paper/limited": ("signalling", {"allow_limit": True}, "u_max"),
+}
+
+
 def optimality_contenders() -> list[Contender]:
-    """The reference, the minimum-time, signalling and graph-agnostic laws on both schedules, and the other analytic laws with their settings."""
+    """Every registered law (:data:`BUILTIN_SETTINGS`) with its settings; the reference, the minimum-time,
+    signalling and graph-agnostic laws on both schedules; and the opt-ins of :data:`OPT_IN` (they run only where
+    their setting is on)."""
     both = [
         Contender("reference", "reference", True, "paper", "plan", "normalized"),
         Contender("reference/uniform", "reference", True, "uniform", "plan", "normalized"),
         Contender("minimum_time", "minimum_time", True, "uniform", "plan", "normalized"),
         Contender("minimum_time/paper", "minimum_time", True, "paper", "plan", "normalized"),
+        Contender("minimum_time/noisy", "minimum_time/noisy", True, "uniform", "plan", "normalized"),
         Contender("signalling", "signalling", True, "uniform", "plan", "raw"),
         Contender("signalling/paper", "signalling", True, "paper", "plan", "raw"),
+        Contender("signalling/limited", "signalling/limited", True, "uniform", "plan", "raw"),
+        Contender("signalling/paper/limited", "signalling/paper/limited", True, "paper", "plan", "raw"),
         Contender("graph_agnostic", "graph_agnostic", True, "uniform", "plan", "raw"),
         Contender("graph_agnostic/paper", "graph_agnostic", True, "paper", "plan", "raw"),
     ]
@@ -470,6 +504,11 @@ def load_policy(spec: str, config: EnvConfig, trusted: bool = False, allow_out_o
         return ReferencePolicy(config)
     if spec in BASELINES:
         return BASELINES[spec](config)
+    if spec in OPT_IN:
+        name, options, setting = OPT_IN[spec]
+        if (config.obs_noise == 0) if setting == "obs_noise" else (config.u_max_choices is None):
+            raise ArgumentError(f"{setting}: {spec} is {name} opted in under {setting}; without it it is {name} itself")
+        return BASELINES[name](config, **options)
     path = model_path(spec)
     if spec in SHIPPED or path.suffix == ".zip" or path.exists():
         try:

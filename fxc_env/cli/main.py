@@ -122,6 +122,13 @@ def simulate_command(args: argparse.Namespace) -> int:
     settled = _format(m.settled_interval)
     print(f"| {'intervals to 1e-9, any law (radius)':<38} | {_format(m.radius_bound):>22} | {settled:>22} |")
     print(f"| {'intervals, laws using every root':<38} | {_format(m.all_roots_bound):>22} | {settled:>22} |")
+    if m.noise_floor == m.noise_floor:  # under obs_noise (NaN otherwise)
+        print(
+            f"| {'D(T_s)/D(0) under the noise':<38} | {_format(m.noise_floor):>22} | {_format(m.relative_deadline_error):>22} |"
+        )
+    if m.input_floor == m.input_floor:  # under u_max: the least limit of exact consensus, beside the limit run
+        limit = f"u_max = {trajectory.u_max:g}"
+        print(f"| {'u_max of exact consensus (m/s²)':<38} | {_format(m.input_floor):>22} | {limit:>22} |")
     if video is not None:
         print()
         width, height = drawn.size

@@ -438,6 +438,12 @@ class EpisodeMetrics:
     depends on every root, the paper's among them). Both are NaN for random switching, and above 2000
     agents, where they are not computed. ``propagation_bound`` is a deprecated copy of
     ``all_roots_bound``, kept for one release.
+    With measurement noise, ``noise_floor`` is the least expected ``D(T_s) / D(0)`` any controller
+    leaves (the least-squares floor, :func:`fxc_env.core.floors.noise_floor`); with an input limit,
+    ``input_floor`` is the least ``u_max`` (m/s²) for which any controller reaches exact consensus
+    (:func:`fxc_env.core.floors.input_floor`). Both are NaN when their setting is off, for agent
+    models other than the double integrator, and ``noise_floor`` also with random switching and
+    above 200 agents, where it is not computed.
     """
 
     final_position_spread: float
@@ -459,6 +465,8 @@ class EpisodeMetrics:
     radius_bound: float
     all_roots_bound: float
     propagation_bound: float
+    noise_floor: float = math.nan
+    input_floor: float = math.nan
 
     def as_dict(self) -> dict[str, float | int | None]:
         """Plain dict for JSON (non-finite values become ``None``)."""

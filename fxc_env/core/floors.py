@@ -1,0 +1,207 @@
+"""Floors under measurement noise and input limits: what no controller, centralised or not, can beat.
+
+Two settings of the environment change what is reachable at ``T_s`` (README, "How far from
+optimal"); each has a floor that holds for every law:
+
+- **Noise** (:func:`noise_floor`). With ``obs_noise = sigma`` every received row
+  ``[x_j - x_i, v_j - v_i]`` carries independent Gaussian noise of standard deviation ``sigma``
+  in each component (m and m/s), drawn anew at every sampling instant. Pool every row the whole
+  team receives at ``t_0 .. t_{K-1}`` (the last instant at which an input can still act): each is
+  ``Phi_k (z_j(0) - z_i(0)) + n``, ``Phi_k = [[1, t_k], [0, 1]]``, plus the known effect of the
+  inputs, so the best estimate of the initial disagreement is the least-squares one, with covariance
+  ``sigma^2 J^+``, ``J = sum_k L_k (x) Phi_k^T Phi_k`` (``L_k = B_k B_k^T`` from the incidence
+  matrix of the graph of interval k: an edge measured in both directions counts twice). A
+  controller that steers every agent to the estimated consensus leaves exactly the estimation
+  error, propagated to ``T_s``; none can leave less on average. The floor is the expected
+  disagreement ``E[D(T_s)]`` of that Gaussian error (``D = e_x + T_s e_v``), linear in ``sigma``.
+  ``E[D]`` (a mean of diameters) has no closed form: it is the mean over :data:`NOISE_DRAWS`
+  draws of a fixed generator (relative sampling error about 0.3%), the same number on every call.
+  Link dropout only removes rows, so the floor without it bounds runs with it too.
+- **Input limit** (:func:`input_floor`). With ``|u_i| <= U`` per component, agent i can move its
+  free-motion prediction ``p_i = (x_i + T v_i, v_i)`` by ``(d, w) = (int (T - t) u dt, int u dt)``
+  in ``U R``, where ``R`` (``U = 1``) is bounded by the bang-bang inputs: ``+1`` until ``tau``
+  then ``-1`` gives ``w = 2 tau - T``, ``d = 2 T tau - tau^2 - T^2 / 2`` (the largest d for that w),
+  and its mirror. Exact consensus needs one ``(x*, v*)`` with ``(x* - p_i, v* - v_i)`` in ``U R``
+  for every i: a linear programme in ``(x*, v*, U)`` once ``R`` is a polygon. The tangents to
+  ``R``'s boundary at ``tau = j T / m`` enclose it (the programme's U is a lower bound: the floor
+  reported); the chords between those points lie inside it and are reached by bang-bang inputs
+  switching at ``j T / m`` (an upper bound, reached). Both are returned by
+  :func:`input_floor_bounds`; with :data:`INPUT_FACETS` facets they agree to about 1e-6.
+
+Pure numpy/scipy: no environment, no torch.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.optimize import linprog
+from scipy.spatial import ConvexHull, QhullError
+
+from fxc_env.core import validation
+from fxc_env.core.graphs import Topology
+from fxc_env.core.metrics import spread
+from fxc_env.core.validation import ArgumentError
+
+__all__ = ["INPUT_FACETS", "NOISE_DRAWS", "NOISE_LIMIT", "input_floor", "input_floor_bounds", "noise_floor"]
+
+#: Draws of the least-squares error whose mean disagreement is the noise floor (fixed generator, seed 0).
+NOISE_DRAWS = 4096
+#: Largest N for which :func:`noise_floor` is computed (dense ``2N x 2N`` information matrix).
+NOISE_LIMIT = 200
+#: Switching instants ``tau = j T / m`` of the polygons of :func:`input_floor_bounds` (m).
+INPUT_FACETS = 1024
+
+
+def _information(topology: Topology, times: np.ndarray) -> np.ndarray:
+    """``J = sum_k L_{k mod period} (x) Phi_k^T Phi_k``, ``(2N, 2N)``, state order ``(agent, [x, v])``."""
+    n, period = topology.n_agents, topology.period
+    information = np.zeros((2 * n, 2 * n))
+    for g in range(period):
+        t = times[g::period]
+        gram = np.array([[len(t), t.sum()], [t.sum(), (t * t).sum() + len(t)]])  # sum_k Phi_k^T Phi_k
+        edges = topology.edges[g]
+        incidence = sp.csr_array(
+            (
+                np.r_[np.ones(len(edges)), -np.ones(len(edges))],
+                (np.r_[edges[:, 0], edges[:, 1]], np.r_[0 : len(edges), 0 : len(edges)]),
+            ),
+            shape=(n, len(edges)),
+        )
+        laplacian = (incidence @ incidence.T).toarray()
+        information += np.kron(laplacian, gram)
+    return information
+
+
+def noise_floor(topology: Topology, times: Any, sigma: Any, dim: int = 1) -> float:
+    """The least expected ``D(T_s)`` (metres) any controller leaves under measurement noise ``sigma``.
+
+    Args:
+        topology: the graph (or switching period) the agents measure on; interval k uses
+            graph ``k mod period``.
+        times: the sampling instants ``t_0 .. t_K`` (seconds, ``times[-1] = T_s``), e.g.
+            ``config.schedule.times``; rows are measured at ``t_0 .. t_{K-1}``.
+        sigma: ``obs_noise``, the standard deviation of each measured component (m, m/s), >= 0.
+        dim: the space dimension (noise is independent per axis).
+
+    Returns:
+        ``E[D(T_s)]`` of the least-squares error (module docstring), in metres; divide by ``D(0)``
+        for the relative floor. 0 for ``sigma = 0`` or a single agent; ``inf`` where the pooled
+        rows cannot determine the disagreement (a graph without a spanning tree, or too few
+        instants); NaN above :data:`NOISE_LIMIT` agents, where it is not computed.
+    """
+    if not isinstance(topology, Topology):
+        raise ArgumentError(f"topology: expected a fxc_env.core.graphs.Topology, got {type(topology).__name__}")
+    instants = validation.real_array("times", times, "the sampling instants t_0 .. t_K (seconds)")
+    if instants.ndim != 1 or len(instants) < 2 or not np.all(np.diff(instants) > 0) or instants[0] != 0:
+        raise ArgumentError(f"times: expected increasing instants t_0 = 0 .. t_K = T_s, got shape {instants.shape}")
+    sigma = validation.real("sigma", sigma, 0.0)
+    dim = validation.integer("dim", dim, 1)
+    n = topology.n_agents
+    if n == 1 or sigma == 0:
+        return 0.0
+    if n > NOISE_LIMIT:
+        return float("nan")
+    settling_time = float(instants[-1])
+    # Coordinates of the disagreement: an orthonormal basis of the vectors with zero mean, per state.
+    basis = np.linalg.svd(np.eye(n) - 1.0 / n)[0][:, : n - 1]
+    reduce = np.kron(basis, np.eye(2))  # (2N, 2N - 2)
+    information = reduce.T @ _information(topology, instants[:-1]) @ reduce
+    eigenvalues, vectors = np.linalg.eigh(information)
+    if eigenvalues[0] <= 1e-12 * max(eigenvalues[-1], 1.0):
+        return float("inf")
+    root = reduce @ (vectors / np.sqrt(eigenvalues))  # error = root @ g, g standard normal
+    draws = np.random.default_rng(0).standard_normal((NOISE_DRAWS, dim, 2 * n - 2))
+    error = (draws @ root.T).reshape(NOISE_DRAWS, dim, n, 2).transpose(0, 2, 1, 3)  # (S, N, dim, [x, v])
+    positions = error[..., 0] + settling_time * error[..., 1]
+    disagreement = spread(positions) + settling_time * spread(error[..., 1])
+    return float(sigma * disagreement.mean())
+
+
+def _polygons(settling_time: float, facets: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Outer and inner polygons of ``R`` (U = 1) as ``normals (F, 2)``, ``offsets (F,)``: ``normal . (d, w) <= offset``."""
+    t = settling_time
+    tau = np.linspace(0.0, t, facets + 1)
+    w = 2 * tau - t
+    d = 2 * t * tau - tau * tau - t * t / 2
+    # Upper boundary d = f(w), concave, f'(w) = dd/dtau / dw/dtau = (t - tau); the lower one is its mirror.
+    slope = t - tau
+    outer_upper = np.stack([np.ones_like(w), -slope], axis=1), d - slope * w  # d - f'(w) w' <= f(w) - f'(w) w
+    chord = (d[1:] - d[:-1]) / (w[1:] - w[:-1])
+    inner_upper = np.stack([np.ones_like(chord), -chord], axis=1), d[:-1] - chord * w[:-1]
+    polygons = []
+    for normals, offsets in (outer_upper, inner_upper):
+        # The mirror (d, w) -> (-d, -w) bounds from below; |w| <= T closes both.
+        box = np.array([[0.0, 1.0], [0.0, -1.0]])
+        polygons.append(np.concatenate([normals, -normals, box]))
+        polygons.append(np.concatenate([offsets, offsets, [t, t]]))
+    return polygons[0], polygons[1], polygons[2], polygons[3]
+
+
+def _least_limit(normals: np.ndarray, offsets: np.ndarray, p: np.ndarray, v: np.ndarray) -> float:
+    """``min U`` with ``(x* - p_i, v* - v_i)`` in ``U {normal . y <= offset}`` for all i (variables x*, v*, U)."""
+    # normal . (x* - p_i, v* - v_i) <= offset U  <=>  n_d x* + n_w v* - offset U <= n_d p_i + n_w v_i.
+    f = len(offsets)
+    rows = np.tile(np.stack([normals[:, 0], normals[:, 1], -offsets], axis=1), (len(p), 1))
+    bounds = (normals[None, :, 0] * p[:, None] + normals[None, :, 1] * v[:, None]).ravel()
+    scale = max(np.max(np.abs(p)), np.max(np.abs(v)), 1.0)
+    result = linprog(
+        c=[0.0, 0.0, 1.0],
+        A_ub=rows,
+        b_ub=bounds / scale,
+        bounds=[(None, None), (None, None), (0.0, None)],
+        method="highs",
+    )
+    if result.status != 0:
+        raise ArithmeticError(f"input floor: the linear programme did not solve ({result.message}; {f} facets)")
+    return float(result.x[2] * scale)
+
+
+def _hull(p: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices of the convex hull of the points ``(p_i, v_i)``: ``p_i in y - U R`` for all i iff for these (R is convex)."""
+    try:
+        vertices = ConvexHull(np.stack([p, v], axis=1)).vertices
+    except (QhullError, ValueError):  # fewer than 3 points, or all on a line: keep them all
+        return p, v
+    return p[vertices], v[vertices]
+
+
+def input_floor_bounds(x0: Any, v0: Any, settling_time: Any, facets: int = INPUT_FACETS) -> tuple[float, float]:
+    """``(lower, upper)`` on the least input limit ``u_max`` (m/s², per component) of exact consensus at ``T_s``.
+
+    ``lower``: the linear programme on the polygon enclosing the reachable set (no controller,
+    centralised or not, reaches exact consensus with a smaller ``u_max``); ``upper``: on the polygon
+    inside it, reached by bang-bang inputs switching once at a multiple of ``T_s / facets``. The
+    largest over the ``dim`` axes (the limit clips each component).
+
+    Args:
+        x0, v0: initial positions and velocities ``(N, dim)`` (or ``(N,)``), in m and m/s.
+        settling_time: ``T_s`` in seconds, > 0.
+        facets: switching instants per polygon side (>= 2).
+    """
+    x = validation.real_array("x0", x0, "initial positions (N, dim)")
+    v = validation.real_array("v0", v0, "initial velocities (N, dim)")
+    if x.ndim == 1:
+        x, v = x[:, None], v.reshape(-1, 1) if v.ndim == 1 else v
+    if x.ndim != 2 or v.shape != x.shape:
+        raise ArgumentError(f"x0, v0: expected two arrays (N, dim) of one shape, got {x.shape} and {v.shape}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
+        raise ArgumentError("x0, v0: every entry must be finite (no NaN or inf)")
+    t = validation.real("settling_time", settling_time, positive=True)
+    facets = validation.integer("facets", facets, 2)
+    outer_normals, outer_offsets, inner_normals, inner_offsets = _polygons(t, facets)
+    lower = upper = 0.0
+    for axis in range(x.shape[1]):
+        p, w = _hull(x[:, axis] + t * v[:, axis], v[:, axis])
+        if np.ptp(p) == 0 and np.ptp(w) == 0:
+            continue
+        lower = max(lower, _least_limit(outer_normals, outer_offsets, p, w))
+        upper = max(upper, _least_limit(inner_normals, inner_offsets, p, w))
+    return lower, upper
+
+
+def input_floor(x0: Any, v0: Any, settling_time: Any) -> float:
+    """The least ``u_max`` (m/s²) for which any controller reaches exact consensus at ``T_s`` (the lower bound of :func:`input_floor_bounds`)."""
+    return input_floor_bounds(x0, v0, settling_time)[0]
