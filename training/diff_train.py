@@ -167,7 +167,9 @@ class DiffTrainer(Trainer):
     def episode(self) -> dict[str, Any]:
         """Play one batch of B episodes with K / window gradient steps; returns its statistics."""
         engine, s = self.engine, self.diff
-        self._reset()
+        if not self.fresh:  # fresh: just built, or resumed (whose episodes are drawn as the run's would have been)
+            self._reset()
+        self.fresh = False
         dtype = engine.dtype
         hidden = (
             self.model.actor.initial_state((self.n_envs, self.n_agents), self.device) if self.arch == "gru" else None
