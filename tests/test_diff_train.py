@@ -222,3 +222,13 @@ def test_bad_settings_are_named_before_work_starts(tmp_path, setting, message):
     with pytest.raises(ArgumentError, match=message):
         check_train_args(args(tmp_path, hyperparams=hyperparams(tmp_path, **setting)))
     assert not (tmp_path / "run").exists()
+
+
+def test_seeds_train_one_diff_run_per_seed(tmp_path, monkeypatch):
+    from fxc_env.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    argv = ["train", "--backend", "diff", "--hyperparams", hyperparams(tmp_path), "--seeds", "0-1"]
+    assert main([*argv, "--timesteps", str(PER_BATCH), "--no-progress-bar"]) == 0
+    for seed in (0, 1):  # the default run directory names the back end and its algorithm
+        assert load_torch_policy(tmp_path / f"runs/paper_fig1-diff-apg-seed{seed}").timesteps == PER_BATCH
