@@ -232,3 +232,13 @@ def test_seeds_train_one_diff_run_per_seed(tmp_path, monkeypatch):
     assert main([*argv, "--timesteps", str(PER_BATCH), "--no-progress-bar"]) == 0
     for seed in (0, 1):  # the default run directory names the back end and its algorithm
         assert load_torch_policy(tmp_path / f"runs/paper_fig1-diff-apg-seed{seed}").timesteps == PER_BATCH
+
+
+@pytest.mark.parametrize("name", ["paper_fig1_k50.yml", "paper_fig1_k50_finetune.yml"])
+@pytest.mark.parametrize("backend", ["diff", "torch"])
+def test_the_readme_hyperparameter_files_check(tmp_path, name, backend):
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "training" / name
+    run_args = args(tmp_path, hyperparams=str(path), backend=backend, algo="apg" if backend == "diff" else "ppo")
+    assert check_train_args(run_args)["env"]["n_intervals"] == 50
