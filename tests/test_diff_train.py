@@ -106,6 +106,27 @@ def test_resume_goes_on_from_the_checkpoint_as_if_never_stopped(tmp_path, capsys
     assert all(torch.equal(resumed[k], uninterrupted[k]) for k in resumed)
 
 
+def test_ctrl_c_finishes_the_batch_saves_a_checkpoint_and_resume_finishes(tmp_path, monkeypatch):
+    import signal
+
+    episode = DiffTrainer.episode
+    calls = []
+
+    def pressed(self):  # the user presses Ctrl-C during the second batch
+        calls.append(1)
+        if len(calls) == 2:
+            signal.raise_signal(signal.SIGINT)
+        return episode(self)
+
+    monkeypatch.setattr(DiffTrainer, "episode", pressed)
+    with pytest.raises(KeyboardInterrupt):
+        train(args(tmp_path, timesteps=4 * PER_BATCH, checkpoint_every=10**9))
+    assert sorted(p.name for p in (tmp_path / "run/checkpoints").iterdir()) == [f"model_{2 * PER_BATCH}_steps.pt"]
+    monkeypatch.undo()
+    run_dir = train(args(tmp_path, timesteps=3 * PER_BATCH, resume=True))
+    assert [int(row["time/total_timesteps"]) for row in rows(run_dir)] == [PER_BATCH, 2 * PER_BATCH, 3 * PER_BATCH]
+
+
 def first_actions(trainer: Trainer) -> torch.Tensor:
     obs = trainer.engine.observations().to(torch.float32)
     if trainer.arch == "gru":
