@@ -69,6 +69,8 @@ def test_fxc_train_backend_diff_writes_the_run_directory_and_a_policy_fxc_evalua
     assert [int(row["train/n_updates"]) for row in table] == [2, 4], "K / window gradient steps a batch"
     for row in table:
         assert np.isfinite(float(row["rollout/ep_rew_mean"])) and float(row["rollout/deadline_error"]) > 0
+        # The two windows' losses telescope to the batch's mean ln D(T_s)/D(0).
+        assert float(row["train/loss"]) == pytest.approx(float(row["rollout/log_deadline_error"]), rel=1e-9)
     assert list(run_dir.glob("events.out.tfevents.*")) and (run_dir / "training_curve.png").is_file()
     assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == [
         f"model_{PER_BATCH}_steps.pt",

@@ -300,7 +300,8 @@ def add_train_parser(commands: argparse._SubParsersAction) -> argparse.ArgumentP
     parser = commands.add_parser(
         "train",
         help="train a shared policy with PPO or SAC (stable-baselines3), PPO in Ray RLlib (--backend rllib), "
-        "or a lean torch PPO on the batched engine (--backend torch, --device cpu|cuda)",
+        "a lean torch PPO on the batched engine (--backend torch, --device cpu|cuda), or analytic policy gradients "
+        "through the engine (--backend diff)",
     )
     for field in dataclasses.fields(TrainArgs):
         flag = "--" + field.name.replace("_", "-")
