@@ -137,10 +137,11 @@ def first_actions(trainer: Trainer) -> torch.Tensor:
     return trainer.model.actor(obs).detach()
 
 
-@pytest.mark.parametrize("backend", ["diff", "torch"])
-def test_init_from_a_run_starts_from_its_weights(tmp_path, backend):
+@pytest.mark.parametrize(("backend", "what"), [("diff", "run"), ("torch", "run"), ("diff", "checkpoint")])
+def test_init_from_a_run_starts_from_its_weights(tmp_path, backend, what):
     source = train(args(tmp_path, timesteps=PER_BATCH, run_dir=str(tmp_path / "source")))
-    run_args = args(tmp_path, init_from=str(source), backend=backend, algo="apg" if backend == "diff" else "ppo")
+    given = source if what == "run" else source / f"checkpoints/model_{PER_BATCH}_steps.pt"
+    run_args = args(tmp_path, init_from=str(given), backend=backend, algo="apg" if backend == "diff" else "ppo")
     params = check_train_args(run_args)
     if backend == "diff":
         settings = DiffSettings.from_mapping(params["algo"], make_config(**run_config(run_args, params)))
