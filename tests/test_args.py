@@ -83,6 +83,7 @@ def test_a_command_line_reaches_every_field_with_its_type(parser):
         "device": "cuda:1",
         "critic": "central",
         "policy_arch": "gru",
+        "init_from": "rings_gru",
     }
     assert set(given) == {field.name for field in FIELDS}
     argv = []
