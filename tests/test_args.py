@@ -84,6 +84,7 @@ def test_a_command_line_reaches_every_field_with_its_type(parser):
         "device": "cuda:1",
         "critic": "central",
         "policy_arch": "gru",
+        "init_from": "rings_gru",
     }
     assert set(given) == {field.name for field in FIELDS}
     argv = []
@@ -112,8 +113,8 @@ def test_a_value_that_is_not_an_integer_is_a_one_line_error_naming_the_flag(tmp_
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--backend", "jax"], "--backend: expected one of ('sb3', 'rllib', 'torch'), got 'jax'"),
-        (["--algo", "dqn"], "--algo: expected one of ('ppo', 'sac'), got 'dqn'"),
+        (["--backend", "jax"], "--backend: expected one of ('sb3', 'rllib', 'torch', 'diff'), got 'jax'"),
+        (["--algo", "dqn"], "--algo: expected one of ('ppo', 'sac', 'apg'), got 'dqn'"),
         (["--backend", "torch", "--critic", "global"], "--critic: expected one of ('local', 'central'), got 'global'"),
         (
             ["--backend", "torch", "--device", "tpu"],
@@ -133,7 +134,7 @@ def test_backend_torchrl_on_the_command_line_is_torch_with_a_deprecation_line(pa
     assert capsys.readouterr().err == "fxc train: --backend torchrl is deprecated; use --backend torch\n"
     args_from_namespace(parser.parse_args(["--backend", "torch"]))
     assert capsys.readouterr().err == ""
-    assert BACKENDS == ("sb3", "rllib", "torch")
+    assert BACKENDS == ("sb3", "rllib", "torch", "diff")
 
 
 def test_the_old_name_is_accepted_by_the_functions_with_a_deprecation_warning(tmp_path):

@@ -36,7 +36,7 @@ def test_a_run_directory_is_named_by_its_arguments(tmp_path):
     assert old.backend == "torch" and old.checkpoint_path(2400) == tmp_path / "checkpoints" / "model_2400_steps.pt"
     assert RunDir(tmp_path, "sb3").checkpoint_path(4800).name == "model_4800_steps.zip"
     assert RunDir(tmp_path, "rllib").checkpoint_path(19200).name == "rllib_19200_steps"
-    assert set(CHECKPOINT_NAMES) == {"sb3", "torch", "rllib"}
+    assert set(CHECKPOINT_NAMES) == {"sb3", "torch", "diff", "rllib"}
 
 
 @pytest.mark.parametrize("backend", ["sb3", "torch"])

@@ -191,7 +191,10 @@ def test_an_unknown_arch_is_refused_by_name():
     "change, message",
     [
         ({"policy_arch": "lstm"}, r"^policy_arch: expected one of"),
-        ({"policy_arch": "gru", "backend": "sb3"}, r"^policy_arch: only the torch backend has a choice of actor"),
+        (
+            {"policy_arch": "gru", "backend": "sb3"},
+            r"^policy_arch: only the torch and diff backends have a choice of actor",
+        ),
     ],
 )
 def test_bad_policy_arch_is_named(tmp_path, change, message):

@@ -166,7 +166,7 @@ def test_cuda_without_cuda_names_the_device(tmp_path):
     [
         ({"critic": "global"}, r"critic: expected one of \('local', 'central'\), got 'global'"),
         ({"critic": "central", "backend": "sb3"}, "critic: only the torch backend"),
-        ({"device": "cuda", "backend": "sb3"}, "device: only the torch backend"),
+        ({"device": "cuda", "backend": "sb3"}, "device: only the torch and diff backends"),
         ({"device": "tpu"}, "device: expected"),
         ({"algo": "sac"}, "algo: the torch backend trains 'ppo'"),
     ],

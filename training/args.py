@@ -24,8 +24,12 @@ from fxc_env.core.validation import ArgumentError, choice, integer
 from fxc_env.utils.cli_checks import yaml_mapping_file
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
-ALGORITHMS = ("ppo", "sac")
-BACKENDS = ("sb3", "rllib", "torch")
+ALGORITHMS = ("ppo", "sac", "apg")
+#: ``apg`` (analytic policy gradients) is the algorithm of ``--backend diff``, and only of it.
+BACKEND_ALGORITHMS = {"diff": ("apg",)}
+BACKENDS = ("sb3", "rllib", "torch", "diff")
+#: Back ends whose actor is one of :data:`POLICY_ARCHS`, on a torch device, saved as ``policy.pt``.
+TORCH_BACKENDS = ("torch", "diff")
 #: Old back-end names, still accepted: ``torchrl`` was the torch loop's name (it never used TorchRL).
 BACKEND_ALIASES = {"torchrl": "torch"}
 #: ``--critic`` of the torch back end: per-agent values, or one value per episode from the global state.
@@ -78,7 +82,9 @@ class TrainArgs:
     backend: str = arg(
         "sb3",
         "``sb3`` (stable-baselines3 on this machine), ``rllib`` (Ray RLlib PPO on a local Ray or a cluster) or "
-        "``torch`` (a lean PPO loop on the batched engine on a torch device; ``torchrl``, its old name, is deprecated).",
+        "``torch`` (a lean PPO loop on the batched engine on a torch device; ``torchrl``, its old name, is deprecated) "
+        "or ``diff`` (analytic policy gradients through the engine's closed-form intervals, "
+        ":mod:`fxc_env.training.diff_train`; ``--algo apg``, its default).",
     )
     num_env_runners: int = arg(2, "RLlib: env runner actors that sample in parallel (0: sample in this process).")
     envs_per_runner: int = arg(1, "RLlib: environments each env runner steps (``n_envs`` is the SB3 setting).")
@@ -97,6 +103,12 @@ class TrainArgs:
         "mlp",
         "torch: the actor, ``mlp`` (memoryless), ``gru`` (a GRU over the agent's own observations, reset per "
         "episode) or ``gnn`` (messages along the interval graph's edges: a communication model beyond the paper's).",
+    )
+    init_from: str | None = arg(
+        None,
+        "torch, diff: start a fresh run from a policy's weights: a shipped name (as ``load_learned_policy`` "
+        "resolves it), a ``policy.pt`` or checkpoint, or a run directory. Its architecture and observation layout "
+        "must be the run's (refused by name otherwise).",
     )
 
 
@@ -178,18 +190,37 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
     args = dataclasses.replace(args, backend=canonical_backend(args.backend, warn=False))
     if args.backend in ("rllib", "torch") and args.algo != "ppo":
         raise ArgumentError(f"{name('algo')}: the {args.backend} backend trains 'ppo', got {args.algo!r}")
+    if args.backend == "diff" and args.algo != "apg":
+        raise ArgumentError(
+            f"{name('algo')}: the diff backend trains 'apg' (analytic policy gradients), got {args.algo!r}"
+        )
+    if args.backend != "diff" and args.algo == "apg":
+        raise ArgumentError(f"{name('algo')}: 'apg' needs the engine's gradients: use --backend diff")
     choice(name("critic"), args.critic, CRITICS)
     choice(name("policy_arch"), args.policy_arch, POLICY_ARCHS)
-    if args.backend != "torch" and args.policy_arch != "mlp":
+    if args.backend not in TORCH_BACKENDS and args.policy_arch != "mlp":
         raise ArgumentError(
-            f"{name('policy_arch')}: only the torch backend has a choice of actor, got {args.policy_arch!r}"
+            f"{name('policy_arch')}: only the torch and diff backends have a choice of actor, got {args.policy_arch!r}"
         )
     if args.backend != "torch" and args.critic != "local":
         raise ArgumentError(f"{name('critic')}: only the torch backend has a choice of critic, got {args.critic!r}")
-    if args.backend != "torch" and args.device != "cpu":
-        raise ArgumentError(f"{name('device')}: only the torch backend runs on a chosen device, got {args.device!r}")
-    if args.backend == "torch":
+    if args.backend not in TORCH_BACKENDS and args.device != "cpu":
+        raise ArgumentError(
+            f"{name('device')}: only the torch and diff backends run on a chosen device, got {args.device!r}"
+        )
+    if args.backend in TORCH_BACKENDS:
         torch_device(name("device"), args.device)
+    if args.init_from is not None:
+        if args.backend not in TORCH_BACKENDS:
+            raise ArgumentError(
+                f"{name('init_from')}: only the torch and diff backends start from a policy file, "
+                f"not the {args.backend} backend"
+            )
+        if args.resume:
+            raise ArgumentError(
+                f"{name('init_from')}: --resume goes on from the run's own checkpoint; "
+                "--init-from starts a fresh run (leave one out)"
+            )
     choice(name("algo"), args.algo, ALGORITHMS)
     integer(name("timesteps"), args.timesteps, 1)
     integer(name("seed"), args.seed, 0, 2**32 - 1)  # numpy's legacy seeding, which SB3 uses, takes 32 bits
@@ -212,7 +243,7 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
                     f"{name(field)}: only the rllib backend reads it; the {args.backend} backend would ignore "
                     f"{value!r} (use --backend rllib, or leave it out)"
                 )
-    algo_key = f"{args.backend}_{args.algo}" if args.backend in ("rllib", "torch") else args.algo
+    algo_key = f"{args.backend}_{args.algo}" if args.backend in ("rllib", *TORCH_BACKENDS) else args.algo
     params = load_hyperparams(args.hyperparams, args.scenario, algo_key, name=name("hyperparams"))
     if args.backend == "rllib":
         batch = params["algo"].get("train_batch_size_per_learner")
@@ -225,6 +256,10 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
         from fxc_env.training.torch_ppo import PPOSettings
 
         PPOSettings.from_mapping(params["algo"], config, name=name("hyperparams"))
+    if args.backend == "diff":
+        from fxc_env.training.diff_train import DiffSettings
+
+        DiffSettings.from_mapping(params["algo"], config, name=name("hyperparams"))
     output_directory(name("run_dir"), args.run_dir or default_run_dir(args))
     return params
 
@@ -276,7 +311,8 @@ def add_train_parser(commands: argparse._SubParsersAction) -> argparse.ArgumentP
     parser = commands.add_parser(
         "train",
         help="train a shared policy with PPO or SAC (stable-baselines3), PPO in Ray RLlib (--backend rllib), "
-        "or a lean torch PPO on the batched engine (--backend torch, --device cpu|cuda)",
+        "a lean torch PPO on the batched engine (--backend torch, --device cpu|cuda), or analytic policy gradients "
+        "through the engine (--backend diff)",
     )
     for field in dataclasses.fields(TrainArgs):
         flag = "--" + field.name.replace("_", "-")
@@ -316,4 +352,6 @@ def args_from_namespace(namespace: argparse.Namespace) -> TrainArgs:
         new = BACKEND_ALIASES[values["backend"]]
         print(f"fxc train: --backend {values['backend']} is deprecated; use --backend {new}", file=sys.stderr)
         values["backend"] = new
+    if values["backend"] in BACKEND_ALGORITHMS and "algo" not in getattr(namespace, "given_flags", set()):
+        values["algo"] = BACKEND_ALGORITHMS[values["backend"]][0]  # --backend diff alone trains its one algorithm
     return TrainArgs(**values)

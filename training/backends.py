@@ -1,9 +1,10 @@
-"""Which back end trains: ``fxc train --backend sb3|rllib|torch`` lands in :func:`train`.
+"""Which back end trains: ``fxc train --backend sb3|rllib|torch|diff`` lands in :func:`train`.
 
 The back ends share :class:`fxc_env.training.args.TrainArgs` and the run directory
 (:mod:`fxc_env.training.run_dir`); each is imported only when chosen (Ray is an optional
 extra; ``torch`` is the lean PPO loop of :mod:`fxc_env.training.torch_ppo`, on the engine's
-torch tensors, also accepted under its old name ``torchrl``).
+torch tensors, also accepted under its old name ``torchrl``; ``diff`` is analytic policy
+gradients through the engine, :mod:`fxc_env.training.diff_train`).
 """
 
 from __future__ import annotations
@@ -33,6 +34,10 @@ def train(args: TrainArgs) -> Path:
         from fxc_env.training.torch_ppo import train_torch
 
         return train_torch(args)
+    if backend == "diff":
+        from fxc_env.training.diff_train import train_diff
+
+        return train_diff(args)
     from fxc_env.training.sb3_train import train_sb3
 
     return train_sb3(args)

@@ -57,7 +57,12 @@ from fxc_env.training.args import TrainArgs, canonical_backend, default_run_dir
 
 #: Checkpoint names by back end (``{}``: the timesteps it was saved at). SB3's sits beside its
 #: VecNormalize statistics (``model_vecnormalize_<steps>_steps.pkl``); RLlib's is a directory.
-CHECKPOINT_NAMES = {"sb3": "model_{}_steps.zip", "torch": "model_{}_steps.pt", "rllib": "rllib_{}_steps"}
+CHECKPOINT_NAMES = {
+    "sb3": "model_{}_steps.zip",
+    "torch": "model_{}_steps.pt",
+    "diff": "model_{}_steps.pt",
+    "rllib": "rllib_{}_steps",
+}
 #: A checkpoint directory is whole once this file is in it (RLlib writes it last).
 _COMPLETE = {"rllib": "rllib_checkpoint.json"}
 #: The end of every refusal to read a run directory's file that only unpickling would read.

@@ -142,16 +142,18 @@ class PPOSettings:
     """``--policy-arch gnn``: rounds of messages (each reaches one hop further upstream)."""
 
     @classmethod
-    def from_mapping(cls, entry: Mapping[str, Any], config: EnvConfig, *, name: str = "hyperparams") -> PPOSettings:
-        """Checked settings from a hyperparameter entry; raise naming ``name: torch_ppo.<key>``."""
+    def from_mapping(
+        cls, entry: Mapping[str, Any], config: EnvConfig, *, name: str = "hyperparams", section: str = "torch_ppo"
+    ) -> PPOSettings:
+        """Checked settings from a hyperparameter entry; raise naming ``name: <section>.<key>``."""
         known = {field.name for field in dataclasses.fields(cls)}
         unknown = sorted(set(entry) - known)
         if unknown:
-            raise ArgumentError(f"{name}: torch_ppo has no setting {unknown[0]!r}; expected some of {sorted(known)}")
+            raise ArgumentError(f"{name}: {section} has no setting {unknown[0]!r}; expected some of {sorted(known)}")
         values = {**{f.name: f.default for f in dataclasses.fields(cls)}, **entry}
 
         def key(k: str) -> str:
-            return f"{name}: torch_ppo.{k}"
+            return f"{name}: {section}.{k}"
 
         k_intervals = config.n_intervals
         for field in ("n_envs", "rollout_steps", "epochs", "minibatch_size", "gru_size", "embed_size"):
@@ -264,6 +266,58 @@ def latest_torch_checkpoint(run_dir: Path) -> Path | None:
     return RunDir(run_dir, "torch").newest_checkpoint()
 
 
+# ------------------------------------------------------------------------------- --init-from
+#: The settings of a policy's environment that fix what its observation and action entries mean.
+LAYOUT_SETTINGS = ("obs_mode", "obs_slots", "obs_size", "limit_feature", "dim", "action_mode", "action_size")
+
+
+def init_actor(trainer: Trainer, source: str) -> Path:
+    """Load the actor (and exploration noise) of ``source`` into ``trainer``'s model (``--init-from``).
+
+    ``source``: a shipped policy's name (resolved as :func:`~fxc_env.policies.learned.load_learned_policy`
+    resolves it), a ``policy.pt``, a checkpoint or a run directory of the torch or diff back end.
+    Refused by name, the model unchanged: a file that is not a torch policy, another architecture
+    (``arch``, widths, activation, memory settings) or another observation layout
+    (:data:`LAYOUT_SETTINGS`) than the run's.
+    """
+    from fxc_env.policies.learned import SHIPPED, pretrained_path
+    from fxc_env.policies.policy_files import training_settings
+    from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
+
+    path = pretrained_path(source) if source in SHIPPED and not Path(source).exists() else Path(source)
+    if not is_torch_policy(path):
+        raise ArgumentError(
+            f"init_from: {source!r} is not a torch policy (expected a shipped torch policy such as 'rings_gru', a "
+            "policy.pt or checkpoint of --backend torch or diff, or such a run directory)"
+        )
+    try:
+        policy = load_torch_policy(path)
+    except ArgumentError as exc:
+        raise ArgumentError(f"init_from: {exc}") from exc
+    file = path / "policy.pt" if path.is_dir() else path
+    record = torch.load(file, map_location="cpu", weights_only=True)  # load_torch_policy read it already
+    record = record.get("policy", record) if record.get("format") == CHECKPOINT_FORMAT else record
+    run = trainer.policy_record()
+    for key in ("arch", "obs_size", "action_size", "hidden", "activation", *trainer.arch_entries()):
+        theirs, ours = record.get(key, "mlp" if key == "arch" else None), run[key]
+        if theirs != ours:
+            what = "observation layout" if key == "obs_size" else "architecture"
+            raise ArgumentError(
+                f"init_from: {source!r} has another {what} than this run: {key} {theirs!r} there, {ours!r} here"
+            )
+    trained, here = policy.training_settings, training_settings(trainer.config)
+    for key in LAYOUT_SETTINGS if trained else ():
+        if key in trained and trained[key] != here[key]:
+            raise ArgumentError(
+                f"init_from: {source!r} has another observation layout than this run: {key} {trained[key]!r} there, "
+                f"{here[key]!r} here"
+            )
+    trainer.model.actor.load_state_dict(policy.module.state_dict())
+    with torch.no_grad():
+        trainer.model.log_std.copy_(record["log_std"].to(trainer.model.log_std))
+    return path
+
+
 # ---------------------------------------------------------------------------------- training
 class Trainer:
     """The state of one run: engine, networks, optimiser, generators, counters and buffers."""
@@ -297,6 +351,8 @@ class Trainer:
         self.timesteps = 0
         self.iterations = 0
         self.n_updates = 0
+        if args.init_from is not None:
+            init_actor(self, args.init_from)
         self.fresh = True  # the engine's episodes were just reset
         t, b, n = settings.rollout_steps, self.n_envs, self.n_agents
         f32 = dict(dtype=torch.float32, device=device)

@@ -1,0 +1,283 @@
+"""``fxc train --backend diff``: analytic policy gradients through the engine's closed-form intervals.
+
+Every interval of the engine is a closed-form map, affine in the plan (README, "Differentiable
+simulation"), so the episode's outcome is a differentiable function of the policy's weights: the
+loop plays B episodes of N agents (:class:`fxc_env.engine.ConsensusEngine`, float64 on
+``--device``) with the deterministic policy (the actor's mean, clipped to ``±action_bound``, as
+:class:`~fxc_env.policies.torch_policy.TorchPolicy` plays it), and descends the gradient of
+
+    loss = log_error:  mean over episodes of ln D(T_s) / D(0)  (the default; the paper's measure)
+           return:     minus the mean episode return (the same with the reward's floor f,
+                       ln (D(T_s) + f) / (D(0) + f): the rewards telescope)
+
+with Adam after clipping the gradient's norm to ``max_grad_norm``. ``window`` (K, the default,
+or a divisor of K) truncates the back-propagation: the loss of each window of ``window`` steps
+(its share of the telescoped sum) is minimised in turn and the graph cut between windows, which
+bounds the memory and gives K / window gradient steps per episode. The actor and the policy
+file are the torch back end's (:mod:`fxc_env.training.torch_ppo`, ``--policy-arch``, the
+``policy.pt`` that ``fxc evaluate`` and ``load_learned_policy`` read); so are the run directory,
+the checkpoints (same format: ``--resume`` goes on with the optimiser's state and the
+generators), Ctrl-C, ``--seeds`` and ``--init-from``. Settings come from the ``diff_apg`` entry
+of the hyperparameter file (:class:`DiffSettings`). ``progress.csv`` has one row per batch of
+episodes (:data:`PROGRESS_COLUMNS`); timesteps count agent-steps, K * B * N a batch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from fxc_env.config import EnvConfig, make_config
+from fxc_env.core import validation
+from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.torch_memory import interval_graph
+from fxc_env.training.args import TrainArgs, check_train_args
+from fxc_env.training.run_dir import RunDir
+from fxc_env.training.torch_ppo import PPOSettings, Trainer, run_config
+
+#: The losses of :class:`DiffSettings` (see the module docstring).
+LOSSES = ("log_error", "return")
+#: Columns of ``progress.csv``, SB3's names where they mean the same.
+PROGRESS_COLUMNS = (
+    "time/iterations",
+    "time/total_timesteps",
+    "time/fps",
+    "time/time_elapsed",
+    "rollout/ep_rew_mean",
+    "rollout/deadline_error",
+    "rollout/log_deadline_error",
+    "rollout/episodes",
+    "train/loss",
+    "train/grad_norm",
+    "train/learning_rate",
+    "train/n_updates",
+)
+#: Below this D(t) the log is taken of the floor instead (an exact 0 would give -inf and a NaN gradient).
+TINY = 1e-300
+
+
+@dataclasses.dataclass(frozen=True)
+class DiffSettings:
+    """The ``diff_apg`` entry of the hyperparameter file (every key optional)."""
+
+    n_envs: int = 64
+    """B, the parallel episodes (``--n-envs`` overrides it)."""
+    window: int | None = None
+    """Steps per truncated back-propagation window: K or a divisor of K; None (the default): the whole episode."""
+    loss: str = "log_error"
+    """``log_error`` (mean ln D(T_s)/D(0)) or ``return`` (minus the mean return)."""
+    learning_rate: float = 1.0e-3
+    max_grad_norm: float = 1.0
+    """The gradient's norm is clipped to this before each Adam step."""
+    hidden: tuple[int, ...] = (64, 64)
+    activation: str = "tanh"
+    gru_size: int = 64
+    gru_input: str = "observation"
+    embed_size: int = 64
+    message_rounds: int = 2
+
+    #: The keys the actor shares with the torch back end (checked by :meth:`PPOSettings.from_mapping`).
+    SHARED = ("n_envs", "learning_rate", "max_grad_norm", "hidden", "activation", "gru_size", "gru_input")
+    SHARED += ("embed_size", "message_rounds")
+
+    @classmethod
+    def from_mapping(cls, entry: Mapping[str, Any], config: EnvConfig, *, name: str = "hyperparams") -> DiffSettings:
+        """Checked settings from a hyperparameter entry; raise naming ``name: diff_apg.<key>``."""
+        known = sorted(field.name for field in dataclasses.fields(cls))
+        unknown = sorted(set(entry) - set(known))
+        if unknown:
+            raise ArgumentError(f"{name}: diff_apg has no setting {unknown[0]!r}; expected some of {known}")
+        k_intervals = config.n_intervals
+        window = entry.get("window")
+        if window is not None:
+            validation.integer(f"{name}: diff_apg.window", window, 1, k_intervals)
+            if k_intervals % window:
+                raise ArgumentError(
+                    f"{name}: diff_apg.window: expected K = {k_intervals} or a divisor of it (or null), got {window}"
+                )
+        loss = validation.choice(f"{name}: diff_apg.loss", entry.get("loss", cls.loss), LOSSES)
+        shared = PPOSettings.from_mapping(
+            {key: entry[key] for key in cls.SHARED if key in entry} | {"rollout_steps": window or k_intervals},
+            config,
+            name=name,
+            section="diff_apg",
+        )
+        return cls(window=window, loss=loss, **{key: getattr(shared, key) for key in cls.SHARED})
+
+    def ppo(self, k_intervals: int) -> PPOSettings:
+        """The torch back end's settings that build the same actor (its trainer holds the networks and files)."""
+        shared = {key: getattr(self, key) for key in self.SHARED}
+        return PPOSettings(rollout_steps=self.window or k_intervals, **shared)
+
+
+def cut_graph(engine: Any) -> None:
+    """Detach every tensor the engine and its parts hold, so the next loss's graph starts here.
+
+    Needed between truncated windows. Also called before each reset as a workaround of the
+    engine bug "Trying to backward through the graph a second time" (issue 26, item 1: a reset
+    writes the fresh state into the previous episode's tensor in place, keeping its graph);
+    once resets cut the graph themselves that call is redundant and can go.
+    """
+    seen: set[int] = set()
+
+    def walk(part: Any) -> None:
+        for key, value in list(vars(part).items()):
+            if isinstance(value, torch.Tensor):
+                if value.requires_grad:
+                    setattr(part, key, value.detach())
+            elif type(value).__module__.startswith("fxc_env.") and hasattr(value, "__dict__") and id(value) not in seen:
+                seen.add(id(value))
+                walk(value)
+
+    walk(engine)
+    engine.observer.invalidate()  # cached measurements of the state before the cut
+
+
+class DiffTrainer(Trainer):
+    """The torch back end's trainer (engine, networks, Adam, generators, files), stepped by analytic gradients."""
+
+    def __init__(self, args: TrainArgs, params: dict[str, Any], settings: DiffSettings, device: torch.device) -> None:
+        self.diff = settings
+        k_intervals = make_config(**run_config(args, params)).n_intervals
+        super().__init__(args, params, settings.ppo(k_intervals), device)
+        self.k_intervals = k_intervals
+        self.window = settings.window or k_intervals
+        self.model.critic.requires_grad_(False)  # the shared trainer's critic: no part of the gradient here
+        self.model.log_std.requires_grad_(False)  # the policy is deterministic; kept for the policy file
+
+    def _reset(self) -> None:
+        cut_graph(self.engine)  # workaround, see cut_graph; drop with the engine's fix
+        super()._reset()
+
+    def _act(self, obs: torch.Tensor, hidden: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        actor = self.model.actor
+        if self.arch == "gru":
+            return actor.step(obs, hidden)
+        if self.arch == "gnn":
+            return actor(obs, *interval_graph(self.engine, obs, self.edge_width)), None
+        return actor(obs), None
+
+    def episode(self) -> dict[str, Any]:
+        """Play one batch of B episodes with K / window gradient steps; returns its statistics."""
+        engine, s = self.engine, self.diff
+        if not self.fresh:  # fresh: just built, or resumed (whose episodes are drawn as the run's would have been)
+            self._reset()
+        self.fresh = False
+        dtype = engine.dtype
+        hidden = (
+            self.model.actor.initial_state((self.n_envs, self.n_agents), self.device) if self.arch == "gru" else None
+        )
+        log_d0 = torch.log(engine.initial_disagreement.clamp_min(TINY))
+        returns = torch.zeros(self.n_envs, dtype=dtype, device=self.device)
+        losses, norms = [], []
+        for _ in range(self.k_intervals // self.window):
+            log_start = torch.log(engine.current_disagreement.clamp_min(TINY))
+            window_return = torch.zeros_like(returns)
+            for _ in range(self.window):
+                mean, hidden = self._act(engine.observations().to(torch.float32), hidden)
+                actions = mean.clamp(-self.bound, self.bound).to(dtype)
+                window_return = window_return + engine.step(engine.validate_actions(actions)).reward
+            if s.loss == "return":
+                loss = -window_return.mean()
+            else:
+                loss = (torch.log(engine.current_disagreement.clamp_min(TINY)) - log_start).mean()
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            norms.append(nn.utils.clip_grad_norm_(self.model.actor.parameters(), s.max_grad_norm).detach())
+            self.optimizer.step()
+            self.n_updates += 1
+            losses.append(loss.detach())
+            returns += window_return.detach()
+            cut_graph(engine)
+            hidden = None if hidden is None else hidden.detach()
+        engine.raise_if_invalid()
+        log_error = torch.log(engine.current_disagreement.clamp_min(TINY)) - log_d0
+        return {
+            "returns": returns,
+            "errors": engine.batch_metrics()["relative_deadline_error"],
+            "log_error": float(log_error.mean().item()),
+            "loss": float(torch.stack(losses).sum().item()),
+            "grad_norm": float(torch.stack(norms).mean().item()),
+        }
+
+
+def train_diff(args: TrainArgs) -> Path:
+    """Run (or resume) analytic policy gradients on the engine on ``args.device``; returns the run directory."""
+    args = dataclasses.replace(args, backend="diff")
+    params = check_train_args(args)  # every argument, before any work
+    settings = DiffSettings.from_mapping(params["algo"], make_config(**run_config(args, params)))
+    torch.set_num_threads(args.torch_threads)
+    device = torch.device(args.device)
+    run = RunDir.of(args)
+    checkpoint = run.resume_checkpoint(args.resume, args)
+
+    trainer = DiffTrainer(args, params, settings, device)
+    per_batch = trainer.k_intervals * trainer.n_envs * trainer.n_agents
+    if checkpoint is not None:
+        trainer.load_checkpoint(checkpoint)
+        run.announce_resume(checkpoint, f"{trainer.timesteps} timesteps")
+    else:
+        run.start(
+            {
+                "args": dataclasses.asdict(args),
+                "hyperparams": params,
+                "diff_apg": dataclasses.asdict(settings),
+                "n_envs": trainer.n_envs,
+                "n_agents": trainer.n_agents,
+                "timesteps_per_batch": per_batch,
+            }
+        )
+    if args.progress_bar:
+        print(
+            f"fxc train: analytic policy gradients on {args.scenario} (N = {trainer.n_agents}, one shared policy) on "
+            f"{device}: {trainer.n_envs} episodes, {trainer.k_intervals // trainer.window} gradient steps, "
+            f"{per_batch} timesteps per batch"
+        )
+
+    resumed_at = (trainer.iterations, trainer.timesteps) if checkpoint is not None else None
+    start_steps, start_time = trainer.timesteps, time.perf_counter()
+    last_checkpoint = trainer.timesteps
+    with (
+        run.progress(PROGRESS_COLUMNS, tensorboard=True, resumed_at=resumed_at) as progress,
+        run.interruptible("batch of episodes", lambda: trainer.save_checkpoint(run)) as interrupted,
+    ):
+        while trainer.timesteps < args.timesteps and not interrupted:
+            stats = trainer.episode()
+            trainer.timesteps += per_batch
+            trainer.iterations += 1
+            now = time.perf_counter()
+            row = {
+                "time/iterations": trainer.iterations,
+                "time/total_timesteps": trainer.timesteps,
+                "time/fps": (trainer.timesteps - start_steps) / max(now - start_time, 1e-9),
+                "time/time_elapsed": now - start_time,
+                "rollout/ep_rew_mean": float(stats["returns"].mean().item()),
+                "rollout/deadline_error": float(np.median(stats["errors"])),
+                "rollout/log_deadline_error": stats["log_error"],
+                "rollout/episodes": trainer.n_envs,
+                "train/loss": stats["loss"],
+                "train/grad_norm": stats["grad_norm"],
+                "train/learning_rate": settings.learning_rate,
+                "train/n_updates": trainer.n_updates,
+            }
+            progress.write(row)
+            if args.progress_bar:
+                print(
+                    f"  batch {trainer.iterations}: {trainer.timesteps} timesteps, loss {stats['loss']:.4g}, "
+                    f"median deadline error {row['rollout/deadline_error']:.3g}"
+                )
+            if trainer.timesteps - last_checkpoint >= args.checkpoint_every:
+                trainer.save_checkpoint(run)
+                last_checkpoint = trainer.timesteps
+
+    trainer.save_checkpoint(run)  # a later --resume with more --timesteps goes on from here
+    torch.save(trainer.policy_record(), run.path / "policy.pt")
+    run.finish(trainer.timesteps, run.path / "policy.pt")
+    return run.path
