@@ -79,7 +79,8 @@ def test_fxc_train_backend_diff_writes_the_run_directory_and_a_policy_fxc_evalua
     policy = load_learned_policy(run_dir / "policy.pt")
     assert isinstance(policy, TorchPolicy) and policy.obs_size == 15 and policy.timesteps == 2 * PER_BATCH
     out = tmp_path / "evaluate"
-    evaluate = ["evaluate", "--policy", str(run_dir), "--topology", "ring", "--n-agents", "6", "--seeds", "1"]
+    # Scored inside its training domain (paper_fig1, K = 10): the file records it.
+    evaluate = ["evaluate", "--policy", str(run_dir), "--scenario", "paper_fig1", "--budgets", "10", "--seeds", "1"]
     assert main([*evaluate, "--out", str(out), "--no-progress"]) == 0
     assert "torch policy" in capsys.readouterr().out
 
