@@ -201,11 +201,11 @@ class LimitedDoubleIntegratorAgents(DoubleIntegratorAgents):
 
 
 class LinearAgents:
-    """General linear agents ``z' = A z + B u`` per axis, steered by plans (numpy; README, "Agent models and formations").
+    """General linear agents ``z' = A z + B u`` per axis, steered by plans (README, "Agent models and formations").
 
     Args:
         config: the environment's settings (its model and interval maps).
-        backend: the engine's array backend (numpy).
+        backend: the engine's array backend (numpy, or torch: :meth:`_advance_device`).
     """
 
     def __init__(self, config: EnvConfig, backend: Any) -> None:

@@ -57,16 +57,15 @@ def limit_feature(u_max: Any, interval: Any, scale: Any) -> Any:
 
 
 def _over_scale(rows: Any, scale: Any, backend: Any) -> Any:
-    """``rows / max(s, tiny)`` ``(B, N, F)`` for scales ``(B, N)``, and exact zeros where ``s = 0`` (every row is 0).
+    """``rows / max(s, tiny)`` ``(B, N, F)`` for scales ``(B, N)``, with the rows of ``s = 0`` (all 0) divided by 1.
 
-    The same values as dividing by the floor alone, but the rows of an agent that sees no
-    disagreement are not divided by ``tiny``: their gradient would be ~1e308 times the
-    state's, which cancels (up to rounding, i.e. everything else) in the state's gradient.
+    The same values (``s = 0`` only when every row is 0), but an agent that sees no
+    disagreement is not divided by ``tiny``: its rows' gradient would be ~1e308 times the
+    state's and, cancelling in the state's gradient, leave nothing else of it.
     """
     xp = backend.xp
-    seen = scale > 0
-    floored = xp.where(seen, xp.maximum(scale, backend.full((), backend.tiny)), xp.ones_like(scale))
-    return xp.where(seen[..., None], rows / floored[..., None], xp.zeros_like(rows))
+    floored = xp.where(scale > 0, xp.maximum(scale, backend.full((), backend.tiny)), xp.ones_like(scale))
+    return rows / floored[..., None]
 
 
 def _subtract(rows: Any, own: Any) -> Any:

@@ -161,8 +161,8 @@ class ConsensusTorchEnv(EnvBase):
     Every interval is played in closed form by differentiable tensor operations, so with
     actions that require a gradient, the observations, the rewards and
     ``episode_metrics(as_tensors=True)`` are in their autograd graph, exact (no surrogate, no
-    smoothing), on any device, in both dtypes. The contract, tested against central finite
-    differences (README, "Differentiable simulation"):
+    smoothing), on any device, in both dtypes, stepped by hand or by ``env.rollout``. The
+    contract, tested against central finite differences (README, "Differentiable simulation"):
 
     * Nothing on the path from the actions to the observations, rewards and those metrics is
       detached, written in place or read off the device; the input limit ``u_max``'s clip,
