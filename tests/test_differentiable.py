@@ -30,7 +30,7 @@ CASES = {
     # The paper's example: its initial state on the assumed Fig. 1 switching set.
     "paper_fig1": dict(scenario="paper_fig1", n_intervals=12, batch_size=2),
     # A new switching graph every episode (rings, paths, stars, random digraphs, periods up to 4).
-    "family_switching": dict(scenario="generalist", n_intervals=12, batch_size=3, obs_noise=1e-3, link_dropout=0.2),
+    "family_switching": dict(scenario="generalist", n_intervals=10, batch_size=2, obs_noise=1e-3, link_dropout=0.2),
     # An input limit that binds: the clipped input is piecewise smooth (no kink within the differences' step).
     "input_limit": dict(
         scenario=None, n_agents=6, topology="ring", n_intervals=12, initial_state="random", batch_size=2, u_max=0.05
@@ -108,6 +108,8 @@ def test_autograd_equals_central_differences_over_two_consecutive_episodes(case)
         finite = central_differences(env, policy, theta.detach(), seed)
         assert np.all(np.isfinite(autograd.numpy())) and np.abs(autograd.numpy()).max() > 1e-3
         np.testing.assert_allclose(autograd.numpy(), finite, rtol=1e-6, atol=1e-6 * np.abs(finite).max())
+        if case == "family_switching":  # the episode's graphs did switch
+            assert max(topology.period for topology in env.engine.topologies) > 1
     if case == "input_limit":  # the limit did bind: the clip is on the path that was differentiated
         assert env.episode_metrics()["saturated_fraction"].min() > 0.05
 
