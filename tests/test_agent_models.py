@@ -246,6 +246,18 @@ def test_a_general_model_on_torch_plays_the_numpy_engine_to_rounding(kwargs):
         assert np.allclose(device_metrics[name], column, rtol=1e-12, atol=1e-12, equal_nan=True), name
 
 
+def test_a_general_model_steps_on_the_meta_device_without_reading_the_host():
+    torch = pytest.importorskip("torch")
+    config = make_config("formation_hexagon", agent_model="integrator_chain", order=3, n_intervals=5)
+    engine = ConsensusEngine(config, 4, device="meta")  # any read of a value would raise here
+    x0, v0, u_max, topologies = engine.draw_batch()
+    engine.reset(x0, v0, u_max=u_max, topologies=topologies)
+    for _ in range(config.n_intervals):
+        engine.observations()
+        engine.step(torch.zeros((4, 6, config.action_size), dtype=torch.float64, device="meta"))
+    assert engine.metric_tensors()["energy"].shape == (4,)
+
+
 @pytest.mark.slow
 def test_fxc_simulate_writes_the_figures_of_a_chain_and_of_a_formation(tmp_path):
     for arguments, extra in (
