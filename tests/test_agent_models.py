@@ -222,10 +222,40 @@ def test_bad_models_and_offsets_are_refused_naming_the_argument(kwargs, message)
         make_config("paper_fig1", **kwargs)
 
 
-def test_a_general_model_on_torch_is_refused_naming_device():
-    config = make_config("paper_fig1", agent_model="integrator_chain", order=3)
-    with pytest.raises(ArgumentError, match="device: "):
-        ConsensusEngine(config, 1, device="cpu")
+@pytest.mark.parametrize(
+    "kwargs",
+    [dict(agent_model="integrator_chain", order=3), dict(agent_model="oscillator")],
+    ids=["chain3", "oscillator"],
+)
+def test_a_general_model_on_torch_plays_the_numpy_engine_to_rounding(kwargs):
+    torch = pytest.importorskip("torch")
+    config = make_config("formation_hexagon", n_intervals=20, **kwargs)
+    host, device = ConsensusEngine(config, 2), ConsensusEngine(config, 2, device="cpu")
+    draws = [host.draw_episode(np.random.default_rng(seed)) for seed in range(2)]
+    host.reset_from_draws(draws)
+    device.reset_from_draws(draws)
+    policy = ReferencePolicy(config)
+    for _ in range(config.n_intervals):
+        actions = policy.act(host.observations())
+        expected, got = host.step(actions), device.step(torch.as_tensor(actions))
+        for name in ("reward", "energy", "peak_input", "u_start", "u_end"):
+            want = getattr(expected, name)
+            assert np.allclose(getattr(got, name).numpy(), want, rtol=1e-12, atol=1e-12 * np.abs(want).max()), name
+    host_metrics, device_metrics = host.batch_metrics(), device.batch_metrics()
+    for name, column in host_metrics.items():
+        assert np.allclose(device_metrics[name], column, rtol=1e-12, atol=1e-12, equal_nan=True), name
+
+
+def test_a_general_model_steps_on_the_meta_device_without_reading_the_host():
+    torch = pytest.importorskip("torch")
+    config = make_config("formation_hexagon", agent_model="integrator_chain", order=3, n_intervals=5)
+    engine = ConsensusEngine(config, 4, device="meta")  # any read of a value would raise here
+    x0, v0, u_max, topologies = engine.draw_batch()
+    engine.reset(x0, v0, u_max=u_max, topologies=topologies)
+    for _ in range(config.n_intervals):
+        engine.observations()
+        engine.step(torch.zeros((4, 6, config.action_size), dtype=torch.float64, device="meta"))
+    assert engine.metric_tensors()["energy"].shape == (4,)
 
 
 @pytest.mark.slow

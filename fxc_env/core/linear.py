@@ -73,6 +73,7 @@ import numpy as np
 import scipy.linalg
 
 from fxc_env.core import validation
+from fxc_env.core.arrays import namespace
 from fxc_env.core.validation import ArgumentError
 
 MODEL_NAMES = ("double_integrator", "single_integrator", "integrator_chain", "damped", "oscillator")
@@ -637,40 +638,53 @@ def _apply_t(matrix_t: np.ndarray, z: np.ndarray) -> np.ndarray:
     return (z.reshape(-1, n) @ matrix_t).reshape(z.shape)
 
 
-def _polynomial_peak(p: list[np.ndarray]) -> np.ndarray:
+def _polynomial_peak(p: list[Any]) -> Any:
     """``max_{tau in [0, 1]} |p(tau)|`` for ascending coefficients ``p = [p0, ..., pd]``, d <= 3, each ``(...)``.
 
     The candidates are both ends and the real roots of ``p'(tau) = p1 + 2 p2 tau + 3 p3 tau^2``
     clipped to [0, 1], from the cancellation-free quadratic formula
     ``q = -(p2 + sign(p2) sqrt(p2^2 - 3 p1 p3))``, roots ``q / (3 p3)`` and ``p1 / q`` (the latter
-    is the root ``-p1 / (2 p2)`` of a quadratic p). Degenerate cases give NaN or infinite
-    candidates, which ``fmax`` and the clipping discard.
+    is the root ``-p1 / (2 p2)`` of a quadratic p). A degenerate case (no real root, a zero
+    denominator) has no interior critical point: its candidate is taken at ``tau = 0``, an end
+    already counted. numpy arrays or torch tensors; every division is by a nonzero number, so
+    the peak's gradient is finite (the torch engine differentiates it).
     """
     if len(p) > 4:
         raise ValueError("_polynomial_peak: degree above 3")
     p0 = p[0]
-    peak = np.abs(p0)
+    xp = namespace(p0)
+    peak = xp.abs(p0)
     if len(p) == 1:
         return peak
     total = p0 + p[1]
     for coefficient in p[2:]:
         total = total + coefficient
-    peak = np.maximum(peak, np.abs(total))
+    peak = xp.maximum(peak, xp.abs(total))
     if len(p) == 2:
         return peak
     p1, p2 = p[1], p[2]
     p3 = p[3] if len(p) == 4 else None
-    with np.errstate(all="ignore"):
-        if p3 is None:
-            roots = [-p1 / (2.0 * p2)]
-        else:
-            q = -(p2 + np.copysign(np.sqrt(p2 * p2 - 3.0 * p1 * p3), p2))
-            roots = [q / (3.0 * p3), p1 / q]
-        for root in roots:
-            tau = np.clip(root, 0.0, 1.0)
-            inner = p2 if p3 is None else p2 + tau * p3
-            peak = np.fmax(peak, np.abs(p0 + tau * (p1 + tau * inner)))
+    if p3 is None:
+        roots = [_ratio(-p1, 2.0 * p2, xp)]
+    else:
+        discriminant = p2 * p2 - 3.0 * p1 * p3
+        real = discriminant >= 0
+        q = -(p2 + xp.copysign(xp.sqrt(xp.where(real, discriminant, xp.zeros_like(discriminant))), p2))
+        roots = [_ratio(q, 3.0 * p3, xp, real), _ratio(p1, q, xp, real)]
+    for root in roots:
+        tau = xp.clip(root, 0.0, 1.0)
+        inner = p2 if p3 is None else p2 + tau * p3
+        peak = xp.maximum(peak, xp.abs(p0 + tau * (p1 + tau * inner)))
     return peak
+
+
+def _ratio(numerator: Any, denominator: Any, xp: Any, valid: Any = None) -> Any:
+    """``numerator / denominator`` where the denominator is nonzero (and ``valid``), else 0, never dividing by 0."""
+    usable = denominator != 0
+    if valid is not None:
+        usable = usable & valid
+    safe = xp.where(usable, denominator, xp.ones_like(denominator))
+    return xp.where(usable, numerator / safe, xp.zeros_like(numerator))
 
 
 # --------------------------------------------------------------------------- formations and final values

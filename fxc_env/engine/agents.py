@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig
-from fxc_env.core import dynamics, slots
-from fxc_env.core.metrics import disagreement, spread
+from fxc_env.core import dynamics, linear, slots
+from fxc_env.core.metrics import disagreement, spread_any
 from fxc_env.core.validation import ArgumentError
 
 #: Action entries (``B N 2 dim``) from which the numpy fast path of a step in blocks pays.
@@ -64,11 +64,11 @@ def state_disagreement(states: np.ndarray, config: EnvConfig) -> np.ndarray:
     """``D = sum_l T_s^l e_{z_l}`` of states ``(..., N, n, dim)`` in the engine's coordinates: ``(...)``.
 
     ``e_x + T_s e_v`` for the double integrator (and any model with n = 2); a chain of order 3
-    adds ``T_s^2 e_a``; a single integrator has ``e_x`` alone.
+    adds ``T_s^2 e_a``; a single integrator has ``e_x`` alone. numpy arrays or torch tensors.
     """
     total = None
     for component in range(states.shape[-2]):
-        term = (config.settling_time**component) * spread(states[..., component, :])
+        term = (config.settling_time**component) * spread_any(states[..., component, :])
         total = term if total is None else total + term
     return total
 
@@ -201,11 +201,11 @@ class LimitedDoubleIntegratorAgents(DoubleIntegratorAgents):
 
 
 class LinearAgents:
-    """General linear agents ``z' = A z + B u`` per axis, steered by plans (numpy; README, "Agent models and formations").
+    """General linear agents ``z' = A z + B u`` per axis, steered by plans (README, "Agent models and formations").
 
     Args:
         config: the environment's settings (its model and interval maps).
-        backend: the engine's array backend (numpy).
+        backend: the engine's array backend (numpy, or torch: :meth:`_advance_device`).
     """
 
     def __init__(self, config: EnvConfig, backend: Any) -> None:
@@ -215,6 +215,8 @@ class LinearAgents:
         self.u_max: Any = None
         self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
         self._row_scales = backend.array(config.row_scales)
+        #: torch: the interval maps' factors on the device (:class:`_DeviceMaps`); None on numpy.
+        self._device_maps = None if backend.is_numpy else _DeviceMaps(config.interval_maps, backend)
 
     def inputs(self, actions: Any, T: Any, local_scale: Callable[[], Any]) -> tuple[Any, Any]:
         """General agents' actions are plans, not input end values: the input is found by :meth:`advance`."""
@@ -237,6 +239,8 @@ class LinearAgents:
             plan = actions.reshape(b, n_agents, n, dim)
             if self.normalized:
                 plan = plan * (local_scale()[:, :, None, None] / self._row_scales[k][:, None])
+            if self._device_maps is not None:
+                return self._advance_device(state, plan, k)
             maps = c.interval_maps
             per_axis = np.swapaxes(state, -1, -2)  # (B, N, dim, n), the axis order of core.linear
             delta = np.swapaxes(plan, -1, -2)
@@ -261,9 +265,74 @@ class LinearAgents:
                 state_disagreement(out, c),
             )
 
+    def _advance_device(self, state: Any, plan: Any, k: int) -> Interval:
+        """:meth:`advance` on torch: the same maps (:meth:`IntervalMaps.steer <fxc_env.core.linear.IntervalMaps.steer>`,
+        ``costate``) as products with the device's copies of their factors, differentiable throughout."""
+        xp, maps, model = self.backend.xp, self._device_maps, self.config.model
+        per_axis = xp.matrix_transpose(state)  # (B, N, dim, n), the axis order of core.linear
+        delta = xp.matrix_transpose(plan)
+        y = delta @ maps.forward[k]
+        nu = y @ maps.backward[k]
+        following = xp.matrix_transpose(per_axis @ maps.motion_t[k] + delta)
+        T = maps.host_intervals[k]
+        energy = xp.sum(y * y, axis=-1) / T
+        costate = nu / (T * maps.scale[k])
+        u_end = costate @ maps.B
+        u_start = costate @ maps.motion_B[k]
+        if model.n_inputs == 1:
+            u_start, u_end = u_start[..., 0], u_end[..., 0]
+        return Interval(
+            following,
+            xp.sum(energy, axis=-1),
+            xp.max(maps.peak(k, nu), axis=-1),
+            u_start,
+            u_end,
+            self._no_saturation,
+            None,
+            delta,
+            state_disagreement(following, self.config),
+        )
+
     def disagreement(self, state: Any) -> Any:
         """``D = sum_l T_s^l e_{z_l}`` per episode ``(B,)`` (:func:`state_disagreement`)."""
         return state_disagreement(state, self.config)
+
+
+class _DeviceMaps:
+    """The factors of :class:`~fxc_env.core.linear.IntervalMaps` that a step multiplies by, as device tensors.
+
+    The maps are built once on the host (numpy: matrix exponentials, Gramians, Cholesky
+    factors); the torch step is then products with these copies only, so the state, energy,
+    input and peak are differentiable in the plan (the peak by the same candidates as
+    :func:`fxc_env.core.linear._polynomial_peak`, or the same grid of samples).
+    """
+
+    def __init__(self, maps: Any, backend: Any) -> None:
+        self.maps = maps
+        self.backend = backend
+        self.host_intervals = [float(t) for t in maps.intervals]
+        self.forward = backend.array(maps._forward)
+        self.backward = backend.array(maps._backward)
+        self.motion_t = backend.array(maps._motion_t)
+        self.scale = backend.array(maps.scale)
+        self.B = backend.array(maps.model.B)
+        self.motion_B = backend.array(maps.motion @ maps.model.B)
+        self.coefficients_t = None if maps.input_polynomials is None else backend.array(maps._coefficients_t)
+        self._grid: dict[int, Any] = {}
+
+    def peak(self, k: int, nu: Any) -> Any:
+        """Peak ``|u|`` over interval k for scaled costates ``nu`` ``(..., n)``: ``(...)`` (``IntervalMaps._peak``)."""
+        xp, m, T = self.backend.xp, self.maps.model.n_inputs, self.host_intervals[k]
+        if self.coefficients_t is not None:
+            p = nu @ self.coefficients_t[k]  # (..., (degree + 1) m): T u as a polynomial in tau
+            columns = [p[..., j * m : (j + 1) * m] for j in range(self.maps._degree + 1)]
+            peak = linear._polynomial_peak(columns) / T
+        else:
+            if k not in self._grid:
+                self._grid[k] = self.backend.array(self.maps._grid_matrix(k))
+            values = xp.abs(nu @ self._grid[k])
+            peak = xp.max(xp.reshape(values, (*values.shape[:-1], linear.PEAK_GRID_POINTS, m)), axis=-2) / T
+        return peak[..., 0] if m == 1 else xp.max(peak, axis=-1)
 
 
 class Formation:

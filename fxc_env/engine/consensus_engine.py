@@ -129,11 +129,6 @@ class ConsensusEngine:
         self.n_episodes = b = validation.integer("n_episodes", n_episodes, 1, validation.MAX_AGENTS)
         self.layout = config.layout
         self.backend = backend = make_backend(device, dtype, b)
-        if config.model is not None and not backend.is_numpy:
-            raise ArgumentError(
-                f"device: {config.agent_model!r} agents run on numpy (device=None) in this version; the torch "
-                "backend covers the double integrator"
-            )
         if (config.obs_dtype, config.obs_mode) == ("float32", "raw"):
             # A raw row is a difference of two states: one beyond float32's range would observe as inf.
             backend.limit_rows(
@@ -316,7 +311,10 @@ class ConsensusEngine:
             self.rng = rng
         fresh = self.formation.initial_state(x0, v0)
         if episodes is None:
-            self.state[...] = fresh
+            if self.is_numpy:
+                self.state[...] = fresh  # numpy: the double buffer keeps its two arrays
+            else:
+                self.state = fresh  # a new tensor: nothing of the previous episodes' autograd graph is kept
             self.clock = LockStepClock(self.tables)
         else:
             self.state = xp.where(xp.reshape(episodes, (-1, 1, 1, 1)), fresh, self.state)
@@ -478,6 +476,31 @@ class ConsensusEngine:
         """
         steps = to_host(self.clock.episode_steps(self.backend))
         return self.trackers.batch_metrics(self.state, steps, self.topologies, self.graphs.shared)
+
+    def metric_tensors(self) -> dict[str, Any]:
+        """The episode metrics that depend on the actions, ``(B,)`` arrays on the device (torch: differentiable).
+
+        :meth:`EpisodeTrackers.metric_tensors <fxc_env.engine.trackers.EpisodeTrackers.metric_tensors>`:
+        the same values as :meth:`batch_metrics`' columns of those names (to rounding), without a read off
+        the device, so a loss built from them backpropagates to the actions.
+        """
+        return self.trackers.metric_tensors(self.state, self.clock.episode_steps(self.backend))
+
+    def cut_graph(self) -> None:
+        """torch: go on from the same values with no autograd history (truncated backpropagation).
+
+        The state and the episode trackers become tensors that no longer record how they were
+        computed, so a later ``backward()`` stops here. A full reset does this by itself; after a
+        partial reset the episodes that go on keep their history until this is called. Nothing
+        to do on numpy.
+        """
+        if self.is_numpy:
+            return
+        self.state = self.state.detach()
+        self.trackers.detach()
+        if self.agents.u_max is not None:
+            self.agents.u_max = self.agents.u_max.detach()
+        self.observer.detach()
 
     def episode_metrics(self, episode: int = 0) -> EpisodeMetrics:
         """The metrics of one episode so far (see :meth:`batch_metrics`); ``episode`` in ``[0, B)``."""

@@ -48,8 +48,32 @@ def limit_feature(u_max: Any, interval: Any, scale: Any) -> Any:
     """
     xp = namespace(scale)
     with np.errstate(divide="ignore", invalid="ignore"):
-        decades = xp.log10(u_max * interval * interval) - xp.log10(scale)
-        return xp.where(xp.isfinite(decades), decades / (1.0 + xp.abs(decades)), xp.ones_like(decades))
+        # s = 0 takes its log of 1 (and the feature 1): no infinity on the autograd path, whose
+        # gradient (0 times infinity) would be NaN.
+        seen = scale > 0
+        decades = xp.log10(u_max * interval * interval) - xp.log10(xp.where(seen, scale, xp.ones_like(scale)))
+        usable = seen & xp.isfinite(decades)
+        return xp.where(usable, decades / (1.0 + xp.abs(decades)), xp.ones_like(decades))
+
+
+def _over_scale(rows: Any, scale: Any, backend: Any) -> Any:
+    """``rows / max(s, tiny)`` ``(B, N, F)`` for scales ``(B, N)``, with the rows of ``s = 0`` (all 0) divided by 1.
+
+    The same values (``s = 0`` only when every row is 0), but an agent that sees no
+    disagreement is not divided by ``tiny``: its rows' gradient would be ~1e308 times the
+    state's and, cancelling in the state's gradient, leave nothing else of it.
+    """
+    xp = backend.xp
+    floored = xp.where(scale > 0, xp.maximum(scale, backend.full((), backend.tiny)), xp.ones_like(scale))
+    return rows / floored[..., None]
+
+
+def _subtract(rows: Any, own: Any) -> Any:
+    """``rows - own``: in place into the gathered numpy rows, a new tensor on torch."""
+    if isinstance(rows, np.ndarray):
+        rows -= own
+        return rows
+    return rows - own
 
 
 class Observer:
@@ -91,6 +115,14 @@ class Observer:
         self._measured = None
         self._scale = None
 
+    def detach(self) -> None:
+        """torch: the cached measurements with no autograd history (the same draws: noise is not drawn again)."""
+        if self._measured is not None:
+            self._measured = tuple(part.detach() if hasattr(part, "detach") else part for part in self._measured)
+            self._scale = self._measured[2]
+        elif self._scale is not None:
+            self._scale = self._scale.detach()
+
     def measure(self, state: Any, clock: Any, graphs: Any, uniform: Callable, normal: Callable) -> tuple[Any, Any, Any]:
         """Rows ``(B, N, slots, n, dim)``, mask ``(B, N, slots)`` or ``(N, slots)``, local scale ``(B, N)``.
 
@@ -103,12 +135,13 @@ class Observer:
         c, xp, backend = self.config, self.backend.xp, self.backend
         # Gather [x_j, v_j] together (one random access per edge).
         rows, mask = graphs.gather(state)
-        rows -= state[:, :, None]
+        # numpy writes into the gathered rows; torch makes new tensors (no in-place write on the autograd path).
+        rows = _subtract(rows, state[:, :, None])
         if c.link_dropout > 0:
             mask = mask * xp.astype(uniform((backend.n_episodes, *mask.shape[-2:])) >= c.link_dropout, backend.dtype)
-            rows *= mask[..., None, None]
+            rows = rows * mask[..., None, None]
         if c.obs_noise > 0:
-            rows += (c.obs_noise * mask[..., None, None]) * normal(tuple(rows.shape))
+            rows = rows + (c.obs_noise * mask[..., None, None]) * normal(tuple(rows.shape))
         if c.model is not None:
             # General agents: the largest |z_j - z_i| per component in position units (row_scales).
             largest = (
@@ -170,12 +203,7 @@ class Observer:
             return obs
         rows = xp.reshape(raw, (b, n, -1))
         if self.normalized:
-            # s = 0 only when every row is 0; the floor keeps 0 / s at 0 without a branch.
-            rows = (
-                rows
-                * clock.per_instant(self.tables.row_factors)
-                / xp.maximum(scale, backend.full((), backend.tiny))[..., None]
-            )
+            rows = _over_scale(rows * clock.per_instant(self.tables.row_factors), scale, backend)
         zeros = backend.zeros((b, n, 1))
         parts = [rows, mask + zeros, clock.per_instant(self.tables.features) + zeros]
         if layout.limit_feature:
@@ -268,9 +296,7 @@ def normalized_state(
         (config.settling_time**i) * (state[:, :, i] - xp.mean(state[:, :, i], axis=1, keepdims=True))
         for i in range(config.n_states)
     ]
-    rows = xp.concat(components, axis=-1) / xp.reshape(
-        xp.maximum(current_disagreement, backend.full((), backend.tiny)), (-1, 1, 1)
-    )
+    rows = _over_scale(xp.concat(components, axis=-1), xp.reshape(current_disagreement, (-1, 1)), backend)
     rows = xp.reshape(xp.clip(rows, -1.0, 1.0), (backend.n_episodes, -1))
     features = clock.per_instant(tables.features)
     features = xp.reshape(features, (-1, features.shape[-1])) + backend.zeros((backend.n_episodes, 1))

@@ -23,7 +23,7 @@ from fxc_env.config import EnvConfig
 from fxc_env.core.floors import input_floor, noise_floor
 from fxc_env.core.graphs import DENSE_LIMIT
 from fxc_env.core.linear import LinearModel, final_value, model_matrices
-from fxc_env.core.metrics import TRACKED_THRESHOLDS, reward_floor, spread
+from fxc_env.core.metrics import TRACKED_THRESHOLDS, reward_floor, spread, spread_any
 from fxc_env.core.optimality import episode_energy_bound, reach_intervals
 
 from .backend import TINY, to_host
@@ -78,9 +78,12 @@ class EpisodeTrackers:
         log_disagreement = xp.log(disagreement + floor)
         last_above = xp.zeros((len(TRACKED_THRESHOLDS), b), dtype=xp.int64, device=backend.device)
         if episodes is None:
-            self.z0[...] = fresh
-            self.x0[...] = x0
-            self.v0[...] = v0
+            if backend.is_numpy:
+                self.z0[...] = fresh
+                self.x0[...] = x0
+                self.v0[...] = v0
+            else:  # new tensors, not writes into the old ones: the previous episodes' graph is let go
+                self.z0, self.x0, self.v0 = fresh, x0, v0
             self.initial_disagreement = disagreement
             self.current_disagreement = xp.asarray(disagreement, copy=True)
             self.floor = floor
@@ -113,11 +116,11 @@ class EpisodeTrackers:
         """
         xp = self.backend.xp
         if interval.saturated_time is not None:
-            self.saturated_time += interval.saturated_time
+            self.saturated_time = self._accumulate(self.saturated_time, interval.saturated_time)
         self.current_disagreement = interval.disagreement
         log_previous = self.log_disagreement
         self.log_disagreement = xp.log(self.current_disagreement + self.floor)
-        self.energy_total += interval.energy
+        self.energy_total = self._accumulate(self.energy_total, interval.energy)
         self.peak_total = xp.maximum(self.peak_total, interval.peak)
         above = self.current_disagreement * self.inverse_d0 >= self._thresholds
         if self.backend.is_numpy and isinstance(reached, int):
@@ -125,6 +128,13 @@ class EpisodeTrackers:
         else:
             self.last_above = xp.where(above, reached + xp.zeros_like(self.last_above), self.last_above)
         return log_previous - self.log_disagreement
+
+    def _accumulate(self, total: Any, value: Any) -> Any:
+        """``total + value``: in place on numpy, a new tensor on torch (no in-place write on the autograd path)."""
+        if self.backend.is_numpy:
+            total += value
+            return total
+        return total + value
 
     def batch_metrics(self, state: Any, steps: np.ndarray, topologies: list, shared: bool) -> dict[str, np.ndarray]:
         """The metrics of every episode so far, one ``(B,)`` numpy array per :class:`~fxc_env.core.metrics.EpisodeMetrics` field.
@@ -159,6 +169,51 @@ class EpisodeTrackers:
         metrics.update(self.optimality_metrics(metrics["energy"], topologies))
         metrics.update(self.extra_metrics(state, steps))
         return metrics
+
+    def metric_tensors(self, state: Any, steps: Any) -> dict[str, Any]:
+        """The metrics of :meth:`batch_metrics` that are functions of the actions, as ``(B,)`` arrays of the backend.
+
+        ``final_position_spread``, ``final_velocity_spread``, ``relative_deadline_error``,
+        ``energy``, ``peak_input``, ``achieved_final_position``, ``achieved_final_velocity`` and
+        ``saturated_fraction``, from ``state`` (the engine's now) and ``steps`` (each episode's
+        instant, ``(B,)`` on the device): on torch they stay on the device, in the autograd
+        graph of the actions (no read off the device). The other columns are counts, instants
+        or figures of the initial state and graph.
+        """
+        xp, backend, c = self.backend.xp, self.backend, self.config
+        x = state[:, :, 0]
+        v = state[:, :, 1] if c.n_states > 1 else xp.zeros_like(x)
+        elapsed = xp.take(backend.array(c.schedule.times), steps, axis=0)
+        return {
+            "final_position_spread": spread_any(x),
+            "final_velocity_spread": spread_any(v),
+            "relative_deadline_error": self.current_disagreement * self.inverse_d0,
+            "energy": xp.sum(self.energy_total, axis=1),
+            "peak_input": xp.max(self.peak_total, axis=1),
+            "achieved_final_position": xp.mean(x[:, :, 0], axis=1),
+            "achieved_final_velocity": xp.mean(v[:, :, 0], axis=1),
+            "saturated_fraction": xp.mean(self.saturated_time, axis=1) / xp.maximum(elapsed, backend.full((), TINY)),
+        }
+
+    def detach(self) -> None:
+        """torch: the running figures as new tensors with no autograd history (:meth:`ConsensusEngine.cut_graph`)."""
+        for name in self._RUNNING:
+            setattr(self, name, getattr(self, name).detach())
+
+    #: The per-episode tensors :meth:`restart` and :meth:`update` keep (those :meth:`detach` cuts).
+    _RUNNING = (
+        "x0",
+        "v0",
+        "z0",
+        "initial_disagreement",
+        "current_disagreement",
+        "floor",
+        "log_disagreement",
+        "inverse_d0",
+        "energy_total",
+        "peak_total",
+        "saturated_time",
+    )
 
     def optimality_metrics(self, energy: np.ndarray, topologies: list) -> dict[str, np.ndarray]:
         """``energy_bound`` (E*), ``energy_ratio``, ``settled_interval``, ``radius_bound`` and ``all_roots_bound``.

@@ -160,6 +160,29 @@ class ConsensusTorchEnv(EnvBase):
     refused (naming ``_reset``) before anything changes. On numpy (the PettingZoo and SB3
     front ends) such a step is refused at once.
 
+    ## Differentiable simulation
+    Every interval is played in closed form by differentiable tensor operations, so with
+    actions that require a gradient, the observations, the rewards and
+    ``episode_metrics(as_tensors=True)`` are in their autograd graph, exact (no surrogate, no
+    smoothing), on any device, in both dtypes, stepped by hand or by ``env.rollout``. The
+    contract, tested against central finite differences (README, "Differentiable simulation"):
+
+    * Nothing on the path from the actions to the observations, rewards and those metrics is
+      detached, written in place or read off the device; the input limit ``u_max``'s clip,
+      the local scale's maximum and ``|.|`` are piecewise smooth (their kinks have one-sided
+      gradients), random switching, noise and dropout are draws, not functions of the actions.
+    * A full reset (``reset()``, or a ``"_reset"`` mask of every episode) starts new tensors:
+      nothing of the previous episodes' graph is kept, so each episode backpropagates on its own.
+    * A partial reset gives the restarted episodes values that do not depend on their past
+      (gradient exactly 0); the others keep their graph. :meth:`cut_graph` cuts every
+      episode's history at the current instant (truncated windows).
+    * General ``(A, B)`` agents step on the device by products with their interval maps'
+      factors (built once on the host), so they are differentiable too.
+
+    Without a gradient (actions that do not require one, as from TorchRL's collectors) torch
+    records nothing, so there is no switch to turn it off: keeping the graph possible costs
+    no speed (measured with ``fxc speed``, README).
+
     ## Rendering
     :meth:`render` returns the first ``min(B, 16)`` episodes' frames tiled, ``(H, W, 3)`` uint8
     (README, "Video"). There is no render mode: each call reads the episodes off the device and
@@ -420,9 +443,26 @@ class ConsensusTorchEnv(EnvBase):
             for key, value in zip(GRAPH_TENSOR_KEYS, tensors, strict=True):
                 out.set(key, value)
 
-    def episode_metrics(self) -> dict[str, np.ndarray]:
-        """Every episode's metrics so far (``(B,)`` numpy arrays; a read off the device: call at episode ends)."""
-        return self.engine.batch_metrics()
+    def episode_metrics(self, as_tensors: bool = False) -> dict[str, Any]:
+        """Every episode's metrics so far: ``(B,)`` numpy arrays (a read off the device: call at episode ends).
+
+        ``as_tensors=True``: only the metrics that depend on the actions (``relative_deadline_error``,
+        ``energy``, ``peak_input``, the final spreads, the achieved final values, ``saturated_fraction``),
+        as ``(B,)`` tensors on the device in the actions' autograd graph (no read off the device), for a
+        loss to backpropagate (card, "Differentiable simulation").
+        """
+        if not isinstance(as_tensors, bool | np.bool_):
+            raise validation.ArgumentTypeError(f"as_tensors: expected True or False, got {as_tensors!r}")
+        return self.engine.metric_tensors() if as_tensors else self.engine.batch_metrics()
+
+    def cut_graph(self) -> None:
+        """Go on from the same episodes with no autograd history: a later ``backward()`` stops here.
+
+        For truncated backpropagation, or before backpropagating after a partial reset (the
+        episodes that go on keep their history until then). Detach the TensorDict the next
+        actions are computed from too (``td = td.detach()``). A full reset needs neither.
+        """
+        self.engine.cut_graph()
 
     def render(self) -> np.ndarray:
         """The first ``min(B, 16)`` episodes at their current instants, tiled: ``(H, W, 3)`` uint8 (README, "Video").
