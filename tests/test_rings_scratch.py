@@ -118,3 +118,11 @@ def test_quick_training_from_a_random_start_beats_the_reference_tenfold(tmp_path
     assert policy.header["training"]["training_mean_deadline_error"] < 3.4e-3
     printed = re.search(r"2 held-out seeds: .*, ([0-9.e+]+)x below the reference", capsys.readouterr().out)
     assert printed is not None and float(printed.group(1)) >= 10
+
+
+@pytest.mark.parametrize(("keyword", "value"), [("episodes", 0), ("steps", 0), ("seed", -1)])
+def test_bad_training_settings_are_refused_by_name(keyword, value):
+    from fxc_env.training.rings_scratch import train
+
+    with pytest.raises(ArgumentError, match=f"^{keyword}"):
+        train(**{keyword: value})

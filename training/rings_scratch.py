@@ -27,7 +27,8 @@ Run (the shipped file; about a minute on one core, the README gives the wall tim
 
     .venv/bin/python -m fxc_env.training.rings_scratch --out fxc_env/pretrained/rings_scratch.npz
 
-``--quick`` trains for seconds (8 episodes, one L-BFGS step), for tests; ``--evaluate PATH`` only
+``--free`` is the control experiment: the same start, loss and optimiser over the free table (README,
+"What learning reached", for what it reaches). ``--quick`` trains for seconds (8 episodes, one L-BFGS step), for tests; ``--evaluate PATH`` only
 measures a saved table on held-out seeds (evaluation seeds 0 .., training episodes are drawn from
 seed ``2000 + seed``).
 """
@@ -51,7 +52,7 @@ from fxc_env.training.rings import EVALUATION_SEED, TASK, evaluate, physical_map
 
 #: Training episodes are drawn from ``np.random.default_rng(TRAINING_SEED + seed)``; the evaluation's from seeds 0 ...
 TRAINING_SEED = 2_000
-#: The shipped file's training: episodes per batch, L-BFGS steps (20 iterations each), threads.
+#: The shipped file's training: episodes in the batch, at most this many L-BFGS steps (20 iterations each).
 FULL = {"episodes": 64, "steps": 15}
 QUICK = {"episodes": 8, "steps": 1}
 #: Where a learned table stops being worth refining: the mean deadline error at float64 round-off.
@@ -128,9 +129,13 @@ def training_episodes(config: Any, episodes: int, seed: int) -> tuple[np.ndarray
 
 
 def train(
-    episodes: int = FULL["episodes"], steps: int = FULL["steps"], seed: int = 0
+    episodes: int = FULL["episodes"], steps: int = FULL["steps"], seed: int = 0, free: bool = False
 ) -> tuple[IntervalGainPolicy, dict]:
-    """The ``rings_scratch`` policy and a record of how it was made (see the module)."""
+    """The ``rings_scratch`` policy and a record of how it was made (see the module).
+
+    ``free=True`` is the control experiment: the same start, loss and optimiser over the free
+    ``(K, 2, 2)`` table instead of the factors.
+    """
     import torch
 
     integer("episodes", episodes, 1)
@@ -139,12 +144,12 @@ def train(
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # one thread: the tensors are small, and a second one only waits on a shared machine
     try:
-        return _train(episodes, steps, seed)
+        return _train(episodes, steps, seed, free)
     finally:
         torch.set_num_threads(threads)
 
 
-def _train(episodes: int, steps: int, seed: int) -> tuple[IntervalGainPolicy, dict]:
+def _train(episodes: int, steps: int, seed: int, free: bool) -> tuple[IntervalGainPolicy, dict]:
     import torch
 
     config = task_config()
@@ -152,10 +157,15 @@ def _train(episodes: int, steps: int, seed: int) -> tuple[IntervalGainPolicy, di
     x0, v0, w_hat = training_episodes(config, episodes, seed)
     start = np.random.default_rng(seed).normal(size=((config.n_intervals + 1) // 2, 2))
     q = torch.tensor(start, dtype=torch.float64, requires_grad=True)
+    if free:
+        q = factor_table(config, q).detach().requires_grad_(True)
     optimiser = torch.optim.LBFGS([q], lr=1.0, max_iter=20, history_size=20, line_search_fn="strong_wolfe")
 
+    def table() -> Any:
+        return q if free else factor_table(config, q)
+
     def loss() -> Any:
-        return log_errors(config, factor_table(config, q), x0, v0, w_hat).mean()
+        return log_errors(config, table(), x0, v0, w_hat).mean()
 
     def closure() -> Any:
         optimiser.zero_grad()
@@ -175,6 +185,7 @@ def _train(episodes: int, steps: int, seed: int) -> tuple[IntervalGainPolicy, di
         "method": "L-BFGS on the mean log D(T_s)/D(0) through the exact interval map, factor parameterisation",
         "teacher": None,
         "init": "random normal factors",
+        "parameterisation": "free (K, 2, 2) table" if free else "factors",
         "episodes": episodes,
         "lbfgs_steps": len(curve) - 1,
         "loss_curve": [round(v, 4) for v in curve],
@@ -182,7 +193,7 @@ def _train(episodes: int, steps: int, seed: int) -> tuple[IntervalGainPolicy, di
         "wall_s": round(time.perf_counter() - began, 2),
     }
     with torch.no_grad():
-        gains = factor_table(config, q).numpy().copy()
+        gains = table().numpy().copy()
     ring = config.family.draw(config.n_agents, np.random.default_rng(0))
     eigenvalues = spectrum(ring)  # for the graph check at load time only: training never reads it
     header = {
@@ -205,7 +216,7 @@ def _train(episodes: int, steps: int, seed: int) -> tuple[IntervalGainPolicy, di
             "position_range": list(TASK["position_range"]),
             "velocity_range": list(TASK["velocity_range"]),
         },
-        "factors": q.detach().numpy().tolist(),
+        "factors": None if free else q.detach().numpy().tolist(),
         "training": record,
     }
     return IntervalGainPolicy(gains, header), record
@@ -220,6 +231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=None, help="training episodes (default 64, --quick 8)")
     parser.add_argument("--steps", type=int, default=None, help="L-BFGS steps of 20 iterations (default 15)")
     parser.add_argument("--seed", type=int, default=0, help="training seed: the random start and the episodes")
+    parser.add_argument("--free", action="store_true", help="control: optimise the free table from the same start")
     parser.add_argument("--evaluate", default=None, help="only measure the policy saved at this path")
     parser.add_argument("--seeds", type=int, default=20, help="held-out evaluation episodes (seeds 0 ..)")
     args = parser.parse_args(argv)
@@ -232,7 +244,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         episodes = preset["episodes"] if args.episodes is None else args.episodes
         steps = preset["steps"] if args.steps is None else args.steps
         try:
-            policy, record = train(episodes, steps, args.seed)
+            policy, record = train(episodes, steps, args.seed, args.free)
         except ArgumentError as exc:
             parser.error(str(exc))
         policy.header["training"]["command"] = "python -m fxc_env.training.rings_scratch " + " ".join(
