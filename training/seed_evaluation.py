@@ -54,7 +54,15 @@ from fxc_env.policies.policy_files import CHECKED_SETTINGS
 
 #: Training seed of each shipped policy (its recipe in ``fxc_env/pretrained/README.md``: ``--seed 0``;
 #: ``rings``: ``python -m fxc_env.training.rings --seed 0``, the default).
-SHIPPED_SEEDS = {"pretrained": 0, "generalist": 0, "saturated": 0, "paper_fig1": 0, "rings": 0, "rings_gru": 0}
+SHIPPED_SEEDS = {
+    "pretrained": 0,
+    "generalist": 0,
+    "saturated": 0,
+    "paper_fig1": 0,
+    "rings": 0,
+    "rings_gru": 0,
+    "rings_scratch": 0,
+}
 #: A run directory or file named ``...seed<k>...`` was trained with seed k.
 _SEED_IN_NAME = re.compile(r"seed(\d+)")
 #: Files that make a directory a run (else it is read as a folder of ``*-seed<k>`` runs).
