@@ -19,6 +19,7 @@ from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, learned_c
 from fxc_env.config import make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import IntervalGainPolicy, read_interval_gains
 from fxc_env.policies.learned import load_learned_policy, pretrained_path
 from fxc_env.training.rings import PAPER_GAIN, TASK, episode_log_errors, physical_map, task_config
@@ -60,13 +61,15 @@ def test_the_rings_scratch_file_records_a_training_without_teacher_and_its_domai
     assert (env["schedule"], env["action_mode"], env["obs_mode"]) == ("paper", "plan", "normalized")
     assert (env["n_agents"], env["n_intervals"], env["settling_time"]) == (20, 200, 20.0)
     domain = header["domain"]
-    assert (domain["family"], domain["n_agents"], domain["switching"]) == ("ring", [20], "none")
+    assert domain == training_domain(task_config())  # directed rings of 20, K = 200, the paper's schedule
     assert isinstance(load_learned_policy("rings_scratch", task_config()), IntervalGainPolicy)
 
 
 def test_the_rings_scratch_policy_refuses_another_ring_size_by_name():
     config = make_config(None, **{**TASK, "topology": TopologyFamily("ring"), "n_agents": 24})
-    with pytest.raises(ArgumentError, match=r"^n_agents: the rings_scratch policy was trained with n_agents=20"):
+    with pytest.raises(
+        ArgumentError, match=r"^policy: .*rings_scratch.npz was trained on another domain.*n_agents: trained on 20"
+    ):
         load_learned_policy("rings_scratch", config)
 
 

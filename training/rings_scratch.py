@@ -46,6 +46,7 @@ import numpy as np
 
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
+from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum
 from fxc_env.policies.policy_files import training_settings
 from fxc_env.training.rings import EVALUATION_SEED, TASK, evaluate, physical_map, spectrum_matrix, task_config
@@ -203,19 +204,7 @@ def _train(episodes: int, steps: int, seed: int, free: bool) -> tuple[IntervalGa
         "position_range": list(TASK["position_range"]),
         "velocity_range": list(TASK["velocity_range"]),
         "eigenvalues": np.stack([eigenvalues.real, eigenvalues.imag], axis=-1).tolist(),
-        "domain": {  # the recorded training domain, as plain data
-            "family": "ring",
-            "directed": True,
-            "n_agents": [config.n_agents],
-            "n_intervals": config.n_intervals,
-            "schedule": "paper",
-            "settling_time": config.settling_time,
-            "switching": "none",
-            "action_mode": "plan",
-            "obs_mode": "normalized",
-            "position_range": list(TASK["position_range"]),
-            "velocity_range": list(TASK["velocity_range"]),
-        },
+        "domain": training_domain(config),
         "factors": None if free else q.detach().numpy().tolist(),
         "training": record,
     }
