@@ -289,7 +289,8 @@ def test_fxc_evaluate_plays_a_gru_or_gnn_run(tmp_path, capsys, arch):
 
     run_dir = train(short_args(tmp_path, policy_arch=arch))
     out = tmp_path / "evaluate"
-    arguments = ["evaluate", "--policy", str(run_dir), "--topology", "ring", "--n-agents", "6", "--seeds", "2"]
+    # Scored inside the run's training domain (paper_fig1, as the file records).
+    arguments = ["evaluate", "--policy", str(run_dir), "--scenario", "paper_fig1", "--seeds", "2"]
     assert main([*arguments, "--out", str(out), "--no-progress", "--workers", "1"]) == 0
     capsys.readouterr()
     with (out / "episodes.csv").open() as handle:

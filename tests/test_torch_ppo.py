@@ -214,7 +214,8 @@ def test_fxc_evaluate_scores_a_torch_run_next_to_the_reference(tmp_path, capsys)
     run_dir = train(short_args(tmp_path, timesteps=PER_ROLLOUT))
     assert isinstance(load_learned_policy(run_dir / "policy.pt"), TorchPolicy)
     out = tmp_path / "evaluate"
-    arguments = ["evaluate", "--policy", str(run_dir), "--topology", "ring", "--n-agents", "6", "--seeds", "2"]
+    # Scored inside the run's training domain (paper_fig1, as the file records).
+    arguments = ["evaluate", "--policy", str(run_dir), "--scenario", "paper_fig1", "--seeds", "2"]
     assert main([*arguments, "--out", str(out), "--no-progress"]) == 0
     text = capsys.readouterr().out
     assert "learned:run" in text and "torch policy" in text
