@@ -73,6 +73,7 @@ from fxc_env.baselines.signalling import (
     plan_action,
     predicted_register,
     read_deviation,
+    refuse_unless_exact_raw_rows,
     register_of,
     signal_plan,
     steer_plan,
@@ -366,21 +367,7 @@ def _refuse_what_it_cannot_honour(config: Any) -> None:
             f"obs_noise: {name} reads numbers from exact relative measurements and its rank test needs them; "
             f"got obs_noise={config.obs_noise!r}"
         )
-    if config.link_dropout != 0:
-        raise ArgumentError(
-            f"link_dropout: {name} reads numbers from every link of its graph; got link_dropout={config.link_dropout!r}"
-        )
-    if config.model is not None:
-        raise ArgumentError(
-            f"agent_model: {name} is designed for the double integrator; got agent_model={config.agent_model!r}"
-        )
-    if config.obs_mode != "raw":
-        raise ArgumentError(
-            f"obs_mode: {name} subtracts the coasting prediction from physical rows and needs obs_mode='raw', "
-            f"got {config.obs_mode!r}"
-        )
-    if config.action_mode not in ("plan", "accel"):
-        raise ArgumentError(f"action_mode: {name} supports 'plan' and 'accel', got {config.action_mode!r}")
+    refuse_unless_exact_raw_rows(config, name)
 
 
 # ----------------------------------------------------------------------------- the goal table

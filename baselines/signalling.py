@@ -542,6 +542,15 @@ def _refuse_what_it_cannot_honour(config: Any, allow_limit: bool = False) -> Non
             f"u_max: {name} plans exact changes and cannot honour an input limit (allow_limit=True runs it "
             "anyway: exact wherever its inputs stay within the limit)"
         )
+    refuse_unless_exact_raw_rows(config, name)
+
+
+def refuse_unless_exact_raw_rows(config: Any, name: str) -> None:
+    """Raise :class:`ArgumentError` naming what a law that reads numbers off motions cannot honour.
+
+    Lost links, agent models other than the double integrator, observations other than raw
+    (the coasting prediction is subtracted from physical rows) and actions other than plan/accel.
+    """
     if config.link_dropout != 0:
         raise ArgumentError(
             f"link_dropout: {name} reads numbers from every link of its graph; got link_dropout={config.link_dropout!r}"
