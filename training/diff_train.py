@@ -221,7 +221,7 @@ def train_diff(args: TrainArgs) -> Path:
     trainer = DiffTrainer(args, params, settings, device)
     per_batch = trainer.k_intervals * trainer.n_envs * trainer.n_agents
     if checkpoint is not None:
-        trainer.load_checkpoint(checkpoint)
+        trainer.load_checkpoint(checkpoint, trusted=args.trust_policy_file)
         run.announce_resume(checkpoint, f"{trainer.timesteps} timesteps")
     else:
         run.start(
