@@ -115,3 +115,17 @@ def test_ppo_can_start_as_the_reference_in_residual_mode() -> None:
     assert not model.actor(torch.randn(7, config.layout.size)).any()
     with pytest.raises(ArgumentError, match=r"hyperparams: torch_ppo.actor_out_gain"):
         PPOSettings.from_mapping({"actor_out_gain": -1.0}, config)
+
+
+def test_zero_residual_replays_the_reference_in_the_vec_env() -> None:
+    states = {}
+    for mode in ("plan", "residual"):
+        venv = fxc_env.ConsensusVecEnv(2, scenario=None, action_mode=mode, **RING)
+        venv.seed(3)
+        policy = ReferencePolicy(venv)
+        obs = venv.reset()
+        for _ in range(100):
+            obs, *_ = venv.step(policy(obs))
+        states[mode] = venv.engine.state.copy()
+    scale = np.abs(states["plan"]).max()
+    np.testing.assert_allclose(states["residual"], states["plan"], rtol=0, atol=1e-12 * scale)
