@@ -441,8 +441,13 @@ def refuse_what_a_graph_design_cannot_honour(
     """Raise :class:`ArgumentError` naming what a law designed offline for one known graph cannot honour.
 
     Families (a graph drawn per episode), random switching, a switching period (unless ``periods``),
-    ``u_max``, ``obs_noise`` (unless ``allow_noise``), ``link_dropout`` and agent models other than the double integrator.
+    ``u_max``, ``obs_noise`` (unless ``allow_noise``), ``link_dropout``, agent models other than the double
+    integrator, and ``action_mode="residual"`` (the law emits whole plans or inputs, not corrections).
     """
+    if config.action_mode == "residual":
+        raise ArgumentError(
+            f"action_mode: {name} emits whole plans or inputs ('plan' or 'accel'), not 'residual' corrections"
+        )
     if config.family is not None:
         raise ArgumentError(
             f"topology: {name} designs its gains offline for one known graph; a family draws a new graph per episode"

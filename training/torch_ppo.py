@@ -131,6 +131,9 @@ class PPOSettings:
     activation: str = "tanh"
     log_std_init: float = -2.0
     """Initial log standard deviation of the exploration noise (state independent, learned)."""
+    actor_out_gain: float = 0.01
+    """Orthogonal gain of the ``mlp`` actor's output layer; 0 starts it at exactly zero (with
+    ``action_mode: residual`` the untrained policy is then the reference; README, "PPO from scratch")."""
     normalize_advantage: bool = True
     gru_size: int = 64
     """``--policy-arch gru``: the width of the GRU's hidden state."""
@@ -169,6 +172,7 @@ class PPOSettings:
             validation.real(key(field), values[field], 0.0, 1.0)
         for field in ("ent_coef", "vf_coef", "log_std_init"):
             validation.real(key(field), values[field])
+        validation.real(key("actor_out_gain"), values["actor_out_gain"], 0.0)
         hidden = values["hidden"]
         if not isinstance(hidden, list | tuple) or not hidden:
             raise ArgumentError(f"{key('hidden')}: expected a list of layer widths, got {hidden!r}")
@@ -182,6 +186,7 @@ class PPOSettings:
         for field in ("learning_rate", "clip_range", "max_grad_norm", "gamma", "gae_lambda", "ent_coef", "vf_coef"):
             values[field] = float(values[field])
         values["log_std_init"] = float(values["log_std_init"])
+        values["actor_out_gain"] = float(values["actor_out_gain"])
         return cls(**values)
 
 
@@ -235,7 +240,7 @@ class ActorCritic(nn.Module):
                 settings.message_rounds,
             )
         else:
-            self.actor = mlp(obs_size, action_size, settings.hidden, settings.activation, 0.01)
+            self.actor = mlp(obs_size, action_size, settings.hidden, settings.activation, settings.actor_out_gain)
         self.log_std = nn.Parameter(torch.full((action_size,), settings.log_std_init))
         self.critic = mlp(critic_size, 1, settings.hidden, settings.activation, 1.0)
 

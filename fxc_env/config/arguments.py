@@ -184,14 +184,16 @@ def _default_text(value: Any) -> str:
 
 #: Half-widths of the action Box per (action_mode, obs_mode), the default of ``action_bound``.
 #: Normalised bounds hold the reference for every state (its plan is at most 2 and 1, its
-#: accel ends at most 10 and 8). Raw bounds are nominal: no fixed bound holds every graph and
+#: accel ends at most 10 and 8); a residual's box is the plan's, around the reference's plan. Raw bounds are nominal: no fixed bound holds every graph and
 #: scale. They hold the reference from the documented random initial ranges on every built-in
 #: topology up to N = 100 (the slowest, a 100-ring, peaks near 4e7 m/s^2 in accel mode); pass
 #: ``action_bound`` for larger or slower-mixing cases.
 DEFAULT_ACTION_BOUNDS = {
     ("plan", "normalized"): 2.0,
     ("accel", "normalized"): 10.0,
+    ("residual", "normalized"): 2.0,
     ("plan", "raw"): 1.0e3,
+    ("residual", "raw"): 1.0e3,
     ("accel", "raw"): 1.0e9,
 }
 
@@ -282,10 +284,11 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         "action_mode",
         "str",
         "plan",
-        help="what an action is: a planned terminal change (plan, default) or the input at both ends (accel)",
+        help="what an action is: a planned terminal change (plan, default), the input at both ends (accel) "
+        "or a correction added to the paper's plan (residual: the zero action is the reference)",
         card="meaning of an action (Action Space)",
         kind="choice",
-        choices=("plan", "accel"),
+        choices=("plan", "accel", "residual"),
         flag=Flag(),
     ),
     Argument(

@@ -407,8 +407,8 @@ def make_config(
         check_horizon(model, sched.settling_time)
         if action_mode != "plan":
             raise ArgumentError(
-                f"action_mode: {model_name!r} agents take plans only (the minimum-energy input); 'accel' is the "
-                "double integrator's"
+                f"action_mode: {model_name!r} agents take plans only (the minimum-energy input); "
+                f"{action_mode!r} is the double integrator's"
             )
         if u_max_choices is not None:
             raise ArgumentError(

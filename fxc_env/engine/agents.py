@@ -86,7 +86,7 @@ class DoubleIntegratorAgents:
         self.backend = backend
         self.dim = config.dim
         self.normalized = config.obs_mode == "normalized"
-        self.plans = config.action_mode == "plan"
+        self.plans = config.action_mode in ("plan", "residual")  # residual: the engine added the reference's plan
         #: Each episode's input limit ``u_max`` (m/s^2), ``(B,)``; None without a limit.
         self.u_max: Any = None
         self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))

@@ -441,11 +441,18 @@ class ConsensusEngine:
 
     def inputs_from_actions(self, actions: Any) -> tuple[Any, Any]:
         """Map actions to the affine input's end values ``(u(t_k+), u(t_{k+1}-))`` (the card's Action Space)."""
-        return self.agents.inputs(actions, self.clock.interval(2), self.local_scale)
+        return self.agents.inputs(self.plans_from_actions(actions), self.clock.interval(2), self.local_scale)
+
+    def plans_from_actions(self, actions: Any) -> Any:
+        """The actions as the agents take them: with ``action_mode="residual"`` plus the paper's plan (eq. 11)."""
+        if self.config.action_mode != "residual":
+            return actions
+        return actions + self.observer.reference_plan(self.state, self.clock, self.graphs, self._uniform, self._normal)
 
     def step(self, actions: Any) -> StepOutcome:
         """Play one interval with already validated ``(B, N, 2 dim)`` actions."""
         self.clock.check_can_step()
+        actions = self.plans_from_actions(actions)
         interval = self.agents.advance(self.state, actions, self.clock, self.local_scale, self._spare)
         self.state, self._spare = self.backend.commit_if_finite(
             self.state, interval, lambda: self.backend.refusal(actions, interval, self.k, self.current_interval())

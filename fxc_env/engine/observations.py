@@ -168,6 +168,24 @@ class Observer:
             return self._scale
         return self.measure(state, clock, graphs, uniform, normal)[2]
 
+    def reference_plan(self, state: Any, clock: Any, graphs: Any, uniform: Callable, normal: Callable) -> Any:
+        """The paper's plan (eq. 11) at ``t_k`` in the action's units, ``(B, N, 2 dim)`` (double integrator).
+
+        ``a_x = (sum_j (x_j - x_i) + T sum_j (v_j - v_i)) / (d_i + 1)``, ``a_v = sum_j (v_j - v_i) / (d_i + 1)``
+        over the rows received (noise and dropout included, as the observation has them);
+        normalized: ``(a_x / s_i, T a_v / s_i)``, what :class:`~fxc_env.policies.reference.ReferencePolicy`
+        reads off the observation. ``action_mode="residual"`` adds it to the action.
+        """
+        xp, T = self.backend.xp, clock.interval(2)
+        rows, mask, scale = self.measure(state, clock, graphs, uniform, normal)
+        sums = xp.sum(rows, axis=2)  # (B, N, 2, dim); padded and dropped rows are 0
+        sum_x, sum_v = sums[..., 0, :], sums[..., 1, :]
+        weight = 1.0 / (xp.sum(mask, axis=-1) + 1.0)[..., None]  # 1 / (d_i + 1), (B or 1, N, 1)
+        if self.normalized:
+            plan = xp.concat([sum_x + T * sum_v, T * sum_v], axis=-1)
+            return _over_scale(weight * plan, scale, self.backend)
+        return xp.concat([weight * (sum_x + T * sum_v), weight * sum_v], axis=-1)
+
     def observe(
         self, state: Any, clock: Any, graphs: Any, u_max: Any, uniform: Callable, normal: Callable, out: Any = None
     ) -> Any:

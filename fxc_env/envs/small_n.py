@@ -65,6 +65,7 @@ def applies(config: EnvConfig, engine: Any) -> bool:
         and config.obs_noise == 0
         and config.link_dropout == 0
         and config.switching == "periodic"
+        and config.action_mode != "residual"
         and not config.layout.limit_feature
         and getattr(engine, "is_numpy", False)
         and getattr(engine, "n_episodes", 0) == 1

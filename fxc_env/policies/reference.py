@@ -26,7 +26,7 @@ from fxc_env.core.dynamics import input_from_plan
 
 
 class ReferencePolicy:
-    """Eq. (11) for every action mode (``plan``, ``accel``) and observation mode.
+    """Eq. (11) for every action mode (``plan``, ``accel``; ``residual``: zeros, the environment adds eq. 11) and observation mode.
 
     ``ReferencePolicy(env)(obs)`` maps one agent's observation ``(obs_size,)`` (or a dict
     observation) to its action ``(2 dim,)`` (``(n dim,)`` for a general linear agent: the
@@ -93,6 +93,8 @@ class ReferencePolicy:
             )
         if c.action_mode == "plan":
             return plan
+        if c.action_mode == "residual":  # the environment adds this very plan: no correction
+            return xp.zeros_like(plan)
         # accel, normalized: u = (s / T^2) * alpha, with input_from_plan at T = 1 in these units.
         interval = 1.0 if normalized else T[..., None]
         return xp.concat(input_from_plan(plan[..., :dim], plan[..., dim:], interval), axis=-1)
