@@ -16,6 +16,7 @@ from benchmarl.models import GnnConfig, MlpConfig
 from benchmarl.models.gnn import Gnn
 
 from fxc_env.config.scenarios import SCENARIOS
+from fxc_env.config.tasks import TASKS
 from fxc_env.core.validation import ArgumentError
 from fxc_env.envs.benchmarl_task import FxcTask, FxcTaskClass
 from fxc_env.envs.torch_env import GROUP, ConsensusTorchEnv
@@ -134,12 +135,14 @@ def test_graph_tensors_reach_the_data_as_root_entries_beside_the_models_inputs()
 
 
 def test_every_named_scenario_is_a_task_whose_shipped_config_builds_its_env():
-    assert {member.name.lower() for member in FxcTask} == set(SCENARIOS)
+    assert {member.task_name for member in FxcTask} == set(SCENARIOS) | set(TASKS)
     for member in FxcTask:
+        if member.task_name not in SCENARIOS:
+            continue
         task = member.get_from_yaml()
-        assert task.config["scenario"] == member.name.lower()
+        assert task.config["scenario"] == member.task_name
         env = task.get_env_fun(num_envs=1, continuous_actions=True, seed=0, device="cpu")()
-        assert env.config.n_agents == SCENARIOS[member.name.lower()]["n_agents"]
+        assert env.config.n_agents == SCENARIOS[member.task_name]["n_agents"]
 
 
 @pytest.mark.parametrize(
