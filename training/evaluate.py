@@ -57,16 +57,23 @@ SUITES = ("evaluate", "generalisation", "realism")
 TASK_FIXES = ("--suite", "--seeds", "--budgets")
 
 
+def scored_settings(task: NamedTask) -> dict[str, Any]:
+    """The settings of a task's scored episodes: its scenario's preset spelled out, without a fixed initial
+    state (each evaluation seed draws its own, for every contender alike; README "Named tasks")."""
+    kwargs = task.kwargs()
+    kwargs = {**scenario_preset(kwargs.pop("scenario", None)), **kwargs}
+    kwargs.pop("initial_state", None)
+    return kwargs
+
+
 def task_suite(task: NamedTask) -> tuple[Suite, dict[str, Any]]:
     """The one case of a named task at its K, on its evaluation seeds; and its learned policies' settings.
 
     The scenario's preset is spelled out, so every setting of the task reaches the case (its
     ranges of initial states, input limits, family), not only those given next to the scenario.
     """
-    kwargs = task.kwargs()
+    kwargs = scored_settings(task)
     n_intervals = kwargs.pop("n_intervals")
-    kwargs = {**scenario_preset(kwargs.pop("scenario", None)), **kwargs}
-    kwargs.pop("initial_state", None)  # the suite draws each seed's initial state (README "Named tasks")
     learned = {k: kwargs.pop(k) for k in ("action_mode", "obs_mode", "schedule") if k in kwargs}
     case, settling_time = custom_case(kwargs)
     suite = Suite(
