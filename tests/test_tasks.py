@@ -92,3 +92,11 @@ def test_fxc_evaluate_refuses_a_flag_the_task_fixes(flag, tmp_path, capsys):
     assert main(argv) == 2
     assert f"{flag[0]}: --task rings20-v1 fixes" in capsys.readouterr().err
     assert not (tmp_path / "table.md").exists()
+
+
+def test_torchrl_builds_a_task_from_the_same_settings():
+    from fxc_env.envs.torch_env import ConsensusTorchEnv
+
+    env = ConsensusTorchEnv(batch_size=3, seed=0, **task_kwargs("rings20-v1"))
+    td = env.reset()
+    assert td["agents", "observation"].shape[:2] == (3, 20) and env.config.n_intervals == 200
