@@ -211,6 +211,9 @@ def _train(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path
     config.max_n_frames = frames
     envs = max(1, min(config.on_policy_n_envs_per_worker, frames // task.n_intervals))
     batch = max(envs, min(config.on_policy_collected_frames_per_batch, frames) // envs * envs)
+    # A smaller batch keeps BenchMARL's off-policy updates per frame (1000 optimizer steps per 6000 frames).
+    steps_per_frame = config.off_policy_n_optimizer_steps / config.off_policy_collected_frames_per_batch
+    config.off_policy_n_optimizer_steps = max(1, round(steps_per_frame * batch))
     config.on_policy_n_envs_per_worker = config.off_policy_n_envs_per_worker = envs
     config.on_policy_collected_frames_per_batch = config.off_policy_collected_frames_per_batch = batch
     config.on_policy_minibatch_size = min(config.on_policy_minibatch_size, batch)

@@ -59,8 +59,9 @@ except ModuleNotFoundError as error:
         'fxc_env.envs.benchmarl_task needs BenchMARL: pip install "fxc-env[benchmarl]" (README "BenchMARL")',
         name=error.name,
     ) from error
+import torch
 from torchrl.data import Composite
-from torchrl.envs import EnvBase
+from torchrl.envs import DTypeCastTransform, EnvBase
 
 from fxc_env.config.tasks import TASKS
 from fxc_env.core import validation
@@ -119,6 +120,18 @@ class FxcTaskClass(TaskClass):
 
     def supports_discrete_actions(self) -> bool:
         return False
+
+    def get_env_transforms(self, env: EnvBase) -> list[Any]:
+        """BenchMARL's networks and losses are float32: with the float64 engine, the actions they give are cast
+        up to the engine's float64 and the rewards down to float32 (Q critics such as MASAC's and MADDPG's read
+        the action beside the float32 observation; the engine still computes in float64)."""
+        if _base(env).engine.dtype != torch.float64:
+            return []
+        return [
+            DTypeCastTransform(
+                torch.float64, torch.float32, in_keys=[(GROUP, "reward")], in_keys_inv=[(GROUP, "action")]
+            )
+        ]
 
     def has_render(self, env: EnvBase) -> bool:
         """False: BenchMARL's default ``render: True`` would write its evaluation videos through

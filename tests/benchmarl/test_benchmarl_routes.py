@@ -108,3 +108,32 @@ def test_benchmarls_benchmark_runs_every_task(tmp_path):
     counters = frames_logged(tmp_path)
     assert len(counters) == len(VERSIONED) == 4
     assert set(counters.values()) == {FRAMES}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algorithm", ["MasacConfig", "MaddpgConfig"])
+def test_off_policy_algorithms_with_q_critics_train_on_a_task(algorithm, tmp_path):
+    """MASAC's and MADDPG's critics read the float32 action beside the observation (the task casts it)."""
+    from benchmarl import algorithms
+    from benchmarl.experiment import Experiment
+
+    config = ExperimentConfig.get_from_yaml()
+    config.sampling_device = config.train_device = config.buffer_device = "cpu"
+    config.max_n_frames = config.off_policy_collected_frames_per_batch = FRAMES
+    config.off_policy_n_envs_per_worker = 2
+    config.off_policy_n_optimizer_steps = 2
+    config.off_policy_train_batch_size = 64
+    config.off_policy_init_random_frames = 0
+    config.evaluation = config.create_json = config.render = config.checkpoint_at_end = False
+    config.loggers = []
+    config.save_folder = str(tmp_path)
+    experiment = Experiment(
+        task=FxcTask.RINGS20_V1.get_from_yaml(),
+        algorithm_config=getattr(algorithms, algorithm).get_from_yaml(),
+        model_config=MlpConfig.get_from_yaml(),
+        critic_model_config=MlpConfig.get_from_yaml(),
+        seed=0,
+        config=config,
+    )
+    experiment.run()
+    assert experiment.total_frames == FRAMES
