@@ -321,9 +321,12 @@ def _profile(scores: dict[str, dict[str, np.ndarray]], path: Path) -> None:
 
     taus = np.linspace(math.log10(LOG_FLOOR), 1.0, 200)
     figure, axes = plt.subplots(figsize=(7, 4.5))
-    for name, by_task in scores.items():
+    colours = plt.get_cmap("tab20")
+    for i, (name, by_task) in enumerate(scores.items()):
         decades = np.concatenate([statistics.decades(errors, LOG_FLOOR).ravel() for errors in by_task.values()])
-        axes.step(taus, [(decades <= tau).mean() for tau in taus], where="post", label=name)
+        style = "--" if name in ALGORITHMS else "-"  # BenchMARL's algorithms dashed, laws and shipped policies solid
+        fraction = [(decades <= tau).mean() for tau in taus]
+        axes.step(taus, fraction, style, where="post", label=name, color=colours(i % 20))
     axes.set_xlabel("tau: log10 D(T_s)/D(0)")
     axes.set_ylabel("fraction of episodes with log10 D(T_s)/D(0) <= tau")
     axes.set_ylim(0, 1.02)
