@@ -24,6 +24,8 @@ from fxc_env.baselines.suite import (
 )
 from fxc_env.config import make_config
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
+from fxc_env.config.scenarios import scenario_preset
+from fxc_env.config.tasks import TASKS, NamedTask, get_task
 from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.utils.cli_checks import budgets as parse_budgets
@@ -50,6 +52,41 @@ def evaluation_suite(n_seeds: int = 20, budgets: tuple[int, ...] = (200,)) -> Su
 
 
 SUITES = ("evaluate", "generalisation", "realism")
+
+#: The flags a named task fixes (its settings, K and evaluation seeds): refused beside ``--task``.
+TASK_FIXES = ("--suite", "--seeds", "--budgets")
+
+
+def scored_settings(task: NamedTask) -> dict[str, Any]:
+    """The settings of a task's scored episodes: its scenario's preset spelled out, without a fixed initial
+    state (each evaluation seed draws its own, for every contender alike; README "Named tasks")."""
+    kwargs = task.kwargs()
+    kwargs = {**scenario_preset(kwargs.pop("scenario", None)), **kwargs}
+    kwargs.pop("initial_state", None)
+    return kwargs
+
+
+def task_suite(task: NamedTask) -> tuple[Suite, dict[str, Any]]:
+    """The one case of a named task at its K, on its evaluation seeds; and its learned policies' settings.
+
+    The scenario's preset is spelled out, so every setting of the task reaches the case (its
+    ranges of initial states, input limits, family), not only those given next to the scenario.
+    """
+    kwargs = scored_settings(task)
+    n_intervals = kwargs.pop("n_intervals")
+    learned = {k: kwargs.pop(k) for k in ("action_mode", "obs_mode", "schedule") if k in kwargs}
+    case, settling_time = custom_case(kwargs)
+    suite = Suite(
+        cases=(case,),
+        seeds=task.eval_seeds,
+        budgets=(n_intervals,),
+        fine_intervals=1000,
+        settling_time=settling_time,
+        headline_budget=n_intervals,
+        trace_case=case,
+        name=task.id,
+    )
+    return suite, learned
 
 
 def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
@@ -99,8 +136,13 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
         "schedule, K, ...), with a warning naming every difference; without it such cases are reported as not run",
     )
     parser.add_argument("--suite", choices=SUITES, help="a named suite (default 'evaluate' without environment flags)")
-    parser.add_argument("--seeds", type=int, default=20, help="seeded episodes per case")
-    parser.add_argument("--budgets", default="200", help="comma-separated K values (default 200)")
+    parser.add_argument(
+        "--task",
+        help=f"a named, versioned task ({', '.join(TASKS)}; 'fxc/' prefix optional): its settings, K and "
+        "evaluation seeds, as BenchMARL and PettingZoo know it",
+    )
+    parser.add_argument("--seeds", type=int, help="seeded episodes per case (default 20)")
+    parser.add_argument("--budgets", help="comma-separated K values (default 200)")
     parser.add_argument("--out", default="out/evaluate", help="directory for table.md, CSVs and PNGs")
     parser.add_argument("--workers", type=int, help="processes (default: one per core)")
     parser.add_argument("--baselines", action="store_true", help="score the four baseline laws as well")
@@ -155,8 +197,15 @@ def evaluate_command(args: argparse.Namespace) -> int:
                 raise ArgumentError(f"{flag}: only --runs reads it (several training seeds), not --policy")
     integer("--bootstrap-reps", args.bootstrap_reps, 1)
     optional_seed("--bootstrap-seed", args.bootstrap_seed)
-    seeds = integer("--seeds", args.seeds, 1)
-    budgets = parse_budgets("--budgets", args.budgets)
+    task = None if args.task is None else get_task(args.task, "--task")
+    if task is not None:
+        for flag in TASK_FIXES:
+            if getattr(args, flag[2:]) is not None:
+                raise ArgumentError(
+                    f"{flag}: --task {task.id} fixes its settings, K and evaluation seeds; leave it out"
+                )
+    seeds = integer("--seeds", 20 if args.seeds is None else args.seeds, 1)
+    budgets = parse_budgets("--budgets", "200" if args.budgets is None else args.budgets)
     if args.workers is not None:
         integer("--workers", args.workers, 1)
     out = output_directory("--out", args.out)
@@ -164,6 +213,9 @@ def evaluate_command(args: argparse.Namespace) -> int:
     custom = {k: v for k, v in env_kwargs.items() if v is not None}
     if custom and args.suite is not None:
         raise ArgumentError("--suite: give a named suite or environment flags, not both")
+    if custom and task is not None:
+        flag = "--" + next(iter(custom)).replace("_", "-")
+        raise ArgumentError(f"{flag}: --task {task.id} fixes the environment's settings; leave the flag out")
     if custom:
         make_config(**custom)  # every flag together, through the Python API's checks (README, "Bad input")
     # The learned policy's own settings (the reference keeps its schedule and modes).
@@ -176,7 +228,9 @@ def evaluate_command(args: argparse.Namespace) -> int:
         )
     if "n_intervals" in custom:
         raise ArgumentError("--n-intervals: the budgets K come from --budgets")
-    if custom:
+    if task is not None:
+        suite, learned = task_suite(task)
+    elif custom:
         case, settling_time = custom_case(custom)
         suite = replace(
             evaluation_suite(seeds, budgets),

@@ -22,6 +22,7 @@ from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.speed.command import add_arguments as speed_arguments
 from fxc_env.training.args import add_train_parser
 from fxc_env.training.evaluate import add_evaluate_parser
+from fxc_env.training.leaderboard import add_leaderboard_parser
 from fxc_env.utils.cli_checks import output_directory
 
 #: The usage error: the one exception :func:`main` prints as a one-line message (exit status 2).
@@ -190,6 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     fast.set_defaults(handler=speed_command, argv=None)
     add_train_parser(commands).set_defaults(handler=train_command)
     add_evaluate_parser(commands)
+    add_leaderboard_parser(commands)
     add_benchmark_parser(commands)
     return parser
 

@@ -1,7 +1,9 @@
-"""The environment as a BenchMARL task: every named scenario, run by BenchMARL's algorithms and models.
+"""The environment as a BenchMARL task: every named scenario and versioned task, run by BenchMARL's algorithms.
 
 :class:`FxcTask` is a BenchMARL task enum (one member per scenario of
-:data:`fxc_env.config.scenarios.SCENARIOS`) and :class:`FxcTaskClass` the task it builds: a
+:data:`fxc_env.config.scenarios.SCENARIOS`, ``fxc/<scenario>``, and one per named task of
+:data:`fxc_env.config.tasks.TASKS`, ``fxc/<task>-v<k>``, e.g. ``FxcTask.RINGS20_V1`` is
+``fxc/rings20-v1``) and :class:`FxcTaskClass` the task it builds: a
 factory of the batched TorchRL environment :class:`fxc_env.envs.torch_env.ConsensusTorchEnv`
 (``batch_size`` = BenchMARL's number of environments, so no ``SerialEnv`` in between), one
 agent group ``"agents"``, continuous actions only (the plan ``(a_x, a_v)`` of each agent, or
@@ -22,6 +24,12 @@ configs) the scale-free global state as BenchMARL's ``"state"`` for centralised 
     critic = MlpConfig.get_from_yaml()
     config = ExperimentConfig.get_from_yaml()  # README "BenchMARL" shrinks it to a quick run
     Experiment(task, MappoConfig.get_from_yaml(), actor, seed=0, config=config, critic_model_config=critic).run()
+
+BenchMARL's own routes take them unmodified: ``python -m benchmarl.run algorithm=mappo
+task=fxc/rings20-v1`` (Hydra finds the tasks through the plugin ``hydra_plugins.fxc_env``,
+which registers them, as BenchMARL's docs ask of an external task, in
+``benchmarl.environments.task_config_registry`` and Hydra's ``task`` group; :func:`register`)
+and ``benchmarl.benchmark.Benchmark(tasks=[FxcTask.RINGS20_V1.get_from_yaml(), ...])``.
 
 A task's config is a dict of :class:`~fxc_env.envs.torch_env.ConsensusTorchEnv` keyword
 arguments; BenchMARL owns ``batch_size``, ``seed`` and ``device`` (its experiment config sets
@@ -51,9 +59,11 @@ except ModuleNotFoundError as error:
         'fxc_env.envs.benchmarl_task needs BenchMARL: pip install "fxc-env[benchmarl]" (README "BenchMARL")',
         name=error.name,
     ) from error
+import torch
 from torchrl.data import Composite
-from torchrl.envs import EnvBase
+from torchrl.envs import DTypeCastTransform, EnvBase
 
+from fxc_env.config.tasks import TASKS
 from fxc_env.core import validation
 from fxc_env.envs.torch_env import GROUP, ConsensusTorchEnv
 
@@ -70,6 +80,10 @@ BENCHMARL_OWNED = {
 
 #: The package folder of the default task configs, one ``<scenario>.yaml`` each.
 CONFIG_FOLDER = "benchmarl_tasks"
+
+#: What BenchMARL adds to a named task's frozen settings (its networks are float32; the engine still
+#: computes in float64; the scale-free global state is the centralised critics' ``"state"``).
+BENCHMARL_SETTINGS = {"obs_dtype": "float32", "global_state": "normalized"}
 
 
 class FxcTaskClass(TaskClass):
@@ -106,6 +120,18 @@ class FxcTaskClass(TaskClass):
 
     def supports_discrete_actions(self) -> bool:
         return False
+
+    def get_env_transforms(self, env: EnvBase) -> list[Any]:
+        """BenchMARL's networks and losses are float32: with the float64 engine, the actions they give are cast
+        up to the engine's float64 and the rewards down to float32 (Q critics such as MASAC's and MADDPG's read
+        the action beside the float32 observation; the engine still computes in float64)."""
+        if _base(env).engine.dtype != torch.float64:
+            return []
+        return [
+            DTypeCastTransform(
+                torch.float64, torch.float32, in_keys=[(GROUP, "reward")], in_keys_inv=[(GROUP, "action")]
+            )
+        ]
 
     def has_render(self, env: EnvBase) -> bool:
         """False: BenchMARL's default ``render: True`` would write its evaluation videos through
@@ -161,19 +187,36 @@ class FxcTask(Task):
     SATURATED = None
     FORMATION_HEXAGON = None
     FORMATION_LINE = None
+    # The named, versioned tasks (fxc_env.config.tasks): settings, K and evaluation seeds frozen.
+    PAPER_FIG1_V1 = None
+    RINGS20_V1 = None
+    GENERALIST_V1 = None
+    SATURATED_V1 = None
 
     @staticmethod
     def associated_class() -> type[FxcTaskClass]:
         return FxcTaskClass
 
+    @property
+    def task_name(self) -> str:
+        """The name after ``fxc/`` in BenchMARL: the scenario, or the versioned task's id (``rings20-v1``)."""
+        head, _, version = self.name.lower().rpartition("_v")
+        return f"{head}-v{version}" if head and version.isdigit() else self.name.lower()
+
+    def default_config(self) -> dict[str, Any]:
+        """The shipped config: a named task's frozen settings with :data:`BENCHMARL_SETTINGS`, or the
+        scenario's ``fxc_env/envs/benchmarl_tasks/<scenario>.yaml``."""
+        if self.task_name in TASKS:
+            return {**TASKS[self.task_name].kwargs(), **BENCHMARL_SETTINGS}
+        text = resources.files("fxc_env.envs").joinpath(CONFIG_FOLDER, f"{self.task_name}.yaml").read_text()
+        return yaml.safe_load(text)
+
     def get_from_yaml(self, path: str | None = None) -> FxcTaskClass:
         """The task with the config in ``path`` (a YAML mapping of env arguments), by default the shipped one."""
         if path is None:
-            text = resources.files("fxc_env.envs").joinpath(CONFIG_FOLDER, f"{self.name.lower()}.yaml").read_text()
-        else:
-            with open(path, encoding="utf-8") as file:
-                text = file.read()
-        config = yaml.safe_load(text)
+            return self.get_task(config=self.default_config())
+        with open(path, encoding="utf-8") as file:
+            config = yaml.safe_load(file.read())
         if config is None:
             config = {}
         if not isinstance(config, dict):
@@ -181,6 +224,25 @@ class FxcTask(Task):
                 f"path: expected a YAML mapping of ConsensusTorchEnv arguments, got a {type(config).__name__} in {path}"
             )
         return self.get_task(config=config)
+
+
+def register() -> None:
+    """Make every member known to BenchMARL's command line and ``load_task_config_from_hydra`` (idempotent).
+
+    BenchMARL's docs ask an external task for two things: an entry ``"fxc/<task>"`` in
+    ``benchmarl.environments.task_config_registry``, and its config in Hydra's ``task`` group
+    (here Hydra's config store, from :meth:`FxcTask.default_config`, instead of files in
+    BenchMARL's ``conf/task``). The Hydra plugin ``hydra_plugins.fxc_env`` calls this when
+    BenchMARL's command line builds its search path; call it yourself before your own
+    ``hydra.main`` or ``load_task_config_from_hydra``.
+    """
+    from benchmarl.environments import task_config_registry
+    from hydra.core.config_store import ConfigStore
+
+    store = ConfigStore.instance()
+    for member in FxcTask:
+        task_config_registry[f"{ENV_NAME}/{member.task_name}"] = member
+        store.store(group=f"task/{ENV_NAME}", name=member.task_name, node=member.default_config(), provider="fxc_env")
 
 
 def _check_config(config: dict[str, Any]) -> None:

@@ -1,9 +1,12 @@
 """Entries in PettingZoo's registry: ``pettingzoo.make("parallel" | "aec", "fxc_consensus_v0", **kwargs)``.
 
-Importing :mod:`fxc_env` registers both forms (once per process).
+Importing :mod:`fxc_env` registers both forms (once per process), and both forms of every named
+task (:data:`fxc_env.config.tasks.TASKS`) under its id: ``pettingzoo.make("parallel", "fxc/rings20-v1")``.
 """
 
 from __future__ import annotations
+
+from fxc_env.config.tasks import TASKS
 
 ENV_ID = "fxc_consensus_v0"
 
@@ -19,3 +22,6 @@ def register_environments() -> None:
         registry = pettingzoo.parallel_registry if env_type == "parallel" else pettingzoo.aec_registry
         if ENV_ID not in registry:
             pettingzoo.register(env_type, ENV_ID, entry_point=entry_point)
+        for task in TASKS.values():  # the task's frozen settings; keyword arguments given to make() override them
+            if task.full_id not in registry:
+                pettingzoo.register(env_type, task.full_id, entry_point=entry_point, kwargs=task.kwargs())

@@ -14,8 +14,10 @@ from benchmarl.algorithms import IppoConfig, MappoConfig
 from benchmarl.experiment import Experiment, ExperimentConfig
 from benchmarl.models import GnnConfig, MlpConfig
 from benchmarl.models.gnn import Gnn
+from torchrl.envs import Compose, TransformedEnv
 
 from fxc_env.config.scenarios import SCENARIOS
+from fxc_env.config.tasks import TASKS
 from fxc_env.core.validation import ArgumentError
 from fxc_env.envs.benchmarl_task import FxcTask, FxcTaskClass
 from fxc_env.envs.torch_env import GROUP, ConsensusTorchEnv
@@ -88,14 +90,17 @@ def test_the_actor_is_benchmarls_gnn_over_the_six_agents(experiment):
 
 @pytest.mark.slow
 def test_the_trained_policy_acts_within_the_envs_action_spec(experiment):
-    env = experiment.task.get_env_fun(num_envs=3, continuous_actions=True, seed=1, device="cpu")()
+    base = experiment.task.get_env_fun(num_envs=3, continuous_actions=True, seed=1, device="cpu")()
+    env = TransformedEnv(base, Compose(*experiment.task.get_env_transforms(base)))  # as BenchMARL wraps it
     with torch.no_grad():
         rollout = env.rollout(K, experiment.policy)
     spec = env.action_spec[GROUP, "action"]
     actions = rollout[GROUP, "action"]
     assert rollout.batch_size == torch.Size([3, K])  # whole episodes: terminated at the deadline, step K
-    assert actions.shape == (3, K, 6, env.config.action_size)
-    assert actions.dtype == spec.dtype  # float64, the engine's, from BenchMARL's float32 networks
+    assert actions.shape == (3, K, 6, base.config.action_size)
+    # BenchMARL's float32 networks act in float32; the engine receives them cast to its float64.
+    assert actions.dtype == spec.dtype == torch.float32 and base.action_spec[GROUP, "action"].dtype == torch.float64
+    assert rollout["next", GROUP, "reward"].dtype == torch.float32
     assert all(spec.is_in(actions[:, k]) for k in range(K))
     assert float(actions.abs().max()) > 0  # the network acts: not an all-zero (coasting) policy
     assert bool(rollout["next", "terminated"][:, -1].all())
@@ -134,12 +139,14 @@ def test_graph_tensors_reach_the_data_as_root_entries_beside_the_models_inputs()
 
 
 def test_every_named_scenario_is_a_task_whose_shipped_config_builds_its_env():
-    assert {member.name.lower() for member in FxcTask} == set(SCENARIOS)
+    assert {member.task_name for member in FxcTask} == set(SCENARIOS) | set(TASKS)
     for member in FxcTask:
+        if member.task_name not in SCENARIOS:
+            continue
         task = member.get_from_yaml()
-        assert task.config["scenario"] == member.name.lower()
+        assert task.config["scenario"] == member.task_name
         env = task.get_env_fun(num_envs=1, continuous_actions=True, seed=0, device="cpu")()
-        assert env.config.n_agents == SCENARIOS[member.name.lower()]["n_agents"]
+        assert env.config.n_agents == SCENARIOS[member.task_name]["n_agents"]
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,61 @@
+"""``fxc leaderboard`` end to end at a tiny budget: one task, MAPPO, one seed, beside the laws; it resumes."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from fxc_env.cli.main import main
+from fxc_env.config.tasks import TASKS
+
+FRAMES = 400  # two environments x one episode of K = 200 steps: one BenchMARL batch
+ARGV = ["leaderboard", "--frames", str(FRAMES), "--seeds", "1", "--tasks", "rings20-v1", "--algorithms", "mappo"]
+
+
+@pytest.fixture(scope="module")
+def board(tmp_path_factory):
+    out = tmp_path_factory.mktemp("leaderboard")
+    assert main([*ARGV, "--out", str(out), "--bootstrap-reps", "200"]) == 0
+    return out
+
+
+@pytest.mark.slow
+def test_the_table_ranks_mappo_beside_the_laws_and_the_shipped_policies(board):
+    table = (board / "table.md").read_text()
+    rows = {line.split(" | ")[0].lstrip("| ") for line in table.splitlines() if line.startswith("| ")}
+    assert {"mappo", "reference", "minimum_time", "leader_follower", "graph_agnostic", "signalling"} <= rows
+    assert {"learned:generalist", "learned:rings", "learned:rings_gru"} <= rows
+    assert (board / "performance_profile.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_every_contender_is_scored_on_the_tasks_evaluation_seeds(board):
+    run = json.loads((board / "rings20-v1" / "mappo" / "seed0.json").read_text())
+    assert run["frames"] == FRAMES and run["task"] == "fxc/rings20-v1"
+    n_seeds = len(TASKS["rings20-v1"].eval_seeds)
+    marl_eval = json.loads((board / "marl_eval.json").read_text())["fxc_env"]["rings20-v1"]
+    assert len(marl_eval["mappo"]["seed_0"]["absolute_metrics"]["deadline_error"]) == n_seeds
+    assert len(marl_eval["reference"]["seed_0"]["absolute_metrics"]["deadline_error"]) == n_seeds
+    laws = json.loads((board / "rings20-v1" / "laws.json").read_text())
+    assert laws["seeds"] == list(range(1000, 1020))
+
+
+@pytest.mark.slow
+def test_a_rerun_resumes_without_training_again(board, capsys):
+    run = board / "rings20-v1" / "mappo" / "seed0.json"
+    before = run.stat().st_mtime_ns
+    capsys.readouterr()
+    assert main([*ARGV, "--out", str(board), "--bootstrap-reps", "200"]) == 0
+    assert "mappo, seed 0" not in capsys.readouterr().out  # no training line: the run was kept
+    assert run.stat().st_mtime_ns == before
+
+
+@pytest.mark.slow
+def test_a_rerun_with_another_budget_is_refused(board, capsys):
+    argv = [*ARGV, "--out", str(board)]
+    argv[2] = str(2 * FRAMES)
+    assert main(argv) == 2
+    assert f"--frames: {board / 'rings20-v1' / 'mappo' / 'seed0.json'} was trained for {FRAMES} frames" in (
+        capsys.readouterr().err
+    )

@@ -1,0 +1,344 @@
+"""``fxc leaderboard``: BenchMARL's algorithms beside the analytic laws and the shipped policies on the named tasks.
+
+For every task of :data:`fxc_env.config.tasks.TASKS` (or those named), every algorithm trains
+for the same frame budget on each training seed (BenchMARL's MLP; ``mappo_gnn`` its GNN), and
+every contender is scored on the task's frozen evaluation seeds at its K by ``D(T_s)/D(0)``:
+the laws (reference, minimum_time, leader_follower, graph_agnostic, signalling) and the shipped
+learned policies through ``fxc evaluate --task``'s suite, the trained actors on the same
+episodes (each seed draws the same initial state and graph). The table gives the median and
+the IQM of log10 over training seeds x episodes with stratified bootstrap intervals
+(:mod:`fxc_env.core.statistics`), beside ``marl_eval.json`` and a performance profile
+(``performance_profile.png``: the fraction of episodes with ``log10 D(T_s)/D(0) <= tau``).
+
+Every finished piece is a file under ``--out`` (``<task>/laws.json``,
+``<task>/<algorithm>/seed<k>.json``); a rerun skips them, so an interrupted leaderboard
+resumes where it stopped. Training needs BenchMARL (``.venv-benchmarl``, the ``[benchmarl]``
+extra); without it ``--algorithms none`` scores the laws and the shipped policies only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fxc_env.baselines.benchmark import run_benchmark
+from fxc_env.baselines.suite import builtin_contenders, learned_contender
+from fxc_env.config import make_config
+from fxc_env.config.tasks import TASKS, NamedTask, get_task
+from fxc_env.core import statistics
+from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
+from fxc_env.core.validation import ArgumentError, integer
+from fxc_env.engine import ConsensusEngine
+from fxc_env.policies.learned import SHIPPED
+from fxc_env.training.evaluate import scored_settings, task_suite
+from fxc_env.training.seed_evaluation import LOG_FLOOR, MARL_EVAL_ENV, _episode_metrics
+from fxc_env.utils.cli_checks import output_directory
+
+#: BenchMARL's algorithms in the table: (algorithm config, actor model). MADDPG is the deterministic one.
+ALGORITHMS = {
+    "mappo": ("MappoConfig", "mlp"),
+    "ippo": ("IppoConfig", "mlp"),
+    "masac": ("MasacConfig", "mlp"),
+    "maddpg": ("MaddpgConfig", "mlp"),
+    "mappo_gnn": ("MappoConfig", "gnn"),
+}
+#: The analytic laws beside them (fxc_env.baselines).
+LAWS = ("reference", "minimum_time", "leader_follower", "graph_agnostic", "signalling")
+#: Every shipped learned policy (``pretrained`` is the generalist under another name).
+SHIPPED_POLICIES = tuple(name for name in SHIPPED if name != "pretrained")
+
+
+def add_leaderboard_parser(commands: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register ``fxc leaderboard``."""
+    parser = commands.add_parser(
+        "leaderboard",
+        help="BenchMARL's algorithms beside the analytic laws and shipped policies on the named tasks",
+        description="Train BenchMARL's MAPPO, IPPO, MASAC, MADDPG (MLP) and MAPPO with a GNN on the named tasks "
+        "(same frame budget, several training seeds), score them with the laws and shipped policies on each "
+        "task's evaluation seeds by D(T_s)/D(0), and write table.md, marl_eval.json and performance_profile.png. "
+        "Finished runs are kept under --out: a rerun resumes.",
+    )
+    parser.add_argument("--frames", type=int, default=1_000_000, help="frames per training run (1000000)")
+    parser.add_argument("--seeds", type=int, default=3, help="training seeds per algorithm (3: seeds 0, 1, 2)")
+    parser.add_argument("--tasks", nargs="+", default=list(TASKS), help=f"named tasks (all: {' '.join(TASKS)})")
+    parser.add_argument(
+        "--algorithms",
+        nargs="+",
+        default=list(ALGORITHMS),
+        help=f"BenchMARL algorithms ({' '.join(ALGORITHMS)}; 'none': the laws and shipped policies only)",
+    )
+    parser.add_argument("--out", default="out/leaderboard", help="directory of the runs, table and figure")
+    parser.add_argument(
+        "--bootstrap-reps", type=int, default=DEFAULT_REPS, help=f"bootstrap replicates ({DEFAULT_REPS})"
+    )
+    parser.set_defaults(handler=leaderboard_command)
+    return parser
+
+
+def has_benchmarl() -> bool:
+    """Whether BenchMARL imports (its ``experiment`` module: a folder named ``benchmarl`` is not it)."""
+    try:
+        importlib.import_module("benchmarl.experiment")
+    except ModuleNotFoundError:
+        return False
+    return True
+
+
+def check_algorithms(names: list[str]) -> list[str]:
+    """The algorithms asked for; BenchMARL's are refused, naming what to install, where it is missing."""
+    if names == ["none"]:
+        return []
+    unknown = [name for name in names if name not in ALGORITHMS]
+    if unknown:
+        raise ArgumentError(f"--algorithms: expected some of {tuple(ALGORITHMS)} or 'none', got {unknown[0]!r}")
+    if not has_benchmarl():
+        raise ArgumentError(
+            f"--algorithms: {', '.join(names)} train with BenchMARL, which this environment lacks: run in "
+            '.venv-benchmarl (make benchmarl) or pip install "fxc-env[benchmarl]"; '
+            "--algorithms none scores the laws and shipped policies only"
+        )
+    return list(dict.fromkeys(names))
+
+
+def leaderboard_command(args: argparse.Namespace) -> int:
+    """Handler of ``fxc leaderboard``: every value is checked before any run starts."""
+    frames = integer("--frames", args.frames, 1)
+    seeds = integer("--seeds", args.seeds, 1)
+    reps = integer("--bootstrap-reps", args.bootstrap_reps, 1)
+    tasks = [get_task(name, "--tasks") for name in dict.fromkeys(args.tasks)]
+    algorithms = check_algorithms(list(args.algorithms))
+    out = output_directory("--out", args.out)
+    for task in tasks:
+        folder = out / task.id
+        folder.mkdir(parents=True, exist_ok=True)
+        laws = folder / "laws.json"
+        if not laws.exists():
+            _write_json(laws, score_laws(task, folder / "benchmark"))
+        for algorithm in algorithms:
+            for seed in range(seeds):
+                path = folder / algorithm / f"seed{seed}.json"
+                if path.exists():
+                    recorded = json.loads(path.read_text())
+                    if recorded["frames"] != frames:
+                        raise ArgumentError(
+                            f"--frames: {path} was trained for {recorded['frames']} frames, not {frames}; "
+                            "give the same budget to resume, or another --out"
+                        )
+                    continue
+                print(f"fxc leaderboard: {task.id}: {algorithm}, seed {seed}, {frames} frames", flush=True)
+                _write_json(path, train_and_score(task, algorithm, seed, frames, folder / algorithm / f"seed{seed}"))
+    table, files = write_leaderboard(out, tasks, algorithms, seeds, reps)
+    print(table)
+    print("wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+# ------------------------------------------------------------------------------- scoring
+def score_laws(task: NamedTask, folder: Path) -> dict[str, Any]:
+    """The laws' and the shipped policies' deadline errors and energies on the task's evaluation episodes."""
+    suite, _ = task_suite(task)
+    contenders = builtin_contenders(list(LAWS)) + [learned_contender(name, name=name) for name in SHIPPED_POLICIES]
+    output = run_benchmark(suite, contenders, folder, workers=1, progress=False)
+    scores: dict[str, Any] = {}
+    for result in output.results:
+        name = result.job.contender.name
+        if result.error is not None:
+            scores[name] = {"note": result.error}
+        else:
+            scores[name] = {
+                "deadline_error": result.metrics["relative_deadline_error"].tolist(),
+                "energy": result.metrics["energy"].tolist(),
+            }
+    return {"task": task.full_id, "seeds": list(task.eval_seeds), "contenders": [c.name for c in contenders],
+            "scores": scores}  # fmt: skip
+
+
+def score_actor(task: NamedTask, act: Any) -> dict[str, list[float]]:
+    """``act`` (``(S, N, obs) -> (S, N, action)`` arrays) on the task's evaluation episodes, as the suite plays them."""
+    config = make_config(**scored_settings(task))
+    seeds = task.eval_seeds
+    engine = ConsensusEngine(config, n_episodes=len(seeds))
+    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
+    engine.reset_from_draws(draws, rng=np.random.default_rng([*seeds, config.n_intervals]))  # the suite's stream
+    obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
+    with np.errstate(all="ignore"):
+        while not engine.done:
+            engine.observations(out=obs)
+            engine.step(np.asarray(act(obs), dtype=np.float64))
+        metrics = engine.batch_metrics()
+    errors = metrics["relative_deadline_error"]
+    return {
+        "deadline_error": np.where(np.isfinite(errors), errors, np.inf).tolist(),
+        "energy": metrics["energy"].tolist(),
+    }
+
+
+def train_and_score(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path) -> dict[str, Any]:
+    """One BenchMARL run of ``algorithm`` on ``task`` for ``frames`` frames, scored by :func:`score_actor`."""
+    import torch
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    policy, total = _train(task, algorithm, seed, frames, folder)
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        b, n = obs.shape[:2]
+        observation = torch.as_tensor(obs, dtype=torch.float32)
+        td = TensorDict({"agents": TensorDict({"observation": observation}, batch_size=(b, n))}, batch_size=(b,))
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            return policy(td).get(("agents", "action")).double().numpy()
+
+    return {"task": task.full_id, "algorithm": algorithm, "seed": seed, "frames": total, **score_actor(task, act)}
+
+
+def _train(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path) -> tuple[Any, int]:
+    from benchmarl import algorithms as benchmarl_algorithms
+    from benchmarl.experiment import Experiment, ExperimentConfig
+    from benchmarl.models import GnnConfig, MlpConfig
+
+    from fxc_env.envs.benchmarl_task import FxcTask
+
+    config = ExperimentConfig.get_from_yaml()
+    config.sampling_device = config.train_device = config.buffer_device = "cpu"
+    config.max_n_frames = frames
+    envs = max(1, min(config.on_policy_n_envs_per_worker, frames // task.n_intervals))
+    batch = max(envs, min(config.on_policy_collected_frames_per_batch, frames) // envs * envs)
+    # A smaller batch keeps BenchMARL's off-policy updates per frame (1000 optimizer steps per 6000 frames).
+    steps_per_frame = config.off_policy_n_optimizer_steps / config.off_policy_collected_frames_per_batch
+    config.off_policy_n_optimizer_steps = max(1, round(steps_per_frame * batch))
+    config.on_policy_n_envs_per_worker = config.off_policy_n_envs_per_worker = envs
+    config.on_policy_collected_frames_per_batch = config.off_policy_collected_frames_per_batch = batch
+    config.on_policy_minibatch_size = min(config.on_policy_minibatch_size, batch)
+    config.off_policy_train_batch_size = min(config.off_policy_train_batch_size, batch)
+    config.off_policy_init_random_frames = min(config.off_policy_init_random_frames, frames // 2)
+    config.evaluation = config.create_json = config.render = config.checkpoint_at_end = False
+    config.loggers = []
+    folder.mkdir(parents=True, exist_ok=True)
+    config.save_folder = str(folder)
+    algorithm_config, model = ALGORITHMS[algorithm]
+    if model == "gnn":
+        import torch_geometric
+
+        actor = GnnConfig(topology="full", self_loops=False, gnn_class=torch_geometric.nn.conv.GATv2Conv, gnn_kwargs={})
+    else:
+        actor = MlpConfig.get_from_yaml()
+    member = FxcTask[task.id.replace("-", "_").upper()]
+    experiment = Experiment(
+        task=member.get_from_yaml(),
+        algorithm_config=getattr(benchmarl_algorithms, algorithm_config).get_from_yaml(),
+        model_config=actor,
+        critic_model_config=MlpConfig.get_from_yaml(),
+        seed=seed,
+        config=config,
+    )
+    experiment.run()
+    return experiment.policy, int(experiment.total_frames)
+
+
+# ------------------------------------------------------------------------------- the table
+def write_leaderboard(
+    out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int, reps: int
+) -> tuple[str, list[Path]]:
+    """``table.md``, ``marl_eval.json`` and ``performance_profile.png`` from the files under ``out``."""
+    scores: dict[str, dict[str, np.ndarray]] = {}  # contender -> task -> (R, S) errors
+    energies: dict[str, dict[str, np.ndarray]] = {}
+    notes: dict[str, dict[str, str]] = {}
+    names = list(algorithms)
+    for task in tasks:
+        laws = json.loads((out / task.id / "laws.json").read_text())
+        names += [name for name in laws["contenders"] if name not in names]
+        for name, record in laws["scores"].items():
+            if "note" in record:
+                notes.setdefault(name, {})[task.id] = record["note"]
+            else:
+                scores.setdefault(name, {})[task.id] = np.array([record["deadline_error"]])
+                energies.setdefault(name, {})[task.id] = np.array([record["energy"]])
+        for algorithm in algorithms:
+            runs = [json.loads((out / task.id / algorithm / f"seed{k}.json").read_text()) for k in range(seeds)]
+            scores.setdefault(algorithm, {})[task.id] = np.array([run["deadline_error"] for run in runs])
+            energies.setdefault(algorithm, {})[task.id] = np.array([run["energy"] for run in runs])
+    header = ["contender"] + [f"{task.id}: median D(T_s)/D(0) [95% CI] / IQM log10 [95% CI]" for task in tasks]
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    for name in names:
+        row = [name]
+        for task in tasks:
+            errors = scores.get(name, {}).get(task.id)
+            if errors is None:
+                row.append("not run (refused: the reason is in laws.json)")
+                continue
+            median = statistics.stratified_bootstrap(errors, "median", reps=reps, seed=DEFAULT_BOOTSTRAP_SEED)
+            iqm = statistics.stratified_bootstrap(
+                statistics.decades(errors, LOG_FLOOR), "iqm", reps=reps, seed=DEFAULT_BOOTSTRAP_SEED
+            )
+            row.append(f"{_number(median.estimate)} [{_number(median.low)}, {_number(median.high)}] / "
+                       f"{iqm.estimate:.2f} [{iqm.low:.2f}, {iqm.high:.2f}]")  # fmt: skip
+        lines.append("| " + " | ".join(row) + " |")
+    command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["leaderboard"] else None
+    intro = (
+        f"Leaderboard: {len(algorithms)} BenchMARL algorithms x {seeds} training seeds, the laws and the shipped "
+        f"policies, on {', '.join(t.full_id for t in tasks)}; each scored on its task's evaluation seeds "
+        f"(95% stratified bootstrap, {reps} replicates; log10 floored at {LOG_FLOOR:g})."
+        + (f"\nCommand: `{command}`" if command else "")
+    )
+    table = intro + "\n\n" + "\n".join(lines) + "\n"
+    files = [out / "table.md", out / "marl_eval.json", out / "performance_profile.png"]
+    files[0].write_text(table)
+    _write_json(files[1], _marl_eval(scores, energies))
+    _profile(scores, files[2])
+    return table, files
+
+
+def _number(value: float) -> str:
+    return "∞" if math.isinf(value) else f"{value:.3g}"
+
+
+def _marl_eval(scores: dict[str, dict[str, np.ndarray]], energies: dict[str, dict[str, np.ndarray]]) -> dict:
+    """marl-eval's layout: env -> task -> algorithm -> seed_<k> -> step_0 / absolute_metrics (tasks every contender ran)."""
+    tasks: dict[str, Any] = {}
+    for name, by_task in scores.items():
+        for task, errors in by_task.items():
+            for k, (row, energy) in enumerate(zip(errors, energies[name][task], strict=True)):
+                metrics = _episode_metrics(row, energy)
+                record = {"step_0": {"step_count": 0, **metrics}, "absolute_metrics": metrics}
+                tasks.setdefault(task, {}).setdefault(name, {})[f"seed_{k}"] = record
+    return {MARL_EVAL_ENV: tasks}
+
+
+def _profile(scores: dict[str, dict[str, np.ndarray]], path: Path) -> None:
+    """The performance profile: per contender, the fraction of its episodes with log10 D(T_s)/D(0) <= tau."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    taus = np.linspace(math.log10(LOG_FLOOR), 1.0, 200)
+    figure, axes = plt.subplots(figsize=(7, 4.5))
+    colours = plt.get_cmap("tab20")
+    for i, (name, by_task) in enumerate(scores.items()):
+        decades = np.concatenate([statistics.decades(errors, LOG_FLOOR).ravel() for errors in by_task.values()])
+        style = "--" if name in ALGORITHMS else "-"  # BenchMARL's algorithms dashed, laws and shipped policies solid
+        fraction = [(decades <= tau).mean() for tau in taus]
+        axes.step(taus, fraction, style, where="post", label=name, color=colours(i % 20))
+    axes.set_xlabel("tau: log10 D(T_s)/D(0)")
+    axes.set_ylabel("fraction of episodes with log10 D(T_s)/D(0) <= tau")
+    axes.set_ylim(0, 1.02)
+    axes.legend(fontsize=7, ncol=2)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def _write_json(path: Path, record: dict[str, Any]) -> None:
+    """Write ``record`` whole or not at all (a rename), so an interrupted run leaves no half file to resume from."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(".json.partial")
+    partial.write_text(json.dumps(record, indent=1) + "\n")
+    os.replace(partial, path)
