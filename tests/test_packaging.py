@@ -3,7 +3,7 @@
 The folders ``baselines/`` and ``training/`` install as ``fxc_env.baselines`` and
 ``fxc_env.training`` (setuptools ``package-dir``). A wheel that put them at the top level
 would let another distribution named ``baselines`` overwrite ours. Beside it stands only
-``hydra_plugins/fxc_env`` (Hydra's plugin namespace, shared by design: BenchMARL's command line
+``hydra_plugins/fxc_env`` (source: ``fxc_env/_hydra_plugins/``) (Hydra's plugin namespace, shared by design: BenchMARL's command line
 finds the ``fxc/<task>`` tasks through it).
 """
 
