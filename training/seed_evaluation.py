@@ -62,6 +62,7 @@ SHIPPED_SEEDS = {
     "rings": 0,
     "rings_gru": 0,
     "rings_scratch": 0,
+    "agnostic": 0,
 }
 #: A run directory or file named ``...seed<k>...`` was trained with seed k.
 _SEED_IN_NAME = re.compile(r"seed(\d+)")

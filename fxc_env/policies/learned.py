@@ -76,6 +76,7 @@ SHIPPED = {
     "rings": "rings.npz",  # a gain schedule (fxc_env.policies.interval_gains), not an SB3 model
     "rings_gru": "rings_gru.pt",  # a recurrent torch policy (fxc_env.policies.torch_memory)
     "rings_scratch": "rings_scratch.npz",  # a gain schedule learned from scratch (fxc_env.training.rings_scratch)
+    "agnostic": "agnostic.npz",  # one gain schedule for any graph, not told the graph (fxc_env.training.agnostic)
 }
 #: The schedule a shipped policy was trained on, where it is not the paper's.
 SHIPPED_SCHEDULES = {"saturated": "uniform"}
