@@ -40,5 +40,5 @@ def test_benchmark_on_ray_without_ray_and_bad_address_combinations_are_refused(w
 
 
 def test_an_unknown_backend_is_refused():
-    with pytest.raises(ValueError, match=r"backend: expected one of \('sb3', 'rllib', 'torch'\), got 'jax'"):
+    with pytest.raises(ValueError, match=r"backend: expected one of \('sb3', 'rllib', 'torch', 'diff'\), got 'jax'"):
         train(TrainArgs(backend="jax"))
