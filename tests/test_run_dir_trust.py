@@ -41,6 +41,7 @@ def tiny_hyperparams(tmp_path) -> str:
     entry["normalize"] = True
     entry["ppo"] = {**entry["ppo"], "n_steps": 20, "batch_size": 60, "n_epochs": 1}
     entry["torch_ppo"] = {**entry["torch_ppo"], "rollout_steps": 20, "minibatch_size": 60, "epochs": 1}
+    entry["diff_apg"] = {**entry["diff_apg"], "n_envs": 1}  # one episode of K = 200: 1,200 timesteps a batch
     path = tmp_path / "tiny.yml"
     path.write_text(yaml.safe_dump({"paper_fig1": entry}))
     return str(path)
@@ -150,6 +151,20 @@ def test_torch_resume_refuses_a_pickled_checkpoint_naming_the_flag(tmp_path, cap
     torch.save({"format": "crafted", "payload": CreatesFile(marker)}, checkpoint)
     with pytest.raises(ArgumentError, match=r"^resume: cannot read the checkpoint .*--trust-policy-file"):
         train(tiny_args(tmp_path, own, backend="torch", timesteps=480, resume=True))
+    assert not marker.exists()
+
+
+def test_diff_resume_refuses_a_pickled_checkpoint_naming_the_flag(tmp_path, capsys):
+    own = tmp_path / "own"
+    train(tiny_args(tmp_path, own, backend="diff", algo="apg", timesteps=1200, checkpoint_every=1200))
+    train(tiny_args(tmp_path, own, backend="diff", algo="apg", timesteps=2400, checkpoint_every=1200, resume=True))
+    assert "from model_1200_steps.pt at 1200 timesteps" in capsys.readouterr().out  # its own run: no flag needed
+
+    marker = tmp_path / "ran-code"
+    checkpoint = own / "checkpoints/model_3600_steps.pt"
+    torch.save({"format": "crafted", "payload": CreatesFile(marker)}, checkpoint)
+    with pytest.raises(ArgumentError, match=r"^resume: cannot read the checkpoint .*--trust-policy-file"):
+        train(tiny_args(tmp_path, own, backend="diff", algo="apg", timesteps=4800, resume=True))
     assert not marker.exists()
 
 
