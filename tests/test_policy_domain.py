@@ -26,7 +26,7 @@ from fxc_env.config import make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import OutOfDomainWarning, check_domain, domain_differences, training_domain
-from fxc_env.policies.learned import load_learned_policy, pretrained_path
+from fxc_env.policies.learned import SHIPPED, load_learned_policy, pretrained_path
 from fxc_env.policies.policy_files import METADATA_MEMBER
 from fxc_env.training.rings import task_config
 
@@ -126,6 +126,17 @@ OUTSIDE = {
             "graphs: trained on ring (period 1), this environment has the fixed topology 'paper_fig1' (ring, period 3",
         ],
     ),
+    "rings_scratch": (
+        {"scenario": "paper_fig1"},
+        [
+            "n_agents: trained on 20, this environment has 6",
+            "graphs: trained on ring (period 1), this environment has the fixed topology 'paper_fig1' (ring, period 3",
+        ],
+    ),
+    "agnostic": (
+        {"scenario": None, "topology": "ring", "n_agents": 100},
+        ["n_agents: trained on 12 to 40, this environment has 100"],
+    ),
 }
 
 
@@ -157,7 +168,14 @@ INSIDE = {
     "paper_fig1": {"scenario": "paper_fig1"},
     "rings": {"scenario": None, "topology": "ring", "n_agents": 20},
     "rings_gru": {"scenario": None, "topology": "ring", "n_agents": 20, "switching": "random"},  # one graph: no switch
+    "rings_scratch": {"scenario": None, "topology": "ring", "n_agents": 20},
+    "agnostic": {"scenario": None, "topology": "ring", "n_agents": 24},  # a ring size it never met
 }
+
+
+def test_every_shipped_name_has_its_domain_tests():
+    shipped = set(SHIPPED) - {"pretrained"}  # "pretrained" is generalist's older name
+    assert set(OUTSIDE) == shipped and set(INSIDE) == shipped
 
 
 @pytest.mark.parametrize("name", list(INSIDE))
