@@ -40,7 +40,7 @@ from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.torch_memory import interval_graph
 from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.run_dir import RunDir
-from fxc_env.training.torch_ppo import PPOSettings, Trainer, run_config
+from fxc_env.training.torch_ppo import PPOSettings, Trainer, drive, run_config
 
 #: The losses of :class:`DiffSettings` (see the module docstring).
 LOSSES = ("log_error", "return")
@@ -217,67 +217,49 @@ def train_diff(args: TrainArgs) -> Path:
     device = torch.device(args.device)
     run = RunDir.of(args)
     checkpoint = run.resume_checkpoint(args.resume, args)
-
     trainer = DiffTrainer(args, params, settings, device)
     per_batch = trainer.k_intervals * trainer.n_envs * trainer.n_agents
-    if checkpoint is not None:
-        trainer.load_checkpoint(checkpoint, trusted=args.trust_policy_file)
-        run.announce_resume(checkpoint, f"{trainer.timesteps} timesteps")
-    else:
-        run.start(
-            {
-                "args": dataclasses.asdict(args),
-                "hyperparams": params,
-                "diff_apg": dataclasses.asdict(settings),
-                "n_envs": trainer.n_envs,
-                "n_agents": trainer.n_agents,
-                "timesteps_per_batch": per_batch,
-            }
-        )
-    if args.progress_bar:
-        print(
-            f"fxc train: analytic policy gradients on {args.scenario} (N = {trainer.n_agents}, one shared policy) on "
-            f"{device}: {trainer.n_envs} episodes, {trainer.k_intervals // trainer.window} gradient steps, "
-            f"{per_batch} timesteps per batch"
-        )
+    record = {"diff_apg": dataclasses.asdict(settings), "timesteps_per_batch": per_batch}
+    banner = (
+        f"fxc train: analytic policy gradients on {args.scenario} (N = {trainer.n_agents}, one shared policy) on "
+        f"{device}: {trainer.n_envs} episodes, {trainer.k_intervals // trainer.window} gradient steps, "
+        f"{per_batch} timesteps per batch"
+    )
 
-    resumed_at = (trainer.iterations, trainer.timesteps) if checkpoint is not None else None
-    start_steps, start_time = trainer.timesteps, time.perf_counter()
-    last_checkpoint = trainer.timesteps
-    with (
-        run.progress(PROGRESS_COLUMNS, tensorboard=True, resumed_at=resumed_at) as progress,
-        run.interruptible("batch of episodes", lambda: trainer.save_checkpoint(run)) as interrupted,
-    ):
-        while trainer.timesteps < args.timesteps and not interrupted:
-            stats = trainer.episode()
-            trainer.timesteps += per_batch
-            trainer.iterations += 1
-            now = time.perf_counter()
-            row = {
-                "time/iterations": trainer.iterations,
-                "time/total_timesteps": trainer.timesteps,
-                "time/fps": (trainer.timesteps - start_steps) / max(now - start_time, 1e-9),
-                "time/time_elapsed": now - start_time,
-                "rollout/ep_rew_mean": float(stats["returns"].mean().item()),
-                "rollout/deadline_error": float(np.median(stats["errors"])),
-                "rollout/log_deadline_error": stats["log_error"],
-                "rollout/episodes": trainer.n_envs,
-                "train/loss": stats["loss"],
-                "train/grad_norm": stats["grad_norm"],
-                "train/learning_rate": settings.learning_rate,
-                "train/n_updates": trainer.n_updates,
-            }
-            progress.write(row)
-            if args.progress_bar:
-                print(
-                    f"  batch {trainer.iterations}: {trainer.timesteps} timesteps, loss {stats['loss']:.4g}, "
-                    f"median deadline error {row['rollout/deadline_error']:.3g}"
-                )
-            if trainer.timesteps - last_checkpoint >= args.checkpoint_every:
-                trainer.save_checkpoint(run)
-                last_checkpoint = trainer.timesteps
+    def episodes_and_steps(start_steps: int, start_time: float) -> tuple[dict[str, Any], str]:
+        stats = trainer.episode()
+        trainer.timesteps += per_batch
+        trainer.iterations += 1
+        now = time.perf_counter()
+        row = {
+            "time/iterations": trainer.iterations,
+            "time/total_timesteps": trainer.timesteps,
+            "time/fps": (trainer.timesteps - start_steps) / max(now - start_time, 1e-9),
+            "time/time_elapsed": now - start_time,
+            "rollout/ep_rew_mean": float(stats["returns"].mean().item()),
+            "rollout/deadline_error": float(np.median(stats["errors"])),
+            "rollout/log_deadline_error": stats["log_error"],
+            "rollout/episodes": trainer.n_envs,
+            "train/loss": stats["loss"],
+            "train/grad_norm": stats["grad_norm"],
+            "train/learning_rate": settings.learning_rate,
+            "train/n_updates": trainer.n_updates,
+        }
+        line = (
+            f"  batch {trainer.iterations}: {trainer.timesteps} timesteps, loss {stats['loss']:.4g}, "
+            f"median deadline error {row['rollout/deadline_error']:.3g}"
+        )
+        return row, line
 
-    trainer.save_checkpoint(run)  # a later --resume with more --timesteps goes on from here
-    torch.save(trainer.policy_record(), run.path / "policy.pt")
-    run.finish(trainer.timesteps, run.path / "policy.pt")
-    return run.path
+    return drive(
+        args,
+        run,
+        trainer,
+        checkpoint,
+        params,
+        record,
+        banner,
+        "batch of episodes",
+        episodes_and_steps,
+        PROGRESS_COLUMNS,
+    )

@@ -732,60 +732,76 @@ def train_torch(args: TrainArgs) -> Path:
     device = torch.device(args.device)
     run = RunDir.of(args)
     checkpoint = run.resume_checkpoint(args.resume, args)
-
-    # ------------------------------------------------------------------ set-up
     trainer = Trainer(args, params, settings, device)
     per_rollout = settings.rollout_steps * trainer.n_envs * trainer.n_agents
+    record = {"torch_ppo": dataclasses.asdict(settings), "timesteps_per_rollout": per_rollout}
+    banner = (
+        f"fxc train: torch PPO on {args.scenario} (N = {trainer.n_agents}, one shared policy, {args.critic} critic) "
+        f"on {device}: {trainer.n_envs} episodes, {per_rollout} timesteps per rollout"
+    )
+
+    def rollout_and_update(start_steps: int, start_time: float) -> tuple[dict[str, Any], str]:
+        began = time.perf_counter()
+        rollout = trainer.collect()
+        collected = time.perf_counter()
+        advantages, targets, explained = trainer.advantages(rollout)
+        means = trainer.update(advantages, targets)
+        trainer.timesteps += per_rollout
+        trainer.iterations += 1
+        row = progress_row(trainer, rollout, means, explained, start_steps, start_time, began, collected)
+        reward, error = row["rollout/ep_rew_mean"], row["rollout/deadline_error"]
+        line = (
+            f"  rollout {trainer.iterations}: {trainer.timesteps} timesteps, {row['time/fps']:.0f} fps"
+            + ("" if reward is None else f", mean episode return {reward:.4g}")
+            + ("" if error is None else f", median deadline error {error:.3g}")
+        )
+        return row, line
+
+    return drive(args, run, trainer, checkpoint, params, record, banner, "rollout", rollout_and_update)
+
+
+def drive(
+    args: TrainArgs,
+    run: RunDir,
+    trainer: Trainer,
+    checkpoint: Path | None,
+    params: Mapping[str, Any],
+    record: Mapping[str, Any],
+    banner: str,
+    unit: str,
+    iterate: Any,
+    columns: tuple[str, ...] = PROGRESS_COLUMNS,
+) -> Path:
+    """The run every back end on the torch engine shares (``torch``, ``diff``); returns the run directory.
+
+    Resumes ``checkpoint`` (or starts the run directory with the arguments, hyperparameters and
+    ``record``), then calls ``iterate(start_steps, start_time)`` — one ``unit`` of work that advances
+    ``trainer.timesteps`` and returns its progress row (``columns``) and console line — until ``args.timesteps``,
+    with checkpoints every ``args.checkpoint_every`` and on Ctrl-C, and writes ``policy.pt``.
+    """
     if checkpoint is not None:
         trainer.load_checkpoint(checkpoint, trusted=args.trust_policy_file)
         run.announce_resume(checkpoint, f"{trainer.timesteps} timesteps")
     else:
-        run.start(
-            {
-                "args": dataclasses.asdict(args),
-                "hyperparams": params,
-                "torch_ppo": dataclasses.asdict(settings),
-                "n_envs": trainer.n_envs,
-                "n_agents": trainer.n_agents,
-                "timesteps_per_rollout": per_rollout,
-            }
-        )
+        meta = {"n_envs": trainer.n_envs, "n_agents": trainer.n_agents}
+        run.start({"args": dataclasses.asdict(args), "hyperparams": params, **record, **meta})
     if args.progress_bar:
-        print(
-            f"fxc train: torch PPO on {args.scenario} (N = {trainer.n_agents}, one shared policy, {args.critic} critic) "
-            f"on {device}: {trainer.n_envs} episodes, {per_rollout} timesteps per rollout"
-        )
-
-    # ------------------------------------------------------------------- loop
+        print(banner)
     resumed_at = (trainer.iterations, trainer.timesteps) if checkpoint is not None else None
     start_steps, start_time = trainer.timesteps, time.perf_counter()
     last_checkpoint = trainer.timesteps
     with (
-        run.progress(PROGRESS_COLUMNS, tensorboard=True, resumed_at=resumed_at) as progress,
-        run.interruptible("rollout", lambda: trainer.save_checkpoint(run)) as interrupted,
+        run.progress(columns, tensorboard=True, resumed_at=resumed_at) as progress,
+        run.interruptible(unit, lambda: trainer.save_checkpoint(run)) as interrupted,
     ):
         while trainer.timesteps < args.timesteps and not interrupted:
-            began = time.perf_counter()
-            rollout = trainer.collect()
-            collected = time.perf_counter()
-            advantages, targets, explained = trainer.advantages(rollout)
-            means = trainer.update(advantages, targets)
-            trainer.timesteps += per_rollout
-            trainer.iterations += 1
-            row = progress_row(trainer, rollout, means, explained, start_steps, start_time, began, collected)
+            row, line = iterate(start_steps, start_time)
             progress.write(row)
             if args.progress_bar:
-                reward, error = row["rollout/ep_rew_mean"], row["rollout/deadline_error"]
-                print(
-                    f"  rollout {trainer.iterations}: {trainer.timesteps} timesteps, {row['time/fps']:.0f} fps"
-                    + ("" if reward is None else f", mean episode return {reward:.4g}")
-                    + ("" if error is None else f", median deadline error {error:.3g}")
-                )
+                print(line)
             if trainer.timesteps - last_checkpoint >= args.checkpoint_every:
                 trainer.save_checkpoint(run)
                 last_checkpoint = trainer.timesteps
-
-    # -------------------------------------------------------------- artefacts
     trainer.save_checkpoint(run)  # a later --resume with more --timesteps goes on from here
     torch.save(trainer.policy_record(), run.path / "policy.pt")
     run.finish(trainer.timesteps, run.path / "policy.pt")
