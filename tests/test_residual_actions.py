@@ -69,10 +69,14 @@ def test_the_reference_emits_zeros_in_residual_mode() -> None:
 
 @pytest.mark.parametrize("obs_mode", ["normalized", "raw"])
 def test_a_residual_adds_exactly_to_the_plan(obs_mode: str) -> None:
-    """One interval of (residual r) equals one of (plan = eq. 11's plan + r), and the inputs agree."""
+    """One interval of (residual r) equals one of (plan = eq. 11's plan + r'), and the inputs agree.
+
+    Normalized: ``r' = (r_x, r_v T / T_s)``, a velocity correction of ``s r_v / T_s`` on every interval
+    of the paper's shrinking schedule (the card's Action Space); raw: ``r' = r``.
+    """
     engines = {}
     for mode in ("plan", "residual"):
-        engine = ConsensusEngine(make_config(None, action_mode=mode, obs_mode=obs_mode, **RING), 4)
+        engine = ConsensusEngine(make_config(None, action_mode=mode, obs_mode=obs_mode, schedule="paper", **RING), 4)
         rng = np.random.default_rng(7)
         engine.reset_from_draws([engine.draw_episode(rng) for _ in range(4)])
         for _ in range(5):  # a few intervals in, the rows are not the initial ones
@@ -83,7 +87,12 @@ def test_a_residual_adds_exactly_to_the_plan(obs_mode: str) -> None:
             )
         engines[mode] = engine
     residual = 0.3 * np.random.default_rng(1).standard_normal((4, 20, 2))
-    plan = ReferencePolicy(engines["plan"].config).act(engines["plan"].observations()) + residual
+    engine = engines["plan"]
+    as_plan = residual.copy()
+    if obs_mode == "normalized":
+        as_plan[..., 1] *= engine.current_interval() / engine.config.settling_time
+        assert engine.current_interval() / engine.config.settling_time < 0.05  # the scaling matters here
+    plan = ReferencePolicy(engine.config).act(engine.observations()) + as_plan
     u_plan = engines["plan"].inputs_from_actions(plan)
     u_residual = engines["residual"].inputs_from_actions(residual)
     for a, b in zip(u_plan, u_residual, strict=True):

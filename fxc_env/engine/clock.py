@@ -35,6 +35,9 @@ class InstantTables:
             ``(K + 1, slots * n * dim)``.
         row_scales: per instant, what each state component is multiplied by to read in
             position units, ``(K + 1, n)``.
+        residual_factors: per instant, what a normalized ``action_mode="residual"`` correction
+            is multiplied by to read in the plan's units: 1 for ``alpha_x``, ``T_{k+1} / T_s``
+            for ``alpha_v`` (its velocity correction is ``s alpha_v / T_s``), ``(K + 1, 2 dim)``.
     """
 
     def __init__(self, config: EnvConfig, backend: Any) -> None:
@@ -51,6 +54,8 @@ class InstantTables:
         per_row = np.repeat(config.row_scales, config.dim, axis=1)
         self.row_factors = backend.array(np.tile(per_row, config.layout.slots))
         self.row_scales = backend.array(config.row_scales)
+        per_part = np.stack([np.ones(schedule.n_intervals + 1), features[:, 1]], axis=1)
+        self.residual_factors = backend.array(np.repeat(per_part, config.dim, axis=1))
 
 
 class LockStepClock:

@@ -444,9 +444,17 @@ class ConsensusEngine:
         return self.agents.inputs(self.plans_from_actions(actions), self.clock.interval(2), self.local_scale)
 
     def plans_from_actions(self, actions: Any) -> Any:
-        """The actions as the agents take them: with ``action_mode="residual"`` plus the paper's plan (eq. 11)."""
+        """The actions as the agents take them: with ``action_mode="residual"`` plus the paper's plan (eq. 11).
+
+        Normalized residuals correct velocities in units of ``s / T_s`` (``a_v`` changes by
+        ``s alpha_v / T_s``, not the plan's ``s alpha_v / T``), so one ``alpha_v`` moves the
+        disagreement about as much on every interval of the schedule as one ``alpha_x``
+        (the card's Action Space). Raw residuals are added as given.
+        """
         if self.config.action_mode != "residual":
             return actions
+        if self.config.obs_mode == "normalized":
+            actions = actions * self.clock.per_instant(self.tables.residual_factors)
         return actions + self.observer.reference_plan(self.state, self.clock, self.graphs, self._uniform, self._normal)
 
     def step(self, actions: Any) -> StepOutcome:

@@ -114,16 +114,20 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     | plan        | raw        | ``(a_x, a_v)`` metres, m/s      | as given                           | 1e3  |
     | accel       | normalized | ``(alpha_0, alpha_1)``          | ``u = s alpha / T^2`` at both ends | 10   |
     | accel       | raw        | ``(u(t_k+), u(t_{k+1}-))`` m/s^2 | as given                          | 1e9  |
-    | residual    | normalized | ``(alpha_x, alpha_v)`` added to eq. (11)'s | as plan, normalized         | 2    |
+    | residual    | normalized | ``(alpha_x, alpha_v)``, a correction to eq. (11)'s plan | ``a_x`` + ``s alpha_x``, ``a_v`` + ``s alpha_v / T_s`` | 2 |
     | residual    | raw        | ``(a_x, a_v)`` added to eq. (11)'s | as plan, raw                   | 1e3  |
 
     A plan ``(a_x, a_v)`` is the terminal change relative to coasting
     (``x(t_{k+1}) = x + T v + a_x``, ``v(t_{k+1}) = v + a_v``), realised by the minimum-energy
     affine input. In ``accel`` mode the input is the straight line between the two ends
     (equal ends: zero-order hold). In ``residual`` mode the action is a correction added to the
-    paper's plan (eq. 11) in the plan's units, computed from the same rows, mask and scale the
-    agent observes: the zero action is the reference (``ReferencePolicy`` then emits zeros;
-    double integrators only; the Box is the plan's, centred on the reference's plan).
+    paper's plan (eq. 11), computed from the same rows, mask and scale the agent observes: the
+    zero action is the reference (``ReferencePolicy`` then emits zeros; double integrators only;
+    the Box bounds the correction). Normalized, the velocity correction is in units of
+    ``s / T_s``, not the plan's ``s / T``: D weighs velocities by ``T_s``, so one unit of either
+    part moves D by about ``s`` on every interval of the schedule (with ``s / T``, up to
+    ``(pi k)^2 / 6 = 6.6e4`` times more on the paper schedule's last one at K = 200; measured
+    in the README, "PPO from scratch around the reference"). Raw corrections are in metres and m/s.
     ``s = s_i`` is the agent's local scale below and ``T`` the coming interval. Actions outside the Box are applied as given (never clipped); the
     bounds hold the reference in normalised mode for every state. Raw bounds are nominal:
     they hold it from the documented initial ranges on the built-in topologies up to
