@@ -1,6 +1,6 @@
 # Entry points: `make demo`, `make test` and `make check`. All build .venv from nothing, pinned by
 # constraints.txt (torch 2.13.0 CPU lies on this machine's disk; nothing is fetched at run time).
-# `make check` is the fast loop (under a minute on 2 cores): ruff and every test not marked
+# `make check` is the fast loop (about a minute and a half on 2 cores): ruff and every test not marked
 # slow (`pytest -m "not slow"`), in .venv only. `make test` runs everything and also builds
 # .venv-rllib for the Ray RLlib tests: Ray 2.60 pins gymnasium 1.2.2 where .venv has 1.4.0,
 # so it gets its own environment, pinned by constraints-rllib.txt. It also builds .venv-benchmarl

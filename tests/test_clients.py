@@ -152,6 +152,7 @@ def tianshou_ippo(monkeypatch, **settings):
     ],
     ids=["family", "family_graph_tensors_u_max"],
 )
+@pytest.mark.slow
 def test_tianshou_ippo_trains_on_a_topology_family_and_with_graph_tensors(monkeypatch, settings):
     """Tianshou stores every info key in its buffer: one type and shape at reset and every step, no NaN."""
     collector = tianshou_ippo(monkeypatch, **settings)

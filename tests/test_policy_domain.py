@@ -199,6 +199,7 @@ def test_a_fixed_graph_is_inside_a_family_it_could_be_drawn_from():
         load_learned_policy("generalist", allow_out_of_domain=1)
 
 
+@pytest.mark.slow
 def test_fxc_evaluate_refuses_an_environment_outside_the_domain_and_runs_it_with_allow_out_of_domain(tmp_path, capsys):
     argv = ["evaluate", "--policy", "paper_fig1", "--topology", "ring", "--n-agents", "20", "--seeds", "1"]
     argv += ["--out", str(tmp_path), "--no-progress", "--workers", "1"]
