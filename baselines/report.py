@@ -365,6 +365,20 @@ def notes(results: list[JobResult], suite: Suite, contenders: list[Contender]) -
     return "\n".join(lines)
 
 
+def initial_state_text(suite: Suite) -> str:
+    """The initial-state draw of the suite's cases: the default ranges, or the ranges a case's conditions set."""
+    ranges = {name: value for case in suite.cases for name, value in case.conditions if name.endswith("_range")}
+    position = ranges.get("position_range", 5.0)
+    velocity = ranges.get("velocity_range", 2.0)
+
+    def draw(value: Any, unit: str) -> str:
+        if isinstance(value, tuple | list):  # LOW, HIGH: the half-width drawn log-uniformly per episode
+            return f"U(-r, r) {unit}, r log-uniform in [{value[0]:g}, {value[1]:g}]"
+        return f"U(-{value:g}, {value:g}) {unit}"
+
+    return f"positions {draw(position, 'm')}, velocities {draw(velocity, 'm/s')}"
+
+
 def markdown_report(
     results: list[JobResult],
     suite: Suite,
@@ -436,7 +450,7 @@ def markdown_report(
         "",
         "Every policy reads only its agent's observation (in-neighbour rows, mask, clock) and the "
         "environment's settings; gains chosen from the graph are an offline design, the same for "
-        "every agent. Initial states: positions U(-5, 5) m, velocities U(-2, 2) m/s, from "
+        f"every agent. Initial states: {initial_state_text(suite)}, from "
         f"numpy.random.default_rng(seed), seeds {suite.seeds[0]}..{suite.seeds[-1]}, identical for every policy.",
     ]
     return "\n".join(parts)

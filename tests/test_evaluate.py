@@ -135,3 +135,14 @@ def test_a_policy_named_twice_in_policies_is_refused_before_anything_runs(tmp_pa
     assert capsys.readouterr().err == (
         "fxc benchmark: error: --policies: 'reference' is named twice in 'reference,reference'\n"
     )
+
+
+def test_the_notes_state_the_initial_state_ranges_that_were_drawn(tmp_path, capsys):
+    # The notes said "positions U(-5, 5) m" whatever --position-range drew.
+    common = ["evaluate", "--policy", "reference", "--scenario", "paper_fig1", "--seeds", "1", "--no-progress"]
+    assert cli.main([*common, "--out", str(tmp_path / "default")]) == 0
+    assert "Initial states: positions U(-5, 5) m, velocities U(-2, 2) m/s," in capsys.readouterr().out
+    ranges = ["--position-range", "0.5,50", "--velocity-range", "3"]
+    assert cli.main([*common, *ranges, "--out", str(tmp_path / "ranges")]) == 0
+    expected = "Initial states: positions U(-r, r) m, r log-uniform in [0.5, 50], velocities U(-3, 3) m/s,"
+    assert expected in capsys.readouterr().out
