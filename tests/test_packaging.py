@@ -2,9 +2,7 @@
 
 The folders ``baselines/`` and ``training/`` install as ``fxc_env.baselines`` and
 ``fxc_env.training`` (setuptools ``package-dir``). A wheel that put them at the top level
-would let another distribution named ``baselines`` overwrite ours. Beside it stands only
-``hydra_plugins/fxc_env`` (source: ``fxc_env/_hydra_plugins/``) (Hydra's plugin namespace, shared by design: BenchMARL's command line
-finds the ``fxc/<task>`` tasks through it).
+would let another distribution named ``baselines`` overwrite ours.
 """
 
 from __future__ import annotations
@@ -37,10 +35,9 @@ def test_the_wheel_installs_fxc_env_as_its_only_top_level_name(wheel):
     with zipfile.ZipFile(wheel) as archive:
         names = archive.namelist()
         (top_level,) = [n for n in names if n.endswith(".dist-info/top_level.txt")]
-        assert archive.read(top_level).decode().split() == ["fxc_env", "hydra_plugins"]
+        assert archive.read(top_level).decode().split() == ["fxc_env"]
     tops = {name.split("/")[0] for name in names if not name.split("/")[0].endswith(".dist-info")}
-    assert tops == {"fxc_env", "hydra_plugins"}
-    assert [name for name in names if name.startswith("hydra_plugins/")] == ["hydra_plugins/fxc_env/__init__.py"]
+    assert tops == {"fxc_env"}
     for module in (
         "fxc_env/baselines/benchmark.py",
         "fxc_env/training/sb3_train.py",

@@ -25,11 +25,11 @@ configs) the scale-free global state as BenchMARL's ``"state"`` for centralised 
     config = ExperimentConfig.get_from_yaml()  # README "BenchMARL" shrinks it to a quick run
     Experiment(task, MappoConfig.get_from_yaml(), actor, seed=0, config=config, critic_model_config=critic).run()
 
-BenchMARL's own routes take them unmodified: ``python -m benchmarl.run algorithm=mappo
-task=fxc/rings20-v1`` (Hydra finds the tasks through the plugin ``hydra_plugins.fxc_env``,
-which registers them, as BenchMARL's docs ask of an external task, in
-``benchmarl.environments.task_config_registry`` and Hydra's ``task`` group; :func:`register`)
-and ``benchmarl.benchmark.Benchmark(tasks=[FxcTask.RINGS20_V1.get_from_yaml(), ...])``.
+BenchMARL's command line runs them through ``python -m fxc_env.envs.benchmarl_run algorithm=mappo
+task=fxc/rings20-v1`` (BenchMARL's own ``hydra_experiment`` after :func:`register`, which puts them,
+as BenchMARL's docs ask of an external task, in ``benchmarl.environments.task_config_registry`` and
+Hydra's ``task`` group; plain ``python -m benchmarl.run`` would need a Hydra plugin, a second top-level
+import name this package does not install), and ``benchmarl.benchmark.Benchmark(tasks=[FxcTask.RINGS20_V1.get_from_yaml(), ...])``.
 
 A task's config is a dict of :class:`~fxc_env.envs.torch_env.ConsensusTorchEnv` keyword
 arguments; BenchMARL owns ``batch_size``, ``seed`` and ``device`` (its experiment config sets
@@ -232,8 +232,8 @@ def register() -> None:
     BenchMARL's docs ask an external task for two things: an entry ``"fxc/<task>"`` in
     ``benchmarl.environments.task_config_registry``, and its config in Hydra's ``task`` group
     (here Hydra's config store, from :meth:`FxcTask.default_config`, instead of files in
-    BenchMARL's ``conf/task``). The Hydra plugin ``hydra_plugins.fxc_env`` calls this when
-    BenchMARL's command line builds its search path; call it yourself before your own
+    BenchMARL's ``conf/task``). ``python -m fxc_env.envs.benchmarl_run`` calls this before
+    BenchMARL's ``hydra_experiment``; call it yourself before your own
     ``hydra.main`` or ``load_task_config_from_hydra``.
     """
     from benchmarl.environments import task_config_registry

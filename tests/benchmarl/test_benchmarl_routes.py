@@ -18,7 +18,7 @@ from hydra import compose, initialize_config_module
 from hydra.core.global_hydra import GlobalHydra
 
 from fxc_env.config.tasks import TASKS
-from fxc_env.envs.benchmarl_task import BENCHMARL_SETTINGS, FxcTask, FxcTaskClass
+from fxc_env.envs.benchmarl_task import BENCHMARL_SETTINGS, FxcTask, FxcTaskClass, register
 
 VERSIONED = [member for member in FxcTask if member.task_name in TASKS]
 FRAMES = 400  # one batch: two environments x one episode of the tasks' K = 200 steps
@@ -51,6 +51,7 @@ def frames_logged(folder: Path) -> dict[str, float]:
 
 
 def test_every_task_is_in_benchmarls_registry_and_hydras_task_group():
+    register()  # what python -m fxc_env.envs.benchmarl_run does before BenchMARL's hydra_experiment
     GlobalHydra.instance().clear()
     with initialize_config_module(config_module="benchmarl.conf", version_base=None):
         for member in VERSIONED:
@@ -73,9 +74,17 @@ def test_a_versioned_tasks_config_is_its_frozen_settings_with_benchmarls_float32
 
 @pytest.mark.slow
 def test_benchmarls_command_line_runs_every_task(tmp_path):
-    """``python -m benchmarl.run algorithm=mappo task=fxc/<task>-v1``, unmodified, once per task (a Hydra multirun)."""
+    """``python -m fxc_env.envs.benchmarl_run algorithm=mappo task=fxc/<task>-v1``: BenchMARL's own Hydra entry, once per task."""
     tasks = ",".join(f"fxc/{member.task_name}" for member in VERSIONED)
-    command = [sys.executable, "-m", "benchmarl.run", "--multirun", "algorithm=mappo", f"task={tasks}", *TINY]
+    command = [
+        sys.executable,
+        "-m",
+        "fxc_env.envs.benchmarl_run",
+        "--multirun",
+        "algorithm=mappo",
+        f"task={tasks}",
+        *TINY,
+    ]
     command += [f"experiment.save_folder={tmp_path}", f"hydra.sweep.dir={tmp_path / 'hydra'}"]
     result = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
