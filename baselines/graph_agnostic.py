@@ -24,11 +24,18 @@ Automatica 49(5), 2013, carried by the motions of :mod:`fxc_env.baselines.signal
    channel: Yuan et al.'s ``2 max_agents + 2``). When an agent's channels are dependent (every velocity
    equal, or an affine function of the position: every agent with a nonconstant sequence sees it alike)
    and its kernel is not backed by enough independent windows, it listens on to ``2 max_agents + 2``.
-3. **Steering once.** At instant ``L - 2`` (``t_L``) agent i knows ``w* - w_i(0)``, the consensus
-   point less its own prediction; over ``[t_L, T_s]`` it plays the minimum-energy input to it
-   (the signalling law's step 4). Energy: the least energy of one steer from ``t_L`` when ``ξ`` is
-   uniform (a directed ring), more when it is not (the target ``ξᵀ p`` is then not the mean of the
-   predictions that ``E*`` steers to).
+3. **Pre-steering toward a settled iterate.** At instant ``k_a`` (:data:`DEFAULT_ANNOUNCE`) agent i picks an
+   aim ``a_i``: its iterate ``c_i(k_a + 1)`` weighted by how settled it looks (none when its latest changes
+   exceed :data:`RHO` of it, as on a ring, whose iterate wanders), on a ``2^-24`` m grid. The iteration holds
+   one interval while the deviation ``η (Re a, Im a / T_s)`` announces it; the grid lets every reader round to
+   the very aim chosen, so from then on the agent's deviation is the (closed-form) minimum-energy path from the
+   announcement to ``a_i`` at ``T_s`` plus the signal, and its readers subtract the path exactly. Where the
+   iterate settles fast (random digraphs) the agent is near the E*-optimal path by the time it knows the limit.
+4. **Steering once.** At instant ``L - 1`` (``t_L``; ``L - 2`` without the announcement) agent i knows
+   ``w* - w_i(0)``, the consensus point less its own prediction; over ``[t_L, T_s]`` it plays the
+   minimum-energy input to it from where it is (the signalling law's step 4). Energy without a pre-steer:
+   the least energy of one steer from ``t_L`` when ``ξ`` is uniform (a directed ring), more when it is not
+   (the target ``ξᵀ p`` is then not the mean of the predictions that ``E*`` steers to).
 
 ``W = D^{-1} A`` rather than the lazy ``(D + I)^{-1} (A + I)``: both work (the recurrence is exact,
 periodicity does not matter), and on a ring ``D^{-1} A`` is a shift whose modes never decay, the
@@ -37,13 +44,13 @@ best-conditioned case for the rank test.
 The agent reads only its own observation rows (its in-neighbours' relative states, their mask, the
 clock) and its memory: it is never given the graph, its spectrum or N. Its one prior is
 ``max_agents``, an upper bound on N that sets the listening window; at ``max_agents = N = 20`` it
-listens 30 intervals (3.0 s of 20 at K = 200, uniform).
+listens 30 intervals and holds one (3.1 s of 20 at K = 200, uniform).
 
 Measured (K = 200, T_s = 20 s, uniform schedule, 20 seeds, medians of the relative deadline error and
-of energy / E*, :func:`goal_table`): directed ring N = 20 2.9e-10 at 1.91, N = 30 4.5e-10 at 2.73;
-random strongly connected N = 20 2.3e-9 at 1.94, N = 40 4.3e-10 at 4.02; at ``max_agents = 2N`` the
-window doubles and the energy grows (ring N = 20: 8.6e-10 at 4.03). README, "Exact consensus without
-knowing the graph".
+of energy / E*, :func:`fxc_env.baselines.graph_agnostic_goals.goal_table`): directed ring N = 20 2.9e-10 at
+1.95, N = 30 4.5e-10 at 2.79; random strongly connected N = 20 2.2e-9 at 1.35, N = 40 1.6e-10 at 1.26 (4.02
+with one steer from t_L = 6 s and no pre-steer); at ``max_agents = 2N`` the window doubles (ring N = 20:
+8.6e-10 at 4.14; random N = 40: 2.6e-10 at 1.29). README, "Exact consensus without knowing the graph".
 
 - Source: Yuan et al. 2013 (the recurrence and the final-value formula), carried by this project's
   signalling through small motions.
@@ -53,8 +60,10 @@ knowing the graph".
   E*-optimal point only where ``ξ`` is uniform.
 - It refuses what it cannot honour, by name: switching topologies (no fixed recurrence), topology
   families, ``u_max``, ``obs_noise``, ``link_dropout``, agent models other than the double
-  integrator, ``obs_mode='normalized'``, ``max_agents`` below the environment's N, and K shorter than
-  ``2 max_agents + 1`` (the window when the register parts are dependent, and one interval to steer).
+  integrator, ``obs_mode='normalized'``, ``max_agents`` below the environment's N, K shorter than
+  ``2 max_agents + 1`` (the window when the register parts are dependent, and one interval to steer; one more
+  with the announcement, which is left out by default where K has no room for it), and ``announce_at``
+  outside the listening window.
 """
 
 from __future__ import annotations
@@ -82,7 +91,14 @@ from fxc_env.config import config_of
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
 
-__all__ = ["DEFAULT_AMPLITUDE", "DEFAULT_RANK_TOLERANCE", "GraphAgnosticPolicy", "listening_values", "recurrence_limit"]
+__all__ = [
+    "DEFAULT_AMPLITUDE",
+    "DEFAULT_ANNOUNCE",
+    "DEFAULT_RANK_TOLERANCE",
+    "GraphAgnosticPolicy",
+    "listening_values",
+    "recurrence_limit",
+]
 
 #: Default signalling amplitude ε: three times the signalling law's (its window is longer and its rank test
 #: wants the cleaner reads; the ring N = 20 then ends near 5e-10 at 2.4 x E*, the signalling energy ~1e-2 of it).
@@ -91,6 +107,64 @@ DEFAULT_AMPLITUDE = 3e-6
 #: Default rank-test tolerance: a Hankel singular value below this fraction of the differences' norm
 #: counts as zero (reading errors at the default amplitude are about 1e-10 of the registers).
 DEFAULT_RANK_TOLERANCE = 1e-8
+
+
+#: Default instant of the pre-steer announcement ``k_a`` (1 s at the uniform K = 200): late enough for a fast
+#: iteration to have settled, early enough for the pre-steer to start near the E*-optimal path.
+DEFAULT_ANNOUNCE = 10
+
+#: The amplitude η of the announcement: the deviation ``η (Re a, Im a / T_s)`` at ``t_{k_a + 1}`` carries ``a_i``.
+ANNOUNCE = 1e-5
+
+#: The grid of the pre-steer aims (m): ``2^-24`` m, far above the announcement's reading error
+#: (``1e-16 |z| / η``, ~1e-10 m), so every reader rounds to the very aim the agent chose.
+AIM_GRID = 2.0**-24
+
+#: The pre-steer trusts the iterate only when its latest changes are below this fraction of it
+#: (weight ``1 - change / (RHO |c|)``, none above): on a ring the iterate wanders and nobody pre-steers.
+RHO = 0.2
+
+
+def presteer_aim(values: np.ndarray) -> np.ndarray:
+    """The aim ``a_i`` ``(..., dim)`` from the latest three values ``c_i`` ``(..., 3, dim)``: the iterate weighted
+    by how settled it looks, on :data:`AIM_GRID`."""
+    change = np.max(np.sqrt(np.sum(np.abs(np.diff(values, axis=-2)) ** 2, axis=-1)), axis=-1)  # (...)
+    size = np.sqrt(np.sum(np.abs(values[..., -1, :]) ** 2, axis=-1))
+    weight = np.clip(1.0 - change / np.maximum(RHO * size, 1e-300), 0.0, 1.0)
+    aim = weight[..., None] * values[..., -1, :]
+    return AIM_GRID * (np.round(aim.real / AIM_GRID) + 1j * np.round(aim.imag / AIM_GRID))
+
+
+def heard_aim(deviation: np.ndarray, heard: np.ndarray, amplitude: float, settling_time: float) -> np.ndarray:
+    """The neighbours' aims ``(..., slots, dim)`` from their deviations at ``t_{k_a + 1}``, ``η a_j + ε c_j(k_a)``
+    with ``c_j(k_a)`` already ``heard``: rounded to :data:`AIM_GRID`, exactly the aims they chose."""
+    aim = register_of(deviation - deviation_of(heard, amplitude, settling_time), ANNOUNCE, settling_time)
+    return AIM_GRID * (np.round(aim.real / AIM_GRID) + 1j * np.round(aim.imag / AIM_GRID))
+
+
+def presteer_path(aim: np.ndarray, start: float, t: float, settling_time: float) -> np.ndarray:
+    """The pre-steer's deviation ``(..., 2, dim)`` at ``t >= start``: the minimum-energy path from the announcement
+    ``η (Re a, Im a / T_s)`` at ``start`` to ``(Re a, Im a / T_s)`` at ``T_s`` (a closed-form cubic)."""
+    begin = deviation_of(aim, ANNOUNCE, settling_time)
+    plan = steer_plan(deviation_of(aim, 1.0, settling_time), begin, start, t - start, settling_time)
+    return advance(begin, plan, t - start)
+
+
+def _announce_instant(value: Any, listening: int, full_listening: int, n_intervals: int) -> int | None:
+    """The announcement instant: ``value`` checked (0: no pre-steer), or the default where the window leaves room."""
+    latest = listening - 4  # at least one value after the held interval before the steer
+    if value is None:
+        default = min(DEFAULT_ANNOUNCE, latest)
+        return default if default >= 2 and full_listening <= n_intervals else None
+    value = validation.integer("announce_at", value, 0)
+    if value == 0:
+        return None
+    if not 2 <= value <= latest:
+        raise ArgumentError(
+            f"announce_at: the pre-steer announcement instant, 0 (none) or in [2, {latest}] "
+            f"(inside the listening window of {listening} values); got {value}"
+        )
+    return value
 
 
 def listening_values(max_agents: int, channels: int = 1) -> int:
@@ -175,11 +249,13 @@ class GraphAgnosticPolicy:
             listening window (:func:`listening_values`; ``2 max_agents + 2`` values where the register parts are dependent).
         amplitude: the signalling amplitude ε (dimensionless, > 0; None: :data:`DEFAULT_AMPLITUDE`).
         rank_tolerance: the rank test's relative tolerance (in (0, 1); None: :data:`DEFAULT_RANK_TOLERANCE`).
+        announce_at: the instant ``k_a`` of the pre-steer announcement, in ``[2, L - 4]``, or 0 for none (None:
+            :data:`DEFAULT_ANNOUNCE` or ``L - 4`` if earlier, none where K has no room for the held interval).
 
     Raises:
         ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``,
-        ``agent_model``, ``obs_mode``, ``action_mode``, ``max_agents``, ``n_intervals``, ``amplitude`` or
-        ``rank_tolerance`` for what the law cannot honour.
+        ``agent_model``, ``obs_mode``, ``action_mode``, ``max_agents``, ``n_intervals``, ``amplitude``,
+        ``rank_tolerance`` or ``announce_at`` for what the law cannot honour.
     """
 
     NAME: ClassVar[str] = "graph_agnostic"
@@ -187,7 +263,7 @@ class GraphAgnosticPolicy:
         "virtual iteration w <- D⁻¹A w on registers w_i = p_i, carried at amplitude ε by motions read from own rows; "
         "each agent's shortest recurrence of its own differences (block Hankel rank test over its register parts, "
         "about 1.5 max_agents values) "
-        "gives the limit; then one minimum-energy steer to it"
+        "gives the limit; a pre-steer toward the settled iterate, announced on a grid; then one minimum-energy steer"
     )
     SOURCE: ClassVar[str] = (
         "Yuan, Stan, Shi, Barahona & Gonçalves 2013 (decentralised minimum-time consensus), carried by this "
@@ -204,6 +280,7 @@ class GraphAgnosticPolicy:
         max_agents: int | None = None,
         amplitude: float | None = None,
         rank_tolerance: float | None = None,
+        announce_at: int | None = None,
     ) -> None:
         config = config_of(env, type(self).__name__)
         _refuse_what_it_cannot_honour(config)
@@ -219,12 +296,16 @@ class GraphAgnosticPolicy:
         rank_tolerance = validation.real("rank_tolerance", rank_tolerance, positive=True)
         if rank_tolerance >= 1.0:
             raise ArgumentError(f"rank_tolerance: a relative tolerance in (0, 1), got {rank_tolerance!r}")
-        #: Values ``w_i(0..L-1)`` recorded with the ``2 dim`` register parts as channels; the steer starts at
-        #: instant ``L - 2``, when the last is known.
+        #: Values ``w_i(0..L-1)`` recorded with the ``2 dim`` register parts as channels.
         self.listening = listening_values(max_agents, 2 * config.dim)
         #: The one-channel window ``2 max_agents + 2``: agents whose register parts turn out dependent listen on.
         self.full_listening = listening_values(max_agents)
-        if self.full_listening - 1 > config.n_intervals:
+        #: The instant ``k_a`` of the pre-steer announcement (None: none); the iteration holds one interval there.
+        self.announce_at = _announce_instant(announce_at, self.listening, self.full_listening, config.n_intervals)
+        hold = 0 if self.announce_at is None else 1
+        #: The instants of the steer: ``L - 2`` (plus the held interval), and that of the one-channel window.
+        self.steer_at, self.full_at = self.listening - 2 + hold, self.full_listening - 2 + hold
+        if self.full_at + 1 > config.n_intervals:
             raise ArgumentError(
                 f"n_intervals: the graph-agnostic law may listen {self.full_listening - 2} intervals (2 max_agents, "
                 f"max_agents = {max_agents}) and steers at least one; got {config.n_intervals}"
@@ -262,47 +343,75 @@ class GraphAgnosticPolicy:
         dim, slots = self.config.dim, self.layout.slots
         self._memory = {
             "base": np.zeros((*lead, slots, 2, dim)),  # z_j(0) - z_i(0) per row slot
-            "history": np.zeros((*lead, self.full_listening, dim), dtype=complex),  # c_i(k) = w_i(k) - w_i(0)
+            "history": np.zeros((*lead, self.full_listening, dim), dtype=complex),  # c_i(n) = w_i(n) - w_i(0)
             "late": np.zeros(lead, dtype=bool),  # listening on to the one-channel window
             "goal": np.zeros((*lead, dim), dtype=complex),  # w* - w_i(0), known at the steer
             "d": np.zeros((*lead, 2, dim)),  # own deviation from coasting
+            "aim": np.zeros((*lead, dim), dtype=complex),  # a_i: own pre-steer aim (a register, on the grid)
+            "heard_aim": np.zeros((*lead, slots, dim), dtype=complex),  # a_j per row slot
+            "heard": np.zeros((*lead, slots, dim), dtype=complex),  # c_j of the latest read per row slot
         }
         self.degrees = None
+
+    def _value_index(self, k: int) -> int:
+        """The index n of the value ``c_j(n)`` the rows carry at instant k (one less after the held interval)."""
+        return k if self.announce_at is None or k <= self.announce_at else k - 1
 
     def _plan(self, k: int, rows: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """The plan ``(a_x, a_v)`` ``(..., N, 2, dim)`` of every agent at instant k; updates the memory."""
         memory = self._memory
         assert memory is not None
-        T_s, eps = self.config.settling_time, self.amplitude
+        T_s, eps, k_a = self.config.settling_time, self.amplitude, self.announce_at
         t, T = self._times[k], self._intervals[k]
         d, history, late = memory["d"], memory["history"], memory["late"]
-        steer_at, full_at = self.listening - 2, self.full_listening - 2
-        if k <= steer_at or (k <= full_at and late.any()):  # read every in-neighbour, one step of the iteration
+        n = self._value_index(k)
+        if k <= self.steer_at or (k <= self.full_at and late.any()):
             if k == 0:  # nobody has deviated yet: the rows give z_j(0) - z_i(0)
                 memory["base"] = initial_offset(rows, t)
-            heard = register_of(read_deviation(rows, memory["base"], d[..., None, :, :], t), eps, T_s)
-            if k == 0:
-                heard = np.zeros_like(heard)  # c_j(0) = 0 exactly
-            registers = predicted_register(memory["base"], T_s) + heard  # w_j(k) - w_i(0)
-            degree = np.sum(mask, axis=-1)[..., None]
-            mean = np.sum(mask[..., None] * registers, axis=-2) / np.maximum(degree, 1.0)
-            history[..., k + 1, :] = np.where(degree > 0, mean, history[..., k, :])
-        if k == steer_at:
+            deviation = read_deviation(rows, memory["base"], d[..., None, :, :], t)
+            if k_a is not None and k == k_a + 1:  # the held interval: η a_j + ε c_j(k_a), a_j on the grid
+                memory["heard_aim"] = heard_aim(deviation, memory["heard"], eps, T_s)
+            else:
+                if k_a is not None and k > k_a:
+                    deviation = deviation - presteer_path(memory["heard_aim"], self._times[k_a + 1], t, T_s)
+                self._iterate(k, n, deviation, mask)
+        if k_a is not None and k == k_a:
+            memory["aim"] = presteer_aim(history[..., max(k_a - 1, 0) : k_a + 2, :])
+        if k == self.steer_at:
             certified = self._find_goal(self.listening, np.ones(late.shape, dtype=bool))
             # Dependent register parts (every velocity equal, say) leave too few independent windows: those
             # agents listen on to the one-channel window; every agent sees such initial states alike.
-            late[...] = ~certified & (full_at > steer_at)
-        elif k == full_at and late.any():
+            late[...] = ~certified & (self.full_at > self.steer_at)
+        elif k == self.full_at and late.any():
             self._find_goal(self.full_listening, late)
-        steering = (k >= full_at) | ((k >= steer_at) & ~late)
-        # Signal c_i(k + 1) (set the deviation at t_{k+1} to ε (Re c, Im c / T_s)), or steer: the piece over
-        # [t_k, t_k+1] of the minimum-energy input to w* - w_i(0) at T_s.
+        steering = (k >= self.full_at) | ((k >= self.steer_at) & ~late)
+        # Signal c_i(n + 1) (the deviation at t_{k+1}: the pre-steer path plus ε (Re c, Im c / T_s)), or steer:
+        # the piece over [t_k, t_k+1] of the minimum-energy input to w* - w_i(0) at T_s.
         plan = steer_plan(deviation_of(memory["goal"], 1.0, T_s), d, t, T, T_s)
         if not steering.all():
-            signal = signal_plan(deviation_of(history[..., k + 1, :], eps, T_s), d, T)
-            plan = np.where(steering[..., None, None], plan, signal)
+            target = deviation_of(history[..., min(n + 1, self.full_listening - 1), :], eps, T_s)
+            if k_a is not None and k == k_a:
+                target = deviation_of(history[..., k_a, :], eps, T_s) + deviation_of(memory["aim"], ANNOUNCE, T_s)
+            elif k_a is not None and k > k_a:
+                target = target + presteer_path(memory["aim"], self._times[k_a + 1], self._times[k + 1], T_s)
+            plan = np.where(steering[..., None, None], plan, signal_plan(target, d, T))
         memory["d"] = advance(d, plan, T)
         return plan
+
+    def _iterate(self, k: int, n: int, deviation: np.ndarray, mask: np.ndarray) -> None:
+        """One step of the virtual iteration: ``c_i(n + 1)`` from the neighbours' ``c_j(n)`` read at instant k."""
+        memory = self._memory
+        assert memory is not None
+        history = memory["history"]
+        heard = register_of(deviation, self.amplitude, self.config.settling_time)
+        if k == 0:
+            heard = np.zeros_like(heard)  # c_j(0) = 0 exactly
+        memory["heard"] = heard
+        registers = predicted_register(memory["base"], self.config.settling_time) + heard  # w_j(n) - w_i(0)
+        degree = np.sum(mask, axis=-1)[..., None]
+        mean = np.sum(mask[..., None] * registers, axis=-2) / np.maximum(degree, 1.0)
+        if n + 1 < self.full_listening:
+            history[..., n + 1, :] = np.where(degree > 0, mean, history[..., n, :])
 
     def _find_goal(self, length: int, agents: np.ndarray) -> np.ndarray:
         """The limit of the chosen agents' ``(..., N)`` first ``length`` recorded values (their shortest
@@ -328,7 +437,8 @@ class GraphAgnosticPolicy:
             "max_agents": float(self.max_agents),
             "listening_values": float(self.listening),
             "full_listening_values": float(self.full_listening),
-            "steer_start_s": float(self._times[self.listening - 2]),
+            "announce_at": float(0 if self.announce_at is None else self.announce_at),
+            "steer_start_s": float(self._times[self.steer_at]),
             "amplitude": self.amplitude,
             "rank_tolerance": self.rank_tolerance,
         }
@@ -338,12 +448,13 @@ class GraphAgnosticPolicy:
         return describe_law(self)
 
     def guarantee(self) -> str:
-        t_l = self._times[self.listening - 2]
+        t_l = self._times[self.steer_at]
         bound = (self.config.settling_time / (self.config.settling_time - t_l)) ** 3
         return (
             f"graph unknown: exact (rounding / ε aside) for N <= max_agents = {self.max_agents} after listening "
-            f"{self.listening - 2} intervals (t_L = {t_l:.3g} s; {self.full_listening - 2} when the register parts are "
-            f"dependent), then one minimum-energy steer (about E* x {bound:.3g} where ξ is uniform)"
+            f"{self.steer_at} intervals (t_L = {t_l:.3g} s; {self.full_at} when the register parts are dependent), "
+            f"then one minimum-energy steer (at most about E* x {bound:.3g} where ξ is uniform; less where a "
+            "settled iterate lets it pre-steer)"
         )
 
 
@@ -368,62 +479,3 @@ def _refuse_what_it_cannot_honour(config: Any) -> None:
             f"got obs_noise={config.obs_noise!r}"
         )
     refuse_unless_exact_raw_rows(config, name)
-
-
-# ----------------------------------------------------------------------------- the goal table
-def strongly_connected_random(n_agents: int, mean_in_degree: float) -> tuple[Any, int]:
-    """The first ``random`` digraph (topology seed 0, 1, …) of N agents that is strongly connected, and its seed."""
-    from scipy.sparse import csgraph
-
-    from fxc_env.core.graphs import random_topology
-
-    for seed in range(10_000):
-        topology = random_topology(n_agents, seed=seed, mean_in_degree=mean_in_degree)
-        if csgraph.connected_components(topology.adjacency(0), directed=True, connection="strong")[0] == 1:
-            return topology, seed
-    raise ArgumentError(f"mean_in_degree: no strongly connected random digraph of {n_agents} agents in 10,000 seeds")
-
-
-def goal_row(settings: dict[str, Any], max_factor: int, seeds: range) -> tuple[float, float] | str:
-    """Median relative deadline error and energy / E* of the law on seeded episodes, or its refusal."""
-    from fxc_env.config import make_config
-    from fxc_env.engine import ConsensusEngine
-
-    config = make_config(**settings)
-    try:
-        policy = GraphAgnosticPolicy(config, max_agents=max_factor * config.n_agents)
-    except ArgumentError as exc:
-        return f"refused: {str(exc).split(':')[0]}"
-    engine = ConsensusEngine(config, n_episodes=len(seeds))
-    engine.reset_from_draws([engine.draw_episode(np.random.default_rng(seed)) for seed in seeds])
-    while not engine.done:
-        engine.step(np.asarray(policy(engine.observations()), dtype=np.float64))
-    metrics = engine.batch_metrics()
-    return float(np.median(metrics["relative_deadline_error"])), float(np.median(metrics["energy_ratio"]))
-
-
-def goal_table(n_seeds: int = 20) -> str:
-    """The README's goal table: K = 200, T_s = 20 s, raw plans, medians over ``n_seeds`` seeded initial states."""
-    common = {"n_intervals": 200, "settling_time": 20.0, "action_mode": "plan", "obs_mode": "raw"}
-    uniform = {**common, "scenario": None, "schedule": "uniform"}
-    random_20, seed_20 = strongly_connected_random(20, 2.0)
-    random_40, seed_40 = strongly_connected_random(40, 3.0)
-    cases = [
-        ("directed ring N = 20", {**uniform, "topology": "ring", "n_agents": 20}),
-        ("directed ring N = 30", {**uniform, "topology": "ring", "n_agents": 30}),
-        (f"random strongly connected N = 20 (in-degree 2, seed {seed_20})", {**uniform, "topology": random_20}),
-        (f"random strongly connected N = 40 (in-degree 3, seed {seed_40})", {**uniform, "topology": random_40}),
-        ("directed ring N = 20, paper schedule", {**common, "scenario": None, "topology": "ring", "n_agents": 20}),
-        ("paper_fig1 (periodic switching)", {**common, "scenario": "paper_fig1", "schedule": "uniform"}),
-    ]
-    lines = [
-        "| case | max_agents = N: error, energy / E* | max_agents = 2N: error, energy / E* |",
-        "|---|---|---|",
-    ]
-    for label, settings in cases:
-        cells = []
-        for factor in (1, 2):
-            row = goal_row(settings, factor, range(n_seeds))
-            cells.append(row if isinstance(row, str) else f"{row[0]:.1e}, {row[1]:.3g}")
-        lines.append(f"| {label} | {cells[0]} | {cells[1]} |")
-    return "\n".join(lines)
