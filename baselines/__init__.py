@@ -25,7 +25,9 @@ source paper, the graph class it is proven for, and its parameters:
   numbers through small motions, then steer once with the minimum-energy input (a few × ``E*``);
 - :class:`GraphAgnosticPolicy` (:mod:`fxc_env.baselines.graph_agnostic`): the same motions carry a
   virtual consensus iteration whose limit each agent reads off its own shortest recurrence (Yuan et
-  al. 2013): exact without knowing the graph, given an upper bound ``max_agents`` on N.
+  al. 2013): exact without knowing the graph, given an upper bound ``max_agents`` on N;
+- :class:`BoundedSteerPolicy` (:mod:`fxc_env.baselines.bounded_steer`): for input limits: the same motions
+  flood every prediction, then each agent lands on the mid-range point with the least-peak input.
 
 :mod:`fxc_env.core.optimality` gives the bounds every law is measured against: the least energy
 ``E*`` of an exact consensus at ``T_s`` and the fewest intervals (the radius, for every law; the
@@ -42,6 +44,7 @@ policies (:func:`load_policy`) on one suite (:mod:`fxc_env.baselines.suite`).
 
 from __future__ import annotations
 
+from fxc_env.baselines.bounded_steer import BoundedSteerPolicy
 from fxc_env.baselines.finite_time import FiniteTimePolicy
 from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
 from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
@@ -54,6 +57,7 @@ from fxc_env.baselines.signalling import SignallingPolicy
 from fxc_env.baselines.suite import load_policy
 
 __all__ = [
+    "BoundedSteerPolicy",
     "FiniteTimePolicy",
     "GraphAgnosticPolicy",
     "LeaderFollowerPolicy",

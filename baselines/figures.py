@@ -46,10 +46,30 @@ COLOURS = (
     "#c5b0d5",
     "#c49c94",
     "#f7b6d2",
+    "#dbdb8d",
 )
 #: One marker per policy where points of several policies may coincide (the optimality figure).
-#: Seventeen markers and seventeen colours: the first seventeen contenders differ in both, later ones repeat.
-MARKERS = ("o", "^", "v", "D", "s", "P", "X", "*", "<", ">", "h", "p", "d", "8", "H", "$\\triangle$", "$\\diamond$")
+#: Eighteen markers and eighteen colours: the first eighteen contenders differ in both, later ones repeat.
+MARKERS = (
+    "o",
+    "^",
+    "v",
+    "D",
+    "s",
+    "P",
+    "X",
+    "*",
+    "<",
+    ">",
+    "h",
+    "p",
+    "d",
+    "8",
+    "H",
+    "$\\triangle$",
+    "$\\diamond$",
+    "$\\star$",
+)
 
 
 def _colour(contenders: list[Contender], name: str) -> str:

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.baselines.bounded_steer import BoundedSteerPolicy
 from fxc_env.baselines.finite_time import FiniteTimePolicy
 from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
 from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
@@ -53,6 +54,7 @@ BASELINES = {
         LeaderFollowerPolicy,
         SignallingPolicy,
         GraphAgnosticPolicy,
+        BoundedSteerPolicy,
     )
 }
 
@@ -68,6 +70,7 @@ BUILTIN_SETTINGS = {
     "leader_follower": (True, "uniform", "plan", "normalized"),
     "signalling": (True, "uniform", "plan", "raw"),
     "graph_agnostic": (True, "uniform", "plan", "raw"),
+    "bounded_steer": (True, "uniform", "plan", "raw"),
 }
 
 

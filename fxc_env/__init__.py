@@ -34,6 +34,7 @@ _moved.install()  # the previous release's module paths, with a DeprecationWarni
 __all__ = [
     "ENV_ID",
     "SCENARIOS",
+    "BoundedSteerPolicy",
     "ConsensusEngine",
     "ConsensusTorchEnv",
     "ConsensusVecEnv",
@@ -72,6 +73,7 @@ _LAZY = {
     "reference_policy": "fxc_env.policies.torchrl_reference",
     "ReferenceModule": "fxc_env.policies.torchrl_reference",
     # The baselines sit above the environments in the layer order: imported on first use, never by fxc_env itself.
+    "BoundedSteerPolicy": "fxc_env.baselines",
     "FiniteTimePolicy": "fxc_env.baselines",
     "GraphAgnosticPolicy": "fxc_env.baselines",
     "LeaderFollowerPolicy": "fxc_env.baselines",

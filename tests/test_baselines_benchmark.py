@@ -44,7 +44,8 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     # Every policy ran every quick case with the settings and notes the README's benchmark table lists.
     suite = quick_suite()
     assert len(rows) == len(make_jobs(suite, builtin_contenders()))
-    assert all(r["error"] == "" for r in rows if r["policy"] not in ("minimum_time", "signalling", "graph_agnostic"))
+    refusing = ("minimum_time", "signalling", "graph_agnostic", "bounded_steer")
+    assert all(r["error"] == "" for r in rows if r["policy"] not in refusing)
     # The minimum-time law is designed for one fixed graph: it refuses the switching cases, by name.
     refused = {r["case"] for r in rows if r["error"] and r["policy"] == "minimum_time"}
     assert refused == {"paper_fig1 N=6", "random (switching) N=6", "random (switching) N=20"}
@@ -54,6 +55,9 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     # The graph-agnostic law needs one fixed graph and its listening window: refusals by name.
     agnostic = [r["error"] for r in rows if r["error"] and r["policy"] == "graph_agnostic"]
     assert all(e.startswith(("n_intervals:", "topology:")) for e in agnostic)
+    # The bounded-steer law floods over one fixed strongly connected graph: refusals by name.
+    bounded = [r["error"] for r in rows if r["error"] and r["policy"] == "bounded_steer"]
+    assert all(e.startswith(("n_intervals:", "topology:", "switching:")) for e in bounded)
     names = ("linear_sampled", "linear", "finite_time", "prescribed_time", "saturation_aware", "minimum_time")
     for name in (*names, "leader_follower"):
         assert f"- **{name}** — settings:" in printed

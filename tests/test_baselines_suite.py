@@ -52,6 +52,7 @@ def test_contender_settings_reach_the_environment():
         "leader_follower",
         "signalling",
         "graph_agnostic",
+        "bounded_steer",
     }  # the budget sweep
 
 
