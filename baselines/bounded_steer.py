@@ -8,8 +8,9 @@ Law (README, "How far from optimal", input limits):
    deviation from coasting, one relative register ``q_s - q_j`` it knows; an out-neighbour i reads it and adds
    ``q_j - q_i``. Which one is sent when is a flooding schedule designed offline from the graph (each agent
    sends the value that most of its out-neighbours still lack): on a directed ring every agent knows every
-   ``q_s - q_i`` after N - 2 instants (``N - 1`` hops, one per interval), on any strongly connected digraph
-   after a few more than its radius.
+   ``q_s - q_i`` after N - 2 instants (``N - 1`` hops, one per interval); on the random strongly connected
+   digraphs of :mod:`fxc_env.baselines.graph_agnostic_goals` after 15 (N = 20) and 21 (N = 40) instants (each
+   link carries one value per interval, so about N / in-degree at least).
 2. **A common point.** Every agent then knows all predictions relative to its own and computes the same
    point: the mid-range of the final positions and of the final velocities, ``((max + min) / 2)`` per axis,
    which needs a smaller peak input than the mean when the spread is set by a few outlying agents.
