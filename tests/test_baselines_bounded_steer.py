@@ -131,3 +131,10 @@ def test_it_is_registered():
     assert BASELINES["bounded_steer"] is BoundedSteerPolicy
     assert isinstance(load_policy("bounded_steer", config), BoundedSteerPolicy)
     assert "bounded_steer" in [c.name for c in builtin_contenders()]
+
+
+def test_accel_actions_and_two_axes_land_alike():
+    _, _, plan = episodes(topology="ring", n_agents=6, n_intervals=60, dim=2, u_max=3.0)
+    _, _, accel = episodes(topology="ring", n_agents=6, n_intervals=60, dim=2, u_max=3.0, action_mode="accel")
+    assert np.max(plan["relative_deadline_error"]) <= 1e-8 and np.max(accel["relative_deadline_error"]) <= 1e-8
+    np.testing.assert_allclose(accel["energy"], plan["energy"], rtol=1e-9)
