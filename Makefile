@@ -60,7 +60,7 @@ $(DOCS_STAMP): $(TORCHRL_STAMP)
 	touch $(DOCS_STAMP)
 
 docs: $(DOCS_STAMP)
-	MPLBACKEND=Agg $(BIN)/sphinx-build -W --keep-going -n -q -b html fxc_env/docs build/docs
+	MPLBACKEND=Agg $(BIN)/sphinx-build -E -W --keep-going -n -q -b html fxc_env/docs build/docs
 
 demo: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/fxc simulate --scenario paper_fig1 --out out
