@@ -54,7 +54,8 @@ $(BENCHMARL_STAMP): pyproject.toml constraints-benchmarl.txt
 benchmarl: $(BENCHMARL_STAMP)
 
 # The documentation site (fxc_env/docs/, Sphinx + MyST) into build/docs/: offline, warnings are errors,
-# every unresolved reference too (-n). Its API pages import the TorchRL env, so it builds on the test env.
+# every unresolved reference too (-n); -E reads every page afresh (the scenario cards read the library,
+# which Sphinx does not track). Its API pages import the TorchRL env, so it builds on the test env.
 $(DOCS_STAMP): $(TORCHRL_STAMP)
 	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[docs]"
 	touch $(DOCS_STAMP)

@@ -60,19 +60,26 @@ html_title = "fxc_env"
 html_static_path = ["_static"]
 
 
-# The docstrings' tables (every env card's Arguments table) are Markdown pipe tables, which reST
-# does not read; each becomes a reST list-table as autodoc hands the docstring over.
+# The docstrings' tables (every env card's Arguments table) are Markdown pipe tables and their section
+# titles Markdown headings, which reST does not read; autodoc hands each table over as a reST
+# list-table and each heading as a rubric.
 _SEPARATOR = re.compile(r"\s*\|(\s*:?-+:?\s*\|)+\s*")
 
 
 def _cells(line: str) -> list[str]:
-    return [cell.strip() for cell in re.split(r"(?<!\\)\|", line.strip())[1:-1]]
+    cells = [cell.strip() for cell in re.split(r"(?<!\\)\|", line.strip())[1:-1]]
+    return [re.sub(r"``.*?``", lambda m: m.group(0).replace("\\|", "|"), cell) for cell in cells]
 
 
 def pipe_tables_to_list_tables(app, what, name, obj, options, lines):
     out, i = [], 0
     while i < len(lines):
         stripped = lines[i].lstrip()
+        heading = re.fullmatch(r"(#{1,4}) (.+)", stripped)
+        if heading:  # a Markdown heading in a docstring ("## Arguments") becomes a rubric
+            out += ["", f"{lines[i][: len(lines[i]) - len(stripped)]}.. rubric:: {heading.group(2)}", ""]
+            i += 1
+            continue
         if not (stripped.startswith("|") and i + 1 < len(lines) and _SEPARATOR.fullmatch(lines[i + 1])):
             out.append(lines[i])
             i += 1
