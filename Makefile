@@ -1,4 +1,4 @@
-# Entry points: `make demo`, `make test` and `make check`. All build .venv from nothing, pinned by
+# Entry points: `make demo`, `make test`, `make check` and `make docs`. All build .venv from nothing, pinned by
 # constraints.txt (torch 2.13.0 CPU lies on this machine's disk; nothing is fetched at run time).
 # `make check` is the fast loop (about a minute and a half on 2 cores): ruff and every test not marked
 # slow (`pytest -m "not slow"`), in .venv only. `make test` runs everything and also builds
@@ -18,6 +18,7 @@ RLLIB_STAMP := $(RLLIB_VENV)/.installed
 BENCHMARL_VENV := .venv-benchmarl
 BENCHMARL_BIN := $(BENCHMARL_VENV)/bin
 BENCHMARL_STAMP := $(BENCHMARL_VENV)/.installed
+DOCS_STAMP := $(VENV)/.installed-docs
 # Each environment runs exactly the tests it has the dependencies for: .venv everything but
 # tests/rllib/ and tests/benchmarl/ (TorchRL included); .venv-rllib tests/rllib/ and, on its gymnasium 1.2.2, the
 # environment's own tests.
@@ -27,7 +28,7 @@ BENCHMARL_TESTS := tests/benchmarl tests/test_torchrl_env.py tests/test_interop.
 # `make check` runs its tests as these two shares, side by side (see check below).
 CHECK_SHARDS := check-shard-1 check-shard-2
 
-.PHONY: demo test check $(CHECK_SHARDS) benchmarl lint format clean
+.PHONY: demo test check docs $(CHECK_SHARDS) benchmarl lint format clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -52,12 +53,23 @@ $(BENCHMARL_STAMP): pyproject.toml constraints-benchmarl.txt
 
 benchmarl: $(BENCHMARL_STAMP)
 
+# The documentation site (fxc_env/docs/, Sphinx + MyST) into build/docs/: offline, warnings are errors,
+# every unresolved reference too (-n); -E reads every page afresh (the scenario cards read the library,
+# which Sphinx does not track). Its API pages import the TorchRL env, so it builds on the test env.
+$(DOCS_STAMP): $(TORCHRL_STAMP)
+	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	MPLBACKEND=Agg $(BIN)/sphinx-build -E -W --keep-going -n -q -b html fxc_env/docs build/docs
+
 demo: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/fxc simulate --scenario paper_fig1 --out out
 
-test: $(TORCHRL_STAMP) $(RLLIB_STAMP) $(BENCHMARL_STAMP)
+test: $(TORCHRL_STAMP) $(DOCS_STAMP) $(RLLIB_STAMP) $(BENCHMARL_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(MAKE) --no-print-directory docs
 	MPLBACKEND=Agg $(BIN)/python -m pytest --ignore=tests/rllib --ignore=tests/benchmarl
 	MPLBACKEND=Agg $(RLLIB_BIN)/python -m pytest $(RLLIB_TESTS)
 	MPLBACKEND=Agg $(BENCHMARL_BIN)/python -m pytest $(BENCHMARL_TESTS)
@@ -83,4 +95,4 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) $(RLLIB_VENV) $(BENCHMARL_VENV) out .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(RLLIB_VENV) $(BENCHMARL_VENV) out build .pytest_cache .ruff_cache

@@ -1,4 +1,4 @@
-"""The differentiable engine's contract (ConsensusTorchEnv card, "Differentiable simulation"; README).
+"""The differentiable engine's contract (ConsensusTorchEnv card; the docs page "Differentiable simulation").
 
 Gradients of observations, rewards and episode metrics with respect to a policy's parameters
 are exact (autograd equals central finite differences to 1e-6 relative in float64), over two
@@ -8,7 +8,6 @@ consecutive episodes of one environment: a reset lets the previous episode's gra
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,11 +15,12 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
+from docs_blocks import DOCS, blocks, run  # noqa: E402
+
 from fxc_env.core.validation import ArgumentTypeError  # noqa: E402
 from fxc_env.envs.torch_env import ConsensusTorchEnv  # noqa: E402
 from fxc_env.policies.torchrl_reference import ReferenceModule  # noqa: E402
 
-README = Path(__file__).resolve().parents[1] / "README.md"
 #: Two consecutive episodes of one environment, each from its own seed.
 EPISODE_SEEDS = (3, 4)
 #: A general (A, B) agent: a damped oscillator per axis (x' = v, v' = -x - 0.3 v + u).
@@ -183,16 +183,10 @@ def test_metric_tensors_equal_the_episode_metrics_and_as_tensors_is_checked():
         env.episode_metrics(as_tensors="yes")
 
 
-def readme_block(title: str) -> str:
-    """The first ```python block of the README section ``title``."""
-    section = README.read_text().split(f"\n## {title}\n", 1)[1].split("\n## ", 1)[0]
-    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
-
-
-def test_the_readme_example_fits_a_gain_by_gradient_descent(capsys):
-    code = readme_block("Differentiable simulation")
-    assert len([line for line in code.splitlines() if line.strip()]) <= 15
-    exec(compile(code, str(README), "exec"), {})
+def test_the_docs_example_fits_a_gain_by_gradient_descent(capsys):
+    (block,) = [block for block in blocks(DOCS / "differentiable.md") if "autograd.grad" in block.code]
+    assert len([line for line in block.code.splitlines() if line.strip()]) <= 15
+    run(block)
     printed = re.findall(r"gain ([-\d.]+), mean log D\(T_s\)/D\(0\) ([-\d.]+)", capsys.readouterr().out)
     assert len(printed) == 30
     gains, losses = np.array(printed, dtype=float).T

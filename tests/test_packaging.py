@@ -45,6 +45,8 @@ def test_the_wheel_installs_fxc_env_as_its_only_top_level_name(wheel):
     ):
         assert module in names
     assert "fxc_env/pretrained/paper_fig1_ppo.zip" in names
+    # The documentation's sources (fxc_env/docs/, no __init__.py) build the site; they are not installed.
+    assert not [name for name in names if name.startswith("fxc_env/docs/")]
 
 
 @pytest.mark.slow
