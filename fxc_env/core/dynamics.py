@@ -14,6 +14,9 @@ They take numpy arrays or torch tensors alike (the array API, :mod:`fxc_env.core
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from fxc_env.core.arrays import namespace
@@ -37,9 +40,53 @@ def advance(
     x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float
 ) -> tuple[np.ndarray, np.ndarray]:
     """State at the end of the interval: ``x + T v + T^2 (2 u0 + u1) / 6`` and ``v + T (u0 + u1) / 2``."""
-    x_next = x + T * v + (T * T / 6.0) * (2.0 * u0 + u1)
-    v_next = v + (0.5 * T) * (u0 + u1)
-    return x_next, v_next
+    dx, dv, _ = interval_increments(v, u0, u1, T)
+    return x + dx, v + dv
+
+
+def interval_increments(v: Any, u0: Any, u1: Any, T: Any) -> tuple[Any, Any, Any]:
+    """The closed forms of one interval: ``(x(T) - x, v(T) - v, |u|^2 integral per component)``.
+
+    ``T v + T^2 (2 u0 + u1) / 6``, ``T (u0 + u1) / 2`` and ``T (u0^2 + u0 u1 + u1^2) / 3``, with
+    ``u0 + u1`` formed once. Plain arithmetic only, so the one map serves Python floats (the
+    small-N path, :mod:`fxc_env.envs.small_n`), numpy arrays and torch tensors alike, and
+    rounds alike on all of them.
+    """
+    total = u0 + u1
+    return T * v + (T * T / 6.0) * (u0 + total), (0.5 * T) * total, (u0 * total + u1 * u1) * (T / 3.0)
+
+
+def plan_ends(first: Any, second: Any, T: Any, s: Any = None) -> tuple[Any, Any]:
+    """Input ends of a ``plan`` action in raw units: :func:`input_from_plan` (``s`` unused)."""
+    return input_from_plan(first, second, T)
+
+
+def scaled_plan_ends(first: Any, second: Any, T: Any, s: Any) -> tuple[Any, Any]:
+    """Input ends of a normalized ``plan`` action: the plan ``(s a_x, (s / T) a_v)`` at local scale ``s``."""
+    return input_from_plan(s * first, (s / T) * second, T)
+
+
+def accel_ends(first: Any, second: Any, T: Any, s: Any = None) -> tuple[Any, Any]:
+    """Input ends of an ``accel`` action in raw units: the action itself (``s`` unused)."""
+    return first, second
+
+
+def scaled_accel_ends(first: Any, second: Any, T: Any, s: Any) -> tuple[Any, Any]:
+    """Input ends of a normalized ``accel`` action: both halves times ``s / T^2``."""
+    gain = s / (T * T)
+    return gain * first, gain * second
+
+
+def input_ends(plans: bool, normalized: bool) -> Callable[[Any, Any, Any, Any], tuple[Any, Any]]:
+    """The map ``(first, second, T, s) -> (u(t_k+), u(t_{k+1}-))`` of an action mode, chosen once.
+
+    ``plans``: the action is a plan (``plan`` and ``residual`` modes) rather than the input's
+    ends; ``normalized``: it is in units of the local scale ``s``. Scalar-safe like
+    :func:`interval_increments`.
+    """
+    if plans:
+        return scaled_plan_ends if normalized else plan_ends
+    return scaled_accel_ends if normalized else accel_ends
 
 
 def state_inside(
@@ -65,10 +112,8 @@ def advance_with_costs(x, v, u0, u1, T):
     the same arithmetic, so both backends round alike).
     """
     xp = namespace(x, v, u0, u1)
-    total = u0 + u1
-    x_next = x + (T * v + (T * T / 6.0) * (u0 + total))
-    v_next = v + (0.5 * T) * total
-    per_component = (u0 * total + u1 * u1) * (T / 3.0)
+    dx, dv, per_component = interval_increments(v, u0, u1, T)
+    x_next, v_next = x + dx, v + dv
     largest = xp.maximum(xp.abs(u0), xp.abs(u1))
     if per_component.shape[-1] == 1:
         return x_next, v_next, per_component[..., 0], largest[..., 0]
@@ -90,10 +135,9 @@ def advance_into(
     small arrays make numpy's per-call cost dominate. ``x_out`` may be ``x`` (and ``v_out``
     ``v``) to advance in place.
     """
-    total = u0 + u1
-    np.add(x, T * v + (T * T / 6.0) * (u0 + total), out=x_out)
-    np.add(v, (0.5 * T) * total, out=v_out)
-    per_component = (u0 * total + u1 * u1) * (T / 3.0)
+    dx, dv, per_component = interval_increments(v, u0, u1, T)
+    np.add(x, dx, out=x_out)
+    np.add(v, dv, out=v_out)
     largest = np.maximum(np.abs(u0), np.abs(u1))
     if per_component.shape[-1] == 1:
         return per_component[..., 0], largest[..., 0]

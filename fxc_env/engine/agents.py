@@ -87,6 +87,8 @@ class DoubleIntegratorAgents:
         self.dim = config.dim
         self.normalized = config.obs_mode == "normalized"
         self.plans = config.action_mode in ("plan", "residual")  # residual: the engine added the reference's plan
+        #: The action's input ends, chosen once (the small-N path plays the same map on floats).
+        self._ends = dynamics.input_ends(self.plans, self.normalized)
         #: Each episode's input limit ``u_max`` (m/s^2), ``(B,)``; None without a limit.
         self.u_max: Any = None
         self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
@@ -99,16 +101,8 @@ class DoubleIntegratorAgents:
         ``(B, N)``, read in normalized mode only.
         """
         dim = self.dim
-        first, second = actions[..., :dim], actions[..., dim:]
-        if self.normalized:
-            s = local_scale()[..., None]
-            if self.plans:
-                return dynamics.input_from_plan(s * first, (s / T) * second, T)
-            gain = s / (T * T)
-            return gain * first, gain * second
-        if self.plans:
-            return dynamics.input_from_plan(first, second, T)
-        return first, second
+        s = local_scale()[..., None] if self.normalized else None
+        return self._ends(actions[..., :dim], actions[..., dim:], T, s)
 
     def advance(self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any) -> Interval:
         """Play the coming interval of ``clock`` from ``state`` under ``actions``; numpy writes into ``out``."""
