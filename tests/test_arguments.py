@@ -22,7 +22,7 @@ from fxc_env.config.arguments import (
 )
 from fxc_env.config.flags import FLAG_ARGUMENTS, add_env_arguments, env_kwargs_from
 from fxc_env.core import validation
-from fxc_env.core.linear import DEFAULT_DAMPING, DEFAULT_FREQUENCY
+from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY, FLAT_PARAMETERS
 from fxc_env.core.validation import ArgumentError
 from fxc_env.envs.aec import ConsensusAECEnv
 from fxc_env.envs.parallel import ConsensusParallelEnv
@@ -157,7 +157,7 @@ def test_the_documented_model_parameters_are_the_models_defaults():
     assert float(ARGUMENTS["frequency"].card_default) == DEFAULT_FREQUENCY
     for name, parameter in (("damped", "damping"), ("oscillator", "frequency")):
         default = make_config(agent_model=name).model.A
-        given = make_config(agent_model=name, **{parameter: float(ARGUMENTS[parameter].card_default)}).model.A
+        given = make_config(agent_model={"name": name, parameter: float(ARGUMENTS[parameter].card_default)}).model.A
         np.testing.assert_array_equal(default, given)
 
 
@@ -274,9 +274,22 @@ def _sample(argument):
     }[kind]
 
 
-@pytest.mark.parametrize("argument", [a for a in FLAG_ARGUMENTS if a.name != "scenario"], ids=lambda a: a.name)
+@pytest.mark.parametrize(
+    "argument", [a for a in FLAG_ARGUMENTS if a.name not in ("scenario", *FLAT_PARAMETERS)], ids=lambda a: a.name
+)
 def test_each_flag_passes_its_value_to_its_argument(argument):
     text, value = _sample(argument)
     kwargs = env_kwargs_from(_parser().parse_args([argument.flag_name, text]))
     assert kwargs == {"scenario": "paper_fig1", argument.name: value}
     assert type(kwargs[argument.name]) is type(value)
+
+
+@pytest.mark.parametrize(("flag", "value"), [("--order", "3"), ("--damping", "0.25"), ("--frequency", "2")])
+def test_a_model_parameter_flag_joins_the_agent_model_spec(flag, value):
+    name = {"--order": "integrator_chain", "--damping": "damped", "--frequency": "oscillator"}[flag]
+    kwargs = env_kwargs_from(_parser().parse_args(["--agent-model", name, flag, value]))
+    parameter = flag[2:]
+    expected = int(value) if flag == "--order" else float(value)
+    assert kwargs == {"scenario": "paper_fig1", "agent_model": {"name": name, parameter: expected}}
+    with pytest.raises(ArgumentError, match=f"^{flag}: a parameter of --agent-model; give --agent-model too"):
+        env_kwargs_from(_parser().parse_args([flag, value]))

@@ -74,7 +74,7 @@ def test_formation_offsets_are_added_back_at_the_start():
 
 
 def test_general_agents_have_no_input_end_values_to_map_from_actions():
-    config = make_config("paper_fig1", agent_model="integrator_chain", order=3)
+    config = make_config("paper_fig1", agent_model={"name": "integrator_chain", "order": 3})
     engine = ConsensusEngine(config)
     engine.reset(np.ones((1, 6, 1)), np.zeros((1, 6, 1)))
     with pytest.raises(ArgumentError, match="plans"):

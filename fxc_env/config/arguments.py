@@ -29,7 +29,7 @@ import numpy as np
 
 from fxc_env.core import validation
 from fxc_env.core.graphs import TOPOLOGY_NAMES
-from fxc_env.core.linear import DEFAULT_DAMPING, DEFAULT_FREQUENCY, MODEL_NAMES
+from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY, MODEL_NAMES
 from fxc_env.core.schedules import SCHEDULE_NAMES
 
 __all__ = [
@@ -466,12 +466,12 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         "Any",
         None,
         help="the agents' dynamics per axis (default double_integrator; README, 'Agent models')",
-        card='the agents\' model per axis: ``"single_integrator"``, ``"integrator_chain"`` (``order`` 1-4), '
-        '``"damped"`` (``damping`` c, 1/s), ``"oscillator"`` (``frequency`` ω, rad/s), or a controllable pair '
-        '``(A, B)`` (README, "Agent models")',
+        card='the agents\' model per axis: a name, ``"single_integrator"``, ``"integrator_chain"``, ``"damped"``, '
+        '``"oscillator"``, a dict with its parameter (``{"name": "damped", "damping": 0.5}``: ``order`` 1-4, '
+        '``damping`` c in 1/s, ``frequency`` ω in rad/s), or a controllable pair ``(A, B)`` (README, "Agent models")',
         fallback="double_integrator",
         from_scenario=True,
-        card_type="name or ``(A, B)``",
+        card_type="name, dict or ``(A, B)``",
         flag=Flag(choices=MODEL_NAMES),
     ),
     Argument(
@@ -479,7 +479,7 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         "int | None",
         None,
         help="order of --agent-model integrator_chain (1-4, default 2)",
-        card='order of ``"integrator_chain"`` (1-4: single to quadruple integrator)',
+        card='deprecated: ``agent_model={"name": "integrator_chain", "order": n}`` (1-4)',
         from_scenario=True,
         card_default="2",
         flag=Flag("int"),
@@ -489,7 +489,7 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         "float | None",
         None,
         help=f"drag c of --agent-model damped (1/s, default {DEFAULT_DAMPING:g})",
-        card='drag ``c`` (1/s) of ``"damped"``: ``v\' = -c v + u``',
+        card='deprecated: ``agent_model={"name": "damped", "damping": c}`` (1/s)',
         from_scenario=True,
         card_default=repr(DEFAULT_DAMPING),
         flag=Flag("float"),
@@ -499,7 +499,7 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         "float | None",
         None,
         help=f"frequency of --agent-model oscillator (rad/s, default {DEFAULT_FREQUENCY:g})",
-        card='``omega`` (rad/s) of ``"oscillator"``: ``v\' = -omega^2 x + u``',
+        card='deprecated: ``agent_model={"name": "oscillator", "frequency": omega}`` (rad/s)',
         from_scenario=True,
         card_default=repr(DEFAULT_FREQUENCY),
         flag=Flag("float"),

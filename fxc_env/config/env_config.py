@@ -32,6 +32,7 @@ from fxc_env.core import validation
 from fxc_env.core.families import AnyFamily, is_family_spec, make_family
 from fxc_env.core.graphs import Topology, make_topology
 from fxc_env.core.linear import IntervalMaps, LinearModel, check_horizon, formation_offsets, model_matrices
+from fxc_env.core.models import FLAT_PARAMETERS, model_spec
 from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 
@@ -458,10 +459,10 @@ def _check_steering(config: EnvConfig, merged: dict[str, Any]) -> None:
     try:
         config.interval_maps  # noqa: B018 (cached on the config: the engine reads it)
     except ArgumentError as error:
-        named = [key for key in ("order", "damping", "frequency") if merged.get(key) is not None]
+        named = [key for key in FLAT_PARAMETERS if key in merged["agent_parameters"]]
         if not named:
             raise
-        shown = ", ".join(f"{key} = {merged[key]!r}" for key in named)
+        shown = ", ".join(f"{key} = {merged['agent_parameters'][key]!r}" for key in named)
         raise ArgumentError(
             f"{'/'.join(named)}: expected a value with which {config.agent_model!r} agents can be steered over "
             f"every sampling interval; {shown} gives {error}"
@@ -470,31 +471,22 @@ def _check_steering(config: EnvConfig, merged: dict[str, Any]) -> None:
 
 def _agent_model(merged: dict[str, Any]) -> tuple[str, LinearModel | None]:
     """``(name, model)``: None for the double integrator's closed forms, else the validated model."""
-    value = merged.get("agent_model")
-    parameters = {key: merged.get(key) for key in ("order", "damping", "frequency")}
-    if value is None or (isinstance(value, str) and value == "double_integrator"):
-        for key, given in parameters.items():
-            if given is not None:
-                raise ArgumentError(f"{key}: the double integrator takes no {key}; give agent_model too")
-        return "double_integrator", None
-    if isinstance(value, str):
-        try:
-            return value, LinearModel.named(value, **parameters)
-        except ArgumentError as error:  # a parameter that passes its own check can still break the matrices
-            named = [key for key, given in parameters.items() if given is not None]
-            if not named or str(error).startswith(tuple(named)):
-                raise
-            shown = ", ".join(f"{key} = {parameters[key]!r}" for key in named)
-            raise ArgumentError(
-                f"{'/'.join(named)}: expected a value that gives {value!r} finite, controllable matrices; "
-                f"{shown} gives {error}"
-            ) from None
-    if isinstance(value, tuple | list) and len(value) == 2:
-        for key, given in parameters.items():
-            if given is not None:
-                raise ArgumentError(f"{key}: a given (A, B) takes no {key}")
-        return "linear", LinearModel(*value)
-    raise ArgumentError(f"agent_model: expected a model name or a pair (A, B), got {type(value).__name__}")
+    name, parameters = model_spec(merged.get("agent_model"), {key: merged.get(key) for key in FLAT_PARAMETERS})
+    merged["agent_parameters"] = parameters
+    if name == "double_integrator":
+        return name, None
+    if name == "linear":
+        return name, LinearModel(parameters["A"], parameters["B"])
+    try:
+        return name, LinearModel.named(name, **parameters)
+    except ArgumentError as error:  # a parameter that passes its own check can still break the matrices
+        if not parameters or str(error).startswith(tuple(parameters)):
+            raise
+        shown = ", ".join(f"{key} = {item!r}" for key, item in parameters.items())
+        raise ArgumentError(
+            f"{'/'.join(parameters)}: expected a value that gives {name!r} finite, controllable matrices; "
+            f"{shown} gives {error}"
+        ) from None
 
 
 def _formation(value: Any, n_agents: int, dim: int, n_states: int) -> np.ndarray | None:

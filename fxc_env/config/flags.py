@@ -17,6 +17,7 @@ from typing import Any
 from fxc_env.config.arguments import ENV_ARGUMENTS, Argument, Flag
 from fxc_env.config.scenarios import SCENARIOS
 from fxc_env.core.families import FAMILY_KINDS
+from fxc_env.core.models import FLAT_PARAMETERS
 from fxc_env.core.validation import ArgumentError
 
 #: The arguments that have a flag, in the table's order (``scenario`` first).
@@ -76,6 +77,12 @@ def env_kwargs_from(args: argparse.Namespace) -> dict[str, Any]:
         kwargs[argument.name] = _numbers(argument.flag_name, value) if argument.flag.kind == "numbers" else value
     if kwargs.get("u_max") is not None and isinstance(kwargs["u_max"], tuple):
         kwargs["u_max"] = list(kwargs["u_max"])
+    for key in FLAT_PARAMETERS:  # --order, --damping, --frequency: the parameter of --agent-model's spec
+        if key in kwargs:
+            if "agent_model" not in kwargs:
+                raise ArgumentError(f"--{key}: a parameter of --agent-model; give --agent-model too")
+            spec = kwargs["agent_model"] if isinstance(kwargs["agent_model"], dict) else {"name": kwargs["agent_model"]}
+            kwargs["agent_model"] = {**spec, key: kwargs.pop(key)}
     if args.family is not None:
         if "topology" in kwargs:
             raise ArgumentError("--family: draws the topology; leave out --topology")

@@ -74,15 +74,15 @@ import scipy.linalg
 
 from fxc_env.core import validation
 from fxc_env.core.arrays import namespace
+from fxc_env.core.models import (  # noqa: F401 (re-exported: their home before core.models)
+    CHAIN_ORDERS,
+    DEFAULT_DAMPING,
+    DEFAULT_FREQUENCY,
+    MODEL_NAMES,
+    model_matrices,
+)
 from fxc_env.core.validation import ArgumentError
 
-MODEL_NAMES = ("double_integrator", "single_integrator", "integrator_chain", "damped", "oscillator")
-#: Orders accepted by the ``"integrator_chain"`` model.
-CHAIN_ORDERS = (1, 2, 3, 4)
-#: Default damping ``c`` of the ``"damped"`` model (1/s): ``v' = -c v + u``.
-DEFAULT_DAMPING = 0.5
-#: Default angular frequency ``omega`` of the ``"oscillator"`` model (rad/s): ``v' = -omega^2 x + u``.
-DEFAULT_FREQUENCY = 1.0
 #: The largest ``growth_rate * T_s`` an episode may span: free motion grows by up to ``e^100 ~ 3e43``
 #: over the horizon, so states (<= 1e100 by the environment's own limit) stay finite and their
 #: energies (quadratic in the state) below float64's 1.8e308. Past it an episode cannot finish.
@@ -94,59 +94,6 @@ _PEAK_CHUNK = 4096
 
 
 # --------------------------------------------------------------------------- models
-def model_matrices(
-    name: Any, order: Any = None, damping: Any = None, frequency: Any = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """``(A, B)`` of a named per-axis model, float64 ``(n, n)`` and ``(n, 1)``; states ``(x, v, ...)``.
-
-    Args:
-        name: one of :data:`MODEL_NAMES`:
-
-            - ``"single_integrator"``: ``x' = u`` (n = 1).
-            - ``"double_integrator"``: ``x' = v``, ``v' = u`` (n = 2, the paper's agent).
-            - ``"integrator_chain"``: ``z_0' = z_1``, ..., ``z_{n-1}' = u`` with n = ``order``
-              in 1..4 (default 2).
-            - ``"damped"``: ``x' = v``, ``v' = -c v + u`` with c = ``damping`` >= 0 in 1/s (default 0.5).
-            - ``"oscillator"``: ``x' = v``, ``v' = -omega^2 x + u`` with omega = ``frequency`` >= 0
-              in rad/s (default 1).
-        order, damping, frequency: the parameter of the model that has it; ``None`` for the default.
-
-    Raises:
-        ArgumentError naming ``agent_model`` (unknown name) or the parameter (out of range, or
-        given to a model that has no such parameter).
-    """
-    name = validation.choice("agent_model", name, MODEL_NAMES)
-    owners = {"order": "integrator_chain", "damping": "damped", "frequency": "oscillator"}
-    for parameter, value in (("order", order), ("damping", damping), ("frequency", frequency)):
-        if value is not None and owners[parameter] != name:
-            raise ArgumentError(
-                f"{parameter}: only agent_model = {owners[parameter]!r} has a {parameter}, "
-                f"got {parameter} = {value!r} with agent_model = {name!r}"
-            )
-    if name == "single_integrator":
-        return np.zeros((1, 1)), np.ones((1, 1))
-    if name == "double_integrator":
-        return _chain(2)
-    if name == "integrator_chain":
-        n = 2 if order is None else validation.integer("order", order, CHAIN_ORDERS[0], CHAIN_ORDERS[-1])
-        return _chain(n)
-    A, B = _chain(2)
-    if name == "damped":
-        c = DEFAULT_DAMPING if damping is None else validation.real("damping", damping, minimum=0.0)
-        A[1, 1] = -c
-    else:
-        omega = DEFAULT_FREQUENCY if frequency is None else validation.real("frequency", frequency, minimum=0.0)
-        A[1, 0] = -(omega * omega)
-    return A, B
-
-
-def _chain(n: int) -> tuple[np.ndarray, np.ndarray]:
-    A = np.eye(n, k=1)
-    B = np.zeros((n, 1))
-    B[-1, 0] = 1.0
-    return A, B
-
-
 def is_double_integrator(A: Any, B: Any) -> bool:
     """Whether ``(A, B)`` is exactly the double integrator ``([[0, 1], [0, 0]], [[0], [1]])``.
 
@@ -253,9 +200,9 @@ class LinearModel:
         self._gain = b @ b.T
 
     @classmethod
-    def named(cls, name: Any, order: Any = None, damping: Any = None, frequency: Any = None) -> LinearModel:
-        """The model of :func:`model_matrices` (same arguments and errors)."""
-        return cls(*model_matrices(name, order=order, damping=damping, frequency=frequency))
+    def named(cls, name: Any, **parameters: Any) -> LinearModel:
+        """The model of :func:`~fxc_env.core.models.model_matrices` (same arguments and errors)."""
+        return cls(*model_matrices(name, **parameters))
 
     @property
     def A(self) -> np.ndarray:
