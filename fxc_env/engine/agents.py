@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig
-from fxc_env.core import dynamics, linear, slots
+from fxc_env.core import dynamics, interval_maps, linear, slots
 from fxc_env.core.metrics import disagreement, spread_any
 from fxc_env.core.validation import ArgumentError
 
@@ -298,7 +298,7 @@ class _DeviceMaps:
     The maps are built once on the host (numpy: matrix exponentials, Gramians, Cholesky
     factors); the torch step is then products with these copies only, so the state, energy,
     input and peak are differentiable in the plan (the peak by the same candidates as
-    :func:`fxc_env.core.linear._polynomial_peak`, or the same grid of samples).
+    :func:`fxc_env.core.interval_maps.polynomial_peak`, or the same grid of samples).
     """
 
     def __init__(self, maps: Any, backend: Any) -> None:
@@ -320,7 +320,7 @@ class _DeviceMaps:
         if self.coefficients_t is not None:
             p = nu @ self.coefficients_t[k]  # (..., (degree + 1) m): T u as a polynomial in tau
             columns = [p[..., j * m : (j + 1) * m] for j in range(self.maps._degree + 1)]
-            peak = linear._polynomial_peak(columns) / T
+            peak = interval_maps.polynomial_peak(columns) / T
         else:
             if k not in self._grid:
                 self._grid[k] = self.backend.array(self.maps._grid_matrix(k))

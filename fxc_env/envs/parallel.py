@@ -14,7 +14,6 @@ from pettingzoo import ParallelEnv
 
 from fxc_env.config import RENDER_MODES, EnvConfig, check_max_cycles, check_render_mode, make_config
 from fxc_env.config.arguments import (
-    ENV_ARGUMENT_NAMES,
     ENV_ARGUMENTS,
     FRONT_END_ARGUMENTS,
     GRAPH_TENSORS,
@@ -31,9 +30,6 @@ from fxc_env.engine.graph_tensors import graph_tensors as current_graph
 from fxc_env.envs.rendering import EpisodeView
 from fxc_env.envs.small_n import SmallInterval, applies, checked_values
 from fxc_env.envs.spaces import action_space, observation_space, state_space
-
-#: The keyword arguments of :func:`fxc_env.make_config`, which every front end passes through.
-CONFIG_ARGUMENTS = ENV_ARGUMENT_NAMES
 
 
 def episode_metrics_rows(engine: ConsensusEngine) -> list[dict[str, float | int]]:
@@ -75,12 +71,6 @@ def normalized_state(engine: ConsensusEngine) -> np.ndarray:
     (README, "Using the environment"); the rows lie in [-1, 1] by construction.
     """
     return np.asarray(engine.normalized_state(), dtype=engine.config.observation_dtype)
-
-
-def positions_velocities(engine: ConsensusEngine) -> tuple[np.ndarray, np.ndarray]:
-    """Episode 0's absolute positions and velocities ``(N, dim)`` (what the frames draw)."""
-    z = engine.absolute_state()[0]
-    return z[:, 0], (z[:, 1] if z.shape[1] > 1 else np.zeros_like(z[:, 0]))
 
 
 class ConsensusParallelEnv(ParallelEnv, EzPickle):
