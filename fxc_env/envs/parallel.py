@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -22,55 +21,18 @@ from fxc_env.config.arguments import (
 )
 from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
-from fxc_env.core.metrics import EpisodeMetrics
-from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-from fxc_env.engine import ConsensusEngine, EpisodeDraw, with_initial_state
-from fxc_env.engine.graph_tensors import GRAPH_TENSOR_KEYS, edge_capacity
-from fxc_env.engine.graph_tensors import graph_tensors as current_graph
+from fxc_env.engine import ConsensusEngine, with_initial_state
+from fxc_env.envs.agent_dicts import (
+    action_array,
+    add_graph_info,
+    episode_draw_info,
+    episode_metrics_rows,
+    normalized_state,
+    observation_dicts,
+)
 from fxc_env.envs.rendering import EpisodeView
 from fxc_env.envs.small_n import SmallInterval, applies, checked_values
 from fxc_env.envs.spaces import action_space, observation_space, state_space
-
-
-def episode_metrics_rows(engine: ConsensusEngine) -> list[dict[str, float | int]]:
-    """Each episode's metrics as a plain dict of numbers, ``(B,)`` dicts.
-
-    The keys are the fields of :class:`fxc_env.core.metrics.EpisodeMetrics`. Unlike
-    ``EpisodeMetrics.as_dict()`` (made for JSON), nothing is ``None``: a threshold never
-    reached stays ``inf``, and a metric that does not apply to the episode (``nan`` in
-    :meth:`ConsensusEngine.batch_metrics`: Theorem 2's ``predicted_*`` and the intervals bounds
-    (``radius_bound``, ``all_roots_bound``, ``propagation_bound``) with random switching, the bounds
-    above 2000 agents, ``energy_ratio`` where
-    ``E* = 0``) is left out. NaN never equals itself, so leaving it out keeps two identically
-    seeded runs' infos equal (PettingZoo's ``seed_test``) and replay buffers free of NaN
-    (Tianshou refuses NaN in its buffer). ``sampling_instants`` is an ``int``, every other
-    value a ``float``.
-    """
-    columns = engine.batch_metrics()
-    names = [field.name for field in dataclasses.fields(EpisodeMetrics)]
-    rows = zip(*(columns[n].tolist() for n in names), strict=True)
-    return [{n: v for n, v in zip(names, row, strict=True) if v == v} for row in rows]  # v != v only for NaN
-
-
-def episode_draw_info(draw: EpisodeDraw) -> dict[str, Any]:
-    """What a reset drew that every info of the episode carries (empty when nothing is drawn).
-
-    ``u_max``: the input limit drawn from a set (a float, the same at reset and every step). The
-    drawn graphs are no info (their length changes with the draw, and replay buffers need one
-    shape per key): :meth:`ConsensusParallelEnv.episode_edges` gives them.
-    """
-    return {} if draw.u_max is None else {"u_max": float(draw.u_max)}
-
-
-def normalized_state(engine: ConsensusEngine) -> np.ndarray:
-    """The scale-free global state of every episode, ``(B, N * 2 dim + 3)``, in ``config.obs_dtype``.
-
-    :meth:`fxc_env.engine.ConsensusEngine.normalized_state`: per agent the row
-    ``[x_i - mean_j x_j, T_s (v_i - mean_j v_j)] / max(D, tiny)`` (agent major), then the clock
-    ``t_k / T_s, T_{k+1} / T_s, k / K``, with ``D = e_x + T_s e_v`` the current disagreement
-    (README, "Using the environment"); the rows lie in [-1, 1] by construction.
-    """
-    return np.asarray(engine.normalized_state(), dtype=engine.config.observation_dtype)
 
 
 class ConsensusParallelEnv(ParallelEnv, EzPickle):
@@ -352,6 +314,10 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         )
         self.render_mode = render_mode
         self.max_cycles = max_cycles
+        self._build()
+
+    def _build(self) -> None:
+        """The engine, the agents and their spaces, and the episode's bookkeeping, of :attr:`config`."""
         self.engine = ConsensusEngine(self.config, n_episodes=1)
         n = self.config.n_agents
         self.possible_agents = [f"agent_{i}" for i in range(n)]
@@ -368,7 +334,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         self.observation_spaces = dict.fromkeys(self.possible_agents, obs_space)
         self.action_spaces = dict.fromkeys(self.possible_agents, act_space)
         self.state_space = state_space(self.config)
-        self._view = EpisodeView(self.config, render_mode)
+        self._view = EpisodeView(self.config, self.render_mode)
 
     def observation_space(self, agent: str) -> spaces.Space:
         return self.observation_spaces[agent]
@@ -416,7 +382,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         if self.render_mode == "human":
             self.render()
         flat = self._flat_observations()
-        self._add_graph(infos, flat)
+        if self.graph_tensors:
+            add_graph_info(infos, self.engine, flat)
         return self._observe(flat), infos
 
     def _flat_observations(self) -> np.ndarray:
@@ -424,15 +391,6 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         if self._small is not None:
             return self._small.observations(self.engine)
         return self.engine.observations()[0].astype(self.config.observation_dtype, copy=False)
-
-    def _add_graph(self, infos: dict[str, dict[str, Any]], flat: np.ndarray) -> None:
-        """With ``graph_tensors``: the current graph's padded tensors in every info (Infos, Graph tensors)."""
-        if self.graph_tensors:
-            tensors = current_graph(self.engine, flat[None], edge_capacity(self.config))
-            graph = {key: np.ascontiguousarray(value[0]) for key, value in zip(GRAPH_TENSOR_KEYS, tensors, strict=True)}
-            graph["n_edges"] = int(tensors.n_edges[0])
-            for info in infos.values():
-                info.update(graph)
 
     def episode_edges(self) -> list[list[list[int]]]:
         """The episode's graphs ``G_0 .. G_{m-1}`` as lists of ``[j, i]`` pairs (j -> i: i measures j).
@@ -445,23 +403,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         return edge_lists(self.engine.topologies[0])
 
     def _observe(self, obs: np.ndarray | None = None) -> dict[str, Any]:
-        if obs is None:
-            obs = self._flat_observations()
-        if self.config.obs_format == "dict":
-            layout = self.config.layout
-            rows = obs[:, : layout.rows_end].reshape(len(obs), layout.slots, layout.row_size)
-            mask, clock = obs[:, layout.rows_end : layout.mask_end], obs[:, layout.mask_end : layout.clock_end]
-            if layout.limit_feature:
-                limit = obs[:, layout.clock_end :]
-                return {
-                    agent: {"neighbours": rows[i], "mask": mask[i], "clock": clock[i], "input_limit": limit[i]}
-                    for agent, i in self._agent_index.items()
-                }
-            return {
-                agent: {"neighbours": rows[i], "mask": mask[i], "clock": clock[i]}
-                for agent, i in self._agent_index.items()
-            }
-        return dict(zip(self.possible_agents, obs, strict=True))
+        flat = self._flat_observations() if obs is None else obs
+        return observation_dicts(flat, self.config, self._agent_index)
 
     # ------------------------------------------------------------------- step
     def check_action(self, agent: str, action: Any, name: str | None = None) -> np.ndarray:
@@ -470,26 +413,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         return validation.action_array(name, action, (self.config.action_size,))
 
     def _action_array(self, actions: Any) -> np.ndarray:
-        if type(actions) is not dict and not isinstance(actions, Mapping):
-            raise ArgumentTypeError(f"actions: expected a dict from agent name to action, got {type(actions).__name__}")
-        if actions.keys() != self._agent_set:  # every agent is live while the episode runs
-            unknown = sorted(set(actions) - self._agent_set, key=str)
-            if unknown:
-                raise ArgumentError(
-                    f"actions: unknown agent(s) {unknown}; expected keys agent_0 .. agent_{len(self.possible_agents) - 1}"
-                )
-            missing = [agent for agent in self.agents if agent not in actions]
-            raise ArgumentError(f"actions: missing an action for agent(s) {missing}")
-        size = self.config.action_size
-        try:
-            stacked = np.array([actions[agent] for agent in self.possible_agents])
-        except (TypeError, ValueError):
-            stacked = None  # ragged: the loop below names the agent
-        array = stacked.astype(np.float64) if stacked is not None and stacked.dtype.kind in "iuf" else None
-        if array is None or array.shape != (len(self.possible_agents), size) or not np.isfinite(array).all():
-            for agent in self.possible_agents:
-                self.check_action(agent, actions[agent])
-        return array[None]
+        return action_array(actions, self.possible_agents, self._agent_set, self.config.action_size, self.check_action)
 
     def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if not self.agents:
@@ -533,7 +457,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             for info in infos.values():
                 info["episode"] = dict(episode)  # each agent its own copy
         flat = self._flat_observations()
-        self._add_graph(infos, flat)
+        if self.graph_tensors:
+            add_graph_info(infos, self.engine, flat)
         observations = self._observe(flat)
         if self.render_mode is not None:
             self._view.record(engine)

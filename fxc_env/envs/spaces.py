@@ -52,7 +52,7 @@ def state_space(config: EnvConfig) -> spaces.Box:
 
     ``global_state="raw"`` (default): ``(N, 2 dim)`` rows ``[x_i, v_i]``, unbounded, float64.
     ``global_state="normalized"``: the flat ``(N * 2 dim + 3,)`` vector of
-    :func:`fxc_env.envs.parallel.normalized_state`, rows in [-1, 1] and the clock in [0, 1],
+    :func:`fxc_env.envs.agent_dicts.normalized_state`, rows in [-1, 1] and the clock in [0, 1],
     in ``config.obs_dtype``.
     """
     if config.global_state == "normalized":

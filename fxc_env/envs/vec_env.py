@@ -32,12 +32,8 @@ from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome, with_initial_state
-from fxc_env.envs.parallel import (
-    ConsensusParallelEnv,
-    episode_draw_info,
-    episode_metrics_rows,
-    normalized_state,
-)
+from fxc_env.envs.agent_dicts import episode_draw_info, episode_metrics_rows, normalized_state
+from fxc_env.envs.parallel import ConsensusParallelEnv
 from fxc_env.envs.rendering import GRID_EPISODES, EpisodeView, blank_frame
 from fxc_env.envs.spaces import action_space, observation_space
 
