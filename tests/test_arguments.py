@@ -21,6 +21,7 @@ from fxc_env.config.arguments import (
     with_arguments_table,
 )
 from fxc_env.config.flags import FLAG_ARGUMENTS, add_env_arguments, env_kwargs_from
+from fxc_env.config.front_ends import EnvKwargs
 from fxc_env.core import validation
 from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY, FLAT_PARAMETERS
 from fxc_env.core.validation import ArgumentError
@@ -89,6 +90,21 @@ def test_every_signature_lists_the_table_in_order_with_its_defaults_and_types(na
     # scenario is positional where it comes first; the others are keyword-only.
     positional = [n for n, p in parameters.items() if p.kind is P.POSITIONAL_OR_KEYWORD]
     assert positional == [argument.name for argument in expected[:1] if argument.name in ("scenario", "n_envs")]
+
+
+def test_the_typed_keywords_of_the_front_ends_are_the_table():
+    # Front ends take **kwargs: Unpack[EnvKwargs]: what type checkers and IDEs read must be the table's.
+    annotations = {name: value.__forward_arg__ for name, value in EnvKwargs.__annotations__.items()}
+    assert annotations == {argument.name: argument.annotation for argument in ENV_ARGUMENTS[1:]}
+    assert EnvKwargs.__total__ is False
+
+
+@pytest.mark.parametrize("name", [name for name in FRONT_ENDS if name != "make_config"])
+def test_an_unknown_keyword_is_refused_naming_it(name):
+    factory = FRONT_ENDS[name][0]
+    required = {"n_envs": 1} if name == "ConsensusVecEnv" else {}
+    with pytest.raises(TypeError, match=r"^n_agent: not an argument of the environment; expected one of scenario, "):
+        factory(**required, n_agent=4)
 
 
 def test_the_torchrl_env_shows_its_arguments_in_help():

@@ -429,6 +429,19 @@ ARGUMENTS: Mapping[str, Argument] = MappingProxyType(
 )
 
 
-def env_arguments(namespace: Mapping[str, Any]) -> dict[str, Any]:
-    """The :func:`fxc_env.make_config` keywords out of a front end's ``locals()`` (every one, in order)."""
-    return {name: namespace[name] for name in ENV_ARGUMENT_NAMES}
+def env_arguments(namespace: Mapping[str, Any], kwargs: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The :func:`fxc_env.make_config` keywords (every one, in order) out of a front end's ``locals()`` and ``**kwargs``.
+
+    An argument in neither takes the table's default.
+
+    Raises:
+        ArgumentTypeError naming a keyword of ``kwargs`` that is no argument of the environment.
+    """
+    extra = kwargs or {}
+    for name in extra:
+        if name not in ENV_ARGUMENT_NAMES:
+            raise validation.ArgumentTypeError(
+                f"{name}: not an argument of the environment; expected one of {', '.join(ENV_ARGUMENT_NAMES)}"
+            )
+    given = {**namespace, **extra}
+    return {name: given.get(name, ARGUMENTS[name].default) for name in ENV_ARGUMENT_NAMES}

@@ -11,8 +11,7 @@ is :func:`fxc_env.policies.torchrl_reference.reference_policy`:
 from __future__ import annotations
 
 import inspect
-from collections.abc import Sequence
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 import torch
@@ -29,6 +28,7 @@ from fxc_env.config.arguments import (
     env_arguments,
     with_arguments_table,
 )
+from fxc_env.config.front_ends import EnvKwargs, env_signature
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core import validation
 from fxc_env.engine import ConsensusEngine
@@ -195,6 +195,7 @@ class ConsensusTorchEnv(EnvBase):
 
     __doc__ = with_arguments_table(__doc__, (*TORCH_ARGUMENTS, *ENV_ARGUMENTS))
 
+    @env_signature(before=TORCH_ARGUMENTS)
     def __init__(
         self,
         *,
@@ -207,37 +208,9 @@ class ConsensusTorchEnv(EnvBase):
         config: EnvConfig | None = None,
         graph_tensors: bool = False,
         scenario: str | None = None,
-        n_agents: int | None = None,
-        topology: Any = None,
-        settling_time: float | None = None,
-        n_intervals: int | None = None,
-        schedule: Any = None,
-        dim: int | None = None,
-        action_mode: str = "plan",
-        obs_mode: str = "normalized",
-        obs_format: str = "flat",
-        obs_dtype: str = "float64",
-        global_state: str = "raw",
-        action_bound: float | None = None,
-        reward_floor: float = 1e-12,
-        initial_state: Any = None,
-        position_range: float | tuple[float, float] | None = None,
-        velocity_range: float | tuple[float, float] | None = None,
-        topology_seed: int | None = 0,
-        mean_in_degree: float | None = None,
-        topology_period: int | None = None,
-        obs_slots: int | None = None,
-        u_max: float | Sequence[float] | None = None,
-        obs_noise: float = 0.0,
-        link_dropout: float = 0.0,
-        switching: str = "periodic",
-        agent_model: Any = None,
-        order: int | None = None,
-        damping: float | None = None,
-        frequency: float | None = None,
-        formation_offsets: Any = None,
+        **kwargs: Unpack[EnvKwargs],
     ) -> None:
-        arguments = env_arguments(locals())
+        arguments = env_arguments(locals(), kwargs)
         size = _batch_size(batch_size)
         seed = torch_seed("seed", seed)
         if not isinstance(check_values, bool | np.bool_):

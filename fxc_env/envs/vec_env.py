@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Unpack
 
 import gymnasium as gym
 import numpy as np
@@ -28,6 +28,7 @@ from fxc_env.config.arguments import (
     env_arguments,
     with_arguments_table,
 )
+from fxc_env.config.front_ends import EnvKwargs, env_signature
 from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
@@ -122,44 +123,17 @@ class ConsensusVecEnv(VecEnv):
 
     __doc__ = with_arguments_table(__doc__, (N_ENVS, *ENV_ARGUMENTS, *FRONT_END_ARGUMENTS))
 
+    @env_signature(before=(N_ENVS,), after=FRONT_END_ARGUMENTS)
     def __init__(
         self,
         n_envs: int,
         *,
         scenario: str | None = None,
-        n_agents: int | None = None,
-        topology: Any = None,
-        settling_time: float | None = None,
-        n_intervals: int | None = None,
-        schedule: Any = None,
-        dim: int | None = None,
-        action_mode: str = "plan",
-        obs_mode: str = "normalized",
-        obs_format: str = "flat",
-        obs_dtype: str = "float64",
-        global_state: str = "raw",
-        action_bound: float | None = None,
-        reward_floor: float = 1e-12,
-        initial_state: Any = None,
-        position_range: float | tuple[float, float] | None = None,
-        velocity_range: float | tuple[float, float] | None = None,
-        topology_seed: int | None = 0,
-        mean_in_degree: float | None = None,
-        topology_period: int | None = None,
-        obs_slots: int | None = None,
-        u_max: float | Sequence[float] | None = None,
-        obs_noise: float = 0.0,
-        link_dropout: float = 0.0,
-        switching: str = "periodic",
-        agent_model: Any = None,
-        order: int | None = None,
-        damping: float | None = None,
-        frequency: float | None = None,
-        formation_offsets: Any = None,
         render_mode: str | None = None,
         max_cycles: int | None = None,
+        **kwargs: Unpack[EnvKwargs],
     ) -> None:
-        arguments = env_arguments(locals())
+        arguments = env_arguments(locals(), kwargs)
         n_envs = N_ENVS.check(n_envs)
         check_render_mode(render_mode)
         check_max_cycles(max_cycles)
