@@ -27,7 +27,7 @@ has all levels 0 and gets ``D = I``: plain normalised time.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -35,9 +35,6 @@ import scipy.linalg
 from fxc_env.core import validation
 from fxc_env.core.arrays import namespace
 from fxc_env.core.validation import ArgumentError
-
-if TYPE_CHECKING:
-    from fxc_env.core.linear import LinearModel
 
 #: Points of normalised time ``sigma`` on which the peak input of a non-polynomial model is evaluated.
 PEAK_GRID_POINTS = 65
@@ -64,7 +61,7 @@ class IntervalMaps:
             costate ``nu`` to the coefficient of ``tau^j`` of ``T u``, ``tau = 1 - s / T``; else None.
     """
 
-    def __init__(self, model: LinearModel, intervals: Any) -> None:
+    def __init__(self, model: Any, intervals: Any) -> None:  # a core.linear.LinearModel (no import: it imports this)
         lengths = np.array(validation.interval_lengths("intervals", intervals))
         self.model = model
         n = model.n_states

@@ -31,7 +31,7 @@ from fxc_env.envs.agent_dicts import (
     normalized_state,
     observation_dicts,
 )
-from fxc_env.envs.rendering import EpisodeView
+from fxc_env.envs.episode_view import EpisodeView
 from fxc_env.envs.small_n import SmallInterval, applies, checked_values
 from fxc_env.envs.spaces import action_space, observation_space, state_space
 

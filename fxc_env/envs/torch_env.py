@@ -34,6 +34,8 @@ from fxc_env.core import validation
 from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.backend import torch_seed
 from fxc_env.engine.graph_tensors import GRAPH_TENSOR_KEYS, edge_capacity, edge_feature_size, graph_tensors
+from fxc_env.envs.episode_view import SnapshotView
+from fxc_env.envs.rendering import GRID_EPISODES
 
 #: The one agent group of the TensorDicts.
 GROUP = "agents"
@@ -441,12 +443,10 @@ class ConsensusTorchEnv(EnvBase):
         """The first ``min(B, 16)`` episodes at their current instants, tiled: ``(H, W, 3)`` uint8 (README, "Video").
 
         Each call reads them off the device and adds them to their trails
-        (:class:`~fxc_env.envs.rendering.SnapshotView`), so calling it after every reset and step,
+        (:class:`~fxc_env.envs.episode_view.SnapshotView`), so calling it after every reset and step,
         as ``torchrl.record.PixelRenderTransform`` does, draws the trails; nothing is recorded on
         the step path. Raises ``RuntimeError`` before the first reset.
         """
-        from fxc_env.envs.rendering import GRID_EPISODES, SnapshotView
-
         if not hasattr(self, "_cycles"):
             raise RuntimeError("render: there is no episode to draw yet; call reset() first")
         view = self.__dict__.get("_snapshots")

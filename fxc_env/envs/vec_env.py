@@ -34,8 +34,9 @@ from fxc_env.core.families import edge_lists
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome, with_initial_state
 from fxc_env.envs.agent_dicts import episode_draw_info, episode_metrics_rows, normalized_state
+from fxc_env.envs.episode_view import EpisodeView
 from fxc_env.envs.parallel import ConsensusParallelEnv
-from fxc_env.envs.rendering import GRID_EPISODES, EpisodeView, blank_frame
+from fxc_env.envs.rendering import GRID_EPISODES, blank_frame
 from fxc_env.envs.spaces import action_space, observation_space
 
 #: Attributes of a :class:`ConsensusVecEnv` that :meth:`~ConsensusVecEnv.set_attr` refuses
