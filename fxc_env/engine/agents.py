@@ -60,6 +60,32 @@ class Interval:
     disagreement: Any = None
 
 
+@dataclass(slots=True)
+class StepOutcome:
+    """What one interval did, per episode ``(B,)`` or per agent ``(B, N)``.
+
+    Attributes:
+        reward: team reward ``log(D(t_k) + f) - log(D(t_{k+1}) + f)``, ``(B,)``.
+        energy: ``integral |u_i|^2 dt`` over the interval, ``(B, N)``.
+        peak_input: peak ``|u_i|`` (largest component) over the interval, ``(B, N)``.
+        u_start, u_end: the commanded input at ``t_k+`` and ``t_{k+1}-``, ``(B, N, dim)``
+            (the applied input is this line clipped to ``±u_max`` when that is set).
+        saturated_fraction: share of the interval spent saturated, mean over components,
+            ``(B, N)`` (zeros without ``u_max``).
+        terminated: the deadline ``T_s`` was reached (``k = K``).
+    """
+
+    reward: np.ndarray
+    energy: np.ndarray
+    peak_input: np.ndarray
+    u_start: np.ndarray
+    u_end: np.ndarray
+    saturated_fraction: np.ndarray
+    terminated: bool
+    #: General agents: the plans ``Delta`` applied, per axis ``(B, N, dim, n)`` (None for the double integrator).
+    plan: np.ndarray | None = None
+
+
 def state_disagreement(states: np.ndarray, config: EnvConfig) -> np.ndarray:
     """``D = sum_l T_s^l e_{z_l}`` of states ``(..., N, n, dim)`` in the engine's coordinates: ``(...)``.
 

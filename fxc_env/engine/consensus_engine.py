@@ -43,7 +43,6 @@ the caller).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -55,9 +54,9 @@ from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 
 from . import draws
-from .agents import Formation, make_agents, state_disagreement
+from .agents import Formation, StepOutcome, make_agents, state_disagreement
 from .backend import DTYPES, TINY, make_backend, to_host
-from .clock import EpisodeClock, InstantTables, LockStepClock
+from .clock import BeforeReset, EpisodeClock, InstantTables, LockStepClock
 from .draws import EpisodeDraw
 from .graph_table import GraphTable
 from .observations import Observer, limit_feature, normalized_state
@@ -73,40 +72,6 @@ __all__ = [
     "state_disagreement",
     "to_host",
 ]
-
-
-@dataclass(slots=True)
-class StepOutcome:
-    """What one interval did, per episode ``(B,)`` or per agent ``(B, N)``.
-
-    Attributes:
-        reward: team reward ``log(D(t_k) + f) - log(D(t_{k+1}) + f)``, ``(B,)``.
-        energy: ``integral |u_i|^2 dt`` over the interval, ``(B, N)``.
-        peak_input: peak ``|u_i|`` (largest component) over the interval, ``(B, N)``.
-        u_start, u_end: the commanded input at ``t_k+`` and ``t_{k+1}-``, ``(B, N, dim)``
-            (the applied input is this line clipped to ``±u_max`` when that is set).
-        saturated_fraction: share of the interval spent saturated, mean over components,
-            ``(B, N)`` (zeros without ``u_max``).
-        terminated: the deadline ``T_s`` was reached (``k = K``).
-    """
-
-    reward: np.ndarray
-    energy: np.ndarray
-    peak_input: np.ndarray
-    u_start: np.ndarray
-    u_end: np.ndarray
-    saturated_fraction: np.ndarray
-    terminated: bool
-    #: General agents: the plans ``Delta`` applied, per axis ``(B, N, dim, n)`` (None for the double integrator).
-    plan: np.ndarray | None = None
-
-
-class _BeforeReset(LockStepClock):
-    """The clock of an engine that was never reset: instant 0 of a zero state, which :meth:`ConsensusEngine.step` refuses
-    (a ``RuntimeError``, as the environments' ``step`` before ``reset``); the first reset replaces it."""
-
-    def check_can_step(self) -> None:
-        raise RuntimeError("step: call reset() before the first step (the engine holds no episode yet)")
 
 
 class ConsensusEngine:
@@ -140,7 +105,7 @@ class ConsensusEngine:
         self.state = backend.zeros(shape)
         self._spare = backend.spare(shape)
         self.tables = InstantTables(config, backend)
-        self.clock: LockStepClock | EpisodeClock = _BeforeReset(self.tables)
+        self.clock: LockStepClock | EpisodeClock = BeforeReset(self.tables)
         self.graphs = GraphTable([config.topology] * b, self.layout.slots, backend, config.switching == "random")
         self.agents = make_agents(config, backend)
         if config.u_max_choices is not None:

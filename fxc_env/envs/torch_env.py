@@ -36,6 +36,7 @@ from fxc_env.engine.backend import torch_seed
 from fxc_env.engine.graph_tensors import GRAPH_TENSOR_KEYS, edge_capacity, edge_feature_size, graph_tensors
 from fxc_env.envs.episode_view import SnapshotView
 from fxc_env.envs.rendering import GRID_EPISODES
+from fxc_env.envs.spaces import observation_bounds
 
 #: The one agent group of the TensorDicts.
 GROUP = "agents"
@@ -248,7 +249,7 @@ class ConsensusTorchEnv(EnvBase):
     def _make_specs(self) -> None:
         c, layout, device = self.config, self.config.layout, self.engine.device
         b, n = self.batch_size[0], c.n_agents
-        low, high = _observation_bounds(c)
+        low, high = observation_bounds(c)
         observation = Bounded(
             low=torch.as_tensor(low, dtype=self._observation_dtype, device=device).expand(b, n, layout.size),
             high=torch.as_tensor(high, dtype=self._observation_dtype, device=device).expand(b, n, layout.size),
@@ -489,16 +490,3 @@ def _batch_size(value: Any) -> int:
             raise validation.ArgumentError(f"batch_size: expected an int or a one-element size [B], got {list(value)}")
         value = value[0]
     return validation.integer("batch_size", value, 1, validation.MAX_AGENTS)
-
-
-def _observation_bounds(config: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The flat observation's bounds (those of the parallel env's ``Box``)."""
-    layout = config.layout
-    row = 1.0 if config.obs_mode == "normalized" else np.inf
-    low = np.concatenate(
-        [np.full(layout.rows_end, -row), np.zeros(layout.slots + CLOCK_SIZE), [-1.0] * layout.limit_feature]
-    )
-    high = np.concatenate(
-        [np.full(layout.rows_end, row), np.ones(layout.slots + CLOCK_SIZE), [1.0] * layout.limit_feature]
-    )
-    return low, high
