@@ -18,10 +18,10 @@ from fxc_env.config.arguments import (
     GRAPH_TENSORS,
     NO_FALLBACK,
     TABLE_MARKER,
+    EnvKwargs,
     with_arguments_table,
 )
 from fxc_env.config.flags import FLAG_ARGUMENTS, add_env_arguments, env_kwargs_from
-from fxc_env.config.front_ends import EnvKwargs
 from fxc_env.core import validation
 from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY, FLAT_PARAMETERS
 from fxc_env.core.validation import ArgumentError
@@ -99,7 +99,7 @@ def test_the_typed_keywords_of_the_front_ends_are_the_table():
     assert EnvKwargs.__total__ is False
 
 
-@pytest.mark.parametrize("name", [name for name in FRONT_ENDS if name != "make_config"])
+@pytest.mark.parametrize("name", list(FRONT_ENDS))
 def test_an_unknown_keyword_is_refused_naming_it(name):
     factory = FRONT_ENDS[name][0]
     required = {"n_envs": 1} if name == "ConsensusVecEnv" else {}

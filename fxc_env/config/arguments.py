@@ -19,9 +19,9 @@ this table (names, order, defaults, annotations).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from types import MappingProxyType
-from typing import Any
+from typing import Any, TypedDict
 
 from fxc_env.config.argument_types import (
     NO_FALLBACK,
@@ -49,11 +49,59 @@ __all__ = [
     "REQUIRED",
     "TABLE_MARKER",
     "Argument",
+    "EnvKwargs",
     "Flag",
     "arguments_table",
     "env_arguments",
     "with_arguments_table",
 ]
+
+
+class EnvKwargs(TypedDict, total=False):
+    """The environment's keyword arguments after ``scenario`` (the annotations of :data:`ENV_ARGUMENTS`), as front ends take them.
+
+    ``**kwargs: Unpack[EnvKwargs]`` lets type checkers and IDEs see each one; :func:`env_signature`
+    writes them out with their defaults for ``help()`` and ``inspect``.
+    """
+
+    n_agents: int | None
+    topology: Any
+    settling_time: float | None
+    n_intervals: int | None
+    schedule: Any
+    dim: int | None
+    action_mode: str
+    obs_mode: str
+    obs_format: str
+    obs_dtype: str
+    global_state: str
+    action_bound: float | None
+    reward_floor: float
+    initial_state: Any
+    position_range: float | tuple[float, float] | None
+    velocity_range: float | tuple[float, float] | None
+    topology_seed: int | None
+    mean_in_degree: float | None
+    topology_period: int | None
+    obs_slots: int | None
+    u_max: float | Sequence[float] | None
+    obs_noise: float
+    link_dropout: float
+    switching: str
+    agent_model: Any
+    order: int | None
+    damping: float | None
+    frequency: float | None
+    formation_offsets: Any
+
+
+#: Each environment argument's annotation, as the signatures write it (EnvKwargs's, and ``scenario``'s).
+_ANNOTATIONS = {"scenario": "str | None", **{k: v.__forward_arg__ for k, v in EnvKwargs.__annotations__.items()}}
+
+
+def _env(name: str, default: Any, **fields: Any) -> Argument:
+    """A row of the table, annotated as :class:`EnvKwargs` types it."""
+    return Argument(name, _ANNOTATIONS[name], default, **fields)
 
 
 #: Half-widths of the action Box per (action_mode, obs_mode), the default of ``action_bound``.
@@ -76,17 +124,15 @@ RENDER_MODES = ("human", "rgb_array")
 #: The arguments of :func:`fxc_env.make_config`, in its signature's order (``scenario`` first,
 #: positional; every other one keyword-only).
 ENV_ARGUMENTS: tuple[Argument, ...] = (
-    Argument(
+    _env(
         "scenario",
-        "str | None",
         None,
         help="named scenario or 'none' (the defaults)",
         card='named preset from ``fxc_env.SCENARIOS`` (e.g. ``"paper_fig1"``, the paper\'s example)',
         flag=Flag(),
     ),
-    Argument(
+    _env(
         "n_agents",
-        "int | None",
         None,
         help="number of agents N",
         card="N for a named topology or a family",
@@ -97,9 +143,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "topology",
-        "Any",
         None,
         help=", ".join(TOPOLOGY_NAMES[1:] + TOPOLOGY_NAMES[:1]),
         card='``"paper_fig1"`` (the **assumed** Fig. 1), ``"ring"``, ``"path"``, ``"star"``, ``"complete"``, '
@@ -110,9 +155,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="name, edge list, list of edge lists, DiGraph(s), family",
         flag=Flag(),
     ),
-    Argument(
+    _env(
         "settling_time",
-        "float | None",
         None,
         help="deadline T_s in seconds",
         card="the deadline ``T_s`` (s)",
@@ -120,9 +164,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("float"),
     ),
-    Argument(
+    _env(
         "n_intervals",
-        "int | None",
         None,
         help="number of sampling intervals K",
         card="K, the number of sampling intervals (of a named schedule)",
@@ -130,9 +173,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "schedule",
-        "Any",
         None,
         help="sampling schedule",
         card="the sampling instants (``T_k = 6 T_s / (pi k)^2``, last interval ending at ``T_s``)",
@@ -141,9 +183,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="``" + " \\| ".join(f'"{name}"' for name in SCHEDULE_NAMES) + "`` or interval lengths",
         flag=Flag(choices=SCHEDULE_NAMES),
     ),
-    Argument(
+    _env(
         "dim",
-        "int | None",
         None,
         help="space dimension n",
         card="space dimension of ``x_i, v_i, u_i``",
@@ -154,9 +195,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "action_mode",
-        "str",
         "plan",
         help="what an action is: a planned terminal change (plan, default), the input at both ends (accel) "
         "or a correction added to the paper's plan (residual: the zero action is the reference)",
@@ -165,9 +205,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         choices=("plan", "accel", "residual"),
         flag=Flag(),
     ),
-    Argument(
+    _env(
         "obs_mode",
-        "str",
         "normalized",
         help="scale-free (normalized, default) or physical (raw) observations and actions",
         card="scale-free or physical observations and actions",
@@ -175,36 +214,32 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         choices=("normalized", "raw"),
         flag=Flag(),
     ),
-    Argument(
+    _env(
         "obs_format",
-        "str",
         "flat",
         help="one Box per agent (flat, default) or a dict of neighbours, mask and clock",
         card='one Box, or ``{"neighbours", "mask", "clock"}``',
         kind="choice",
         choices=("flat", "dict"),
     ),
-    Argument(
+    _env(
         "obs_dtype",
-        "str",
         "float64",
         help="dtype of observations, their spaces and the normalized global state",
         card="dtype of observations, their spaces and the normalized global state",
         kind="choice",
         choices=("float64", "float32"),
     ),
-    Argument(
+    _env(
         "global_state",
-        "str",
         "raw",
         help="what state() returns: absolute rows (raw, default) or the scale-free vector (normalized)",
         card="what ``state()`` returns (State)",
         kind="choice",
         choices=("raw", "normalized"),
     ),
-    Argument(
+    _env(
         "action_bound",
-        "float | None",
         None,
         help="half-width b of the action Box (default: by action_mode and obs_mode)",
         card="half-width ``b`` of the action Box (default: the Action Space table's, by ``action_mode`` and "
@@ -213,9 +248,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         positive=True,
         card_default="by mode",
     ),
-    Argument(
+    _env(
         "reward_floor",
-        "float",
         1e-12,
         help="f / D(0), the floor in the log reward (at most 1: a floor above D(0) leaves every reward 0)",
         card="``f / D(0)`` in the reward, in (0, 1]",
@@ -223,9 +257,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         maximum=1.0,
         positive=True,
     ),
-    Argument(
+    _env(
         "initial_state",
-        "Any",
         None,
         help="a fixed initial state (x0, v0), or 'random' to drop the scenario's",
         card='fixed initial state ``(N, dim)`` arrays; ``"random"`` drops the scenario\'s',
@@ -233,9 +266,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type='``None \\| "random" \\| (x0, v0)``',
         card_default="[random]",
     ),
-    Argument(
+    _env(
         "position_range",
-        "float | tuple[float, float] | None",
         None,
         help="initial positions U(-r, r) m; LOW,HIGH draws r log-uniformly",
         card="initial positions ``U(-r, r)`` (m); a pair draws ``r`` log-uniformly per episode",
@@ -244,9 +276,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="``float \\| (low, high) \\| None``",
         flag=Flag("numbers"),
     ),
-    Argument(
+    _env(
         "velocity_range",
-        "float | tuple[float, float] | None",
         None,
         help="initial velocities U(-r, r) m/s; LOW,HIGH as above",
         card="initial velocities ``U(-r, r)`` (m/s); a pair as above",
@@ -255,18 +286,16 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="``float \\| (low, high) \\| None``",
         flag=Flag("numbers"),
     ),
-    Argument(
+    _env(
         "topology_seed",
-        "int | None",
         0,
         help="seed of the random topology (default 0)",
         card='seed of ``topology="random"`` (of a family: the draw ``config.topology`` shows)',
         kind="seed",
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "mean_in_degree",
-        "float | None",
         None,
         help="mean in-degree of random digraphs; LOW,HIGH draws it with --family",
         card='mean in-degree of ``"random"``',
@@ -274,9 +303,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("numbers"),
     ),
-    Argument(
+    _env(
         "topology_period",
-        "int | None",
         None,
         help="graphs per switching period (random, or LOW,HIGH with --family)",
         card='number of switching graphs of ``"random"``',
@@ -284,9 +312,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("numbers"),
     ),
-    Argument(
+    _env(
         "obs_slots",
-        "int | None",
         None,
         help="neighbour rows of the observation (a learned policy's width)",
         card="neighbour rows in an observation (at least ``d_max``, at most N)",
@@ -294,9 +321,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_default="``d_max``",
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "u_max",
-        "float | Sequence[float] | None",
         None,
         help="input limit (m/s^2); A,B,C draws one per episode",
         card="clips each input component to ``±u_max`` m/s^2, integrated exactly (infos report the saturated "
@@ -305,9 +331,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="``float \\| set of floats \\| None``",
         flag=Flag("numbers"),
     ),
-    Argument(
+    _env(
         "obs_noise",
-        "float",
         0.0,
         help="standard deviation of measurement noise (m, m/s)",
         card="standard deviation of Gaussian noise (m, m/s) on each relative measurement",
@@ -316,18 +341,16 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         maximum=validation.STATE_LIMIT,
         flag=Flag("float"),
     ),
-    Argument(
+    _env(
         "link_dropout",
-        "float",
         0.0,
         help="probability that an edge is lost at a sampling instant",
         card="probability in [0, 1) that an edge is lost at a sampling instant (the mask shows it)",
         kind="probability",
         flag=Flag("float"),
     ),
-    Argument(
+    _env(
         "switching",
-        "str",
         "periodic",
         help="cycle through the graphs (periodic, default) or draw each interval's graph (random)",
         card="cycle through the graphs, or draw each interval's graph",
@@ -335,9 +358,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         choices=("periodic", "random"),
         flag=Flag(),
     ),
-    Argument(
+    _env(
         "agent_model",
-        "Any",
         None,
         help="the agents' dynamics per axis (default double_integrator; README, 'Agent models')",
         card='the agents\' model per axis: a name, ``"single_integrator"``, ``"integrator_chain"``, ``"damped"``, '
@@ -348,9 +370,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="name, dict or ``(A, B)``",
         flag=Flag(choices=MODEL_NAMES),
     ),
-    Argument(
+    _env(
         "order",
-        "int | None",
         None,
         help="order of --agent-model integrator_chain (1-4, default 2)",
         card='deprecated: ``agent_model={"name": "integrator_chain", "order": n}`` (1-4)',
@@ -358,9 +379,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_default="2",
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "damping",
-        "float | None",
         None,
         help=f"drag c of --agent-model damped (1/s, default {DEFAULT_DAMPING:g})",
         card='deprecated: ``agent_model={"name": "damped", "damping": c}`` (1/s)',
@@ -368,9 +388,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_default=repr(DEFAULT_DAMPING),
         flag=Flag("float"),
     ),
-    Argument(
+    _env(
         "frequency",
-        "float | None",
         None,
         help=f"frequency of --agent-model oscillator (rad/s, default {DEFAULT_FREQUENCY:g})",
         card='deprecated: ``agent_model={"name": "oscillator", "frequency": omega}`` (rad/s)',
@@ -378,9 +397,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_default=repr(DEFAULT_FREQUENCY),
         flag=Flag("float"),
     ),
-    Argument(
+    _env(
         "formation_offsets",
-        "Any",
         None,
         help="formation offsets h_i: positions (N, dim) or full states (N, dim, n)",
         card='agents agree on ``z_i - e^{A t} h_i``: position offsets hold a formation (README, "Formations")',

@@ -9,10 +9,9 @@ scenarios (:mod:`fxc_env.config.scenarios`) are frozen presets that explicit arg
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -24,8 +23,10 @@ from fxc_env.config.arguments import (
     NO_FALLBACK,
     RENDER_MODE,
     RENDER_MODES,
+    EnvKwargs,
     env_arguments,
 )
+from fxc_env.config.front_ends import env_signature
 from fxc_env.config.layout import CLOCK_SIZE, ObservationLayout
 from fxc_env.config.scenarios import scenario_preset
 from fxc_env.core import validation
@@ -332,39 +333,8 @@ def _topology(merged: dict[str, Any], topology_seed: Any) -> tuple[Topology, Any
     return topology, None
 
 
-def make_config(
-    scenario: str | None = None,
-    *,
-    n_agents: int | None = None,
-    topology: Any = None,
-    settling_time: float | None = None,
-    n_intervals: int | None = None,
-    schedule: Any = None,
-    dim: int | None = None,
-    action_mode: str = "plan",
-    obs_mode: str = "normalized",
-    obs_format: str = "flat",
-    obs_dtype: str = "float64",
-    global_state: str = "raw",
-    action_bound: float | None = None,
-    reward_floor: float = 1e-12,
-    initial_state: Any = None,
-    position_range: float | tuple[float, float] | None = None,
-    velocity_range: float | tuple[float, float] | None = None,
-    topology_seed: int | None = 0,
-    mean_in_degree: float | None = None,
-    topology_period: int | None = None,
-    obs_slots: int | None = None,
-    u_max: float | Sequence[float] | None = None,
-    obs_noise: float = 0.0,
-    link_dropout: float = 0.0,
-    switching: str = "periodic",
-    agent_model: Any = None,
-    order: int | None = None,
-    damping: float | None = None,
-    frequency: float | None = None,
-    formation_offsets: Any = None,
-) -> EnvConfig:
+@env_signature(returns="EnvConfig")
+def make_config(scenario: str | None = None, **kwargs: Unpack[EnvKwargs]) -> EnvConfig:
     """Validate the environment's keyword arguments (a scenario's preset first, explicit ones win).
 
     The arguments, their types, defaults, allowed values and meanings are the table
@@ -377,9 +347,9 @@ def make_config(
         ArgumentError: naming the first bad argument and what was expected (a ``TypeError``
             too for a wrong type).
     """
-    arguments = env_arguments(locals())
+    arguments = env_arguments({"scenario": scenario}, kwargs)
     given = {name: arguments[name] for name in _FROM_SCENARIO}
-    merged = _merged_settings(scenario, given, initial_state)
+    merged = _merged_settings(scenario, given, arguments["initial_state"])
     _check_random_only(given, merged["topology"])
     config = _validated(merged, arguments)
     if config.model is not None:

@@ -16,10 +16,11 @@ from fxc_env.config.arguments import (
     ENV_ARGUMENTS,
     FRONT_END_ARGUMENTS,
     GRAPH_TENSORS,
+    EnvKwargs,
     env_arguments,
     with_arguments_table,
 )
-from fxc_env.config.front_ends import EnvKwargs, env_signature
+from fxc_env.config.front_ends import env_signature
 from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
 from fxc_env.engine import ConsensusEngine, with_initial_state

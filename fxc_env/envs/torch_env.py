@@ -25,10 +25,11 @@ from fxc_env.config.arguments import (
     ENV_ARGUMENTS,
     GRAPH_TENSORS,
     Argument,
+    EnvKwargs,
     env_arguments,
     with_arguments_table,
 )
-from fxc_env.config.front_ends import EnvKwargs, env_signature
+from fxc_env.config.front_ends import env_signature
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core import validation
 from fxc_env.engine import ConsensusEngine
