@@ -427,14 +427,8 @@ def _check_steering(config: EnvConfig, merged: dict[str, Any]) -> None:
     try:
         config.interval_maps  # noqa: B018 (cached on the config: the engine reads it)
     except ArgumentError as error:
-        named = [key for key in FLAT_PARAMETERS if key in merged["agent_parameters"]]
-        if not named:
-            raise
-        shown = ", ".join(f"{key} = {merged['agent_parameters'][key]!r}" for key in named)
-        raise ArgumentError(
-            f"{'/'.join(named)}: expected a value with which {config.agent_model!r} agents can be steered over "
-            f"every sampling interval; {shown} gives {error}"
-        ) from None
+        steered = f"with which {config.agent_model!r} agents can be steered over every sampling interval"
+        raise _blamed(error, merged["agent_parameters"], steered) from None
 
 
 def _agent_model(merged: dict[str, Any]) -> tuple[str, LinearModel | None]:
@@ -448,13 +442,16 @@ def _agent_model(merged: dict[str, Any]) -> tuple[str, LinearModel | None]:
     try:
         return name, LinearModel.named(name, **parameters)
     except ArgumentError as error:  # a parameter that passes its own check can still break the matrices
-        if not parameters or str(error).startswith(tuple(parameters)):
-            raise
-        shown = ", ".join(f"{key} = {item!r}" for key, item in parameters.items())
-        raise ArgumentError(
-            f"{'/'.join(parameters)}: expected a value that gives {name!r} finite, controllable matrices; "
-            f"{shown} gives {error}"
-        ) from None
+        raise _blamed(error, parameters, f"that gives {name!r} finite, controllable matrices") from None
+
+
+def _blamed(error: ArgumentError, parameters: dict[str, Any], expected: str) -> ArgumentError:
+    """``error`` of a model built from ``parameters`` named after them (the user gave those, not what failed)."""
+    named = [key for key in FLAT_PARAMETERS if key in parameters]
+    if not named or str(error).startswith(tuple(named)):
+        return error
+    shown = ", ".join(f"{key} = {parameters[key]!r}" for key in named)
+    return ArgumentError(f"{'/'.join(named)}: expected a value {expected}; {shown} gives {error}")
 
 
 def _formation(value: Any, n_agents: int, dim: int, n_states: int) -> np.ndarray | None:

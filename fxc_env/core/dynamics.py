@@ -22,13 +22,14 @@ import numpy as np
 from fxc_env.core.arrays import namespace
 
 
-def input_from_plan(plan_x: np.ndarray, plan_v: np.ndarray, T: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+def input_from_plan(plan_x: Any, plan_v: Any, T: Any, s: Any = None) -> tuple[Any, Any]:
     """Minimum-energy affine input that realises a planned change relative to coasting.
 
     The plan asks for ``x(t_k + T) = x + T v + a_x`` and ``v(t_k + T) = v + a_v``. The unique
     minimiser of ``integral |u|^2`` is ``u(t_k + s) = alpha + beta s`` with
     ``alpha = 6 a_x / T^2 - 2 a_v / T`` and ``beta = (6 a_v T - 12 a_x) / T^3`` (paper eq. 11,
-    paper Remark 1). Returns the end values ``(u0, u1) = (alpha, alpha + beta T)``.
+    paper Remark 1). Returns the end values ``(u0, u1) = (alpha, alpha + beta T)``; ``s`` is unused
+    (the signature of :func:`input_ends`' maps: this is the raw ``plan`` action's).
     """
     inv_t = 1.0 / T
     position_term = (6.0 * inv_t * inv_t) * plan_x
@@ -56,11 +57,6 @@ def interval_increments(v: Any, u0: Any, u1: Any, T: Any) -> tuple[Any, Any, Any
     return T * v + (T * T / 6.0) * (u0 + total), (0.5 * T) * total, (u0 * total + u1 * u1) * (T / 3.0)
 
 
-def plan_ends(first: Any, second: Any, T: Any, s: Any = None) -> tuple[Any, Any]:
-    """Input ends of a ``plan`` action in raw units: :func:`input_from_plan` (``s`` unused)."""
-    return input_from_plan(first, second, T)
-
-
 def scaled_plan_ends(first: Any, second: Any, T: Any, s: Any) -> tuple[Any, Any]:
     """Input ends of a normalized ``plan`` action: the plan ``(s a_x, (s / T) a_v)`` at local scale ``s``."""
     return input_from_plan(s * first, (s / T) * second, T)
@@ -85,7 +81,7 @@ def input_ends(plans: bool, normalized: bool) -> Callable[[Any, Any, Any, Any], 
     :func:`interval_increments`.
     """
     if plans:
-        return scaled_plan_ends if normalized else plan_ends
+        return scaled_plan_ends if normalized else input_from_plan
     return scaled_accel_ends if normalized else accel_ends
 
 
@@ -111,13 +107,16 @@ def advance_with_costs(x, v, u0, u1, T):
     numpy arrays or torch tensors alike (:func:`advance_into` is numpy's in-place form, with
     the same arithmetic, so both backends round alike).
     """
-    xp = namespace(x, v, u0, u1)
     dx, dv, per_component = interval_increments(v, u0, u1, T)
-    x_next, v_next = x + dx, v + dv
+    return x + dx, v + dv, *_costs(per_component, u0, u1, namespace(x, v, u0, u1))
+
+
+def _costs(per_component: Any, u0: Any, u1: Any, xp: Any) -> tuple[Any, Any]:
+    """The energy (summed over components) and the peak ``|u|`` (largest component, at an end), ``(...)``."""
     largest = xp.maximum(xp.abs(u0), xp.abs(u1))
     if per_component.shape[-1] == 1:
-        return x_next, v_next, per_component[..., 0], largest[..., 0]
-    return x_next, v_next, xp.sum(per_component, axis=-1), xp.max(largest, axis=-1)
+        return per_component[..., 0], largest[..., 0]
+    return xp.sum(per_component, axis=-1), xp.max(largest, axis=-1)
 
 
 def advance_into(
@@ -138,24 +137,19 @@ def advance_into(
     dx, dv, per_component = interval_increments(v, u0, u1, T)
     np.add(x, dx, out=x_out)
     np.add(v, dv, out=v_out)
-    largest = np.maximum(np.abs(u0), np.abs(u1))
-    if per_component.shape[-1] == 1:
-        return per_component[..., 0], largest[..., 0]
-    return per_component.sum(axis=-1), largest.max(axis=-1)
+    return _costs(per_component, u0, u1, np)
 
 
 def interval_energy(u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float) -> np.ndarray:
     """``integral_0^T |u|^2 ds = T (|u0|^2 + u0.u1 + |u1|^2) / 3``, summed over components: ``(...)``."""
-    per_component = (u0 * (u0 + u1) + u1 * u1) * (T / 3.0)
+    per_component = interval_increments(0.0, u0, u1, T)[2]
     xp = namespace(per_component)
     return per_component[..., 0] if per_component.shape[-1] == 1 else xp.sum(per_component, axis=-1)
 
 
 def interval_peak(u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
     """Peak ``|u|`` on the interval: the largest absolute component, reached at an end, ``(...)``."""
-    xp = namespace(u0, u1)
-    largest = xp.maximum(xp.abs(u0), xp.abs(u1))
-    return largest[..., 0] if largest.shape[-1] == 1 else xp.max(largest, axis=-1)
+    return _costs(u0, u0, u1, namespace(u0, u1))[1]
 
 
 def _clipped_pieces(u0, u1, T, u_max):

@@ -193,7 +193,7 @@ def float32_row_limit(obs_noise: float) -> float:
     return FLOAT32_MAX - NOISE_MARGIN * obs_noise
 
 
-def state_batch(name: str, value: Any, shape: tuple[int, ...], limit: float = STATE_LIMIT) -> np.ndarray:
+def state_batch(name: str, value: Any, shape: tuple[int, ...], limit: float | None = STATE_LIMIT) -> np.ndarray:
     """``value`` as a float64 array of exactly ``shape`` (an engine's ``(B, N, dim)`` initial positions or
     velocities), real, entries finite and within ±``limit``; raise naming ``name`` otherwise.
 
@@ -218,12 +218,8 @@ def state_entries_error(name: str, limit: float = STATE_LIMIT) -> str:
 
 
 def action_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
-    """``value`` as a float64 array of ``shape`` with finite entries (booleans refused)."""
-    array = real_array(name, value, f"an array of shape {shape}", booleans=False)
-    if array.shape != shape:
-        raise ArgumentError(f"{name}: expected shape {shape}, got {array.shape}")
-    _check_entries(name, array, None)
-    return array
+    """``value`` as a float64 array of ``shape`` with finite entries (booleans refused): :func:`state_batch` unbounded."""
+    return state_batch(name, value, shape, None)
 
 
 def interval_lengths(name: str, value: Any) -> np.ndarray:

@@ -141,18 +141,10 @@ class ConsensusTorchEnv(EnvBase):
     | ``"edge_attr"`` | ``[B, E, n dim]`` | with ``graph_tensors=True``: each edge's observation row ``z_j - z_i`` as agent i observes it, in ``obs_dtype`` |
 
     ## Graph tensors
-    ``graph_tensors=True`` adds the graph as edge tensors for graph neural networks (PyTorch
-    Geometric's convention; :mod:`fxc_env.engine.graph_tensors`), at reset and after every
-    step, following the switching schedule (each episode's own clock after a partial reset).
-    ``E`` is fixed for the environment (``n_edges_max``): the topology's largest graph, or
-    ``N slots`` for a family, whose graphs change at every reset. ``edge_attr`` is read out of
-    the observation rows (normalized or raw as ``obs_mode`` says; ``F = n dim``: ``[x_j - x_i,
-    v_j - v_i]`` per axis block); with ``link_dropout`` a link lost at ``t_k`` is not listed.
-    Off (the default) nothing is computed. Padding is the edge ``N -> N`` (one past the last
-    agent) with zero features: a summing message pass over ``N + 1`` node rows per episode (drop
-    the last) equals the one over the true edges, and over ``N`` rows the index is out of range.
-    One episode's PyG graph: ``td["edge_index"][b, :, :td["n_edges"][b]]``, or
-    ``edge_index[:, edge_mask]``.
+    ``graph_tensors=True`` adds the coming interval's graph as the parallel env's card describes
+    (PyTorch Geometric's convention, padding the edge ``N -> N``; :mod:`fxc_env.engine.graph_tensors`),
+    per episode as in the table above, each episode on its own clock after a partial reset.
+    One episode's PyG graph: ``td["edge_index"][b, :, :td["n_edges"][b]]``.
 
     ## When a bad value is reported
     Shapes are checked at once (they are known on the host). Values are not read on the
