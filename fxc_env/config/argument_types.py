@@ -1,10 +1,5 @@
-"""What an environment argument is: :class:`Argument` and :class:`Flag`, and the cards' Arguments tables.
-
-The arguments themselves are the table :data:`fxc_env.config.arguments.ENV_ARGUMENTS`; this
-module says what each row holds, how :meth:`Argument.check` validates a single value through
-the helpers of :mod:`fxc_env.core.validation`, and how a card's docstring gets its table
-(:func:`with_arguments_table`).
-"""
+"""What a row of the arguments table (:data:`fxc_env.config.arguments.ENV_ARGUMENTS`) holds, how it
+checks a single value (:mod:`fxc_env.core.validation`'s helpers) and how a card gets its table."""
 
 from __future__ import annotations
 

@@ -1,12 +1,5 @@
-"""How the front ends take the environment's arguments: typed ``**kwargs`` and a written-out signature.
-
-:func:`fxc_env.make_config` and every front end (the PettingZoo parallel and AEC environments,
-the SB3 ``ConsensusVecEnv``, the TorchRL ``ConsensusTorchEnv``) take their own arguments by name
-and the environment's as ``**kwargs: Unpack[EnvKwargs]``, so type checkers and IDEs see each one; :func:`env_signature`
-gives ``help()``, ``inspect`` and the docs the whole signature with the table's defaults
-(:data:`fxc_env.config.arguments.ENV_ARGUMENTS`), and :func:`fxc_env.config.arguments.env_arguments`
-collects the :func:`fxc_env.make_config` keywords, refusing an unknown one by name.
-"""
+"""The front ends' signature: the environment's arguments as ``**kwargs: Unpack[EnvKwargs]`` (for type
+checkers and IDEs), written out from the table by :func:`env_signature` (for ``help()`` and ``inspect``)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """The per-interval maps of a :class:`~fxc_env.core.linear.LinearModel`: steering plans in closed form.
 
 The model, its scaled frame and its notation are :mod:`fxc_env.core.linear`'s.
+
 Solving. A plan is solved in that frame:
 
     ``deltahat = D^{-1} Delta``, ``y = L^{-1} S deltahat``, ``nu = S L^{-T} y = W^{-1} deltahat``,

@@ -28,16 +28,10 @@ measurements              :mod:`~fxc_env.engine.observations` (rows, local scale
 episode trackers          :mod:`~fxc_env.engine.trackers` (rewards, totals, the episode metrics)
 ========================  ==========================================================================
 
-**Where a bad value is reported.** On numpy a step whose result would not be finite is
-refused at once (:class:`ArgumentError` naming ``actions``, state unchanged), and so is one
-that, with ``obs_dtype="float32"`` and ``obs_mode="raw"``, would take two agents' states more
-than :func:`~fxc_env.core.validation.float32_row_limit` apart (their raw row would observe as
-``inf``; the check is folded into the finite check's sum of disagreements). On torch the
-step never reads a value back to the host: non-finite actions or results (or raw float32
-rows beyond that limit), and stepping an episode past ``T_s``, set a per-episode flag on the device (:attr:`ConsensusEngine.invalid`),
-read by :meth:`ConsensusEngine.raise_if_invalid` off the hot path (the TorchRL environment
-calls it at every reset and at the end of every episode; ``check_values=False`` leaves it to
-the caller).
+**Where a bad value is reported.** On numpy a step whose result would not be finite (or, with raw
+float32 observations, whose rows would be) is refused at once, state unchanged; on torch it sets a
+per-episode flag on the device, read off the hot path by :meth:`ConsensusEngine.raise_if_invalid`
+(the TorchRL card, "When a bad value is reported").
 """
 
 from __future__ import annotations

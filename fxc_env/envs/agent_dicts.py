@@ -1,10 +1,5 @@
-"""The per-agent dicts of the PettingZoo API, to and from the engine's arrays.
-
-Observations as dicts (flat or ``obs_format="dict"``), a dict of actions as one checked array,
-and what the infos carry beyond the step's numbers: the episode's metrics at the end, what the
-reset drew, the current graph's tensors; and the scale-free global state. The parallel and
-vector environments share them.
-"""
+"""The per-agent dicts of the PettingZoo API to and from the engine's arrays: observations, the action
+dict, what the infos carry (metrics, draws, graph tensors) and the scale-free global state."""
 
 from __future__ import annotations
 

@@ -1,10 +1,5 @@
-"""What the front ends record for ``render()``: one episode's frames, or snapshots of many.
-
-:class:`EpisodeView` keeps the trails of episode 0 (the parallel and AEC environments) or of the
-first :data:`~fxc_env.envs.rendering.GRID_EPISODES` episodes (the VecEnv) and draws them with a
-:class:`~fxc_env.envs.rendering.SceneRenderer`; :class:`SnapshotView` draws the current instant
-of a batch (the TorchRL environment). Nothing is recorded while ``render_mode`` is None.
-"""
+"""What the front ends record for ``render()``: the trails of episode 0 or of the first episodes
+(:class:`EpisodeView`), or snapshots of a device batch (:class:`SnapshotView`); nothing without a render mode."""
 
 from __future__ import annotations
 
