@@ -344,3 +344,17 @@ def test_every_front_end_takes_the_model_spec():
     for config in fronts:
         np.testing.assert_array_equal(config.model.A, expected)
         assert config.agent_model == "damped"
+
+
+def test_every_front_end_takes_the_flat_alias_with_a_warning():
+    torchrl = pytest.importorskip("fxc_env.envs.torch_env")
+    flat = {"scenario": "formation_hexagon", "agent_model": "damped", "damping": 0.7}
+    makers = [
+        lambda: fxc_env.parallel_env(**flat).unwrapped.config,
+        lambda: fxc_env.env(**flat).unwrapped.config,
+        lambda: fxc_env.ConsensusVecEnv(2, **flat).config,
+        lambda: torchrl.ConsensusTorchEnv(**flat).config,
+    ]
+    for make in makers:
+        with pytest.warns(DeprecationWarning, match=r"^damping=0.7 is deprecated"):
+            assert make().model.A[1, 1] == -0.7

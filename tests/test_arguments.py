@@ -21,7 +21,7 @@ from fxc_env.config.arguments import (
     EnvKwargs,
     with_arguments_table,
 )
-from fxc_env.config.flags import FLAG_ARGUMENTS, add_env_arguments, env_kwargs_from
+from fxc_env.config.flags import FLAG_ARGUMENTS, MODEL_FLAGS, add_env_arguments, env_kwargs_from
 from fxc_env.core import validation
 from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY, FLAT_PARAMETERS
 from fxc_env.core.validation import ArgumentError
@@ -167,14 +167,15 @@ def test_make_config_keeps_the_signature_defaults():
     assert (c.obs_noise, c.link_dropout) == (ARGUMENTS["obs_noise"].default, ARGUMENTS["link_dropout"].default)
 
 
-def test_the_documented_model_parameters_are_the_models_defaults():
-    assert make_config(agent_model="integrator_chain").n_states == int(ARGUMENTS["order"].card_default)
-    assert float(ARGUMENTS["damping"].card_default) == DEFAULT_DAMPING
-    assert float(ARGUMENTS["frequency"].card_default) == DEFAULT_FREQUENCY
-    for name, parameter in (("damped", "damping"), ("oscillator", "frequency")):
-        default = make_config(agent_model=name).model.A
-        given = make_config(agent_model={"name": name, parameter: float(ARGUMENTS[parameter].card_default)}).model.A
-        np.testing.assert_array_equal(default, given)
+def test_the_model_flags_state_the_models_defaults():
+    assert make_config(agent_model="integrator_chain").n_states == 2 and "default 2)" in MODEL_FLAGS["order"][1]
+    for name, parameter, default in (
+        ("damped", "damping", DEFAULT_DAMPING),
+        ("oscillator", "frequency", DEFAULT_FREQUENCY),
+    ):
+        assert f"default {default:g})" in MODEL_FLAGS[parameter][1]
+        spelled = make_config(agent_model={"name": name, parameter: default}).model.A
+        np.testing.assert_array_equal(make_config(agent_model=name).model.A, spelled)
 
 
 @pytest.mark.parametrize("argument", [a for a in ENV_ARGUMENTS if a.kind == "choice"], ids=lambda a: a.name)

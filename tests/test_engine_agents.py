@@ -19,7 +19,7 @@ from fxc_env.engine.clock import InstantTables, LockStepClock
     [
         ({}, agents.DoubleIntegratorAgents),
         ({"u_max": 5.0}, agents.LimitedDoubleIntegratorAgents),
-        ({"agent_model": "integrator_chain", "order": 3}, agents.LinearAgents),
+        ({"agent_model": {"name": "integrator_chain", "order": 3}}, agents.LinearAgents),
     ],
 )
 def test_the_dynamics_are_chosen_from_the_config(kwargs, kind):

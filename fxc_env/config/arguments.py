@@ -34,7 +34,7 @@ from fxc_env.config.argument_types import (
 )
 from fxc_env.core import validation
 from fxc_env.core.graphs import TOPOLOGY_NAMES
-from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY, MODEL_NAMES
+from fxc_env.core.models import FLAT_PARAMETERS, MODEL_NAMES
 from fxc_env.core.schedules import SCHEDULE_NAMES
 
 __all__ = [
@@ -89,9 +89,6 @@ class EnvKwargs(TypedDict, total=False):
     link_dropout: float
     switching: str
     agent_model: Any
-    order: int | None
-    damping: float | None
-    frequency: float | None
     formation_offsets: Any
 
 
@@ -371,33 +368,6 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         flag=Flag(choices=MODEL_NAMES),
     ),
     _env(
-        "order",
-        None,
-        help="order of --agent-model integrator_chain (1-4, default 2)",
-        card='deprecated: ``agent_model={"name": "integrator_chain", "order": n}`` (1-4)',
-        from_scenario=True,
-        card_default="2",
-        flag=Flag("int"),
-    ),
-    _env(
-        "damping",
-        None,
-        help=f"drag c of --agent-model damped (1/s, default {DEFAULT_DAMPING:g})",
-        card='deprecated: ``agent_model={"name": "damped", "damping": c}`` (1/s)',
-        from_scenario=True,
-        card_default=repr(DEFAULT_DAMPING),
-        flag=Flag("float"),
-    ),
-    _env(
-        "frequency",
-        None,
-        help=f"frequency of --agent-model oscillator (rad/s, default {DEFAULT_FREQUENCY:g})",
-        card='deprecated: ``agent_model={"name": "oscillator", "frequency": omega}`` (rad/s)',
-        from_scenario=True,
-        card_default=repr(DEFAULT_FREQUENCY),
-        flag=Flag("float"),
-    ),
-    _env(
         "formation_offsets",
         None,
         help="formation offsets h_i: positions (N, dim) or full states (N, dim, n)",
@@ -450,16 +420,18 @@ ARGUMENTS: Mapping[str, Argument] = MappingProxyType(
 def env_arguments(namespace: Mapping[str, Any], kwargs: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The :func:`fxc_env.make_config` keywords (every one, in order) out of a front end's ``locals()`` and ``**kwargs``.
 
-    An argument in neither takes the table's default.
+    An argument in neither takes the table's default; the deprecated ``order``, ``damping`` and
+    ``frequency`` (:mod:`fxc_env.core.models`) pass through when given.
 
     Raises:
         ArgumentTypeError naming a keyword of ``kwargs`` that is no argument of the environment.
     """
     extra = kwargs or {}
     for name in extra:
-        if name not in ENV_ARGUMENT_NAMES:
+        if name not in ENV_ARGUMENT_NAMES and name not in FLAT_PARAMETERS:
             raise validation.ArgumentTypeError(
                 f"{name}: not an argument of the environment; expected one of {', '.join(ENV_ARGUMENT_NAMES)}"
             )
     given = {**namespace, **extra}
-    return {name: given.get(name, ARGUMENTS[name].default) for name in ENV_ARGUMENT_NAMES}
+    arguments = {name: given.get(name, ARGUMENTS[name].default) for name in ENV_ARGUMENT_NAMES}
+    return {**arguments, **{name: extra[name] for name in FLAT_PARAMETERS if name in extra}}  # deprecated aliases

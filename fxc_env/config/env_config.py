@@ -370,7 +370,7 @@ def _validated(merged: dict[str, Any], arguments: dict[str, Any]) -> EnvConfig:
     bound = checked("action_bound")
     if bound is None:
         bound = DEFAULT_ACTION_BOUNDS[(action_mode, obs_mode)]
-    model_name, model = _agent_model(merged)
+    model_name, model = _agent_model(merged, arguments)
     u_max_choices = _input_limits(merged.get("u_max"))
     if model is not None:
         _check_model_modes(model_name, model, sched.settling_time, action_mode, u_max_choices)
@@ -431,9 +431,9 @@ def _check_steering(config: EnvConfig, merged: dict[str, Any]) -> None:
         raise _blamed(error, merged["agent_parameters"], steered) from None
 
 
-def _agent_model(merged: dict[str, Any]) -> tuple[str, LinearModel | None]:
+def _agent_model(merged: dict[str, Any], arguments: dict[str, Any]) -> tuple[str, LinearModel | None]:
     """``(name, model)``: None for the double integrator's closed forms, else the validated model."""
-    name, parameters = model_spec(merged.get("agent_model"), {key: merged.get(key) for key in FLAT_PARAMETERS})
+    name, parameters = model_spec(merged.get("agent_model"), {key: arguments.get(key) for key in FLAT_PARAMETERS})
     merged["agent_parameters"] = parameters
     if name == "double_integrator":
         return name, None

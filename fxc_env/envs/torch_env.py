@@ -463,7 +463,11 @@ def _prebuilt(config: Any, arguments: dict[str, Any]) -> EnvConfig:
         raise validation.ArgumentTypeError(
             f"config: expected an EnvConfig (make_config's), got {type(config).__name__}"
         )
-    given = [name for name, value in arguments.items() if not _is_default(value, ARGUMENTS[name].default)]
+    given = [
+        name
+        for name, value in arguments.items()
+        if name not in ARGUMENTS or not _is_default(value, ARGUMENTS[name].default)
+    ]
     if given:
         raise validation.ArgumentError(
             f"config: give a prebuilt config or the environment's arguments, not both (got {', '.join(given)})"
