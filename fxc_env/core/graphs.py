@@ -388,10 +388,7 @@ def named_topology(
 ) -> Topology:
     """The built-in generators; see :data:`TOPOLOGY_NAMES`.
 
-    - ``ring``: directed cycle ``0 -> 1 -> ... -> N-1 -> 0``.
-    - ``path``: ``0 -> 1 -> ... -> N-1`` (spanning tree rooted at 0).
-    - ``star``: agent 0 sends to every other agent (a leader; ``xi = e_0``).
-    - ``complete``: every agent receives from every other.
+    - ``ring``, ``path``, ``star``, ``complete``: :func:`structured_edges`.
     - ``random``: a uniformly random directed spanning tree plus random extra edges up to
       ``mean_in_degree``; with ``period > 1`` the edges are dealt at random to the m graphs,
       so only their union is guaranteed to span. O(N + |E|).
@@ -417,7 +414,8 @@ def named_topology(
 
 
 def structured_edges(kind: str, n: int) -> np.ndarray:
-    """The ``(sender, receiver)`` pairs of ``ring``, ``path``, ``star`` or ``complete`` on ``n`` agents.
+    """The ``(sender, receiver)`` pairs of ``ring`` (``0 -> 1 -> ... -> N-1 -> 0``), ``path`` (``0 -> ... -> N-1``,
+    rooted at 0), ``star`` (agent 0 sends to every other: a leader, ``xi = e_0``) or ``complete`` on ``n`` agents.
 
     The one definition of the structured graphs, for fixed topologies (:func:`named_topology`)
     and topology families (:mod:`fxc_env.core.families`, which relabel the agents at random).

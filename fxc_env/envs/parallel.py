@@ -175,20 +175,13 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     data stays out: the episode's graphs are ``env.episode_edges()``.
 
     **Graph tensors** (``graph_tensors=True``, for graph neural networks; README, "Graph
-    tensors"): every info at reset and after every step also holds the coming interval's
-    graph in PyTorch Geometric's convention, padded to a fixed ``E`` (``edge_capacity``: the
-    topology's largest graph, ``N slots`` for a family): ``edge_index`` ``(2, E)`` int64 (row 0
-    the source j, row 1 the target i: i measures j; agents ``0 .. N-1``, padding the edge
-    ``N -> N``), ``edge_mask`` ``(E,)`` bool (True for an edge), ``n_edges`` (an int: the edges
-    come first) and ``edge_attr`` ``(E, n dim)`` (each edge's observation row ``z_j - z_i`` as
-    agent i observes it, in ``obs_mode``'s scaling and ``obs_dtype``; zeros for padding); the
-    same arrays in every agent's dict. Padding points at the extra node ``N``, so a summing
-    message pass over ``N + 1`` node rows (drop the last) equals the one over the true edges,
-    and over ``N`` rows it raises; ``edge_index[:, :n_edges]`` is the unpadded graph. They
-    follow the switching schedule, and a link lost to ``link_dropout`` is not listed. They
-    are infos, not observations: the graph is global while an observation is one agent's
-    local measurement, and the observation spaces stay the fixed Boxes that SuperSuit, SB3
-    and TorchRL's wrapper expect.
+    tensors"): every info at reset and after every step also holds the coming interval's graph
+    in PyTorch Geometric's convention, padded to a fixed ``E`` (``edge_capacity``) with the
+    edge ``N -> N``: ``edge_index`` ``(2, E)`` int64 (source j, target i), ``edge_mask`` ``(E,)``,
+    ``n_edges`` (an int) and ``edge_attr`` ``(E, n dim)`` (each edge's observation row), the same
+    arrays in every agent's dict (:mod:`fxc_env.engine.graph_tensors` says how padding keeps a
+    summing message pass exact). They are infos, not observations: the graph is global while an
+    observation is one agent's local measurement, and the observation spaces stay fixed Boxes.
 
     ## State
     ``state()`` with ``global_state="raw"`` (default): ``(N, 2 dim)`` float64 rows
