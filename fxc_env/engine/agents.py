@@ -273,17 +273,8 @@ class LinearAgents:
             if model.n_inputs == 1:
                 u_start, u_end = u_start[..., 0], u_end[..., 0]
             out[...] = np.swapaxes(following, -1, -2)
-            return Interval(
-                out,
-                energy.sum(axis=-1),
-                peak.max(axis=-1),
-                u_start,
-                u_end,
-                self._no_saturation,
-                None,
-                delta,
-                state_disagreement(out, c),
-            )
+            energy, peak, disagreement = energy.sum(axis=-1), peak.max(axis=-1), state_disagreement(out, c)
+            return Interval(out, energy, peak, u_start, u_end, self._no_saturation, None, delta, disagreement)
 
     def _advance_device(self, state: Any, plan: Any, k: int) -> Interval:
         """:meth:`advance` on torch: the same maps (:meth:`IntervalMaps.steer <fxc_env.core.linear.IntervalMaps.steer>`,
@@ -301,17 +292,9 @@ class LinearAgents:
         u_start = costate @ maps.motion_B[k]
         if model.n_inputs == 1:
             u_start, u_end = u_start[..., 0], u_end[..., 0]
-        return Interval(
-            following,
-            xp.sum(energy, axis=-1),
-            xp.max(maps.peak(k, nu), axis=-1),
-            u_start,
-            u_end,
-            self._no_saturation,
-            None,
-            delta,
-            state_disagreement(following, self.config),
-        )
+        energy, peak = xp.sum(energy, axis=-1), xp.max(maps.peak(k, nu), axis=-1)
+        disagreement = state_disagreement(following, self.config)
+        return Interval(following, energy, peak, u_start, u_end, self._no_saturation, None, delta, disagreement)
 
     def disagreement(self, state: Any) -> Any:
         """``D = sum_l T_s^l e_{z_l}`` per episode ``(B,)`` (:func:`state_disagreement`)."""

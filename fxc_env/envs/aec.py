@@ -49,22 +49,15 @@ class ConsensusAECEnv(AECEnv, EzPickle):
         graph_tensors: bool = False,
         **kwargs: Unpack[EnvKwargs],
     ) -> None:
-        # The parallel env's arguments (fxc_env.config.arguments).
-        arguments = {
-            **env_arguments(locals(), kwargs),
-            "render_mode": render_mode,
-            "max_cycles": max_cycles,
-            "graph_tensors": graph_tensors,
-        }
+        front = {"render_mode": render_mode, "max_cycles": max_cycles, "graph_tensors": graph_tensors}
+        arguments = {**env_arguments(locals(), kwargs), **front}  # the parallel env's arguments, checked there
         AECEnv.__init__(self)
         #: The parallel environment that plays each interval once every agent has acted.
         self.parallel = ConsensusParallelEnv(**arguments)
         EzPickle.__init__(self, **arguments)
         self.render_mode = render_mode
-        self.possible_agents = self.parallel.possible_agents
-        self.observation_spaces = self.parallel.observation_spaces
-        self.action_spaces = self.parallel.action_spaces
-        self.state_space = self.parallel.state_space
+        for name in ("possible_agents", "observation_spaces", "action_spaces", "state_space"):
+            setattr(self, name, getattr(self.parallel, name))
         self.agents: list[str] = []
         self.rewards: dict[str, float] = {}
         self._cumulative_rewards: dict[str, float] = {}
