@@ -19,9 +19,10 @@ this table (names, order, defaults, annotations).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import inspect
+from collections.abc import Callable, Mapping, Sequence
 from types import MappingProxyType
-from typing import Any, TypedDict
+from typing import Any, TypedDict, TypeVar
 
 from fxc_env.config.argument_types import (
     NO_FALLBACK,
@@ -36,6 +37,8 @@ from fxc_env.core import validation
 from fxc_env.core.graphs import TOPOLOGY_NAMES
 from fxc_env.core.models import FLAT_PARAMETERS, MODEL_NAMES
 from fxc_env.core.schedules import SCHEDULE_NAMES
+
+_F = TypeVar("_F", bound=Callable[..., Any])
 
 __all__ = [
     "ARGUMENTS",
@@ -53,6 +56,7 @@ __all__ = [
     "Flag",
     "arguments_table",
     "env_arguments",
+    "env_signature",
     "with_arguments_table",
 ]
 
@@ -435,3 +439,26 @@ def env_arguments(namespace: Mapping[str, Any], kwargs: Mapping[str, Any] | None
     given = {**namespace, **extra}
     arguments = {name: given.get(name, ARGUMENTS[name].default) for name in ENV_ARGUMENT_NAMES}
     return {**arguments, **{name: extra[name] for name in FLAT_PARAMETERS if name in extra}}  # deprecated aliases
+
+
+def env_signature(
+    before: Sequence[Argument] = (), after: Sequence[Argument] = (), *, returns: str | None = None
+) -> Callable[[_F], _F]:
+    """Give a front end's ``__init__`` the signature ``(self, *before, *ENV_ARGUMENTS, *after)`` from the table.
+
+    The first argument is positional when it is ``scenario`` or ``n_envs``; every other one is
+    keyword-only, with the table's default and annotation. With ``returns`` (a function such as
+    :func:`fxc_env.make_config`): no ``self``, and that return annotation.
+    """
+    P = inspect.Parameter
+    parameters = [] if returns else [P("self", P.POSITIONAL_OR_KEYWORD)]
+    for position, argument in enumerate((*before, *ENV_ARGUMENTS, *after)):
+        kind = P.POSITIONAL_OR_KEYWORD if position == 0 and argument.name in ("scenario", "n_envs") else P.KEYWORD_ONLY
+        parameters.append(P(argument.name, kind, default=argument.default, annotation=argument.annotation))
+    signature = inspect.Signature(parameters, return_annotation=returns or "None")
+
+    def decorate(init: _F) -> _F:
+        init.__signature__ = signature  # type: ignore[attr-defined]
+        return init
+
+    return decorate

@@ -25,8 +25,8 @@ from fxc_env.config.arguments import (
     RENDER_MODES,
     EnvKwargs,
     env_arguments,
+    env_signature,
 )
-from fxc_env.config.front_ends import env_signature
 from fxc_env.config.layout import CLOCK_SIZE, ObservationLayout
 from fxc_env.config.scenarios import scenario_preset
 from fxc_env.core import validation

@@ -53,13 +53,7 @@ import scipy.linalg
 
 from fxc_env.core import validation
 from fxc_env.core.interval_maps import PEAK_GRID_POINTS, IntervalMaps, apply_matrix  # noqa: F401 (re-exported)
-from fxc_env.core.models import (  # noqa: F401 (re-exported: their home before core.models)
-    CHAIN_ORDERS,
-    DEFAULT_DAMPING,
-    DEFAULT_FREQUENCY,
-    MODEL_NAMES,
-    model_matrices,
-)
+from fxc_env.core.models import CHAIN_ORDERS, DEFAULT_DAMPING, DEFAULT_FREQUENCY, MODEL_NAMES, model_matrices  # noqa: F401
 from fxc_env.core.validation import ArgumentError
 
 #: The largest ``growth_rate * T_s`` an episode may span: free motion grows by up to ``e^100 ~ 3e43``

@@ -15,8 +15,7 @@ from gymnasium.utils import EzPickle
 from pettingzoo import AECEnv
 
 from fxc_env.config import EnvConfig
-from fxc_env.config.arguments import FRONT_END_ARGUMENTS, GRAPH_TENSORS, EnvKwargs, env_arguments
-from fxc_env.config.front_ends import env_signature
+from fxc_env.config.arguments import FRONT_END_ARGUMENTS, GRAPH_TENSORS, EnvKwargs, env_arguments, env_signature
 from fxc_env.core.validation import ArgumentError
 from fxc_env.envs.parallel import ConsensusParallelEnv
 

@@ -18,9 +18,9 @@ from fxc_env.config.arguments import (
     GRAPH_TENSORS,
     EnvKwargs,
     env_arguments,
+    env_signature,
     with_arguments_table,
 )
-from fxc_env.config.front_ends import env_signature
 from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
 from fxc_env.engine import ConsensusEngine, with_initial_state

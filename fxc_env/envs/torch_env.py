@@ -27,9 +27,9 @@ from fxc_env.config.arguments import (
     Argument,
     EnvKwargs,
     env_arguments,
+    env_signature,
     with_arguments_table,
 )
-from fxc_env.config.front_ends import env_signature
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core import validation
 from fxc_env.engine import ConsensusEngine

@@ -27,9 +27,9 @@ from fxc_env.config.arguments import (
     Argument,
     EnvKwargs,
     env_arguments,
+    env_signature,
     with_arguments_table,
 )
-from fxc_env.config.front_ends import env_signature
 from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
@@ -91,9 +91,7 @@ class ConsensusVecEnv(VecEnv):
     dicts during an episode; at its end each carries ``terminal_observation`` (the last
     observation before the reset), ``TimeLimit.truncated`` (True only for a ``max_cycles``
     cut; the deadline is a termination) and ``episode_metrics`` (its episode's metrics, as
-    the parallel env's ``infos[agent]["episode"]``: numbers only, ``inf`` rather than
-    None, a metric that does not apply left out rather than ``nan``, each sub-environment its
-    own copy). Per-agent energy and peak input of the last
+    the parallel env's ``infos[agent]["episode"]``, each sub-environment its own copy). Per-agent energy and peak input of the last
     step are in :attr:`last_outcome` (arrays ``(n_envs, N)``).
 
     Seeding follows SB3: :meth:`seed` sets ``seed + i`` for sub-environment i, used at the
