@@ -2,8 +2,8 @@
 
 :func:`fxc_env.make_config` and every front end over it (the PettingZoo parallel and AEC
 environments, the SB3 ``ConsensusVecEnv``, the TorchRL ``ConsensusTorchEnv``) take the same
-keyword arguments. :data:`ENV_ARGUMENTS` states each one once: its name, its type as the
-signatures write it, its default, the values it allows, a one-line help and its row of the
+keyword arguments. :data:`ENV_ARGUMENTS` states each one once: its name, its type (from
+:class:`EnvKwargs`), its default, the values it allows, a one-line help and its row of the
 environment card. From this table come
 
 * ``make_config``'s fallbacks (the ``[value]`` defaults a scenario may override) and its
@@ -12,9 +12,9 @@ environment card. From this table come
 * the ``fxc simulate`` / ``fxc evaluate`` environment flags (:mod:`fxc_env.config.flags`);
 * the Arguments table of every card (:func:`with_arguments_table`).
 
-The signatures themselves stay written out in each front end, so IDEs, type checkers and
-``help()`` see every argument; ``tests/test_arguments.py`` checks that each one agrees with
-this table (names, order, defaults, annotations).
+Front ends take them as ``**kwargs: Unpack[EnvKwargs]`` (type checkers and IDEs see each one) and
+:func:`env_signature` writes their signature out for ``help()`` and ``inspect``;
+``tests/test_arguments.py`` checks both against this table (names, order, defaults, annotations).
 """
 
 from __future__ import annotations
