@@ -20,16 +20,17 @@ from fxc_env.core.validation import ArgumentError
 #: The named models (with their parameters) every test runs over.
 MODELS = [
     dict(agent_model="single_integrator"),
-    dict(agent_model="integrator_chain", order=3),
-    dict(agent_model="integrator_chain", order=4),
-    dict(agent_model="damped", damping=0.5),
-    dict(agent_model="oscillator", frequency=1.0),
+    dict(agent_model={"name": "integrator_chain", "order": 3}),
+    dict(agent_model={"name": "integrator_chain", "order": 4}),
+    dict(agent_model={"name": "damped", "damping": 0.5}),
+    dict(agent_model={"name": "oscillator", "frequency": 1.0}),
 ]
 DOUBLE_INTEGRATOR = model_matrices("double_integrator")
 
 
 def model_id(kwargs):
-    return "-".join(str(v) for v in kwargs.values())
+    spec = kwargs["agent_model"]
+    return "-".join(str(v) for v in spec.values()) if isinstance(spec, dict) else spec
 
 
 def reference_episode(config, x0, v0):
@@ -138,7 +139,7 @@ def test_deadline_errors_of_every_model_at_K_200_and_400():
 
 
 def test_normalized_observations_of_a_chain_are_scale_free():
-    config = make_config("paper_fig1", agent_model="integrator_chain", order=3)
+    config = make_config("paper_fig1", agent_model={"name": "integrator_chain", "order": 3})
     x0, v0 = config.initial_state
     observed = []
     for factor in (1.0, 1e-6, 1e6):
@@ -154,7 +155,7 @@ def test_normalized_observations_of_a_chain_are_scale_free():
 
 
 def test_the_parallel_env_with_a_chain_passes_pettingzoos_api_test():
-    env = fxc_env.parallel_env(scenario="paper_fig1", agent_model="integrator_chain", order=3, dim=2)
+    env = fxc_env.parallel_env(scenario="paper_fig1", agent_model={"name": "integrator_chain", "order": 3}, dim=2)
     parallel_api_test(env, num_cycles=20)
     env.reset(seed=0)
     assert env.observation_space("agent_0").shape == (env.config.layout.size,)
@@ -177,7 +178,7 @@ def test_the_hexagon_scenario_reaches_its_formation_by_the_deadline():
 
 def test_position_offsets_of_a_chain_stay_constant_and_are_reached():
     offsets = np.linspace(-3.0, 3.0, 6)[:, None]
-    config = make_config("paper_fig1", agent_model="integrator_chain", order=3, formation_offsets=offsets)
+    config = make_config("paper_fig1", agent_model={"name": "integrator_chain", "order": 3}, formation_offsets=offsets)
     np.testing.assert_array_equal(
         config.formation_motion[:, None] @ config.formation, np.broadcast_to(config.formation, (201, 6, 3, 1))
     )
@@ -207,10 +208,14 @@ def test_full_state_offsets_of_an_oscillator_move_with_the_free_motion():
         (dict(agent_model=(np.eye(2), np.ones((3, 1)))), "B: "),
         (dict(agent_model=(np.array([[0.0, np.nan], [0.0, 0.0]]), np.array([[0.0], [1.0]]))), "A: "),
         (dict(agent_model="triple_integrator"), "agent_model: "),
-        (dict(agent_model="integrator_chain", order=5), "order: "),
-        (dict(order=3), "order: "),
-        (dict(agent_model="damped", damping=-1.0), "damping: "),
-        (dict(agent_model="integrator_chain", order=3, action_mode="accel"), "action_mode: "),
+        (dict(agent_model={"name": "integrator_chain", "order": 5}), "order: "),
+        (dict(agent_model={"name": "damped", "damping": -1.0}), "damping: "),
+        (dict(agent_model={"damping": 0.5}), r"agent_model: expected a dict with a 'name' key"),
+        (dict(agent_model={"name": "damped", "order": 3}), r"agent_model: 'damped' takes only 'damping'.*\['order'\]"),
+        (dict(agent_model={"name": "single_integrator", "order": 3}), r"agent_model: .*takes no parameters"),
+        (dict(agent_model={"name": "warp"}), r"agent_model\['name'\]: "),
+        (dict(agent_model=5), r"agent_model: expected a model name, a dict .* or a pair \(A, B\), got int"),
+        (dict(agent_model={"name": "integrator_chain", "order": 3}, action_mode="accel"), "action_mode: "),
         (dict(agent_model="oscillator", u_max=10.0), "u_max: "),
         (dict(formation_offsets=np.zeros((5, 1))), "formation_offsets: "),
         (dict(formation_offsets=np.full((6, 1), np.inf)), "formation_offsets: "),
@@ -224,7 +229,7 @@ def test_bad_models_and_offsets_are_refused_naming_the_argument(kwargs, message)
 
 @pytest.mark.parametrize(
     "kwargs",
-    [dict(agent_model="integrator_chain", order=3), dict(agent_model="oscillator")],
+    [dict(agent_model={"name": "integrator_chain", "order": 3}), dict(agent_model="oscillator")],
     ids=["chain3", "oscillator"],
 )
 def test_a_general_model_on_torch_plays_the_numpy_engine_to_rounding(kwargs):
@@ -248,7 +253,7 @@ def test_a_general_model_on_torch_plays_the_numpy_engine_to_rounding(kwargs):
 
 def test_a_general_model_steps_on_the_meta_device_without_reading_the_host():
     torch = pytest.importorskip("torch")
-    config = make_config("formation_hexagon", agent_model="integrator_chain", order=3, n_intervals=5)
+    config = make_config("formation_hexagon", agent_model={"name": "integrator_chain", "order": 3}, n_intervals=5)
     engine = ConsensusEngine(config, 4, device="meta")  # any read of a value would raise here
     x0, v0, u_max, topologies = engine.draw_batch()
     engine.reset(x0, v0, u_max=u_max, topologies=topologies)
@@ -294,3 +299,62 @@ def test_the_models_benchmark_suite_scores_the_reference_on_every_model(tmp_path
         assert float(row["relative_deadline_error_median"]) < 1e-10, row["case"]
     # The double integrator's analytic baselines do not run on other models, and the report says why.
     assert "action_mode" in output.markdown
+
+
+# ---------------------------------------------------------------------------- the agent_model spec
+SPECS = [
+    ({"name": "integrator_chain", "order": 3}, {"order": 3}),
+    ({"name": "damped", "damping": 0.7}, {"damping": 0.7}),
+    ({"name": "oscillator", "frequency": 1.3}, {"frequency": 1.3}),
+]
+
+
+@pytest.mark.parametrize(("spec", "flat"), SPECS, ids=lambda x: str(x))
+def test_the_flat_model_parameters_warn_naming_the_spec_and_give_its_model(spec, flat):
+    # agent_model={"name": "damped", "damping": 0.7} is the spelling; damping=0.7 beside agent_model="damped"
+    # still works for one release, with a DeprecationWarning that writes the new spelling out.
+    ((key, value),) = flat.items()
+    expected = model_matrices(spec["name"], **flat)
+    new = make_config("paper_fig1", agent_model=spec)
+    np.testing.assert_array_equal(new.model.A, expected[0])
+    with pytest.warns(DeprecationWarning, match=rf"^{key}={value!r} is deprecated .*write agent_model=\{{'name'"):
+        old = make_config("paper_fig1", agent_model=spec["name"], **flat)
+    np.testing.assert_array_equal(old.model.A, new.model.A)
+    assert old.agent_model == new.agent_model == spec["name"]
+
+
+def test_a_flat_parameter_given_twice_or_without_a_model_is_refused():
+    with pytest.warns(DeprecationWarning), pytest.raises(ArgumentError, match=r"^damping: given twice"):
+        make_config(agent_model={"name": "damped", "damping": 0.7}, damping=0.2)
+    with pytest.warns(DeprecationWarning), pytest.raises(ArgumentError, match=r"^order: the double integrator"):
+        make_config(order=3)
+
+
+def test_every_front_end_takes_the_model_spec():
+    torchrl = pytest.importorskip("fxc_env.envs.torch_env")
+    spec = {"name": "damped", "damping": 0.7}
+    expected = make_config("formation_hexagon", agent_model=spec).model.A
+    fronts = [
+        fxc_env.parallel_env(scenario="formation_hexagon", agent_model=spec).unwrapped.config,
+        fxc_env.env(scenario="formation_hexagon", agent_model=spec).unwrapped.config,
+        fxc_env.ConsensusVecEnv(2, scenario="formation_hexagon", agent_model=spec).config,
+        torchrl.ConsensusTorchEnv(batch_size=2, scenario="formation_hexagon", agent_model=spec).config,
+        ConsensusEngine(make_config("formation_hexagon", agent_model=spec)).config,
+    ]
+    for config in fronts:
+        np.testing.assert_array_equal(config.model.A, expected)
+        assert config.agent_model == "damped"
+
+
+def test_every_front_end_takes_the_flat_alias_with_a_warning():
+    torchrl = pytest.importorskip("fxc_env.envs.torch_env")
+    flat = {"scenario": "formation_hexagon", "agent_model": "damped", "damping": 0.7}
+    makers = [
+        lambda: fxc_env.parallel_env(**flat).unwrapped.config,
+        lambda: fxc_env.env(**flat).unwrapped.config,
+        lambda: fxc_env.ConsensusVecEnv(2, **flat).config,
+        lambda: torchrl.ConsensusTorchEnv(**flat).config,
+    ]
+    for make in makers:
+        with pytest.warns(DeprecationWarning, match=r"^damping=0.7 is deprecated"):
+            assert make().model.A[1, 1] == -0.7

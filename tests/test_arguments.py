@@ -18,11 +18,12 @@ from fxc_env.config.arguments import (
     GRAPH_TENSORS,
     NO_FALLBACK,
     TABLE_MARKER,
+    EnvKwargs,
     with_arguments_table,
 )
-from fxc_env.config.flags import FLAG_ARGUMENTS, add_env_arguments, env_kwargs_from
+from fxc_env.config.flags import FLAG_ARGUMENTS, MODEL_FLAGS, add_env_arguments, env_kwargs_from
 from fxc_env.core import validation
-from fxc_env.core.linear import DEFAULT_DAMPING, DEFAULT_FREQUENCY
+from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY, FLAT_PARAMETERS
 from fxc_env.core.validation import ArgumentError
 from fxc_env.envs.aec import ConsensusAECEnv
 from fxc_env.envs.parallel import ConsensusParallelEnv
@@ -91,6 +92,21 @@ def test_every_signature_lists_the_table_in_order_with_its_defaults_and_types(na
     assert positional == [argument.name for argument in expected[:1] if argument.name in ("scenario", "n_envs")]
 
 
+def test_the_typed_keywords_of_the_front_ends_are_the_table():
+    # Front ends take **kwargs: Unpack[EnvKwargs]: what type checkers and IDEs read must be the table's.
+    annotations = {name: value.__forward_arg__ for name, value in EnvKwargs.__annotations__.items()}
+    assert annotations == {argument.name: argument.annotation for argument in ENV_ARGUMENTS[1:]}
+    assert EnvKwargs.__total__ is False
+
+
+@pytest.mark.parametrize("name", list(FRONT_ENDS))
+def test_an_unknown_keyword_is_refused_naming_it(name):
+    factory = FRONT_ENDS[name][0]
+    required = {"n_envs": 1} if name == "ConsensusVecEnv" else {}
+    with pytest.raises(TypeError, match=r"^n_agent: not an argument of the environment; expected one of scenario, "):
+        factory(**required, n_agent=4)
+
+
 def test_the_torchrl_env_shows_its_arguments_in_help():
     text = pydoc.render_doc(ConsensusTorchEnv, renderer=pydoc.plaintext)
     signature = str(inspect.signature(ConsensusTorchEnv))
@@ -151,14 +167,15 @@ def test_make_config_keeps_the_signature_defaults():
     assert (c.obs_noise, c.link_dropout) == (ARGUMENTS["obs_noise"].default, ARGUMENTS["link_dropout"].default)
 
 
-def test_the_documented_model_parameters_are_the_models_defaults():
-    assert make_config(agent_model="integrator_chain").n_states == int(ARGUMENTS["order"].card_default)
-    assert float(ARGUMENTS["damping"].card_default) == DEFAULT_DAMPING
-    assert float(ARGUMENTS["frequency"].card_default) == DEFAULT_FREQUENCY
-    for name, parameter in (("damped", "damping"), ("oscillator", "frequency")):
-        default = make_config(agent_model=name).model.A
-        given = make_config(agent_model=name, **{parameter: float(ARGUMENTS[parameter].card_default)}).model.A
-        np.testing.assert_array_equal(default, given)
+def test_the_model_flags_state_the_models_defaults():
+    assert make_config(agent_model="integrator_chain").n_states == 2 and "default 2)" in MODEL_FLAGS["order"][1]
+    for name, parameter, default in (
+        ("damped", "damping", DEFAULT_DAMPING),
+        ("oscillator", "frequency", DEFAULT_FREQUENCY),
+    ):
+        assert f"default {default:g})" in MODEL_FLAGS[parameter][1]
+        spelled = make_config(agent_model={"name": name, parameter: default}).model.A
+        np.testing.assert_array_equal(make_config(agent_model=name).model.A, spelled)
 
 
 @pytest.mark.parametrize("argument", [a for a in ENV_ARGUMENTS if a.kind == "choice"], ids=lambda a: a.name)
@@ -274,9 +291,22 @@ def _sample(argument):
     }[kind]
 
 
-@pytest.mark.parametrize("argument", [a for a in FLAG_ARGUMENTS if a.name != "scenario"], ids=lambda a: a.name)
+@pytest.mark.parametrize(
+    "argument", [a for a in FLAG_ARGUMENTS if a.name not in ("scenario", *FLAT_PARAMETERS)], ids=lambda a: a.name
+)
 def test_each_flag_passes_its_value_to_its_argument(argument):
     text, value = _sample(argument)
     kwargs = env_kwargs_from(_parser().parse_args([argument.flag_name, text]))
     assert kwargs == {"scenario": "paper_fig1", argument.name: value}
     assert type(kwargs[argument.name]) is type(value)
+
+
+@pytest.mark.parametrize(("flag", "value"), [("--order", "3"), ("--damping", "0.25"), ("--frequency", "2")])
+def test_a_model_parameter_flag_joins_the_agent_model_spec(flag, value):
+    name = {"--order": "integrator_chain", "--damping": "damped", "--frequency": "oscillator"}[flag]
+    kwargs = env_kwargs_from(_parser().parse_args(["--agent-model", name, flag, value]))
+    parameter = flag[2:]
+    expected = int(value) if flag == "--order" else float(value)
+    assert kwargs == {"scenario": "paper_fig1", "agent_model": {"name": name, parameter: expected}}
+    with pytest.raises(ArgumentError, match=f"^{flag}: a parameter of --agent-model; give --agent-model too"):
+        env_kwargs_from(_parser().parse_args([flag, value]))

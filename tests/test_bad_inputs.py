@@ -89,8 +89,8 @@ CONSTRUCTOR_CASES = [
     ({"obs_dtype": "float32", "obs_mode": "raw", "position_range": 1e100}, "position_range"),
     ({"obs_dtype": "float32", "obs_mode": "raw", "velocity_range": (1.0, 1e50)}, "velocity_range"),
     ({"obs_dtype": "float32", "obs_mode": "raw", "initial_state": ([1e50] * N, [0.0] * N)}, "initial_state"),
-    ({"agent_model": "oscillator", "frequency": 1e300}, "frequency"),
-    ({"agent_model": "damped", "damping": 1e300}, "damping"),
+    ({"agent_model": {"name": "oscillator", "frequency": 1e300}}, "frequency"),
+    ({"agent_model": {"name": "damped", "damping": 1e300}}, "damping"),
     ({"n_agents": np.array([1, 2]), "topology": "ring"}, "n_agents"),
     ({"topology": np.array(4)}, "topology"),
     ({"schedule": [10.0, 10.0, 1e-15]}, "schedule"),  # the last interval is lost to rounding at t = 20 s
@@ -781,7 +781,7 @@ def test_a_weighted_networkx_graph_is_refused_by_name():
 def test_a_model_parameter_that_breaks_the_interval_maps_is_blamed_by_name():
     # frequency = 2**70 was blamed on "intervals", which the user never gave (issue 24).
     with pytest.raises(ArgumentError, match=r"^frequency: expected a value with which 'oscillator' agents can be"):
-        fxc_env.parallel_env(scenario=None, agent_model="oscillator", frequency=2**70)
+        fxc_env.parallel_env(scenario=None, agent_model={"name": "oscillator", "frequency": 2**70})
 
 
 def test_the_engine_refuses_a_scenario_name_in_place_of_its_config():

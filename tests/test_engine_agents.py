@@ -19,7 +19,7 @@ from fxc_env.engine.clock import InstantTables, LockStepClock
     [
         ({}, agents.DoubleIntegratorAgents),
         ({"u_max": 5.0}, agents.LimitedDoubleIntegratorAgents),
-        ({"agent_model": "integrator_chain", "order": 3}, agents.LinearAgents),
+        ({"agent_model": {"name": "integrator_chain", "order": 3}}, agents.LinearAgents),
     ],
 )
 def test_the_dynamics_are_chosen_from_the_config(kwargs, kind):
@@ -74,7 +74,7 @@ def test_formation_offsets_are_added_back_at_the_start():
 
 
 def test_general_agents_have_no_input_end_values_to_map_from_actions():
-    config = make_config("paper_fig1", agent_model="integrator_chain", order=3)
+    config = make_config("paper_fig1", agent_model={"name": "integrator_chain", "order": 3})
     engine = ConsensusEngine(config)
     engine.reset(np.ones((1, 6, 1)), np.zeros((1, 6, 1)))
     with pytest.raises(ArgumentError, match="plans"):

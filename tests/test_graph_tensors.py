@@ -62,7 +62,7 @@ def check_against_graphs(engine, tensors):
         {"scenario": "paper_fig1", "obs_mode": "raw", "dim": 2},
         {"topology": FAMILY, "n_agents": 7, "obs_slots": 6},
         {"topology": "random", "n_agents": 9, "topology_period": 3, "switching": "random", "obs_noise": 0.05},
-        {"topology": "complete", "n_agents": 5, "agent_model": "integrator_chain", "order": 3},
+        {"topology": "complete", "n_agents": 5, "agent_model": {"name": "integrator_chain", "order": 3}},
     ],
 )
 def test_edges_are_the_current_graph_and_features_are_its_observation_rows(settings):

@@ -2,8 +2,8 @@
 
 :func:`fxc_env.make_config` and every front end over it (the PettingZoo parallel and AEC
 environments, the SB3 ``ConsensusVecEnv``, the TorchRL ``ConsensusTorchEnv``) take the same
-keyword arguments. :data:`ENV_ARGUMENTS` states each one once: its name, its type as the
-signatures write it, its default, the values it allows, a one-line help and its row of the
+keyword arguments. :data:`ENV_ARGUMENTS` states each one once: its name, its type (from
+:class:`EnvKwargs`), its default, the values it allows, a one-line help and its row of the
 environment card. From this table come
 
 * ``make_config``'s fallbacks (the ``[value]`` defaults a scenario may override) and its
@@ -12,25 +12,33 @@ environment card. From this table come
 * the ``fxc simulate`` / ``fxc evaluate`` environment flags (:mod:`fxc_env.config.flags`);
 * the Arguments table of every card (:func:`with_arguments_table`).
 
-The signatures themselves stay written out in each front end, so IDEs, type checkers and
-``help()`` see every argument; ``tests/test_arguments.py`` checks that each one agrees with
-this table (names, order, defaults, annotations).
+Front ends take them as ``**kwargs: Unpack[EnvKwargs]`` (type checkers and IDEs see each one) and
+:func:`env_signature` writes their signature out for ``help()`` and ``inspect``;
+``tests/test_arguments.py`` checks both against this table (names, order, defaults, annotations).
 """
 
 from __future__ import annotations
 
 import inspect
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
 from types import MappingProxyType
-from typing import Any
+from typing import Any, TypedDict, TypeVar
 
-import numpy as np
-
+from fxc_env.config.argument_types import (
+    NO_FALLBACK,
+    REQUIRED,
+    TABLE_MARKER,
+    Argument,
+    Flag,
+    arguments_table,
+    with_arguments_table,
+)
 from fxc_env.core import validation
 from fxc_env.core.graphs import TOPOLOGY_NAMES
-from fxc_env.core.linear import DEFAULT_DAMPING, DEFAULT_FREQUENCY, MODEL_NAMES
+from fxc_env.core.models import FLAT_PARAMETERS, MODEL_NAMES
 from fxc_env.core.schedules import SCHEDULE_NAMES
+
+_F = TypeVar("_F", bound=Callable[..., Any])
 
 __all__ = [
     "ARGUMENTS",
@@ -42,144 +50,59 @@ __all__ = [
     "NO_FALLBACK",
     "RENDER_MODE",
     "REQUIRED",
+    "TABLE_MARKER",
     "Argument",
+    "EnvKwargs",
     "Flag",
     "arguments_table",
     "env_arguments",
+    "env_signature",
     "with_arguments_table",
 ]
 
 
-class _Marker:
-    """A named sentinel (readable in reprs and in the card)."""
+class EnvKwargs(TypedDict, total=False):
+    """The environment's keyword arguments after ``scenario`` (the annotations of :data:`ENV_ARGUMENTS`), as front ends take them.
 
-    def __init__(self, name: str) -> None:
-        self._name = name
-
-    def __repr__(self) -> str:
-        return self._name
-
-
-#: :attr:`Argument.fallback` of an argument that has none.
-NO_FALLBACK: Any = _Marker("NO_FALLBACK")
-#: :attr:`Argument.default` of an argument the caller must give (``n_envs``).
-REQUIRED: Any = inspect.Parameter.empty
-
-#: The checks :meth:`Argument.check` knows, each a helper of :mod:`fxc_env.core.validation`.
-CHECK_KINDS = ("choice", "integer", "real", "probability", "seed", "boolean")
-#: What argparse turns a flag's text into; ``"numbers"``: a number or comma-separated numbers.
-FLAG_KINDS = ("str", "int", "float", "numbers")
-
-
-@dataclass(frozen=True)
-class Flag:
-    """How an argument is written on the ``fxc simulate`` / ``fxc evaluate`` command line.
-
-    The flag is ``--`` and the argument's name with dashes (``--n-agents``); left out, it
-    keeps the scenario's value.
+    ``**kwargs: Unpack[EnvKwargs]`` lets type checkers and IDEs see each one; :func:`env_signature`
+    writes them out with their defaults for ``help()`` and ``inspect``.
     """
 
-    #: One of :data:`FLAG_KINDS`: argparse's ``type`` (``str``, ``int``, ``float``), or
-    #: ``"numbers"`` for ``1.5`` or ``1.5,3`` (a range or a set, parsed by the flags module).
-    kind: str = "str"
-    #: The values argparse accepts (None: any); defaults to the argument's choices.
-    choices: tuple[str, ...] | None = None
-    #: The flag's help when it differs from the argument's one-line help.
-    help: str | None = None
+    n_agents: int | None
+    topology: Any
+    settling_time: float | None
+    n_intervals: int | None
+    schedule: Any
+    dim: int | None
+    action_mode: str
+    obs_mode: str
+    obs_format: str
+    obs_dtype: str
+    global_state: str
+    action_bound: float | None
+    reward_floor: float
+    initial_state: Any
+    position_range: float | tuple[float, float] | None
+    velocity_range: float | tuple[float, float] | None
+    topology_seed: int | None
+    mean_in_degree: float | None
+    topology_period: int | None
+    obs_slots: int | None
+    u_max: float | Sequence[float] | None
+    obs_noise: float
+    link_dropout: float
+    switching: str
+    agent_model: Any
+    formation_offsets: Any
 
 
-@dataclass(frozen=True)
-class Argument:
-    """One argument of the environment: everything the signatures, checks, flags and cards say of it."""
-
-    #: The keyword, as every signature spells it.
-    name: str
-    #: Its type as the signatures write it (a string: the package postpones annotations).
-    annotation: str
-    #: The signature's default (:data:`REQUIRED` when there is none). ``None`` usually means
-    #: "not given": the scenario's value, else :attr:`fallback`, applies.
-    default: Any
-    #: One line: the flag's ``--help`` text.
-    help: str
-    #: The card's "meaning" column (reST inline markup; a literal ``|`` is written ``\\|``).
-    card: str
-    #: How :meth:`check` validates a single value (one of :data:`CHECK_KINDS`), or ``""``
-    #: when a helper of its own checks it (structured values, ranges known only with the graph).
-    kind: str = ""
-    #: The allowed values of a ``"choice"`` argument.
-    choices: tuple[str, ...] | None = None
-    #: Bounds of an ``"integer"`` or ``"real"`` argument (inclusive; None: unbounded).
-    minimum: float | None = None
-    maximum: float | None = None
-    #: A ``"real"`` argument must be > 0.
-    positive: bool = False
-    #: The value ``make_config`` uses when neither the call nor the scenario gives one
-    #: (the card's ``[value]``); :data:`NO_FALLBACK` when there is none.
-    fallback: Any = NO_FALLBACK
-    #: Whether a named scenario may set it (:data:`fxc_env.SCENARIOS`).
-    from_scenario: bool = False
-    #: The card's "type" column when the annotation (or the choices) would not say it well.
-    card_type: str | None = None
-    #: The card's "default" column when it is not the default or the fallback.
-    card_default: str | None = None
-    #: Its command-line flag, or None when the command line has none.
-    flag: Flag | None = None
-
-    def check(self, value: Any) -> Any:
-        """``value`` checked by the :mod:`fxc_env.core.validation` helper of :attr:`kind` (its message on error).
-
-        ``None`` passes when it is the default (it means "not given").
-        """
-        if value is None and self.default is None:
-            return None
-        if self.kind == "choice":
-            return validation.choice(self.name, value, self.choices or ())
-        if self.kind == "integer":
-            return validation.integer(self.name, value, _optional_int(self.minimum), _optional_int(self.maximum))
-        if self.kind == "real":
-            return validation.real(self.name, value, self.minimum, self.maximum, positive=self.positive)
-        if self.kind == "probability":
-            return validation.probability(self.name, value)
-        if self.kind == "seed":
-            return validation.optional_seed(self.name, value)
-        if self.kind == "boolean":
-            if not isinstance(value, bool | np.bool_):
-                raise validation.ArgumentTypeError(f"{self.name}: expected True or False, got {value!r}")
-            return bool(value)
-        raise TypeError(f"{self.name}: checked by a helper of its own, not by Argument.check")
-
-    @property
-    def flag_name(self) -> str:
-        """``--name-with-dashes``."""
-        return "--" + self.name.replace("_", "-")
-
-    @property
-    def card_row(self) -> str:
-        """The argument's row of a card's Arguments table."""
-        return f"| ``{self.name}`` | {self._card_type()} | {self._card_default()} | {self.card} |"
-
-    def _card_type(self) -> str:
-        if self.card_type is not None:
-            return self.card_type
-        if self.kind == "choice" and self.choices:
-            options = " \\| ".join(f'"{option}"' for option in self.choices)
-            return f"``None \\| {options}``" if self.default is None else f"``{options}``"
-        return "``" + self.annotation.replace("|", "\\|") + "``"
-
-    def _card_default(self) -> str:
-        if self.card_default is not None:
-            return self.card_default
-        if self.fallback is not NO_FALLBACK:
-            return f"[{_default_text(self.fallback)}]"
-        return "required" if self.default is REQUIRED else _default_text(self.default)
+#: Each environment argument's annotation, as the signatures write it (EnvKwargs's, and ``scenario``'s).
+_ANNOTATIONS = {"scenario": "str | None", **{k: v.__forward_arg__ for k, v in EnvKwargs.__annotations__.items()}}
 
 
-def _optional_int(value: float | None) -> int | None:
-    return None if value is None else int(value)
-
-
-def _default_text(value: Any) -> str:
-    return f'``"{value}"``' if isinstance(value, str) else repr(value)
+def _env(name: str, default: Any, **fields: Any) -> Argument:
+    """A row of the table, annotated as :class:`EnvKwargs` types it."""
+    return Argument(name, _ANNOTATIONS[name], default, **fields)
 
 
 #: Half-widths of the action Box per (action_mode, obs_mode), the default of ``action_bound``.
@@ -202,17 +125,15 @@ RENDER_MODES = ("human", "rgb_array")
 #: The arguments of :func:`fxc_env.make_config`, in its signature's order (``scenario`` first,
 #: positional; every other one keyword-only).
 ENV_ARGUMENTS: tuple[Argument, ...] = (
-    Argument(
+    _env(
         "scenario",
-        "str | None",
         None,
         help="named scenario or 'none' (the defaults)",
         card='named preset from ``fxc_env.SCENARIOS`` (e.g. ``"paper_fig1"``, the paper\'s example)',
         flag=Flag(),
     ),
-    Argument(
+    _env(
         "n_agents",
-        "int | None",
         None,
         help="number of agents N",
         card="N for a named topology or a family",
@@ -223,9 +144,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "topology",
-        "Any",
         None,
         help=", ".join(TOPOLOGY_NAMES[1:] + TOPOLOGY_NAMES[:1]),
         card='``"paper_fig1"`` (the **assumed** Fig. 1), ``"ring"``, ``"path"``, ``"star"``, ``"complete"``, '
@@ -236,9 +156,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="name, edge list, list of edge lists, DiGraph(s), family",
         flag=Flag(),
     ),
-    Argument(
+    _env(
         "settling_time",
-        "float | None",
         None,
         help="deadline T_s in seconds",
         card="the deadline ``T_s`` (s)",
@@ -246,9 +165,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("float"),
     ),
-    Argument(
+    _env(
         "n_intervals",
-        "int | None",
         None,
         help="number of sampling intervals K",
         card="K, the number of sampling intervals (of a named schedule)",
@@ -256,9 +174,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "schedule",
-        "Any",
         None,
         help="sampling schedule",
         card="the sampling instants (``T_k = 6 T_s / (pi k)^2``, last interval ending at ``T_s``)",
@@ -267,9 +184,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="``" + " \\| ".join(f'"{name}"' for name in SCHEDULE_NAMES) + "`` or interval lengths",
         flag=Flag(choices=SCHEDULE_NAMES),
     ),
-    Argument(
+    _env(
         "dim",
-        "int | None",
         None,
         help="space dimension n",
         card="space dimension of ``x_i, v_i, u_i``",
@@ -280,9 +196,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "action_mode",
-        "str",
         "plan",
         help="what an action is: a planned terminal change (plan, default), the input at both ends (accel) "
         "or a correction added to the paper's plan (residual: the zero action is the reference)",
@@ -291,9 +206,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         choices=("plan", "accel", "residual"),
         flag=Flag(),
     ),
-    Argument(
+    _env(
         "obs_mode",
-        "str",
         "normalized",
         help="scale-free (normalized, default) or physical (raw) observations and actions",
         card="scale-free or physical observations and actions",
@@ -301,36 +215,32 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         choices=("normalized", "raw"),
         flag=Flag(),
     ),
-    Argument(
+    _env(
         "obs_format",
-        "str",
         "flat",
         help="one Box per agent (flat, default) or a dict of neighbours, mask and clock",
         card='one Box, or ``{"neighbours", "mask", "clock"}``',
         kind="choice",
         choices=("flat", "dict"),
     ),
-    Argument(
+    _env(
         "obs_dtype",
-        "str",
         "float64",
         help="dtype of observations, their spaces and the normalized global state",
         card="dtype of observations, their spaces and the normalized global state",
         kind="choice",
         choices=("float64", "float32"),
     ),
-    Argument(
+    _env(
         "global_state",
-        "str",
         "raw",
         help="what state() returns: absolute rows (raw, default) or the scale-free vector (normalized)",
         card="what ``state()`` returns (State)",
         kind="choice",
         choices=("raw", "normalized"),
     ),
-    Argument(
+    _env(
         "action_bound",
-        "float | None",
         None,
         help="half-width b of the action Box (default: by action_mode and obs_mode)",
         card="half-width ``b`` of the action Box (default: the Action Space table's, by ``action_mode`` and "
@@ -339,9 +249,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         positive=True,
         card_default="by mode",
     ),
-    Argument(
+    _env(
         "reward_floor",
-        "float",
         1e-12,
         help="f / D(0), the floor in the log reward (at most 1: a floor above D(0) leaves every reward 0)",
         card="``f / D(0)`` in the reward, in (0, 1]",
@@ -349,9 +258,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         maximum=1.0,
         positive=True,
     ),
-    Argument(
+    _env(
         "initial_state",
-        "Any",
         None,
         help="a fixed initial state (x0, v0), or 'random' to drop the scenario's",
         card='fixed initial state ``(N, dim)`` arrays; ``"random"`` drops the scenario\'s',
@@ -359,9 +267,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type='``None \\| "random" \\| (x0, v0)``',
         card_default="[random]",
     ),
-    Argument(
+    _env(
         "position_range",
-        "float | tuple[float, float] | None",
         None,
         help="initial positions U(-r, r) m; LOW,HIGH draws r log-uniformly",
         card="initial positions ``U(-r, r)`` (m); a pair draws ``r`` log-uniformly per episode",
@@ -370,9 +277,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="``float \\| (low, high) \\| None``",
         flag=Flag("numbers"),
     ),
-    Argument(
+    _env(
         "velocity_range",
-        "float | tuple[float, float] | None",
         None,
         help="initial velocities U(-r, r) m/s; LOW,HIGH as above",
         card="initial velocities ``U(-r, r)`` (m/s); a pair as above",
@@ -381,18 +287,16 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="``float \\| (low, high) \\| None``",
         flag=Flag("numbers"),
     ),
-    Argument(
+    _env(
         "topology_seed",
-        "int | None",
         0,
         help="seed of the random topology (default 0)",
         card='seed of ``topology="random"`` (of a family: the draw ``config.topology`` shows)',
         kind="seed",
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "mean_in_degree",
-        "float | None",
         None,
         help="mean in-degree of random digraphs; LOW,HIGH draws it with --family",
         card='mean in-degree of ``"random"``',
@@ -400,9 +304,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("numbers"),
     ),
-    Argument(
+    _env(
         "topology_period",
-        "int | None",
         None,
         help="graphs per switching period (random, or LOW,HIGH with --family)",
         card='number of switching graphs of ``"random"``',
@@ -410,9 +313,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         from_scenario=True,
         flag=Flag("numbers"),
     ),
-    Argument(
+    _env(
         "obs_slots",
-        "int | None",
         None,
         help="neighbour rows of the observation (a learned policy's width)",
         card="neighbour rows in an observation (at least ``d_max``, at most N)",
@@ -420,9 +322,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_default="``d_max``",
         flag=Flag("int"),
     ),
-    Argument(
+    _env(
         "u_max",
-        "float | Sequence[float] | None",
         None,
         help="input limit (m/s^2); A,B,C draws one per episode",
         card="clips each input component to ``±u_max`` m/s^2, integrated exactly (infos report the saturated "
@@ -431,9 +332,8 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         card_type="``float \\| set of floats \\| None``",
         flag=Flag("numbers"),
     ),
-    Argument(
+    _env(
         "obs_noise",
-        "float",
         0.0,
         help="standard deviation of measurement noise (m, m/s)",
         card="standard deviation of Gaussian noise (m, m/s) on each relative measurement",
@@ -442,18 +342,16 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         maximum=validation.STATE_LIMIT,
         flag=Flag("float"),
     ),
-    Argument(
+    _env(
         "link_dropout",
-        "float",
         0.0,
         help="probability that an edge is lost at a sampling instant",
         card="probability in [0, 1) that an edge is lost at a sampling instant (the mask shows it)",
         kind="probability",
         flag=Flag("float"),
     ),
-    Argument(
+    _env(
         "switching",
-        "str",
         "periodic",
         help="cycle through the graphs (periodic, default) or draw each interval's graph (random)",
         card="cycle through the graphs, or draw each interval's graph",
@@ -461,52 +359,20 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         choices=("periodic", "random"),
         flag=Flag(),
     ),
-    Argument(
+    _env(
         "agent_model",
-        "Any",
         None,
         help="the agents' dynamics per axis (default double_integrator; README, 'Agent models')",
-        card='the agents\' model per axis: ``"single_integrator"``, ``"integrator_chain"`` (``order`` 1-4), '
-        '``"damped"`` (``damping`` c, 1/s), ``"oscillator"`` (``frequency`` ω, rad/s), or a controllable pair '
-        '``(A, B)`` (README, "Agent models")',
+        card='the agents\' model per axis: a name, ``"single_integrator"``, ``"integrator_chain"``, ``"damped"``, '
+        '``"oscillator"``, a dict with its parameter (``{"name": "damped", "damping": 0.5}``: ``order`` 1-4, '
+        '``damping`` c in 1/s, ``frequency`` ω in rad/s), or a controllable pair ``(A, B)`` (README, "Agent models")',
         fallback="double_integrator",
         from_scenario=True,
-        card_type="name or ``(A, B)``",
+        card_type="name, dict or ``(A, B)``",
         flag=Flag(choices=MODEL_NAMES),
     ),
-    Argument(
-        "order",
-        "int | None",
-        None,
-        help="order of --agent-model integrator_chain (1-4, default 2)",
-        card='order of ``"integrator_chain"`` (1-4: single to quadruple integrator)',
-        from_scenario=True,
-        card_default="2",
-        flag=Flag("int"),
-    ),
-    Argument(
-        "damping",
-        "float | None",
-        None,
-        help=f"drag c of --agent-model damped (1/s, default {DEFAULT_DAMPING:g})",
-        card='drag ``c`` (1/s) of ``"damped"``: ``v\' = -c v + u``',
-        from_scenario=True,
-        card_default=repr(DEFAULT_DAMPING),
-        flag=Flag("float"),
-    ),
-    Argument(
-        "frequency",
-        "float | None",
-        None,
-        help=f"frequency of --agent-model oscillator (rad/s, default {DEFAULT_FREQUENCY:g})",
-        card='``omega`` (rad/s) of ``"oscillator"``: ``v\' = -omega^2 x + u``',
-        from_scenario=True,
-        card_default=repr(DEFAULT_FREQUENCY),
-        flag=Flag("float"),
-    ),
-    Argument(
+    _env(
         "formation_offsets",
-        "Any",
         None,
         help="formation offsets h_i: positions (N, dim) or full states (N, dim, n)",
         card='agents agree on ``z_i - e^{A t} h_i``: position offsets hold a formation (README, "Formations")',
@@ -555,30 +421,44 @@ ARGUMENTS: Mapping[str, Argument] = MappingProxyType(
 )
 
 
-def env_arguments(namespace: Mapping[str, Any]) -> dict[str, Any]:
-    """The :func:`fxc_env.make_config` keywords out of a front end's ``locals()`` (every one, in order)."""
-    return {name: namespace[name] for name in ENV_ARGUMENT_NAMES}
+def env_arguments(namespace: Mapping[str, Any], kwargs: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The :func:`fxc_env.make_config` keywords (every one, in order) out of a front end's ``locals()`` and ``**kwargs``.
+
+    An argument in neither takes the table's default; the deprecated ``order``, ``damping`` and
+    ``frequency`` (:mod:`fxc_env.core.models`) pass through when given.
+
+    Raises:
+        ArgumentTypeError naming a keyword of ``kwargs`` that is no argument of the environment.
+    """
+    extra = kwargs or {}
+    for name in extra:
+        if name not in ENV_ARGUMENT_NAMES and name not in FLAT_PARAMETERS:
+            raise validation.ArgumentTypeError(
+                f"{name}: not an argument of the environment; expected one of {', '.join(ENV_ARGUMENT_NAMES)}"
+            )
+    given = {**namespace, **extra}
+    arguments = {name: given.get(name, ARGUMENTS[name].default) for name in ENV_ARGUMENT_NAMES}
+    return {**arguments, **{name: extra[name] for name in FLAT_PARAMETERS if name in extra}}  # deprecated aliases
 
 
-def arguments_table(arguments: Iterable[Argument]) -> str:
-    """A card's Arguments table: the header, then one :attr:`Argument.card_row` per argument."""
-    rows = [argument.card_row for argument in arguments]
-    return "\n".join(["| parameter | type | default | meaning |", "|-----------|------|---------|---------|", *rows])
+def env_signature(
+    before: Sequence[Argument] = (), after: Sequence[Argument] = (), *, returns: str | None = None
+) -> Callable[[_F], _F]:
+    """Give a front end's ``__init__`` the signature ``(self, *before, *ENV_ARGUMENTS, *after)`` from the table.
 
+    The first argument is positional when it is ``scenario`` or ``n_envs``; every other one is
+    keyword-only, with the table's default and annotation. With ``returns`` (a function such as
+    :func:`fxc_env.make_config`): no ``self``, and that return annotation.
+    """
+    P = inspect.Parameter
+    parameters = [] if returns else [P("self", P.POSITIONAL_OR_KEYWORD)]
+    for position, argument in enumerate((*before, *ENV_ARGUMENTS, *after)):
+        kind = P.POSITIONAL_OR_KEYWORD if position == 0 and argument.name in ("scenario", "n_envs") else P.KEYWORD_ONLY
+        parameters.append(P(argument.name, kind, default=argument.default, annotation=argument.annotation))
+    signature = inspect.Signature(parameters, return_annotation=returns or "None")
 
-#: The line a card's docstring holds where :func:`with_arguments_table` puts the table.
-TABLE_MARKER = "{arguments table}"
+    def decorate(init: _F) -> _F:
+        init.__signature__ = signature  # type: ignore[attr-defined]
+        return init
 
-
-def with_arguments_table(doc: str | None, arguments: Sequence[Argument]) -> str:
-    """``doc`` with its :data:`TABLE_MARKER` line replaced by the table of ``arguments``, at that line's indent."""
-    lines = (doc or "").split("\n")
-    marked = [i for i, line in enumerate(lines) if line.strip() == TABLE_MARKER]
-    if len(marked) != 1:
-        raise ValueError(
-            f"with_arguments_table: expected one {TABLE_MARKER!r} line in the docstring, got {len(marked)}"
-        )
-    line = lines[marked[0]]
-    indent = line[: len(line) - len(line.lstrip())]
-    table = [indent + row for row in arguments_table(arguments).split("\n")]
-    return "\n".join([*lines[: marked[0]], *table, *lines[marked[0] + 1 :]])
+    return decorate

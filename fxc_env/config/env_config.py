@@ -9,10 +9,9 @@ scenarios (:mod:`fxc_env.config.scenarios`) are frozen presets that explicit arg
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -24,7 +23,9 @@ from fxc_env.config.arguments import (
     NO_FALLBACK,
     RENDER_MODE,
     RENDER_MODES,
+    EnvKwargs,
     env_arguments,
+    env_signature,
 )
 from fxc_env.config.layout import CLOCK_SIZE, ObservationLayout
 from fxc_env.config.scenarios import scenario_preset
@@ -32,6 +33,7 @@ from fxc_env.core import validation
 from fxc_env.core.families import AnyFamily, is_family_spec, make_family
 from fxc_env.core.graphs import Topology, make_topology
 from fxc_env.core.linear import IntervalMaps, LinearModel, check_horizon, formation_offsets, model_matrices
+from fxc_env.core.models import FLAT_PARAMETERS, model_spec
 from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 
@@ -331,94 +333,52 @@ def _topology(merged: dict[str, Any], topology_seed: Any) -> tuple[Topology, Any
     return topology, None
 
 
-def make_config(
-    scenario: str | None = None,
-    *,
-    n_agents: int | None = None,
-    topology: Any = None,
-    settling_time: float | None = None,
-    n_intervals: int | None = None,
-    schedule: Any = None,
-    dim: int | None = None,
-    action_mode: str = "plan",
-    obs_mode: str = "normalized",
-    obs_format: str = "flat",
-    obs_dtype: str = "float64",
-    global_state: str = "raw",
-    action_bound: float | None = None,
-    reward_floor: float = 1e-12,
-    initial_state: Any = None,
-    position_range: float | tuple[float, float] | None = None,
-    velocity_range: float | tuple[float, float] | None = None,
-    topology_seed: int | None = 0,
-    mean_in_degree: float | None = None,
-    topology_period: int | None = None,
-    obs_slots: int | None = None,
-    u_max: float | Sequence[float] | None = None,
-    obs_noise: float = 0.0,
-    link_dropout: float = 0.0,
-    switching: str = "periodic",
-    agent_model: Any = None,
-    order: int | None = None,
-    damping: float | None = None,
-    frequency: float | None = None,
-    formation_offsets: Any = None,
-) -> EnvConfig:
+@env_signature(returns="EnvConfig")
+def make_config(scenario: str | None = None, **kwargs: Unpack[EnvKwargs]) -> EnvConfig:
     """Validate the environment's keyword arguments (a scenario's preset first, explicit ones win).
 
-    The arguments, their types, defaults and allowed values are the table
-    :data:`fxc_env.config.arguments.ENV_ARGUMENTS` (the environment card shows it:
-    ``help(fxc_env.parallel_env)``). Arguments left at None take the scenario's value, else
-    the table's fallback (the card's ``[value]``). ``topology`` may be a family
-    (:func:`fxc_env.core.families.make_family`), drawn anew at every reset; ``config.topology``
-    is then its draw from ``topology_seed``. ``obs_slots`` pads the observation to at least
-    that many neighbour rows (default: the largest in-degree of the topology or of any draw of
-    the family). ``position_range`` and ``velocity_range`` are half-widths (m, m/s) or
-    ``(low, high)`` ranges drawn log-uniformly per episode. Realism options are off by
-    default: ``u_max`` clips every input component to ``[-u_max, u_max]`` m/s^2 (integrated
-    exactly; a set of numbers is drawn per episode); ``obs_noise`` adds Gaussian noise of that
-    standard deviation (m, m/s) to each relative measurement; ``link_dropout`` loses each edge
-    at each sampling instant with that probability; ``switching="random"`` draws each
-    interval's graph from the topology set. ``agent_model`` (default ``"double_integrator"``)
-    is a name of :data:`fxc_env.core.linear.MODEL_NAMES` (with ``order`` for
-    ``"integrator_chain"``, ``damping`` for ``"damped"``, ``frequency`` for ``"oscillator"``)
-    or a controllable pair ``(A, B)`` per axis; ``formation_offsets`` (positions ``(N, dim)``
-    or full states ``(N, dim, n)``) makes agents agree on ``z_i - e^{A t} h_i``.
+    The arguments, their types, defaults, allowed values and meanings are the table
+    :data:`fxc_env.config.arguments.ENV_ARGUMENTS`, shown as every card's Arguments table
+    (``help(fxc_env.parallel_env)``). Arguments left at None take the scenario's value, else
+    the table's fallback (the card's ``[value]``). A topology family's ``config.topology`` is
+    its draw from ``topology_seed``.
 
     Raises:
         ArgumentError: naming the first bad argument and what was expected (a ``TypeError``
             too for a wrong type).
     """
-    arguments = env_arguments(locals())
+    arguments = env_arguments({"scenario": scenario}, kwargs)
     given = {name: arguments[name] for name in _FROM_SCENARIO}
-    merged = _merged_settings(scenario, given, initial_state)
+    merged = _merged_settings(scenario, given, arguments["initial_state"])
     _check_random_only(given, merged["topology"])
+    config = _validated(merged, arguments)
+    if config.model is not None:
+        _check_steering(config, merged)
+    return config
+
+
+def _validated(merged: dict[str, Any], arguments: dict[str, Any]) -> EnvConfig:
+    """The :class:`EnvConfig` of the merged settings and the other arguments, each checked."""
+
+    def checked(name: str) -> Any:
+        return ARGUMENTS[name].check(arguments[name])
+
     dim_value = ARGUMENTS["dim"].check(merged["dim"])
-    topo, family = _topology(merged, topology_seed)
+    topo, family = _topology(merged, arguments["topology_seed"])
     sched = make_schedule(merged["settling_time"], merged.get("n_intervals"), merged["schedule"])
-    action_mode = ARGUMENTS["action_mode"].check(action_mode)
-    obs_mode = ARGUMENTS["obs_mode"].check(obs_mode)
-    bound = ARGUMENTS["action_bound"].check(action_bound)
+    action_mode, obs_mode = checked("action_mode"), checked("obs_mode")
+    bound = checked("action_bound")
     if bound is None:
         bound = DEFAULT_ACTION_BOUNDS[(action_mode, obs_mode)]
-    model_name, model = _agent_model(merged)
+    model_name, model = _agent_model(merged, arguments)
     u_max_choices = _input_limits(merged.get("u_max"))
     if model is not None:
-        check_horizon(model, sched.settling_time)
-        if action_mode != "plan":
-            raise ArgumentError(
-                f"action_mode: {model_name!r} agents take plans only (the minimum-energy input); "
-                f"{action_mode!r} is the double integrator's"
-            )
-        if u_max_choices is not None:
-            raise ArgumentError(
-                f"u_max: input limits are integrated exactly for the double integrator only, not {model_name!r}"
-            )
+        _check_model_modes(model_name, model, sched.settling_time, action_mode, u_max_choices)
     n_states = 2 if model is None else model.n_states
     formation = _formation(merged.get("formation_offsets"), topo.n_agents, dim_value, n_states)
-    dtype = ARGUMENTS["obs_dtype"].check(obs_dtype)
+    dtype = checked("obs_dtype")
     limit = validation.FLOAT32_STATE_LIMIT if (dtype, obs_mode) == ("float32", "raw") else validation.STATE_LIMIT
-    config = EnvConfig(
+    return EnvConfig(
         topology=topo,
         family=family,
         schedule=sched,
@@ -426,26 +386,35 @@ def make_config(
         obs_slots=_obs_slots(merged.get("obs_slots"), topo, family),
         action_mode=action_mode,
         obs_mode=obs_mode,
-        obs_format=ARGUMENTS["obs_format"].check(obs_format),
+        obs_format=checked("obs_format"),
         obs_dtype=dtype,
-        global_state=ARGUMENTS["global_state"].check(global_state),
+        global_state=checked("global_state"),
         action_bound=bound,
-        reward_floor=ARGUMENTS["reward_floor"].check(reward_floor),
+        reward_floor=checked("reward_floor"),
         initial_state=_initial_state(merged.get("initial_state"), topo.n_agents, dim_value, limit),
         position_range=_scale_range("position_range", merged["position_range"], limit),
         velocity_range=_scale_range("velocity_range", merged["velocity_range"], limit),
         u_max_choices=u_max_choices,
-        obs_noise=_noise(ARGUMENTS["obs_noise"].check(obs_noise), limit),
-        link_dropout=ARGUMENTS["link_dropout"].check(link_dropout),
-        switching=ARGUMENTS["switching"].check(switching),
-        scenario=scenario,
+        obs_noise=_noise(checked("obs_noise"), limit),
+        link_dropout=checked("link_dropout"),
+        switching=checked("switching"),
+        scenario=arguments["scenario"],
         model=model,
         agent_model=model_name,
         formation=formation,
     )
-    if model is not None:
-        _check_steering(config, merged)
-    return config
+
+
+def _check_model_modes(name: str, model: LinearModel, settling_time: float, action_mode: str, u_max: Any) -> None:
+    """A general model's horizon, and the double integrator's own options refused for it."""
+    check_horizon(model, settling_time)
+    if action_mode != "plan":
+        raise ArgumentError(
+            f"action_mode: {name!r} agents take plans only (the minimum-energy input); "
+            f"{action_mode!r} is the double integrator's"
+        )
+    if u_max is not None:
+        raise ArgumentError(f"u_max: input limits are integrated exactly for the double integrator only, not {name!r}")
 
 
 def _check_steering(config: EnvConfig, merged: dict[str, Any]) -> None:
@@ -458,43 +427,31 @@ def _check_steering(config: EnvConfig, merged: dict[str, Any]) -> None:
     try:
         config.interval_maps  # noqa: B018 (cached on the config: the engine reads it)
     except ArgumentError as error:
-        named = [key for key in ("order", "damping", "frequency") if merged.get(key) is not None]
-        if not named:
-            raise
-        shown = ", ".join(f"{key} = {merged[key]!r}" for key in named)
-        raise ArgumentError(
-            f"{'/'.join(named)}: expected a value with which {config.agent_model!r} agents can be steered over "
-            f"every sampling interval; {shown} gives {error}"
-        ) from None
+        steered = f"with which {config.agent_model!r} agents can be steered over every sampling interval"
+        raise _blamed(error, merged["agent_parameters"], steered) from None
 
 
-def _agent_model(merged: dict[str, Any]) -> tuple[str, LinearModel | None]:
+def _agent_model(merged: dict[str, Any], arguments: dict[str, Any]) -> tuple[str, LinearModel | None]:
     """``(name, model)``: None for the double integrator's closed forms, else the validated model."""
-    value = merged.get("agent_model")
-    parameters = {key: merged.get(key) for key in ("order", "damping", "frequency")}
-    if value is None or (isinstance(value, str) and value == "double_integrator"):
-        for key, given in parameters.items():
-            if given is not None:
-                raise ArgumentError(f"{key}: the double integrator takes no {key}; give agent_model too")
-        return "double_integrator", None
-    if isinstance(value, str):
-        try:
-            return value, LinearModel.named(value, **parameters)
-        except ArgumentError as error:  # a parameter that passes its own check can still break the matrices
-            named = [key for key, given in parameters.items() if given is not None]
-            if not named or str(error).startswith(tuple(named)):
-                raise
-            shown = ", ".join(f"{key} = {parameters[key]!r}" for key in named)
-            raise ArgumentError(
-                f"{'/'.join(named)}: expected a value that gives {value!r} finite, controllable matrices; "
-                f"{shown} gives {error}"
-            ) from None
-    if isinstance(value, tuple | list) and len(value) == 2:
-        for key, given in parameters.items():
-            if given is not None:
-                raise ArgumentError(f"{key}: a given (A, B) takes no {key}")
-        return "linear", LinearModel(*value)
-    raise ArgumentError(f"agent_model: expected a model name or a pair (A, B), got {type(value).__name__}")
+    name, parameters = model_spec(merged.get("agent_model"), {key: arguments.get(key) for key in FLAT_PARAMETERS})
+    merged["agent_parameters"] = parameters
+    if name == "double_integrator":
+        return name, None
+    if name == "linear":
+        return name, LinearModel(parameters["A"], parameters["B"])
+    try:
+        return name, LinearModel.named(name, **parameters)
+    except ArgumentError as error:  # a parameter that passes its own check can still break the matrices
+        raise _blamed(error, parameters, f"that gives {name!r} finite, controllable matrices") from None
+
+
+def _blamed(error: ArgumentError, parameters: dict[str, Any], expected: str) -> ArgumentError:
+    """``error`` of a model built from ``parameters`` named after them (the user gave those, not what failed)."""
+    named = [key for key in FLAT_PARAMETERS if key in parameters]
+    if not named or str(error).startswith(tuple(named)):
+        return error
+    shown = ", ".join(f"{key} = {parameters[key]!r}" for key in named)
+    return ArgumentError(f"{'/'.join(named)}: expected a value {expected}; {shown} gives {error}")
 
 
 def _formation(value: Any, n_agents: int, dim: int, n_states: int) -> np.ndarray | None:

@@ -17,12 +17,19 @@ from typing import Any
 from fxc_env.config.arguments import ENV_ARGUMENTS, Argument, Flag
 from fxc_env.config.scenarios import SCENARIOS
 from fxc_env.core.families import FAMILY_KINDS
+from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY
 from fxc_env.core.validation import ArgumentError
 
 #: The arguments that have a flag, in the table's order (``scenario`` first).
 FLAG_ARGUMENTS: tuple[Argument, ...] = tuple(argument for argument in ENV_ARGUMENTS if argument.flag is not None)
 
 _ARGPARSE_TYPES = {"int": int, "float": float}
+#: ``--order``, ``--damping``, ``--frequency``: the parameter of ``--agent-model``'s spec.
+MODEL_FLAGS = {
+    "order": (int, "order of --agent-model integrator_chain (1-4, default 2)"),
+    "damping": (float, f"drag c of --agent-model damped (1/s, default {DEFAULT_DAMPING:g})"),
+    "frequency": (float, f"frequency of --agent-model oscillator (rad/s, default {DEFAULT_FREQUENCY:g})"),
+}
 
 
 def add_env_arguments(parser: argparse.ArgumentParser, *, scenario_default: str | None = "paper_fig1") -> None:
@@ -37,6 +44,9 @@ def add_env_arguments(parser: argparse.ArgumentParser, *, scenario_default: str 
             )
             continue
         group.add_argument(argument.flag_name, **_argparse_options(argument))
+        if argument.name == "agent_model":
+            for key, (kind, text) in MODEL_FLAGS.items():
+                group.add_argument(f"--{key}", type=kind, help=text)
         if argument.name == "topology":
             group.add_argument(
                 "--family",
@@ -76,6 +86,13 @@ def env_kwargs_from(args: argparse.Namespace) -> dict[str, Any]:
         kwargs[argument.name] = _numbers(argument.flag_name, value) if argument.flag.kind == "numbers" else value
     if kwargs.get("u_max") is not None and isinstance(kwargs["u_max"], tuple):
         kwargs["u_max"] = list(kwargs["u_max"])
+    for key in MODEL_FLAGS:
+        value = getattr(args, key, None)
+        if value is not None:
+            if "agent_model" not in kwargs:
+                raise ArgumentError(f"--{key}: a parameter of --agent-model; give --agent-model too")
+            spec = kwargs["agent_model"] if isinstance(kwargs["agent_model"], dict) else {"name": kwargs["agent_model"]}
+            kwargs["agent_model"] = {**spec, key: value}
     if args.family is not None:
         if "topology" in kwargs:
             raise ArgumentError("--family: draws the topology; leave out --topology")

@@ -14,18 +14,22 @@ They take numpy arrays or torch tensors alike (the array API, :mod:`fxc_env.core
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from fxc_env.core.arrays import namespace
 
 
-def input_from_plan(plan_x: np.ndarray, plan_v: np.ndarray, T: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+def input_from_plan(plan_x: Any, plan_v: Any, T: Any, s: Any = None) -> tuple[Any, Any]:
     """Minimum-energy affine input that realises a planned change relative to coasting.
 
     The plan asks for ``x(t_k + T) = x + T v + a_x`` and ``v(t_k + T) = v + a_v``. The unique
     minimiser of ``integral |u|^2`` is ``u(t_k + s) = alpha + beta s`` with
     ``alpha = 6 a_x / T^2 - 2 a_v / T`` and ``beta = (6 a_v T - 12 a_x) / T^3`` (paper eq. 11,
-    paper Remark 1). Returns the end values ``(u0, u1) = (alpha, alpha + beta T)``.
+    paper Remark 1). Returns the end values ``(u0, u1) = (alpha, alpha + beta T)``; ``s`` is unused
+    (the signature of :func:`input_ends`' maps: this is the raw ``plan`` action's).
     """
     inv_t = 1.0 / T
     position_term = (6.0 * inv_t * inv_t) * plan_x
@@ -37,9 +41,48 @@ def advance(
     x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float
 ) -> tuple[np.ndarray, np.ndarray]:
     """State at the end of the interval: ``x + T v + T^2 (2 u0 + u1) / 6`` and ``v + T (u0 + u1) / 2``."""
-    x_next = x + T * v + (T * T / 6.0) * (2.0 * u0 + u1)
-    v_next = v + (0.5 * T) * (u0 + u1)
-    return x_next, v_next
+    dx, dv, _ = interval_increments(v, u0, u1, T)
+    return x + dx, v + dv
+
+
+def interval_increments(v: Any, u0: Any, u1: Any, T: Any) -> tuple[Any, Any, Any]:
+    """The closed forms of one interval: ``(x(T) - x, v(T) - v, |u|^2 integral per component)``.
+
+    ``T v + T^2 (2 u0 + u1) / 6``, ``T (u0 + u1) / 2`` and ``T (u0^2 + u0 u1 + u1^2) / 3``, with
+    ``u0 + u1`` formed once. Plain arithmetic only, so the one map serves Python floats (the
+    small-N path, :mod:`fxc_env.envs.small_n`), numpy arrays and torch tensors alike, and
+    rounds alike on all of them.
+    """
+    total = u0 + u1
+    return T * v + (T * T / 6.0) * (u0 + total), (0.5 * T) * total, (u0 * total + u1 * u1) * (T / 3.0)
+
+
+def scaled_plan_ends(first: Any, second: Any, T: Any, s: Any) -> tuple[Any, Any]:
+    """Input ends of a normalized ``plan`` action: the plan ``(s a_x, (s / T) a_v)`` at local scale ``s``."""
+    return input_from_plan(s * first, (s / T) * second, T)
+
+
+def accel_ends(first: Any, second: Any, T: Any, s: Any = None) -> tuple[Any, Any]:
+    """Input ends of an ``accel`` action in raw units: the action itself (``s`` unused)."""
+    return first, second
+
+
+def scaled_accel_ends(first: Any, second: Any, T: Any, s: Any) -> tuple[Any, Any]:
+    """Input ends of a normalized ``accel`` action: both halves times ``s / T^2``."""
+    gain = s / (T * T)
+    return gain * first, gain * second
+
+
+def input_ends(plans: bool, normalized: bool) -> Callable[[Any, Any, Any, Any], tuple[Any, Any]]:
+    """The map ``(first, second, T, s) -> (u(t_k+), u(t_{k+1}-))`` of an action mode, chosen once.
+
+    ``plans``: the action is a plan (``plan`` and ``residual`` modes) rather than the input's
+    ends; ``normalized``: it is in units of the local scale ``s``. Scalar-safe like
+    :func:`interval_increments`.
+    """
+    if plans:
+        return scaled_plan_ends if normalized else input_from_plan
+    return scaled_accel_ends if normalized else accel_ends
 
 
 def state_inside(
@@ -64,15 +107,16 @@ def advance_with_costs(x, v, u0, u1, T):
     numpy arrays or torch tensors alike (:func:`advance_into` is numpy's in-place form, with
     the same arithmetic, so both backends round alike).
     """
-    xp = namespace(x, v, u0, u1)
-    total = u0 + u1
-    x_next = x + (T * v + (T * T / 6.0) * (u0 + total))
-    v_next = v + (0.5 * T) * total
-    per_component = (u0 * total + u1 * u1) * (T / 3.0)
+    dx, dv, per_component = interval_increments(v, u0, u1, T)
+    return x + dx, v + dv, *_costs(per_component, u0, u1, namespace(x, v, u0, u1))
+
+
+def _costs(per_component: Any, u0: Any, u1: Any, xp: Any) -> tuple[Any, Any]:
+    """The energy (summed over components) and the peak ``|u|`` (largest component, at an end), ``(...)``."""
     largest = xp.maximum(xp.abs(u0), xp.abs(u1))
     if per_component.shape[-1] == 1:
-        return x_next, v_next, per_component[..., 0], largest[..., 0]
-    return x_next, v_next, xp.sum(per_component, axis=-1), xp.max(largest, axis=-1)
+        return per_component[..., 0], largest[..., 0]
+    return xp.sum(per_component, axis=-1), xp.max(largest, axis=-1)
 
 
 def advance_into(
@@ -90,28 +134,22 @@ def advance_into(
     small arrays make numpy's per-call cost dominate. ``x_out`` may be ``x`` (and ``v_out``
     ``v``) to advance in place.
     """
-    total = u0 + u1
-    np.add(x, T * v + (T * T / 6.0) * (u0 + total), out=x_out)
-    np.add(v, (0.5 * T) * total, out=v_out)
-    per_component = (u0 * total + u1 * u1) * (T / 3.0)
-    largest = np.maximum(np.abs(u0), np.abs(u1))
-    if per_component.shape[-1] == 1:
-        return per_component[..., 0], largest[..., 0]
-    return per_component.sum(axis=-1), largest.max(axis=-1)
+    dx, dv, per_component = interval_increments(v, u0, u1, T)
+    np.add(x, dx, out=x_out)
+    np.add(v, dv, out=v_out)
+    return _costs(per_component, u0, u1, np)
 
 
 def interval_energy(u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float) -> np.ndarray:
     """``integral_0^T |u|^2 ds = T (|u0|^2 + u0.u1 + |u1|^2) / 3``, summed over components: ``(...)``."""
-    per_component = (u0 * (u0 + u1) + u1 * u1) * (T / 3.0)
+    per_component = interval_increments(0.0, u0, u1, T)[2]
     xp = namespace(per_component)
     return per_component[..., 0] if per_component.shape[-1] == 1 else xp.sum(per_component, axis=-1)
 
 
 def interval_peak(u0: np.ndarray, u1: np.ndarray) -> np.ndarray:
     """Peak ``|u|`` on the interval: the largest absolute component, reached at an end, ``(...)``."""
-    xp = namespace(u0, u1)
-    largest = xp.maximum(xp.abs(u0), xp.abs(u1))
-    return largest[..., 0] if largest.shape[-1] == 1 else xp.max(largest, axis=-1)
+    return _costs(u0, u0, u1, namespace(u0, u1))[1]
 
 
 def _clipped_pieces(u0, u1, T, u_max):

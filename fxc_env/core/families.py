@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.core import validation
-from fxc_env.core.graphs import Topology, make_topology, random_topology
+from fxc_env.core.graphs import Topology, make_topology, random_topology, structured_edges
 from fxc_env.core.validation import ArgumentError
 
 FAMILY_KINDS = ("ring", "path", "star", "complete", "random")
@@ -109,28 +109,13 @@ class TopologyFamily:
             seed = int(rng.integers(0, 2**63))
             union = random_topology(n_agents, seed=seed, mean_in_degree=mean, period=1).edges[0]
         else:
-            union = _structured_edges(self.kind, n_agents)
+            union = structured_edges(self.kind, n_agents)
             if self.relabel and n_agents > 1:
                 union = rng.permutation(n_agents)[union]
         graph_of_edge = rng.integers(0, period, size=len(union))
         edges = [union[graph_of_edge == g] for g in range(period)]
         drawn = make_topology(edges if period > 1 else edges[0], n_agents, check=False)
         return Topology(n_agents, drawn.edges, name=self.name, note="drawn from a family")
-
-
-def _structured_edges(kind: str, n: int) -> np.ndarray:
-    nodes = np.arange(n)
-    if n == 1:
-        return np.zeros((0, 2), dtype=np.int64)
-    if kind == "ring":
-        return np.stack([nodes, (nodes + 1) % n], axis=1)
-    if kind == "path":
-        return np.stack([nodes[:-1], nodes[1:]], axis=1)
-    if kind == "star":
-        return np.stack([np.zeros(n - 1, np.int64), nodes[1:]], axis=1)
-    senders, receivers = np.meshgrid(nodes, nodes, indexing="ij")
-    off = senders != receivers
-    return np.stack([senders[off], receivers[off]], axis=1)
 
 
 @dataclass(frozen=True)

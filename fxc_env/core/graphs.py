@@ -388,10 +388,7 @@ def named_topology(
 ) -> Topology:
     """The built-in generators; see :data:`TOPOLOGY_NAMES`.
 
-    - ``ring``: directed cycle ``0 -> 1 -> ... -> N-1 -> 0``.
-    - ``path``: ``0 -> 1 -> ... -> N-1`` (spanning tree rooted at 0).
-    - ``star``: agent 0 sends to every other agent (a leader; ``xi = e_0``).
-    - ``complete``: every agent receives from every other.
+    - ``ring``, ``path``, ``star``, ``complete``: :func:`structured_edges`.
     - ``random``: a uniformly random directed spanning tree plus random extra edges up to
       ``mean_in_degree``; with ``period > 1`` the edges are dealt at random to the m graphs,
       so only their union is guaranteed to span. O(N + |E|).
@@ -402,8 +399,6 @@ def named_topology(
     if name not in TOPOLOGY_NAMES:
         raise ArgumentError(f"topology: unknown name {name!r}; expected one of {TOPOLOGY_NAMES}")
     n = n_agents
-    nodes = np.arange(n)
-    note = ""
     if name == "paper_fig1":
         if n != 6:
             raise ArgumentError(f"n_agents: topology 'paper_fig1' has 6 agents, got n_agents = {n}")
@@ -411,20 +406,32 @@ def named_topology(
         note = "assumed Fig. 1 (reconstruction; the paper's image is lost)"
         edges = tuple(_normalise_edges(e, n, "topology", f"graph {g}") for g, e in enumerate(period_edges))
         return Topology(n_agents=n, edges=edges, name=name, note=note)
-    if name == "ring":
-        pairs = np.stack([nodes, (nodes + 1) % n], axis=1) if n > 1 else np.zeros((0, 2), np.int64)
-    elif name == "path":
-        pairs = np.stack([nodes[:-1], nodes[1:]], axis=1)
-    elif name == "star":
-        pairs = np.stack([np.zeros(n - 1, np.int64), nodes[1:]], axis=1)
-    elif name == "complete":
-        senders, receivers = np.meshgrid(nodes, nodes, indexing="ij")
-        off = senders != receivers
-        pairs = np.stack([senders[off], receivers[off]], axis=1)
-    else:
+    if name == "random":
         return random_topology(n, seed=seed, mean_in_degree=mean_in_degree, period=period)
+    pairs = structured_edges(name, n)
     edges = (_normalise_edges(pairs, n, "topology", "the edge list"),)
-    return Topology(n_agents=n, edges=edges, name=name, note=note)
+    return Topology(n_agents=n, edges=edges, name=name)
+
+
+def structured_edges(kind: str, n: int) -> np.ndarray:
+    """The ``(sender, receiver)`` pairs of ``ring`` (``0 -> 1 -> ... -> N-1 -> 0``), ``path`` (``0 -> ... -> N-1``,
+    rooted at 0), ``star`` (agent 0 sends to every other: a leader, ``xi = e_0``) or ``complete`` on ``n`` agents.
+
+    The one definition of the structured graphs, for fixed topologies (:func:`named_topology`)
+    and topology families (:mod:`fxc_env.core.families`, which relabel the agents at random).
+    """
+    nodes = np.arange(n)
+    if n == 1:
+        return np.zeros((0, 2), dtype=np.int64)
+    if kind == "ring":
+        return np.stack([nodes, (nodes + 1) % n], axis=1)
+    if kind == "path":
+        return np.stack([nodes[:-1], nodes[1:]], axis=1)
+    if kind == "star":
+        return np.stack([np.zeros(n - 1, np.int64), nodes[1:]], axis=1)
+    senders, receivers = np.meshgrid(nodes, nodes, indexing="ij")
+    off = senders != receivers
+    return np.stack([senders[off], receivers[off]], axis=1)
 
 
 def random_topology(n_agents: int, *, seed: int | None = 0, mean_in_degree: float = 2.0, period: int = 1) -> Topology:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -471,18 +471,3 @@ class EpisodeMetrics:
     def as_dict(self) -> dict[str, float | int | None]:
         """Plain dict for JSON (non-finite values become ``None``)."""
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
-
-
-def metrics_rows(columns: dict[str, np.ndarray]) -> list[dict[str, float | int | None]]:
-    """Per-episode dicts (as :meth:`EpisodeMetrics.as_dict`) from ``(B,)`` metric columns."""
-    names = [f.name for f in fields(EpisodeMetrics)]
-    values = []
-    for name in names:
-        column = columns[name]
-        if column.dtype.kind == "f":
-            objects = column.astype(object)
-            objects[~np.isfinite(column)] = None
-            values.append(objects.tolist())
-        else:
-            values.append(column.tolist())
-    return [dict(zip(names, row, strict=True)) for row in zip(*values, strict=True)]

@@ -90,20 +90,7 @@ def make_schedule(settling_time: Any = 20.0, n_intervals: Any = 200, schedule: A
         times = np.concatenate(([0.0], inner, [t_s]))
         name = schedule
     else:
-        lengths = validation.interval_lengths("schedule", schedule)
-        if lengths.size > validation.MAX_INTERVALS:
-            raise validation.ArgumentError(
-                f"schedule: expected at most {validation.MAX_INTERVALS} intervals, got {lengths.size}"
-            )
-        if n_intervals is not None and _validated_n_intervals(n_intervals) != lengths.size:
-            raise validation.ArgumentError(f"schedule: has {lengths.size} intervals but n_intervals = {n_intervals}")
-        total = math.fsum(lengths)
-        if abs(total - t_s) > 1e-9 * t_s:
-            raise validation.ArgumentError(
-                f"schedule: interval lengths sum to {total!r} s, expected settling_time = {t_s!r} s"
-            )
-        times = np.concatenate(([0.0], np.cumsum(lengths[:-1]), [t_s]))
-        name = "custom"
+        times, name = _given_times(schedule, n_intervals, t_s), "custom"
     intervals = np.diff(times)
     if np.any(intervals < validation.MIN_INTERVAL * (1 - 1e-9)):  # rounding of the times is not a shorter interval
         if name == "custom":  # every given length passed the check: summing into times lost one
@@ -119,3 +106,20 @@ def make_schedule(settling_time: Any = 20.0, n_intervals: Any = 200, schedule: A
     times.setflags(write=False)
     intervals.setflags(write=False)
     return Schedule(times=times, intervals=intervals, name=name)
+
+
+def _given_times(schedule: Any, n_intervals: Any, t_s: float) -> np.ndarray:
+    """The sampling times ``(K + 1,)`` of given interval lengths, checked against ``n_intervals`` and ``T_s``."""
+    lengths = validation.interval_lengths("schedule", schedule)
+    if lengths.size > validation.MAX_INTERVALS:
+        raise validation.ArgumentError(
+            f"schedule: expected at most {validation.MAX_INTERVALS} intervals, got {lengths.size}"
+        )
+    if n_intervals is not None and _validated_n_intervals(n_intervals) != lengths.size:
+        raise validation.ArgumentError(f"schedule: has {lengths.size} intervals but n_intervals = {n_intervals}")
+    total = math.fsum(lengths)
+    if abs(total - t_s) > 1e-9 * t_s:
+        raise validation.ArgumentError(
+            f"schedule: interval lengths sum to {total!r} s, expected settling_time = {t_s!r} s"
+        )
+    return np.concatenate(([0.0], np.cumsum(lengths[:-1]), [t_s]))

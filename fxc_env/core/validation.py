@@ -21,6 +21,9 @@ from __future__ import annotations
 
 import math
 import operator
+import os
+import sys
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -61,6 +64,17 @@ class ArgumentError(ValueError):
 
 class ArgumentTypeError(ArgumentError, TypeError):
     """An argument of the wrong type (also a ``TypeError``)."""
+
+
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def deprecated(message: str) -> None:
+    """A :class:`DeprecationWarning` pointed at the first caller outside the package (the user's line)."""
+    frame, level = sys._getframe(1), 2
+    while frame.f_back is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, DeprecationWarning, stacklevel=level)
 
 
 def _is_integer(value: Any) -> bool:
@@ -179,7 +193,7 @@ def float32_row_limit(obs_noise: float) -> float:
     return FLOAT32_MAX - NOISE_MARGIN * obs_noise
 
 
-def state_batch(name: str, value: Any, shape: tuple[int, ...], limit: float = STATE_LIMIT) -> np.ndarray:
+def state_batch(name: str, value: Any, shape: tuple[int, ...], limit: float | None = STATE_LIMIT) -> np.ndarray:
     """``value`` as a float64 array of exactly ``shape`` (an engine's ``(B, N, dim)`` initial positions or
     velocities), real, entries finite and within ±``limit``; raise naming ``name`` otherwise.
 
@@ -204,12 +218,8 @@ def state_entries_error(name: str, limit: float = STATE_LIMIT) -> str:
 
 
 def action_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
-    """``value`` as a float64 array of ``shape`` with finite entries (booleans refused)."""
-    array = real_array(name, value, f"an array of shape {shape}", booleans=False)
-    if array.shape != shape:
-        raise ArgumentError(f"{name}: expected shape {shape}, got {array.shape}")
-    _check_entries(name, array, None)
-    return array
+    """``value`` as a float64 array of ``shape`` with finite entries (booleans refused): :func:`state_batch` unbounded."""
+    return state_batch(name, value, shape, None)
 
 
 def interval_lengths(name: str, value: Any) -> np.ndarray:

@@ -2,11 +2,7 @@
 
 Layer 3 (above :mod:`fxc_env.config`): every environment front end (PettingZoo, the SB3 VecEnv,
 the TorchRL env) and the training loops drive one :class:`ConsensusEngine`, which wires named
-parts, one module each: the array backend (:mod:`~fxc_env.engine.backend`), the clock
-(:mod:`~fxc_env.engine.clock`), the graph table (:mod:`~fxc_env.engine.graph_table`), the episode
-draws (:mod:`~fxc_env.engine.draws`), the agents' dynamics (:mod:`~fxc_env.engine.agents`), the
-measurements and observations (:mod:`~fxc_env.engine.observations`) and the episode trackers
-(:mod:`~fxc_env.engine.trackers`).
+parts, one module each (the table in :mod:`fxc_env.engine.consensus_engine`).
 """
 
 from __future__ import annotations

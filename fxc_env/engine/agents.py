@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig
-from fxc_env.core import dynamics, linear, slots
+from fxc_env.core import dynamics, interval_maps, linear, slots
 from fxc_env.core.metrics import disagreement, spread_any
 from fxc_env.core.validation import ArgumentError
 
@@ -60,6 +60,32 @@ class Interval:
     disagreement: Any = None
 
 
+@dataclass(slots=True)
+class StepOutcome:
+    """What one interval did, per episode ``(B,)`` or per agent ``(B, N)``.
+
+    Attributes:
+        reward: team reward ``log(D(t_k) + f) - log(D(t_{k+1}) + f)``, ``(B,)``.
+        energy: ``integral |u_i|^2 dt`` over the interval, ``(B, N)``.
+        peak_input: peak ``|u_i|`` (largest component) over the interval, ``(B, N)``.
+        u_start, u_end: the commanded input at ``t_k+`` and ``t_{k+1}-``, ``(B, N, dim)``
+            (the applied input is this line clipped to ``±u_max`` when that is set).
+        saturated_fraction: share of the interval spent saturated, mean over components,
+            ``(B, N)`` (zeros without ``u_max``).
+        terminated: the deadline ``T_s`` was reached (``k = K``).
+    """
+
+    reward: np.ndarray
+    energy: np.ndarray
+    peak_input: np.ndarray
+    u_start: np.ndarray
+    u_end: np.ndarray
+    saturated_fraction: np.ndarray
+    terminated: bool
+    #: General agents: the plans ``Delta`` applied, per axis ``(B, N, dim, n)`` (None for the double integrator).
+    plan: np.ndarray | None = None
+
+
 def state_disagreement(states: np.ndarray, config: EnvConfig) -> np.ndarray:
     """``D = sum_l T_s^l e_{z_l}`` of states ``(..., N, n, dim)`` in the engine's coordinates: ``(...)``.
 
@@ -87,6 +113,8 @@ class DoubleIntegratorAgents:
         self.dim = config.dim
         self.normalized = config.obs_mode == "normalized"
         self.plans = config.action_mode in ("plan", "residual")  # residual: the engine added the reference's plan
+        #: The action's input ends, chosen once (the small-N path plays the same map on floats).
+        self._ends = dynamics.input_ends(self.plans, self.normalized)
         #: Each episode's input limit ``u_max`` (m/s^2), ``(B,)``; None without a limit.
         self.u_max: Any = None
         self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
@@ -99,16 +127,8 @@ class DoubleIntegratorAgents:
         ``(B, N)``, read in normalized mode only.
         """
         dim = self.dim
-        first, second = actions[..., :dim], actions[..., dim:]
-        if self.normalized:
-            s = local_scale()[..., None]
-            if self.plans:
-                return dynamics.input_from_plan(s * first, (s / T) * second, T)
-            gain = s / (T * T)
-            return gain * first, gain * second
-        if self.plans:
-            return dynamics.input_from_plan(first, second, T)
-        return first, second
+        s = local_scale()[..., None] if self.normalized else None
+        return self._ends(actions[..., :dim], actions[..., dim:], T, s)
 
     def advance(self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any) -> Interval:
         """Play the coming interval of ``clock`` from ``state`` under ``actions``; numpy writes into ``out``."""
@@ -253,17 +273,8 @@ class LinearAgents:
             if model.n_inputs == 1:
                 u_start, u_end = u_start[..., 0], u_end[..., 0]
             out[...] = np.swapaxes(following, -1, -2)
-            return Interval(
-                out,
-                energy.sum(axis=-1),
-                peak.max(axis=-1),
-                u_start,
-                u_end,
-                self._no_saturation,
-                None,
-                delta,
-                state_disagreement(out, c),
-            )
+            energy, peak, disagreement = energy.sum(axis=-1), peak.max(axis=-1), state_disagreement(out, c)
+            return Interval(out, energy, peak, u_start, u_end, self._no_saturation, None, delta, disagreement)
 
     def _advance_device(self, state: Any, plan: Any, k: int) -> Interval:
         """:meth:`advance` on torch: the same maps (:meth:`IntervalMaps.steer <fxc_env.core.linear.IntervalMaps.steer>`,
@@ -281,17 +292,9 @@ class LinearAgents:
         u_start = costate @ maps.motion_B[k]
         if model.n_inputs == 1:
             u_start, u_end = u_start[..., 0], u_end[..., 0]
-        return Interval(
-            following,
-            xp.sum(energy, axis=-1),
-            xp.max(maps.peak(k, nu), axis=-1),
-            u_start,
-            u_end,
-            self._no_saturation,
-            None,
-            delta,
-            state_disagreement(following, self.config),
-        )
+        energy, peak = xp.sum(energy, axis=-1), xp.max(maps.peak(k, nu), axis=-1)
+        disagreement = state_disagreement(following, self.config)
+        return Interval(following, energy, peak, u_start, u_end, self._no_saturation, None, delta, disagreement)
 
     def disagreement(self, state: Any) -> Any:
         """``D = sum_l T_s^l e_{z_l}`` per episode ``(B,)`` (:func:`state_disagreement`)."""
@@ -304,7 +307,7 @@ class _DeviceMaps:
     The maps are built once on the host (numpy: matrix exponentials, Gramians, Cholesky
     factors); the torch step is then products with these copies only, so the state, energy,
     input and peak are differentiable in the plan (the peak by the same candidates as
-    :func:`fxc_env.core.linear._polynomial_peak`, or the same grid of samples).
+    :func:`fxc_env.core.interval_maps.polynomial_peak`, or the same grid of samples).
     """
 
     def __init__(self, maps: Any, backend: Any) -> None:
@@ -326,7 +329,7 @@ class _DeviceMaps:
         if self.coefficients_t is not None:
             p = nu @ self.coefficients_t[k]  # (..., (degree + 1) m): T u as a polynomial in tau
             columns = [p[..., j * m : (j + 1) * m] for j in range(self.maps._degree + 1)]
-            peak = linear._polynomial_peak(columns) / T
+            peak = interval_maps.polynomial_peak(columns) / T
         else:
             if k not in self._grid:
                 self._grid[k] = self.backend.array(self.maps._grid_matrix(k))

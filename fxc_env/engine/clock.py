@@ -166,3 +166,11 @@ class EpisodeClock:
         xp = namespace(self.steps)
         self.steps = xp.minimum(self.steps + 1, xp.full_like(self.steps, self.tables.n_intervals))
         return self.steps
+
+
+class BeforeReset(LockStepClock):
+    """The clock of an engine that was never reset: instant 0 of a zero state, which :meth:`ConsensusEngine.step` refuses
+    (a ``RuntimeError``, as the environments' ``step`` before ``reset``); the first reset replaces it."""
+
+    def check_can_step(self) -> None:
+        raise RuntimeError("step: call reset() before the first step (the engine holds no episode yet)")

@@ -28,22 +28,15 @@ measurements              :mod:`~fxc_env.engine.observations` (rows, local scale
 episode trackers          :mod:`~fxc_env.engine.trackers` (rewards, totals, the episode metrics)
 ========================  ==========================================================================
 
-**Where a bad value is reported.** On numpy a step whose result would not be finite is
-refused at once (:class:`ArgumentError` naming ``actions``, state unchanged), and so is one
-that, with ``obs_dtype="float32"`` and ``obs_mode="raw"``, would take two agents' states more
-than :func:`~fxc_env.core.validation.float32_row_limit` apart (their raw row would observe as
-``inf``; the check is folded into the finite check's sum of disagreements). On torch the
-step never reads a value back to the host: non-finite actions or results (or raw float32
-rows beyond that limit), and stepping an episode past ``T_s``, set a per-episode flag on the device (:attr:`ConsensusEngine.invalid`),
-read by :meth:`ConsensusEngine.raise_if_invalid` off the hot path (the TorchRL environment
-calls it at every reset and at the end of every episode; ``check_values=False`` leaves it to
-the caller).
+**Where a bad value is reported.** On numpy a step whose result would not be finite (or, with raw
+float32 observations, whose rows would be) is refused at once, state unchanged; on torch it sets a
+per-episode flag on the device, read off the hot path by :meth:`ConsensusEngine.raise_if_invalid`
+(the TorchRL card, "When a bad value is reported").
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -55,9 +48,9 @@ from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 
 from . import draws
-from .agents import Formation, make_agents, state_disagreement
+from .agents import Formation, StepOutcome, make_agents, state_disagreement
 from .backend import DTYPES, TINY, make_backend, to_host
-from .clock import EpisodeClock, InstantTables, LockStepClock
+from .clock import BeforeReset, EpisodeClock, InstantTables, LockStepClock
 from .draws import EpisodeDraw
 from .graph_table import GraphTable
 from .observations import Observer, limit_feature, normalized_state
@@ -73,40 +66,6 @@ __all__ = [
     "state_disagreement",
     "to_host",
 ]
-
-
-@dataclass(slots=True)
-class StepOutcome:
-    """What one interval did, per episode ``(B,)`` or per agent ``(B, N)``.
-
-    Attributes:
-        reward: team reward ``log(D(t_k) + f) - log(D(t_{k+1}) + f)``, ``(B,)``.
-        energy: ``integral |u_i|^2 dt`` over the interval, ``(B, N)``.
-        peak_input: peak ``|u_i|`` (largest component) over the interval, ``(B, N)``.
-        u_start, u_end: the commanded input at ``t_k+`` and ``t_{k+1}-``, ``(B, N, dim)``
-            (the applied input is this line clipped to ``±u_max`` when that is set).
-        saturated_fraction: share of the interval spent saturated, mean over components,
-            ``(B, N)`` (zeros without ``u_max``).
-        terminated: the deadline ``T_s`` was reached (``k = K``).
-    """
-
-    reward: np.ndarray
-    energy: np.ndarray
-    peak_input: np.ndarray
-    u_start: np.ndarray
-    u_end: np.ndarray
-    saturated_fraction: np.ndarray
-    terminated: bool
-    #: General agents: the plans ``Delta`` applied, per axis ``(B, N, dim, n)`` (None for the double integrator).
-    plan: np.ndarray | None = None
-
-
-class _BeforeReset(LockStepClock):
-    """The clock of an engine that was never reset: instant 0 of a zero state, which :meth:`ConsensusEngine.step` refuses
-    (a ``RuntimeError``, as the environments' ``step`` before ``reset``); the first reset replaces it."""
-
-    def check_can_step(self) -> None:
-        raise RuntimeError("step: call reset() before the first step (the engine holds no episode yet)")
 
 
 class ConsensusEngine:
@@ -140,7 +99,7 @@ class ConsensusEngine:
         self.state = backend.zeros(shape)
         self._spare = backend.spare(shape)
         self.tables = InstantTables(config, backend)
-        self.clock: LockStepClock | EpisodeClock = _BeforeReset(self.tables)
+        self.clock: LockStepClock | EpisodeClock = BeforeReset(self.tables)
         self.graphs = GraphTable([config.topology] * b, self.layout.slots, backend, config.switching == "random")
         self.agents = make_agents(config, backend)
         if config.u_max_choices is not None:

@@ -7,8 +7,7 @@ agent, and is not stored, so the same agent can act again.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 from gymnasium import spaces
@@ -16,7 +15,7 @@ from gymnasium.utils import EzPickle
 from pettingzoo import AECEnv
 
 from fxc_env.config import EnvConfig
-from fxc_env.config.arguments import env_arguments
+from fxc_env.config.arguments import FRONT_END_ARGUMENTS, GRAPH_TENSORS, EnvKwargs, env_arguments, env_signature
 from fxc_env.core.validation import ArgumentError
 from fxc_env.envs.parallel import ConsensusParallelEnv
 
@@ -39,59 +38,25 @@ class ConsensusAECEnv(AECEnv, EzPickle):
 
     metadata = ConsensusParallelEnv.metadata
 
+    @env_signature(after=(*FRONT_END_ARGUMENTS, GRAPH_TENSORS))
     def __init__(
         self,
         scenario: str | None = None,
         *,
-        n_agents: int | None = None,
-        topology: Any = None,
-        settling_time: float | None = None,
-        n_intervals: int | None = None,
-        schedule: Any = None,
-        dim: int | None = None,
-        action_mode: str = "plan",
-        obs_mode: str = "normalized",
-        obs_format: str = "flat",
-        obs_dtype: str = "float64",
-        global_state: str = "raw",
-        action_bound: float | None = None,
-        reward_floor: float = 1e-12,
-        initial_state: Any = None,
-        position_range: float | tuple[float, float] | None = None,
-        velocity_range: float | tuple[float, float] | None = None,
-        topology_seed: int | None = 0,
-        mean_in_degree: float | None = None,
-        topology_period: int | None = None,
-        obs_slots: int | None = None,
-        u_max: float | Sequence[float] | None = None,
-        obs_noise: float = 0.0,
-        link_dropout: float = 0.0,
-        switching: str = "periodic",
-        agent_model: Any = None,
-        order: int | None = None,
-        damping: float | None = None,
-        frequency: float | None = None,
-        formation_offsets: Any = None,
         render_mode: str | None = None,
         max_cycles: int | None = None,
         graph_tensors: bool = False,
+        **kwargs: Unpack[EnvKwargs],
     ) -> None:
-        # The parallel env's arguments (fxc_env.config.arguments), written out for help() and IDEs.
-        arguments = {
-            **env_arguments(locals()),
-            "render_mode": render_mode,
-            "max_cycles": max_cycles,
-            "graph_tensors": graph_tensors,
-        }
+        front = {"render_mode": render_mode, "max_cycles": max_cycles, "graph_tensors": graph_tensors}
+        arguments = {**env_arguments(locals(), kwargs), **front}  # the parallel env's arguments, checked there
         AECEnv.__init__(self)
         #: The parallel environment that plays each interval once every agent has acted.
         self.parallel = ConsensusParallelEnv(**arguments)
         EzPickle.__init__(self, **arguments)
         self.render_mode = render_mode
-        self.possible_agents = self.parallel.possible_agents
-        self.observation_spaces = self.parallel.observation_spaces
-        self.action_spaces = self.parallel.action_spaces
-        self.state_space = self.parallel.state_space
+        for name in ("possible_agents", "observation_spaces", "action_spaces", "state_space"):
+            setattr(self, name, getattr(self.parallel, name))
         self.agents: list[str] = []
         self.rewards: dict[str, float] = {}
         self._cumulative_rewards: dict[str, float] = {}

@@ -28,6 +28,7 @@ from pettingzoo.utils.wrappers import BaseParallelWrapper
 
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError
+from fxc_env.envs.fxc_consensus_v0 import parallel_env
 
 #: Prefix of the flat episode-metric keys (``episode_relative_deadline_error``, ...).
 EPISODE_PREFIX = "episode_"
@@ -75,8 +76,6 @@ def torchrl_wrapper(group: str = "agents", **kwargs: Any) -> Any:
         from torchrl.envs.libs.pettingzoo import PettingZooWrapper
     except ModuleNotFoundError as exc:
         raise ArgumentError('torchrl_wrapper: TorchRL is not installed; pip install "fxc-env[torchrl]"') from exc
-    from fxc_env.envs.fxc_consensus_v0 import parallel_env
-
     env = FlatEpisodeInfos(parallel_env(**kwargs))
     return PettingZooWrapper(
         env,

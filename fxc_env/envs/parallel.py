@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, Unpack
 
 import gymnasium
 import numpy as np
@@ -14,73 +13,28 @@ from pettingzoo import ParallelEnv
 
 from fxc_env.config import RENDER_MODES, EnvConfig, check_max_cycles, check_render_mode, make_config
 from fxc_env.config.arguments import (
-    ENV_ARGUMENT_NAMES,
     ENV_ARGUMENTS,
     FRONT_END_ARGUMENTS,
     GRAPH_TENSORS,
+    EnvKwargs,
     env_arguments,
+    env_signature,
     with_arguments_table,
 )
 from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
-from fxc_env.core.metrics import EpisodeMetrics
-from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-from fxc_env.engine import ConsensusEngine, EpisodeDraw, with_initial_state
-from fxc_env.engine.graph_tensors import GRAPH_TENSOR_KEYS, edge_capacity
-from fxc_env.engine.graph_tensors import graph_tensors as current_graph
-from fxc_env.envs.rendering import EpisodeView
+from fxc_env.engine import ConsensusEngine, with_initial_state
+from fxc_env.envs.agent_dicts import (
+    action_array,
+    add_graph_info,
+    episode_draw_info,
+    episode_metrics_rows,
+    normalized_state,
+    observation_dicts,
+)
+from fxc_env.envs.episode_view import EpisodeView
 from fxc_env.envs.small_n import SmallInterval, applies, checked_values
 from fxc_env.envs.spaces import action_space, observation_space, state_space
-
-#: The keyword arguments of :func:`fxc_env.make_config`, which every front end passes through.
-CONFIG_ARGUMENTS = ENV_ARGUMENT_NAMES
-
-
-def episode_metrics_rows(engine: ConsensusEngine) -> list[dict[str, float | int]]:
-    """Each episode's metrics as a plain dict of numbers, ``(B,)`` dicts.
-
-    The keys are the fields of :class:`fxc_env.core.metrics.EpisodeMetrics`. Unlike
-    ``EpisodeMetrics.as_dict()`` (made for JSON), nothing is ``None``: a threshold never
-    reached stays ``inf``, and a metric that does not apply to the episode (``nan`` in
-    :meth:`ConsensusEngine.batch_metrics`: Theorem 2's ``predicted_*`` and the intervals bounds
-    (``radius_bound``, ``all_roots_bound``, ``propagation_bound``) with random switching, the bounds
-    above 2000 agents, ``energy_ratio`` where
-    ``E* = 0``) is left out. NaN never equals itself, so leaving it out keeps two identically
-    seeded runs' infos equal (PettingZoo's ``seed_test``) and replay buffers free of NaN
-    (Tianshou refuses NaN in its buffer). ``sampling_instants`` is an ``int``, every other
-    value a ``float``.
-    """
-    columns = engine.batch_metrics()
-    names = [field.name for field in dataclasses.fields(EpisodeMetrics)]
-    rows = zip(*(columns[n].tolist() for n in names), strict=True)
-    return [{n: v for n, v in zip(names, row, strict=True) if v == v} for row in rows]  # v != v only for NaN
-
-
-def episode_draw_info(draw: EpisodeDraw) -> dict[str, Any]:
-    """What a reset drew that every info of the episode carries (empty when nothing is drawn).
-
-    ``u_max``: the input limit drawn from a set (a float, the same at reset and every step). The
-    drawn graphs are no info (their length changes with the draw, and replay buffers need one
-    shape per key): :meth:`ConsensusParallelEnv.episode_edges` gives them.
-    """
-    return {} if draw.u_max is None else {"u_max": float(draw.u_max)}
-
-
-def normalized_state(engine: ConsensusEngine) -> np.ndarray:
-    """The scale-free global state of every episode, ``(B, N * 2 dim + 3)``, in ``config.obs_dtype``.
-
-    :meth:`fxc_env.engine.ConsensusEngine.normalized_state`: per agent the row
-    ``[x_i - mean_j x_j, T_s (v_i - mean_j v_j)] / max(D, tiny)`` (agent major), then the clock
-    ``t_k / T_s, T_{k+1} / T_s, k / K``, with ``D = e_x + T_s e_v`` the current disagreement
-    (README, "Using the environment"); the rows lie in [-1, 1] by construction.
-    """
-    return np.asarray(engine.normalized_state(), dtype=engine.config.observation_dtype)
-
-
-def positions_velocities(engine: ConsensusEngine) -> tuple[np.ndarray, np.ndarray]:
-    """Episode 0's absolute positions and velocities ``(N, dim)`` (what the frames draw)."""
-    z = engine.absolute_state()[0]
-    return z[:, 0], (z[:, 1] if z.shape[1] > 1 else np.zeros_like(z[:, 0]))
 
 
 class ConsensusParallelEnv(ParallelEnv, EzPickle):
@@ -221,20 +175,13 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     data stays out: the episode's graphs are ``env.episode_edges()``.
 
     **Graph tensors** (``graph_tensors=True``, for graph neural networks; README, "Graph
-    tensors"): every info at reset and after every step also holds the coming interval's
-    graph in PyTorch Geometric's convention, padded to a fixed ``E`` (``edge_capacity``: the
-    topology's largest graph, ``N slots`` for a family): ``edge_index`` ``(2, E)`` int64 (row 0
-    the source j, row 1 the target i: i measures j; agents ``0 .. N-1``, padding the edge
-    ``N -> N``), ``edge_mask`` ``(E,)`` bool (True for an edge), ``n_edges`` (an int: the edges
-    come first) and ``edge_attr`` ``(E, n dim)`` (each edge's observation row ``z_j - z_i`` as
-    agent i observes it, in ``obs_mode``'s scaling and ``obs_dtype``; zeros for padding); the
-    same arrays in every agent's dict. Padding points at the extra node ``N``, so a summing
-    message pass over ``N + 1`` node rows (drop the last) equals the one over the true edges,
-    and over ``N`` rows it raises; ``edge_index[:, :n_edges]`` is the unpadded graph. They
-    follow the switching schedule, and a link lost to ``link_dropout`` is not listed. They
-    are infos, not observations: the graph is global while an observation is one agent's
-    local measurement, and the observation spaces stay the fixed Boxes that SuperSuit, SB3
-    and TorchRL's wrapper expect.
+    tensors"): every info at reset and after every step also holds the coming interval's graph
+    in PyTorch Geometric's convention, padded to a fixed ``E`` (``edge_capacity``) with the
+    edge ``N -> N``: ``edge_index`` ``(2, E)`` int64 (source j, target i), ``edge_mask`` ``(E,)``,
+    ``n_edges`` (an int) and ``edge_attr`` ``(E, n dim)`` (each edge's observation row), the same
+    arrays in every agent's dict (:mod:`fxc_env.engine.graph_tensors` says how padding keeps a
+    summing message pass exact). They are infos, not observations: the graph is global while an
+    observation is one agent's local measurement, and the observation spaces stay fixed Boxes.
 
     ## State
     ``state()`` with ``global_state="raw"`` (default): ``(N, 2 dim)`` float64 rows
@@ -314,44 +261,17 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     #: The small-N path of the episode, or None (set at every reset).
     _small: SmallInterval | None = None
 
+    @env_signature(after=(*FRONT_END_ARGUMENTS, GRAPH_TENSORS))
     def __init__(
         self,
         scenario: str | None = None,
         *,
-        n_agents: int | None = None,
-        topology: Any = None,
-        settling_time: float | None = None,
-        n_intervals: int | None = None,
-        schedule: Any = None,
-        dim: int | None = None,
-        action_mode: str = "plan",
-        obs_mode: str = "normalized",
-        obs_format: str = "flat",
-        obs_dtype: str = "float64",
-        global_state: str = "raw",
-        action_bound: float | None = None,
-        reward_floor: float = 1e-12,
-        initial_state: Any = None,
-        position_range: float | tuple[float, float] | None = None,
-        velocity_range: float | tuple[float, float] | None = None,
-        topology_seed: int | None = 0,
-        mean_in_degree: float | None = None,
-        topology_period: int | None = None,
-        obs_slots: int | None = None,
-        u_max: float | Sequence[float] | None = None,
-        obs_noise: float = 0.0,
-        link_dropout: float = 0.0,
-        switching: str = "periodic",
-        agent_model: Any = None,
-        order: int | None = None,
-        damping: float | None = None,
-        frequency: float | None = None,
-        formation_offsets: Any = None,
         render_mode: str | None = None,
         max_cycles: int | None = None,
         graph_tensors: bool = False,
+        **kwargs: Unpack[EnvKwargs],
     ) -> None:
-        arguments = env_arguments(locals())
+        arguments = env_arguments(locals(), kwargs)
         check_render_mode(render_mode)
         check_max_cycles(max_cycles)
         #: Whether infos carry the current graph's ``edge_index`` and ``edge_attr`` (Infos, Graph tensors).
@@ -362,6 +282,10 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         )
         self.render_mode = render_mode
         self.max_cycles = max_cycles
+        self._build()
+
+    def _build(self) -> None:
+        """The engine, the agents and their spaces, and the episode's bookkeeping, of :attr:`config`."""
         self.engine = ConsensusEngine(self.config, n_episodes=1)
         n = self.config.n_agents
         self.possible_agents = [f"agent_{i}" for i in range(n)]
@@ -378,7 +302,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         self.observation_spaces = dict.fromkeys(self.possible_agents, obs_space)
         self.action_spaces = dict.fromkeys(self.possible_agents, act_space)
         self.state_space = state_space(self.config)
-        self._view = EpisodeView(self.config, render_mode)
+        self._view = EpisodeView(self.config, self.render_mode)
 
     def observation_space(self, agent: str) -> spaces.Space:
         return self.observation_spaces[agent]
@@ -426,7 +350,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         if self.render_mode == "human":
             self.render()
         flat = self._flat_observations()
-        self._add_graph(infos, flat)
+        if self.graph_tensors:
+            add_graph_info(infos, self.engine, flat)
         return self._observe(flat), infos
 
     def _flat_observations(self) -> np.ndarray:
@@ -434,15 +359,6 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         if self._small is not None:
             return self._small.observations(self.engine)
         return self.engine.observations()[0].astype(self.config.observation_dtype, copy=False)
-
-    def _add_graph(self, infos: dict[str, dict[str, Any]], flat: np.ndarray) -> None:
-        """With ``graph_tensors``: the current graph's padded tensors in every info (Infos, Graph tensors)."""
-        if self.graph_tensors:
-            tensors = current_graph(self.engine, flat[None], edge_capacity(self.config))
-            graph = {key: np.ascontiguousarray(value[0]) for key, value in zip(GRAPH_TENSOR_KEYS, tensors, strict=True)}
-            graph["n_edges"] = int(tensors.n_edges[0])
-            for info in infos.values():
-                info.update(graph)
 
     def episode_edges(self) -> list[list[list[int]]]:
         """The episode's graphs ``G_0 .. G_{m-1}`` as lists of ``[j, i]`` pairs (j -> i: i measures j).
@@ -455,23 +371,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         return edge_lists(self.engine.topologies[0])
 
     def _observe(self, obs: np.ndarray | None = None) -> dict[str, Any]:
-        if obs is None:
-            obs = self._flat_observations()
-        if self.config.obs_format == "dict":
-            layout = self.config.layout
-            rows = obs[:, : layout.rows_end].reshape(len(obs), layout.slots, layout.row_size)
-            mask, clock = obs[:, layout.rows_end : layout.mask_end], obs[:, layout.mask_end : layout.clock_end]
-            if layout.limit_feature:
-                limit = obs[:, layout.clock_end :]
-                return {
-                    agent: {"neighbours": rows[i], "mask": mask[i], "clock": clock[i], "input_limit": limit[i]}
-                    for agent, i in self._agent_index.items()
-                }
-            return {
-                agent: {"neighbours": rows[i], "mask": mask[i], "clock": clock[i]}
-                for agent, i in self._agent_index.items()
-            }
-        return dict(zip(self.possible_agents, obs, strict=True))
+        flat = self._flat_observations() if obs is None else obs
+        return observation_dicts(flat, self.config, self._agent_index)
 
     # ------------------------------------------------------------------- step
     def check_action(self, agent: str, action: Any, name: str | None = None) -> np.ndarray:
@@ -480,26 +381,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         return validation.action_array(name, action, (self.config.action_size,))
 
     def _action_array(self, actions: Any) -> np.ndarray:
-        if type(actions) is not dict and not isinstance(actions, Mapping):
-            raise ArgumentTypeError(f"actions: expected a dict from agent name to action, got {type(actions).__name__}")
-        if actions.keys() != self._agent_set:  # every agent is live while the episode runs
-            unknown = sorted(set(actions) - self._agent_set, key=str)
-            if unknown:
-                raise ArgumentError(
-                    f"actions: unknown agent(s) {unknown}; expected keys agent_0 .. agent_{len(self.possible_agents) - 1}"
-                )
-            missing = [agent for agent in self.agents if agent not in actions]
-            raise ArgumentError(f"actions: missing an action for agent(s) {missing}")
-        size = self.config.action_size
-        try:
-            stacked = np.array([actions[agent] for agent in self.possible_agents])
-        except (TypeError, ValueError):
-            stacked = None  # ragged: the loop below names the agent
-        array = stacked.astype(np.float64) if stacked is not None and stacked.dtype.kind in "iuf" else None
-        if array is None or array.shape != (len(self.possible_agents), size) or not np.isfinite(array).all():
-            for agent in self.possible_agents:
-                self.check_action(agent, actions[agent])
-        return array[None]
+        return action_array(actions, self.possible_agents, self._agent_set, self.config.action_size, self.check_action)
 
     def step(self, actions: Mapping[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         if not self.agents:
@@ -543,7 +425,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
             for info in infos.values():
                 info["episode"] = dict(episode)  # each agent its own copy
         flat = self._flat_observations()
-        self._add_graph(infos, flat)
+        if self.graph_tensors:
+            add_graph_info(infos, self.engine, flat)
         observations = self._observe(flat)
         if self.render_mode is not None:
             self._view.record(engine)

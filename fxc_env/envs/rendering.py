@@ -39,7 +39,8 @@ FRAME_SIZE = (640, 360)
 FRAME_SIDE_RANGE = (64, 4096)
 #: Episodes a batched environment records and tiles (the first ones).
 GRID_EPISODES = 16
-_DPI = 100
+#: Dots per inch of every frame (pixels per figure inch).
+DPI = 100
 
 
 def circle_layout(n_agents: int) -> np.ndarray:
@@ -142,7 +143,7 @@ def blank_frame(message: str, size: Any = FRAME_SIZE) -> np.ndarray:
     from matplotlib.figure import Figure
 
     width, height = frame_size("size", size)
-    figure = Figure(figsize=(width / _DPI, height / _DPI), dpi=_DPI)
+    figure = Figure(figsize=(width / DPI, height / DPI), dpi=DPI)
     FigureCanvasAgg(figure)
     figure.text(0.5, 0.5, message, ha="center", va="center", wrap=True, fontsize=max(6.0, height / 36))
     figure.canvas.draw()
@@ -203,7 +204,7 @@ class SceneRenderer:
         self.size = frame_size("size", size)
         self.title = title
         width, height = self.size
-        self.figure = Figure(figsize=(width / _DPI, height / _DPI), dpi=_DPI)
+        self.figure = Figure(figsize=(width / DPI, height / DPI), dpi=DPI)
         FigureCanvasAgg(self.figure)
         self.n_shown = min(config.n_agents, DRAW_AGENT_LIMIT)
         self.colours = agent_colours(self.n_shown)
@@ -212,6 +213,29 @@ class SceneRenderer:
         fig = self.figure
         self.heading = fig.text(0.01, 0.985, "", ha="left", va="top", fontsize=self.font * 1.05)
         self.clock = fig.text(0.01, 0.92, "", ha="left", va="top", fontsize=self.font, family="monospace")
+        self._build_axes(markers)
+        self.markers = markers
+        self.dots = self.ax.scatter(
+            np.zeros(self.n_shown), np.zeros(self.n_shown), s=28, c=self.colours, edgecolors="black", lw=0.5, zorder=3
+        )
+        self.ax.tick_params(labelsize=self.font * 0.9)
+        self.ax.grid(alpha=0.3)
+        self._topology: Topology | None = None
+        self._graph_patches: list[list[Any]] = []
+        self._graph_summary: Any = None
+        self._background: Any = None
+        self._background_key: Any = None
+        self._moving = [self.clock, self.dots]
+        if self.one_d:
+            self._moving += [*self.lines, self.now]
+        else:
+            self._moving += [self.trails, self.edges, self.heads] + ([self.vertices] if markers else [])
+        for artist in self._moving:
+            artist.set_animated(True)
+
+    def _build_axes(self, markers: bool) -> None:
+        """The axes and the trails' artists: position against time with a graph panel (1-D), or the plane."""
+        width, fig, config = self.size[0], self.figure, self.config
         left = max(0.09, 62 / width)  # room for the tick labels and the axis label
         if self.one_d:
             self.ax = fig.add_axes((left, 0.14, 0.67 - left, 0.68))
@@ -240,24 +264,6 @@ class SceneRenderer:
             second = f" (first two of dim = {config.dim})" if config.dim > 2 else ""
             self.ax.set_xlabel("x_i, first axis (m)" + second, fontsize=self.font)
             self.ax.set_ylabel("x_i, second axis (m)", fontsize=self.font)
-        self.markers = markers
-        self.dots = self.ax.scatter(
-            np.zeros(self.n_shown), np.zeros(self.n_shown), s=28, c=self.colours, edgecolors="black", lw=0.5, zorder=3
-        )
-        self.ax.tick_params(labelsize=self.font * 0.9)
-        self.ax.grid(alpha=0.3)
-        self._topology: Topology | None = None
-        self._graph_patches: list[list[Any]] = []
-        self._graph_summary: Any = None
-        self._background: Any = None
-        self._background_key: Any = None
-        self._moving = [self.clock, self.dots]
-        if self.one_d:
-            self._moving += [*self.lines, self.now]
-        else:
-            self._moving += [self.trails, self.edges, self.heads] + ([self.vertices] if markers else [])
-        for artist in self._moving:
-            artist.set_animated(True)
 
     # ------------------------------------------------------------ the graph panel (1-D)
     def _set_topology(self, topology: Topology) -> None:
@@ -387,6 +393,10 @@ class SceneRenderer:
             per_pixel = (x1 - x0) / (self.ax.get_position().width * self.size[0])
             self._plane_edges(plane[-1], topology, graph, per_pixel)
             moving = []
+        return self._capture(heading, moving)
+
+    def _capture(self, heading: str, moving: list[Any]) -> np.ndarray:
+        """Draw the moving artists over the kept background (redrawn when the view changed); the pixels."""
         canvas = self.figure.canvas
         key = (self.ax.get_xlim(), self.ax.get_ylim(), id(self._topology), heading)
         if key != self._background_key:
@@ -405,185 +415,3 @@ class SceneRenderer:
             fixed[:h, :w] = frame[:h, :w]
             return fixed
         return frame.copy()
-
-
-class EpisodeView:
-    """What a front end needs for ``render_mode``: the sampled history of its first episodes and a lazy renderer.
-
-    Records nothing when ``render_mode`` is None. Pickles without its renderer (rebuilt on demand).
-
-    Args:
-        config: the settings.
-        render_mode: None, ``"rgb_array"`` or ``"human"``.
-        episodes: how many of the engine's first episodes to record (the batched envs' grid).
-    """
-
-    def __init__(self, config: EnvConfig, render_mode: str | None, episodes: int = 1) -> None:
-        self.config = config
-        self.render_mode = render_mode
-        self.episodes = episodes
-        #: ``(t, positions (G, N, dim), D(t)/D(0) (G,))`` at each recorded sampling instant.
-        self.history: list[tuple[float, np.ndarray, np.ndarray]] = []
-        self._graphs: np.ndarray = np.zeros(0, dtype=np.int64)
-        self._intervals: np.ndarray = np.zeros(0, dtype=np.int64)
-        self._topologies: list[Topology] = []
-        self._renderer: Any = None
-        self._window: Any = None
-
-    def start(self, engine: Any) -> None:
-        """A new episode (or batch of them): the engine's state at ``t = 0``."""
-        self.history = []
-        if self.render_mode:
-            self.record(engine)
-
-    def record(self, engine: Any) -> None:
-        """The engine's first episodes at its current sampling instant (nothing without a render mode)."""
-        if not self.render_mode:
-            return
-        g = self.episodes
-        z = np.asarray(engine.absolute_state()[:g])  # (G, N, n, dim)
-        initial = np.asarray(engine.initial_disagreement[:g], dtype=float)
-        current = np.asarray(engine.current_disagreement[:g], dtype=float)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(initial > 0, current / np.where(initial > 0, initial, 1.0), np.nan)
-        self.history.append((float(engine.time), z[:, :, 0].copy(), ratio))
-        self._graphs = np.asarray(engine.graph_indices()[:g]).astype(np.int64)
-        self._intervals = np.full(g, int(engine.k))
-        self._topologies = list(engine.topologies[:g])
-
-    def _draw(self, episode: int) -> np.ndarray:
-        if not self.history:
-            raise RuntimeError("render: there is no episode to draw yet; call reset() first")
-        if self._renderer is None:
-            self._renderer = SceneRenderer(self.config, markers=True)
-        times = np.array([h[0] for h in self.history])
-        positions = np.array([h[1][episode] for h in self.history])
-        return self._renderer.draw(
-            times,
-            positions,
-            ratio=float(self.history[-1][2][episode]),
-            interval=int(self._intervals[episode]),
-            graph=int(self._graphs[episode]),
-            topology=self._topologies[episode],
-            heading=f"{self._topologies[episode].name}: episode {episode}" if self.episodes > 1 else None,
-        )
-
-    def frames(self) -> list[np.ndarray]:
-        """One ``(H, W, 3)`` uint8 frame per recorded episode (raises ``RuntimeError`` before any reset)."""
-        if not self.history:
-            raise RuntimeError("render: there is no episode to draw yet; call reset() first")
-        return [self._draw(b) for b in range(len(self.history[0][2]))]
-
-    def _show(self, picture: np.ndarray) -> None:
-        import matplotlib.pyplot as plt
-
-        if self._window is None:
-            height, width = picture.shape[:2]
-            figure = plt.figure(figsize=(width / _DPI, height / _DPI), dpi=_DPI)
-            ax = figure.add_axes((0, 0, 1, 1))
-            ax.set_axis_off()
-            self._window = (figure, ax.imshow(picture))
-        else:
-            self._window[1].set_data(picture)
-        plt.pause(0.001)
-
-    def frame(self) -> np.ndarray | None:
-        """Episode 0's frame (``rgb_array``: ``(H, W, 3)`` uint8; ``human``: shown, None).
-
-        Raises ``RuntimeError`` when no episode has started (nothing recorded).
-        """
-        picture = self._draw(0)
-        if self.render_mode == "human":
-            self._show(picture)
-            return None
-        return picture
-
-    def grid(self) -> np.ndarray | None:
-        """The recorded episodes' frames tiled (:func:`tile_frames`); ``human``: shown, None."""
-        picture = tile_frames(self.frames())
-        if self.render_mode == "human":
-            self._show(picture)
-            return None
-        return picture
-
-    def close(self) -> None:
-        self._renderer = None
-        if self._window is not None:
-            import matplotlib.pyplot as plt
-
-            plt.close(self._window[0])
-            self._window = None
-
-    def __getstate__(self) -> dict[str, Any]:
-        return {**self.__dict__, "_renderer": None, "_window": None}
-
-
-class SnapshotView:
-    """Frames of a batched engine whose episodes may keep their own clocks (the TorchRL env).
-
-    Nothing is recorded on the step path: each :meth:`grid` call reads the first ``episodes``
-    episodes' instants, states and ``D(t_k)/D(0)`` off the device, adds them to each episode's
-    trail, then draws and tiles their frames. An episode whose instant went back to 0 or below
-    its last one (a reset) starts a new trail; the same instant again replaces its entry. So
-    calling it after every reset and step (TorchRL's ``PixelRenderTransform`` does) draws the
-    trails through every sampling instant.
-
-    Args:
-        config: the settings.
-        episodes: how many of the engine's first episodes to draw.
-    """
-
-    def __init__(self, config: EnvConfig, episodes: int) -> None:
-        self.config = config
-        self.episodes = episodes
-        #: Per episode: ``(k, t, positions (N, dim), D(t_k)/D(0))`` at each recorded instant.
-        self.trails: list[list[tuple[int, float, np.ndarray, float]]] = [[] for _ in range(episodes)]
-        self._renderer: SceneRenderer | None = None
-
-    def record(self, engine: Any) -> None:
-        """Add the engine's first episodes at their current instants to their trails."""
-        from fxc_env.engine.backend import to_host
-
-        g = self.episodes
-        steps = engine.steps
-        instants = np.full(g, int(engine.k)) if steps is None else to_host(steps[:g]).astype(np.int64)
-        times = np.asarray(self.config.schedule.times)[instants]
-        positions = to_host(engine.absolute_state()[:g])[:, :, 0]
-        initial = to_host(engine.initial_disagreement[:g]).astype(float)
-        current = to_host(engine.current_disagreement[:g]).astype(float)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratios = np.where(initial > 0, current / np.where(initial > 0, initial, 1.0), np.nan)
-        self._graphs = to_host(engine.graph_indices()[:g]).astype(np.int64)
-        self._topologies = list(engine.topologies[:g])
-        for b, trail in enumerate(self.trails):
-            entry = (int(instants[b]), float(times[b]), positions[b].astype(float), float(ratios[b]))
-            if not trail or entry[0] == 0 or entry[0] < trail[-1][0]:
-                trail[:] = [entry]
-            elif entry[0] == trail[-1][0]:
-                trail[-1] = entry
-            else:
-                trail.append(entry)
-
-    def grid(self, engine: Any) -> np.ndarray:
-        """Record (:meth:`record`), then the episodes' frames tiled (:func:`tile_frames`): ``(H, W, 3)`` uint8."""
-        self.record(engine)
-        if self._renderer is None:
-            self._renderer = SceneRenderer(self.config, markers=True)
-        frames = []
-        for b, trail in enumerate(self.trails):
-            topology = self._topologies[b]
-            frames.append(
-                self._renderer.draw(
-                    np.array([entry[1] for entry in trail]),
-                    np.array([entry[2] for entry in trail]),
-                    ratio=trail[-1][3],
-                    interval=trail[-1][0],
-                    graph=int(self._graphs[b]),
-                    topology=topology,
-                    heading=f"{topology.name}: episode {b}" if self.episodes > 1 else None,
-                )
-            )
-        return tile_frames(frames)
-
-    def __getstate__(self) -> dict[str, Any]:
-        return {**self.__dict__, "_renderer": None}

@@ -2,9 +2,11 @@
 
 At N = 6 (``paper_fig1``) an interval is a few hundred floating-point operations, which the
 engine's numpy arrays spend mostly in per-call overhead (dozens of calls on arrays of six
-numbers). For few agents, :class:`SmallInterval` plays the same arithmetic in Python floats,
-operation for operation in the engine's order, so that every observation, input, state,
-energy and peak is bit for bit the engine's (``+ - * /`` round alike in Python and numpy).
+numbers). For few agents, :class:`SmallInterval` plays the engine's interval maps
+(:func:`fxc_env.core.dynamics.input_ends` and :func:`~fxc_env.core.dynamics.interval_increments`,
+plain arithmetic) on Python floats, and its observations operation for operation in the
+engine's order, so that every observation, input, state, energy and peak is bit for bit the
+engine's (``+ - * /`` round alike in Python and numpy).
 The two steps whose rounding numpy may do its own way are left to numpy on arrays of the
 engine's shapes: the disagreement's weighted sum ``[e_x, e_v] @ [1, T_s]`` (a fused
 multiply-add in BLAS) and the reward's logarithm. Every result is written back into the
@@ -28,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig
+from fxc_env.core.dynamics import input_ends, interval_increments
 from fxc_env.core.metrics import TRACKED_THRESHOLDS
 
 #: Largest N the small path takes (beyond, the engine's vectorised step is as fast).
@@ -91,8 +94,8 @@ class SmallInterval:
         self.slots = config.layout.slots
         self.size = config.layout.size
         self.normalized = config.obs_mode == "normalized" and self.slots > 0
-        self.scaled = config.obs_mode == "normalized"
-        self.plan = config.action_mode == "plan"
+        #: The action's input ends (:func:`fxc_env.core.dynamics.input_ends`), chosen as the engine's agents choose it.
+        self.ends = input_ends(config.action_mode == "plan", config.obs_mode == "normalized")
         self.n_intervals = config.schedule.n_intervals
         self.dtype = np.dtype(config.observation_dtype)
         tables = engine.tables
@@ -200,46 +203,19 @@ class SmallInterval:
             self.observations(engine)
         flat = engine.state.ravel().tolist()
         T = self.next_interval[k]
-        inv_t = 1.0 / T
-        # input_from_plan's gains, the accel gain's T^2, and the closed forms' coefficients.
-        position_gain, velocity_gain, square = 6.0 * inv_t * inv_t, 2.0 * inv_t, T * T
-        cubic, half, third = square / 6.0, 0.5 * T, T / 3.0
-        scaled, plan = self.scaled, self.plan
+        ends, increments = self.ends, interval_increments
         following: list[float] = []
         energies: list[float] = []
         peaks: list[float] = []
-        scales = self._measured[2]
-        if plan and scaled:
-            # The default modes (plan, normalized): the loop below with its branches taken.
-            for s, first, second, x, v in zip(
-                scales, actions[0::2], actions[1::2], flat[0::2], flat[1::2], strict=True
-            ):
-                position, velocity = position_gain * (s * first), velocity_gain * ((s / T) * second)
-                u0, u1 = position - velocity, 2.0 * velocity - position
-                total = u0 + u1
-                following += (x + (T * v + cubic * (u0 + total)), v + half * total)
-                energies.append((u0 * total + u1 * u1) * third)
-                peaks.append(max(abs(u0), abs(u1)))
-        else:
-            for i, s in enumerate(scales):
-                first, second = actions[2 * i], actions[2 * i + 1]
-                # The action's input ends (u(t_k+), u(t_{k+1}-)), as the engine's agents form them.
-                if plan:
-                    if scaled:
-                        first, second = s * first, (s / T) * second
-                    position, velocity = position_gain * first, velocity_gain * second
-                    u0, u1 = position - velocity, 2.0 * velocity - position
-                elif scaled:
-                    gain = s / square
-                    u0, u1 = gain * first, gain * second
-                else:
-                    u0, u1 = first, second
-                # core.dynamics.advance_into (paper eq. 10 under an affine input).
-                x, v = flat[2 * i], flat[2 * i + 1]
-                total = u0 + u1
-                following += (x + (T * v + cubic * (u0 + total)), v + half * total)
-                energies.append((u0 * total + u1 * u1) * third)
-                peaks.append(max(abs(u0), abs(u1)))
+        for s, first, second, x, v in zip(
+            self._measured[2], actions[0::2], actions[1::2], flat[0::2], flat[1::2], strict=True
+        ):
+            # The engine's very maps (core.dynamics), on floats: the input's ends, then paper eq. 10.
+            u0, u1 = ends(first, second, T, s)
+            dx, dv, energy = increments(v, u0, u1, T)
+            following += (x + dx, v + dv)
+            energies.append(energy)
+            peaks.append(max(abs(u0), abs(u1)))
         if not sum(map(abs, following)) + sum(energies) <= _LARGE:  # false for nan too
             return None
         # D = e_x + T_s e_v at dim = 1: the ranges (exact in any order), weighted by numpy.

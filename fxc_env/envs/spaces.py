@@ -22,18 +22,25 @@ def observation_space(config: EnvConfig) -> spaces.Space:
     """
     layout = config.layout
     dtype = config.observation_dtype
+    if config.obs_format != "dict":
+        low, high = observation_bounds(config)
+        return spaces.Box(low.astype(dtype), high.astype(dtype), dtype=dtype)
     row_bound = 1.0 if config.obs_mode == "normalized" else np.inf
     rows = spaces.Box(-row_bound, row_bound, shape=(layout.slots, layout.row_size), dtype=dtype)
-    mask = spaces.Box(0.0, 1.0, shape=(layout.slots,), dtype=dtype)
-    clock = spaces.Box(0.0, 1.0, shape=(CLOCK_SIZE,), dtype=dtype)
-    parts = {"neighbours": rows, "mask": mask, "clock": clock}
+    parts = {"neighbours": rows, "mask": spaces.Box(0.0, 1.0, shape=(layout.slots,), dtype=dtype)}
+    parts["clock"] = spaces.Box(0.0, 1.0, shape=(CLOCK_SIZE,), dtype=dtype)
     if layout.limit_feature:
         parts["input_limit"] = spaces.Box(-1.0, 1.0, shape=(1,), dtype=dtype)
-    if config.obs_format == "dict":
-        return spaces.Dict(parts)
-    low = np.concatenate([part.low.ravel() for part in parts.values()])
-    high = np.concatenate([part.high.ravel() for part in parts.values()])
-    return spaces.Box(low.astype(dtype), high.astype(dtype), dtype=dtype)
+    return spaces.Dict(parts)
+
+
+def observation_bounds(config: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The flat observation's bounds (rows, mask, clock, limit entry), float64 ``(obs_size,)`` each."""
+    layout = config.layout
+    row = 1.0 if config.obs_mode == "normalized" else np.inf
+    low = [np.full(layout.rows_end, -row), np.zeros(layout.slots + CLOCK_SIZE), [-1.0] * layout.limit_feature]
+    high = [np.full(layout.rows_end, row), np.ones(layout.slots + CLOCK_SIZE), [1.0] * layout.limit_feature]
+    return np.concatenate(low), np.concatenate(high)
 
 
 def action_space(config: EnvConfig) -> spaces.Box:
@@ -52,7 +59,7 @@ def state_space(config: EnvConfig) -> spaces.Box:
 
     ``global_state="raw"`` (default): ``(N, 2 dim)`` rows ``[x_i, v_i]``, unbounded, float64.
     ``global_state="normalized"``: the flat ``(N * 2 dim + 3,)`` vector of
-    :func:`fxc_env.envs.parallel.normalized_state`, rows in [-1, 1] and the clock in [0, 1],
+    :func:`fxc_env.envs.agent_dicts.normalized_state`, rows in [-1, 1] and the clock in [0, 1],
     in ``config.obs_dtype``.
     """
     if config.global_state == "normalized":

@@ -11,8 +11,7 @@ is :func:`fxc_env.policies.torchrl_reference.reference_policy`:
 from __future__ import annotations
 
 import inspect
-from collections.abc import Sequence
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 import torch
@@ -26,7 +25,9 @@ from fxc_env.config.arguments import (
     ENV_ARGUMENTS,
     GRAPH_TENSORS,
     Argument,
+    EnvKwargs,
     env_arguments,
+    env_signature,
     with_arguments_table,
 )
 from fxc_env.config.layout import CLOCK_SIZE
@@ -34,6 +35,9 @@ from fxc_env.core import validation
 from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.backend import torch_seed
 from fxc_env.engine.graph_tensors import GRAPH_TENSOR_KEYS, edge_capacity, edge_feature_size, graph_tensors
+from fxc_env.envs.episode_view import SnapshotView
+from fxc_env.envs.rendering import GRID_EPISODES
+from fxc_env.envs.spaces import observation_bounds
 
 #: The one agent group of the TensorDicts.
 GROUP = "agents"
@@ -137,18 +141,10 @@ class ConsensusTorchEnv(EnvBase):
     | ``"edge_attr"`` | ``[B, E, n dim]`` | with ``graph_tensors=True``: each edge's observation row ``z_j - z_i`` as agent i observes it, in ``obs_dtype`` |
 
     ## Graph tensors
-    ``graph_tensors=True`` adds the graph as edge tensors for graph neural networks (PyTorch
-    Geometric's convention; :mod:`fxc_env.engine.graph_tensors`), at reset and after every
-    step, following the switching schedule (each episode's own clock after a partial reset).
-    ``E`` is fixed for the environment (``n_edges_max``): the topology's largest graph, or
-    ``N slots`` for a family, whose graphs change at every reset. ``edge_attr`` is read out of
-    the observation rows (normalized or raw as ``obs_mode`` says; ``F = n dim``: ``[x_j - x_i,
-    v_j - v_i]`` per axis block); with ``link_dropout`` a link lost at ``t_k`` is not listed.
-    Off (the default) nothing is computed. Padding is the edge ``N -> N`` (one past the last
-    agent) with zero features: a summing message pass over ``N + 1`` node rows per episode (drop
-    the last) equals the one over the true edges, and over ``N`` rows the index is out of range.
-    One episode's PyG graph: ``td["edge_index"][b, :, :td["n_edges"][b]]``, or
-    ``edge_index[:, edge_mask]``.
+    ``graph_tensors=True`` adds the coming interval's graph as the parallel env's card describes
+    (PyTorch Geometric's convention, padding the edge ``N -> N``; :mod:`fxc_env.engine.graph_tensors`),
+    per episode as in the table above, each episode on its own clock after a partial reset.
+    One episode's PyG graph: ``td["edge_index"][b, :, :td["n_edges"][b]]``.
 
     ## When a bad value is reported
     Shapes are checked at once (they are known on the host). Values are not read on the
@@ -195,6 +191,7 @@ class ConsensusTorchEnv(EnvBase):
 
     __doc__ = with_arguments_table(__doc__, (*TORCH_ARGUMENTS, *ENV_ARGUMENTS))
 
+    @env_signature(before=TORCH_ARGUMENTS)
     def __init__(
         self,
         *,
@@ -207,37 +204,9 @@ class ConsensusTorchEnv(EnvBase):
         config: EnvConfig | None = None,
         graph_tensors: bool = False,
         scenario: str | None = None,
-        n_agents: int | None = None,
-        topology: Any = None,
-        settling_time: float | None = None,
-        n_intervals: int | None = None,
-        schedule: Any = None,
-        dim: int | None = None,
-        action_mode: str = "plan",
-        obs_mode: str = "normalized",
-        obs_format: str = "flat",
-        obs_dtype: str = "float64",
-        global_state: str = "raw",
-        action_bound: float | None = None,
-        reward_floor: float = 1e-12,
-        initial_state: Any = None,
-        position_range: float | tuple[float, float] | None = None,
-        velocity_range: float | tuple[float, float] | None = None,
-        topology_seed: int | None = 0,
-        mean_in_degree: float | None = None,
-        topology_period: int | None = None,
-        obs_slots: int | None = None,
-        u_max: float | Sequence[float] | None = None,
-        obs_noise: float = 0.0,
-        link_dropout: float = 0.0,
-        switching: str = "periodic",
-        agent_model: Any = None,
-        order: int | None = None,
-        damping: float | None = None,
-        frequency: float | None = None,
-        formation_offsets: Any = None,
+        **kwargs: Unpack[EnvKwargs],
     ) -> None:
-        arguments = env_arguments(locals())
+        arguments = env_arguments(locals(), kwargs)
         size = _batch_size(batch_size)
         seed = torch_seed("seed", seed)
         if not isinstance(check_values, bool | np.bool_):
@@ -273,7 +242,7 @@ class ConsensusTorchEnv(EnvBase):
     def _make_specs(self) -> None:
         c, layout, device = self.config, self.config.layout, self.engine.device
         b, n = self.batch_size[0], c.n_agents
-        low, high = _observation_bounds(c)
+        low, high = observation_bounds(c)
         observation = Bounded(
             low=torch.as_tensor(low, dtype=self._observation_dtype, device=device).expand(b, n, layout.size),
             high=torch.as_tensor(high, dtype=self._observation_dtype, device=device).expand(b, n, layout.size),
@@ -468,12 +437,10 @@ class ConsensusTorchEnv(EnvBase):
         """The first ``min(B, 16)`` episodes at their current instants, tiled: ``(H, W, 3)`` uint8 (README, "Video").
 
         Each call reads them off the device and adds them to their trails
-        (:class:`~fxc_env.envs.rendering.SnapshotView`), so calling it after every reset and step,
+        (:class:`~fxc_env.envs.episode_view.SnapshotView`), so calling it after every reset and step,
         as ``torchrl.record.PixelRenderTransform`` does, draws the trails; nothing is recorded on
         the step path. Raises ``RuntimeError`` before the first reset.
         """
-        from fxc_env.envs.rendering import GRID_EPISODES, SnapshotView
-
         if not hasattr(self, "_cycles"):
             raise RuntimeError("render: there is no episode to draw yet; call reset() first")
         view = self.__dict__.get("_snapshots")
@@ -496,7 +463,11 @@ def _prebuilt(config: Any, arguments: dict[str, Any]) -> EnvConfig:
         raise validation.ArgumentTypeError(
             f"config: expected an EnvConfig (make_config's), got {type(config).__name__}"
         )
-    given = [name for name, value in arguments.items() if not _is_default(value, ARGUMENTS[name].default)]
+    given = [
+        name
+        for name, value in arguments.items()
+        if name not in ARGUMENTS or not _is_default(value, ARGUMENTS[name].default)
+    ]
     if given:
         raise validation.ArgumentError(
             f"config: give a prebuilt config or the environment's arguments, not both (got {', '.join(given)})"
@@ -516,16 +487,3 @@ def _batch_size(value: Any) -> int:
             raise validation.ArgumentError(f"batch_size: expected an int or a one-element size [B], got {list(value)}")
         value = value[0]
     return validation.integer("batch_size", value, 1, validation.MAX_AGENTS)
-
-
-def _observation_bounds(config: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The flat observation's bounds (those of the parallel env's ``Box``)."""
-    layout = config.layout
-    row = 1.0 if config.obs_mode == "normalized" else np.inf
-    low = np.concatenate(
-        [np.full(layout.rows_end, -row), np.zeros(layout.slots + CLOCK_SIZE), [-1.0] * layout.limit_feature]
-    )
-    high = np.concatenate(
-        [np.full(layout.rows_end, row), np.ones(layout.slots + CLOCK_SIZE), [1.0] * layout.limit_feature]
-    )
-    return low, high

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Unpack
 
 import gymnasium as gym
 import numpy as np
@@ -25,20 +25,19 @@ from fxc_env.config.arguments import (
     FRONT_END_ARGUMENTS,
     REQUIRED,
     Argument,
+    EnvKwargs,
     env_arguments,
+    env_signature,
     with_arguments_table,
 )
 from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome, with_initial_state
-from fxc_env.envs.parallel import (
-    ConsensusParallelEnv,
-    episode_draw_info,
-    episode_metrics_rows,
-    normalized_state,
-)
-from fxc_env.envs.rendering import GRID_EPISODES, EpisodeView, blank_frame
+from fxc_env.envs.agent_dicts import episode_draw_info, episode_metrics_rows, normalized_state
+from fxc_env.envs.episode_view import EpisodeView
+from fxc_env.envs.parallel import ConsensusParallelEnv
+from fxc_env.envs.rendering import GRID_EPISODES, blank_frame
 from fxc_env.envs.spaces import action_space, observation_space
 
 #: Attributes of a :class:`ConsensusVecEnv` that :meth:`~ConsensusVecEnv.set_attr` refuses
@@ -92,9 +91,7 @@ class ConsensusVecEnv(VecEnv):
     dicts during an episode; at its end each carries ``terminal_observation`` (the last
     observation before the reset), ``TimeLimit.truncated`` (True only for a ``max_cycles``
     cut; the deadline is a termination) and ``episode_metrics`` (its episode's metrics, as
-    the parallel env's ``infos[agent]["episode"]``: numbers only, ``inf`` rather than
-    None, a metric that does not apply left out rather than ``nan``, each sub-environment its
-    own copy). Per-agent energy and peak input of the last
+    the parallel env's ``infos[agent]["episode"]``, each sub-environment its own copy). Per-agent energy and peak input of the last
     step are in :attr:`last_outcome` (arrays ``(n_envs, N)``).
 
     Seeding follows SB3: :meth:`seed` sets ``seed + i`` for sub-environment i, used at the
@@ -126,44 +123,17 @@ class ConsensusVecEnv(VecEnv):
 
     __doc__ = with_arguments_table(__doc__, (N_ENVS, *ENV_ARGUMENTS, *FRONT_END_ARGUMENTS))
 
+    @env_signature(before=(N_ENVS,), after=FRONT_END_ARGUMENTS)
     def __init__(
         self,
         n_envs: int,
         *,
         scenario: str | None = None,
-        n_agents: int | None = None,
-        topology: Any = None,
-        settling_time: float | None = None,
-        n_intervals: int | None = None,
-        schedule: Any = None,
-        dim: int | None = None,
-        action_mode: str = "plan",
-        obs_mode: str = "normalized",
-        obs_format: str = "flat",
-        obs_dtype: str = "float64",
-        global_state: str = "raw",
-        action_bound: float | None = None,
-        reward_floor: float = 1e-12,
-        initial_state: Any = None,
-        position_range: float | tuple[float, float] | None = None,
-        velocity_range: float | tuple[float, float] | None = None,
-        topology_seed: int | None = 0,
-        mean_in_degree: float | None = None,
-        topology_period: int | None = None,
-        obs_slots: int | None = None,
-        u_max: float | Sequence[float] | None = None,
-        obs_noise: float = 0.0,
-        link_dropout: float = 0.0,
-        switching: str = "periodic",
-        agent_model: Any = None,
-        order: int | None = None,
-        damping: float | None = None,
-        frequency: float | None = None,
-        formation_offsets: Any = None,
         render_mode: str | None = None,
         max_cycles: int | None = None,
+        **kwargs: Unpack[EnvKwargs],
     ) -> None:
-        arguments = env_arguments(locals())
+        arguments = env_arguments(locals(), kwargs)
         n_envs = N_ENVS.check(n_envs)
         check_render_mode(render_mode)
         check_max_cycles(max_cycles)
