@@ -53,18 +53,12 @@ from pathlib import Path
 from typing import Any
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.training import registry
 from fxc_env.training.args import TrainArgs, canonical_backend, default_run_dir
 
 #: Checkpoint names by back end (``{}``: the timesteps it was saved at). SB3's sits beside its
 #: VecNormalize statistics (``model_vecnormalize_<steps>_steps.pkl``); RLlib's is a directory.
-CHECKPOINT_NAMES = {
-    "sb3": "model_{}_steps.zip",
-    "torch": "model_{}_steps.pt",
-    "diff": "model_{}_steps.pt",
-    "rllib": "rllib_{}_steps",
-}
-#: A checkpoint directory is whole once this file is in it (RLlib writes it last).
-_COMPLETE = {"rllib": "rllib_checkpoint.json"}
+CHECKPOINT_NAMES = {name: backend.checkpoint for name, backend in registry.BACKENDS.items()}
 #: The end of every refusal to read a run directory's file that only unpickling would read.
 TRAIN_TRUST_HINT = (
     "nothing in it was run; pass --trust-policy-file (TrainArgs.trust_policy_file) only if you trust whoever "
@@ -111,7 +105,7 @@ class RunDir:
 
     def newest_checkpoint(self) -> Path | None:
         """The whole checkpoint with the most timesteps (None if there is none)."""
-        marker = _COMPLETE.get(self.backend)
+        marker = registry.BACKENDS[self.backend].complete  # a checkpoint directory is whole once it holds this
         found = [
             (steps, path)
             for path in self.checkpoints.glob(self.checkpoint_name.format("*"))

@@ -70,16 +70,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from fxc_env.config import EnvConfig, make_config
-from fxc_env.core import validation
+from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.graph_tensors import edge_capacity
 from fxc_env.policies.domain import training_domain
-from fxc_env.policies.torch_memory import GRU_INPUTS, MessagePassingActor, RecurrentActor, interval_graph
-from fxc_env.policies.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp, one_line
+from fxc_env.policies.networks import mlp
+from fxc_env.policies.torch_memory import MessagePassingActor, RecurrentActor, interval_graph
+from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, one_line
 from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir
+from fxc_env.training.settings import PPOSettings
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves all).
 PROGRESS_COLUMNS = (
@@ -103,91 +104,6 @@ PROGRESS_COLUMNS = (
     "train/n_updates",
 )
 LOG_2PI = math.log(2.0 * math.pi)
-
-
-# ---------------------------------------------------------------------------------- settings
-@dataclasses.dataclass(frozen=True)
-class PPOSettings:
-    """The ``torch_ppo`` entry of the hyperparameter file (every key optional)."""
-
-    n_envs: int = 256
-    """B, the parallel episodes (``--n-envs`` overrides it)."""
-    rollout_steps: int = 200
-    """T, environment steps per rollout: K or a divisor of K."""
-    learning_rate: float = 3.0e-4
-    epochs: int = 4
-    """Passes over a rollout's agent-steps per update."""
-    minibatch_size: int = 8192
-    """Agent-steps per gradient step."""
-    gamma: float = 1.0
-    """1: the per-step rewards telescope to the episode's log reduction ln D(0)/D(T_s)."""
-    gae_lambda: float = 0.95
-    clip_range: float = 0.2
-    ent_coef: float = 0.0
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
-    hidden: tuple[int, ...] = (64, 64)
-    """Widths of the hidden layers of the policy's mean and of the critic (separate networks)."""
-    activation: str = "tanh"
-    log_std_init: float = -2.0
-    """Initial log standard deviation of the exploration noise (state independent, learned)."""
-    actor_out_gain: float = 0.01
-    """Orthogonal gain of the ``mlp`` actor's output layer; 0 starts it at exactly zero (with
-    ``action_mode: residual`` the untrained policy is then the reference; README, "PPO from scratch")."""
-    normalize_advantage: bool = True
-    gru_size: int = 64
-    """``--policy-arch gru``: the width of the GRU's hidden state."""
-    gru_input: str = "observation"
-    """``--policy-arch gru``: what the GRU reads, ``observation`` or ``schedule`` (:class:`RecurrentActor`)."""
-    embed_size: int = 64
-    """``--policy-arch gnn``: the width of each agent's embedding."""
-    message_rounds: int = 2
-    """``--policy-arch gnn``: rounds of messages (each reaches one hop further upstream)."""
-
-    @classmethod
-    def from_mapping(
-        cls, entry: Mapping[str, Any], config: EnvConfig, *, name: str = "hyperparams", section: str = "torch_ppo"
-    ) -> PPOSettings:
-        """Checked settings from a hyperparameter entry; raise naming ``name: <section>.<key>``."""
-        known = {field.name for field in dataclasses.fields(cls)}
-        unknown = sorted(set(entry) - known)
-        if unknown:
-            raise ArgumentError(f"{name}: {section} has no setting {unknown[0]!r}; expected some of {sorted(known)}")
-        values = {**{f.name: f.default for f in dataclasses.fields(cls)}, **entry}
-
-        def key(k: str) -> str:
-            return f"{name}: {section}.{k}"
-
-        k_intervals = config.n_intervals
-        for field in ("n_envs", "rollout_steps", "epochs", "minibatch_size", "gru_size", "embed_size"):
-            validation.integer(key(field), values[field], 1)
-        validation.integer(key("message_rounds"), values["message_rounds"], 1, 8)
-        if k_intervals % values["rollout_steps"]:
-            raise ArgumentError(
-                f"{key('rollout_steps')}: expected K = {k_intervals} or a divisor of it, got {values['rollout_steps']}"
-            )
-        for field in ("learning_rate", "clip_range", "max_grad_norm"):
-            validation.real(key(field), values[field], positive=True)
-        for field in ("gamma", "gae_lambda"):
-            validation.real(key(field), values[field], 0.0, 1.0)
-        for field in ("ent_coef", "vf_coef", "log_std_init"):
-            validation.real(key(field), values[field])
-        validation.real(key("actor_out_gain"), values["actor_out_gain"], 0.0)
-        hidden = values["hidden"]
-        if not isinstance(hidden, list | tuple) or not hidden:
-            raise ArgumentError(f"{key('hidden')}: expected a list of layer widths, got {hidden!r}")
-        for width in hidden:
-            validation.integer(key("hidden"), width, 1, 1_000_000)
-        validation.choice(key("activation"), values["activation"], tuple(ACTIVATIONS))
-        validation.choice(key("gru_input"), values["gru_input"], GRU_INPUTS)
-        if not isinstance(values["normalize_advantage"], bool):
-            raise ArgumentError(f"{key('normalize_advantage')}: expected true or false")
-        values["hidden"] = tuple(int(w) for w in hidden)
-        for field in ("learning_rate", "clip_range", "max_grad_norm", "gamma", "gae_lambda", "ent_coef", "vf_coef"):
-            values[field] = float(values[field])
-        values["log_std_init"] = float(values["log_std_init"])
-        values["actor_out_gain"] = float(values["actor_out_gain"])
-        return cls(**values)
 
 
 def run_config(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:

@@ -42,6 +42,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from torch import nn
 
 from fxc_env.config.layout import CLOCK_SIZE
+from fxc_env.policies.networks import mlp
 
 
 class GainScheduledExtractor(nn.Module):
@@ -65,8 +66,8 @@ class GainScheduledExtractor(nn.Module):
         context_size = obs_size - self.rows_end
         self.latent_dim_pi = 2
         self.latent_dim_vf = hidden[-1]
-        self.gains = _mlp(context_size, hidden, 4 * slots)
-        self.value = _mlp(obs_size, hidden, None)
+        self.gains = mlp(context_size, 4 * slots, hidden)
+        self.value = mlp(obs_size, None, hidden)
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.forward_actor(features), self.forward_critic(features)
@@ -83,17 +84,6 @@ class GainScheduledExtractor(nn.Module):
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
         return self.value(features)
-
-
-def _mlp(inputs: int, hidden: tuple[int, ...], outputs: int | None) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    width = inputs
-    for size in hidden:
-        layers += [nn.Linear(width, size), nn.Tanh()]
-        width = size
-    if outputs is not None:
-        layers.append(nn.Linear(width, outputs))
-    return nn.Sequential(*layers)
 
 
 class GainScheduledPolicy(ActorCriticPolicy):
@@ -135,7 +125,7 @@ class GatedGainExtractor(GainScheduledExtractor):
         super().__init__(obs_size, hidden)
         if (obs_size - CLOCK_SIZE) % 3 != 1:
             raise ValueError(f"GatedGainPolicy: observations of size {obs_size} have no input-limit entry")
-        self.hold_gains = _mlp(obs_size - self.rows_end, hidden, 4 * self.slots)
+        self.hold_gains = mlp(obs_size - self.rows_end, 4 * self.slots, hidden)
         self.sharpness = nn.Parameter(torch.tensor(20.0))
 
     def _linear_law(self, gain_network: nn.Module, features: torch.Tensor) -> torch.Tensor:

@@ -31,7 +31,6 @@ as plain JSON beside the weights by :func:`save_model`: the member :data:`METADA
 
 from __future__ import annotations
 
-import functools
 import io
 import json
 import re
@@ -371,66 +370,64 @@ def _class_name(path: Path, data: Mapping[str, Any]) -> str:
     )
 
 
+def _recorded_spec(path: Path, metadata: Any) -> dict[str, Any]:
+    """What to rebuild, from the file's :data:`METADATA_MEMBER` record."""
+    if not isinstance(metadata, Mapping) or metadata.get("format") != METADATA_FORMAT:
+        raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} is not a {METADATA_FORMAT!r} record")
+    spec = {key: metadata.get(key) for key in ("algorithm", "policy_class", "net_arch", "activation")}
+    spec.update(
+        observation=metadata.get("observation"),
+        action=metadata.get("action"),
+        normalization=metadata.get("normalization"),
+        env=metadata.get("env"),
+        domain=metadata.get("domain"),
+        metadata=dict(metadata),
+    )
+    for key in ("observation", "action"):
+        if not isinstance(spec[key], Mapping) or not {"shape", "low", "high"} <= set(spec[key]):
+            raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} has no {key} shape and bounds")
+    extractor = metadata.get("features_extractor", "FlattenExtractor")
+    if extractor != "FlattenExtractor":
+        raise ArgumentError(f"policy: {path}: features extractor {extractor!r} is not rebuilt; {TRUST_HINT}")
+    return spec
+
+
+def _plain_spec(path: Path, data: Mapping[str, Any], weights: Mapping[str, Any]) -> dict[str, Any]:
+    """What to rebuild, from SB3's plain-JSON ``data`` (refused where it holds a pickle)."""
+    algorithm = "SAC" if any(k.startswith("actor.mu.") for k in weights) else "PPO"
+    kwargs = data.get("policy_kwargs", {})
+    if not isinstance(kwargs, Mapping) or ":serialized:" in kwargs:
+        raise ArgumentError(
+            f"policy: {path}: its policy_kwargs are recorded only as a pickle (a class such as activation_fn "
+            f"or a features extractor), and the file has no {METADATA_MEMBER}; re-save it with "
+            f"fxc_env.policies.policy_files.save_model, or {TRUST_HINT}"
+        )
+    plain_options = {"net_arch", "log_std_init", "ortho_init", "squash_output", "use_expln", "n_critics", "use_sde"}
+    plain_options |= {"clip_mean", "share_features_extractor", "normalize_images"}
+    unknown = sorted(set(kwargs) - plain_options)
+    unknown += [key for key in ("squash_output", "use_sde") if kwargs.get(key)]
+    if data.get("use_sde"):
+        unknown.append("use_sde")
+    if unknown:
+        raise ArgumentError(f"policy: {path}: policy options {unknown} are not rebuilt; {TRUST_HINT}")
+    default_arch = [256, 256] if algorithm == "SAC" else [64, 64]
+    return {
+        "algorithm": algorithm,
+        "policy_class": _class_name(path, data),
+        "net_arch": kwargs.get("net_arch", default_arch),
+        "activation": "relu" if algorithm == "SAC" else "tanh",
+        "observation": _readable_space(path, data, "observation_space"),
+        "action": _readable_space(path, data, "action_space"),
+        "normalization": None,
+        "env": None,
+        "domain": None,
+        "metadata": None,
+    }
+
+
 def _architecture(path: Path, data: Mapping[str, Any], metadata: Any, weights: Mapping[str, Any]) -> dict[str, Any]:
     """What to rebuild: from :data:`METADATA_MEMBER` when the file has it, else from ``data``'s plain JSON."""
-    if metadata is not None:
-        if not isinstance(metadata, Mapping) or metadata.get("format") != METADATA_FORMAT:
-            raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} is not a {METADATA_FORMAT!r} record")
-        spec = {key: metadata.get(key) for key in ("algorithm", "policy_class", "net_arch", "activation")}
-        spec.update(
-            observation=metadata.get("observation"),
-            action=metadata.get("action"),
-            normalization=metadata.get("normalization"),
-            env=metadata.get("env"),
-            domain=metadata.get("domain"),
-            metadata=dict(metadata),
-        )
-        for key in ("observation", "action"):
-            if not isinstance(spec[key], Mapping) or not {"shape", "low", "high"} <= set(spec[key]):
-                raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} has no {key} shape and bounds")
-        extractor = metadata.get("features_extractor", "FlattenExtractor")
-        if extractor != "FlattenExtractor":
-            raise ArgumentError(f"policy: {path}: features extractor {extractor!r} is not rebuilt; {TRUST_HINT}")
-    else:
-        algorithm = "SAC" if any(k.startswith("actor.mu.") for k in weights) else "PPO"
-        kwargs = data.get("policy_kwargs", {})
-        if not isinstance(kwargs, Mapping) or ":serialized:" in kwargs:
-            raise ArgumentError(
-                f"policy: {path}: its policy_kwargs are recorded only as a pickle (a class such as activation_fn "
-                f"or a features extractor), and the file has no {METADATA_MEMBER}; re-save it with "
-                f"fxc_env.policies.policy_files.save_model, or {TRUST_HINT}"
-            )
-        plain_options = {
-            "net_arch",
-            "log_std_init",
-            "ortho_init",
-            "squash_output",
-            "use_expln",
-            "n_critics",
-            "use_sde",
-            "clip_mean",
-            "share_features_extractor",
-            "normalize_images",
-        }
-        unknown = sorted(set(kwargs) - plain_options)
-        unknown += [key for key in ("squash_output", "use_sde") if kwargs.get(key)]
-        if data.get("use_sde"):
-            unknown.append("use_sde")
-        if unknown:
-            raise ArgumentError(f"policy: {path}: policy options {unknown} are not rebuilt; {TRUST_HINT}")
-        default_arch = [256, 256] if algorithm == "SAC" else [64, 64]
-        spec = {
-            "algorithm": algorithm,
-            "policy_class": _class_name(path, data),
-            "net_arch": kwargs.get("net_arch", default_arch),
-            "activation": "relu" if algorithm == "SAC" else "tanh",
-            "observation": _readable_space(path, data, "observation_space"),
-            "action": _readable_space(path, data, "action_space"),
-            "normalization": None,
-            "env": None,
-            "domain": None,
-            "metadata": None,
-        }
+    spec = _recorded_spec(path, metadata) if metadata is not None else _plain_spec(path, data, weights)
     if spec["algorithm"] not in KNOWN_POLICIES or spec["policy_class"] not in KNOWN_POLICIES[spec["algorithm"]]:
         raise ArgumentError(
             f"policy: {path}: {spec['algorithm']} with {spec['policy_class']} is not a network this loader rebuilds "
@@ -455,46 +452,33 @@ def _actor_widths(net_arch: Any, key: str) -> list[int]:
     return [int(w) for w in net_arch]
 
 
+#: SB3's actor parameters -> :class:`~fxc_env.policies.networks.MeanActor`'s (PPO's and SAC's).
+_ACTOR_PREFIXES = {
+    "ActorCriticPolicy": {"mlp_extractor.policy_net.": "latent.", "action_net.": "mean."},
+    "SACPolicy": {"actor.latent_pi.": "latent.", "actor.mu.": "mean."},
+}
+
+
+def _renamed(weights: Mapping[str, Any], prefixes: Mapping[str, str]) -> dict[str, Any]:
+    """The entries of ``weights`` under a prefix of ``prefixes``, under its new prefix."""
+    return {new + k[len(old) :]: v for old, new in prefixes.items() for k, v in weights.items() if k.startswith(old)}
+
+
 def _build(path: Path, spec: dict[str, Any], weights: Mapping[str, Any]) -> Any:
     """The actor network of ``spec`` with ``weights`` loaded (strictly: every actor key, no other)."""
     from torch import nn
 
-    activation = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}[spec["activation"]]
+    from fxc_env.policies.networks import GainActor, MeanActor, mlp
+
     obs_size = int(np.prod(spec["observation"]["shape"]))
     action_size = int(np.prod(spec["action"]["shape"]))
-
-    def mlp(widths: list[int]) -> nn.Sequential:
-        layers: list[nn.Module] = []
-        width = obs_size
-        for size in widths:
-            layers += [nn.Linear(width, size), activation()]
-            width = size
-        return nn.Sequential(*layers)
-
-    mean_actor, gain_actor = _actor_classes()
     cls = spec["policy_class"]
-    if cls == "ActorCriticPolicy":
+    if cls in ("ActorCriticPolicy", "SACPolicy"):
         widths = _actor_widths(spec["net_arch"], "pi")
-        module: nn.Module = mean_actor(mlp(widths), nn.Linear(widths[-1] if widths else obs_size, action_size))
-        state = {
-            **{
-                k.replace("mlp_extractor.policy_net.", "latent.", 1): v
-                for k, v in weights.items()
-                if k.startswith("mlp_extractor.policy_net.")
-            },
-            **{k.replace("action_net.", "mean.", 1): v for k, v in weights.items() if k.startswith("action_net.")},
-        }
-    elif cls == "SACPolicy":
-        widths = _actor_widths(spec["net_arch"], "pi")
-        module = mean_actor(mlp(widths), nn.Linear(widths[-1] if widths else obs_size, action_size))
-        state = {
-            **{
-                k.replace("actor.latent_pi.", "latent.", 1): v
-                for k, v in weights.items()
-                if k.startswith("actor.latent_pi.")
-            },
-            **{k.replace("actor.mu.", "mean.", 1): v for k, v in weights.items() if k.startswith("actor.mu.")},
-        }
+        module: nn.Module = MeanActor(
+            mlp(obs_size, None, widths, spec["activation"]), nn.Linear(widths[-1] if widths else obs_size, action_size)
+        )
+        state = _renamed(weights, _ACTOR_PREFIXES[cls])
     else:  # the gain-scheduled networks of fxc_env.policies.gain_network
         from fxc_env.policies.gain_network import GainScheduledExtractor, GatedGainExtractor
 
@@ -505,12 +489,8 @@ def _build(path: Path, spec: dict[str, Any], weights: Mapping[str, Any]) -> Any:
             extractor = extractor_class(obs_size, hidden)
         except ValueError as exc:
             raise ArgumentError(f"policy: {path}: {exc}") from exc
-        module = gain_actor(extractor)
-        state = {
-            k.replace("mlp_extractor.", "extractor.", 1): v
-            for k, v in weights.items()
-            if k.startswith("mlp_extractor.")
-        }
+        module = GainActor(extractor)
+        state = _renamed(weights, {"mlp_extractor.": "extractor."})
     try:
         module.load_state_dict(state, strict=True)
     except RuntimeError as exc:
@@ -519,34 +499,6 @@ def _build(path: Path, spec: dict[str, Any], weights: Mapping[str, Any]) -> Any:
             f"{spec['net_arch']} ({_summary(exc)})"
         ) from exc
     return module.eval().requires_grad_(False)
-
-
-@functools.cache
-def _actor_classes() -> tuple[type, type]:
-    """The two actor modules (defined on first use: torch is imported only when a policy loads)."""
-    from torch import nn
-
-    class MeanActor(nn.Module):
-        """SB3's actor mean: ``mean(latent(obs))`` (PPO's ``action_net(policy_net)``, SAC's ``mu(latent_pi)``)."""
-
-        def __init__(self, latent: nn.Module, mean: nn.Module) -> None:
-            super().__init__()
-            self.latent, self.mean = latent, mean
-
-        def forward(self, obs):
-            return self.mean(self.latent(obs))
-
-    class GainActor(nn.Module):
-        """The gain networks' action mean: the extractor's ``forward_actor`` (their ``action_net`` is the identity)."""
-
-        def __init__(self, extractor: nn.Module) -> None:
-            super().__init__()
-            self.extractor = extractor
-
-        def forward(self, obs):
-            return self.extractor.forward_actor(obs)
-
-    return MeanActor, GainActor
 
 
 # ---------------------------------------------------------------------------------------- writing

@@ -38,17 +38,12 @@ import torch
 from torch import nn
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.networks import ACTIVATIONS, mlp
 
 #: ``--policy-arch`` choices.
 ARCHS = ("mlp", "gru", "gnn")
 #: What a ``gru`` actor's GRU reads (:class:`RecurrentActor`).
 GRU_INPUTS = ("observation", "schedule")
-
-
-def _mlp(inputs: int, outputs: int, hidden: tuple[int, ...], activation: str, out_gain: float) -> nn.Sequential:
-    from fxc_env.policies.torch_policy import mlp
-
-    return mlp(inputs, outputs, hidden, activation, out_gain)
 
 
 class GainHead(nn.Module):
@@ -65,7 +60,7 @@ class GainHead(nn.Module):
     ) -> None:
         super().__init__()
         self.inputs, self.action_size, self.affine = inputs, action_size, affine
-        self.net = _mlp(features, action_size * (inputs + int(affine)), hidden, activation, 0.01)
+        self.net = mlp(features, action_size * (inputs + int(affine)), hidden, activation, 0.01)
 
     def forward(self, features: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
         out = self.net(features).unflatten(-1, (self.action_size, self.inputs + int(self.affine)))
@@ -174,8 +169,6 @@ class MessagePassingActor(nn.Module):
         rounds: int,
     ) -> None:
         super().__init__()
-        from fxc_env.policies.torch_policy import ACTIVATIONS
-
         self.obs_size, self.embed_size, self.rounds = obs_size, embed_size, rounds
         self.embed = nn.Linear(obs_size, embed_size)
         self.own = nn.ModuleList(nn.Linear(embed_size, embed_size) for _ in range(rounds))
@@ -234,7 +227,7 @@ def build_actor(record: dict[str, Any], obs_size: int, action_size: int) -> nn.M
     hidden = tuple(int(w) for w in record["hidden"])
     activation = str(record["activation"])
     if arch == "mlp":
-        return _mlp(obs_size, action_size, hidden, activation, 1.0)
+        return mlp(obs_size, action_size, hidden, activation, 1.0)
     if arch == "gru":
         return RecurrentActor(
             obs_size,

@@ -15,39 +15,19 @@ this module is what evaluation needs.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-from torch import nn
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.networks import ACTIVATIONS, mlp  # noqa: F401  (their public path before networks.py)
 
 #: The ``format`` of a policy record, and of a checkpoint (which holds one under ``"policy"``).
 POLICY_FORMAT = "fxc_env.torch_ppo.policy/1"
 CHECKPOINT_FORMAT = "fxc_env.torch_ppo.checkpoint/1"
-#: Activations a network may use.
-ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
-
-
-def mlp(inputs: int, outputs: int, hidden: tuple[int, ...], activation: str, out_gain: float) -> nn.Sequential:
-    """``Linear`` + activation layers, orthogonally initialised (SB3's gains: sqrt 2, then ``out_gain``)."""
-    layers: list[nn.Module] = []
-    width = inputs
-    for size in hidden:
-        layer = nn.Linear(width, size)
-        nn.init.orthogonal_(layer.weight, math.sqrt(2.0))
-        nn.init.zeros_(layer.bias)
-        layers += [layer, ACTIVATIONS[activation]()]
-        width = size
-    last = nn.Linear(width, outputs)
-    nn.init.orthogonal_(last.weight, out_gain)
-    nn.init.zeros_(last.bias)
-    layers.append(last)
-    return nn.Sequential(*layers)
 
 
 class TorchPolicy:

@@ -63,6 +63,7 @@ def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 
     from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
     from fxc_env.envs.torch_env import GROUP, ConsensusTorchEnv
+    from fxc_env.policies.networks import mlp
 
     env = ConsensusTorchEnv(
         batch_size=episodes, seed=0, obs_dtype="float32", scenario="paper_fig1", obs_slots=4, initial_state="random"
@@ -70,13 +71,10 @@ def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 
     size, actions, bound = env.config.layout.size, env.config.action_size, env.config.action_bound
     steps = env.config.n_intervals
 
-    def mlp(inputs: int, outputs: int) -> nn.Module:
-        return nn.Sequential(nn.Linear(inputs, 64), nn.Tanh(), nn.Linear(64, 64), nn.Tanh(), nn.Linear(64, outputs))
-
     class Gaussian(nn.Module):
         def __init__(self) -> None:
             super().__init__()
-            self.mean = mlp(size, actions)
+            self.mean = mlp(size, actions, (64, 64))
             self.log_std = nn.Parameter(torch.full((actions,), -2.0))
 
         def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -93,7 +91,7 @@ def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 
         return_log_prob=True,
         log_prob_key=(GROUP, "sample_log_prob"),
     )
-    critic = ValueOperator(mlp(size, 1), in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "state_value")])
+    critic = ValueOperator(mlp(size, 1, (64, 64)), in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "state_value")])
     frames = episodes * steps
     collector = Collector(
         env,
