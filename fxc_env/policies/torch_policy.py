@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.fit import check_fit, check_width
 from fxc_env.policies.networks import ACTIVATIONS, mlp  # noqa: F401  (their public path before networks.py)
 
 #: The ``format`` of a policy record, and of a checkpoint (which holds one under ``"policy"``).
@@ -65,7 +66,7 @@ class TorchPolicy:
     def training_settings(self) -> dict[str, Any] | None:
         """The settings of the environment ``env`` describes (None when it records none or does not build)."""
         if self._settings is None and self.env:
-            from fxc_env.policies.policy_files import settings_from_env_kwargs
+            from fxc_env.policies.fit import settings_from_env_kwargs
 
             self._settings = settings_from_env_kwargs(self.env)
         return self._settings
@@ -200,8 +201,6 @@ def load_torch_policy(path: str | Path, env: Any = None, *, allow_out_of_domain:
     except (RuntimeError, TypeError, ValueError) as exc:  # missing, extra or misshapen weights; a wrong value
         raise ArgumentError(f"policy: {str(path)!r} does not load as a torch policy: {one_line(exc)}") from exc
     if env is not None:
-        from fxc_env.policies.learned import check_fit, check_width
-
         check_width(policy, env, path)  # a fixed-width network: another obs_slots is refused by name
         check_fit(policy, env, "policy", allow_out_of_domain=allow_out_of_domain)
     return policy
