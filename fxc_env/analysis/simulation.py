@@ -106,6 +106,12 @@ def simulate(
         raise ArgumentError(f"policy: expected 'reference' or a callable, got {policy!r}")
     engine.reset_from_draws([draw], rng=rng)
     u_max = None if engine.u_max is None else float(engine.u_max[0])
+    states, u_start, u_end, plans, graphs = _play(engine, act)
+    return _trajectory(config, engine, states, u_start, u_end, plans, graphs, points_per_interval, u_max)
+
+
+def _play(engine: ConsensusEngine, act: Any) -> tuple[list, list, list, list, list]:
+    """One episode of ``act``: the states after every step (the first before), inputs, plans and graphs."""
     states = [engine.state[0].copy()]  # (N, n, dim) in the engine's coordinates (formation error)
     u_start, u_end, plans, graphs = [], [], [], []
     while not engine.done:
@@ -117,6 +123,11 @@ def simulate(
         u_end.append(outcome.u_end[0])
         if outcome.plan is not None:
             plans.append(outcome.plan[0])
+    return states, u_start, u_end, plans, graphs
+
+
+def _trajectory(config, engine, states, u_start, u_end, plans, graphs, points_per_interval, u_max) -> Trajectory:
+    """The episode's :class:`Trajectory`, dense in time in closed form."""
     z = np.array(states)  # (K + 1, N, n, dim)
     u0, u1 = np.array(u_start), np.array(u_end)
     times, intervals = config.schedule.times, config.schedule.intervals
