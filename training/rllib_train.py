@@ -116,21 +116,14 @@ def train_rllib(args: TrainArgs) -> Path:
     checkpoint = run.resume_checkpoint(args.resume, args)
 
     with ray_session("--backend rllib", args.address) as ray:
-        # ------------------------------------------------------------------ set-up
         algo = algorithm_config(args, params).build_algo()
         if checkpoint is not None:
             algo.restore_from_path(str(checkpoint.resolve()))
             run.announce_resume(checkpoint, f"iteration {algo.iteration}")
         else:
-            run.start(
-                {
-                    "args": dataclasses.asdict(args),
-                    "hyperparams": params,
-                    "n_agents": n_agents,
-                    "timesteps_per_iteration": per_iteration,
-                    "ray_cluster_cpus": ray.cluster_resources().get("CPU"),
-                }
-            )
+            record = {"args": dataclasses.asdict(args), "hyperparams": params, "n_agents": n_agents}
+            cpus = ray.cluster_resources().get("CPU")
+            run.start({**record, "timesteps_per_iteration": per_iteration, "ray_cluster_cpus": cpus})
         print(
             f"fxc train: RLlib PPO on {args.scenario} (N = {n_agents}, one shared module), "
             f"{args.num_env_runners} env runner(s) x {args.envs_per_runner} env(s), "
@@ -138,7 +131,6 @@ def train_rllib(args: TrainArgs) -> Path:
             f"{iterations} iteration(s) of {per_iteration} timesteps"
         )
 
-        # ------------------------------------------------------------------- loop
         resumed_at = (algo.iteration, algo.iteration * per_iteration) if checkpoint is not None else None
         try:
             with (
