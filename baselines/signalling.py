@@ -41,38 +41,10 @@ the free-motion predictions ``p_i = (x_i + T_s v_i, v_i)``. Each agent only need
 
 The signalling amplitude ``ε`` (dimensionless: metres of deviation per metre of register) trades
 energy for accuracy: the reading error of a register is the rounding of a measured row over ``ε``
-(about ``1e-16 |z| / ε``), the signalling energy grows like ``ε²``. Measured (K = 200, T_s = 20 s, uniform
-schedule, raw plans, 20 seeded initial states, medians; relative deadline error, energy / E*):
-
-=====================  ==========================  ==========================  ==========================
-case                   ε = 1e-7                    ε = 1e-6 (default)          ε = 1e-5
-=====================  ==========================  ==========================  ==========================
-ring N = 20            3.3e-9, 1.45 (t_c = 1.8 s)  3.6e-10, 1.45               3.5e-11, 1.58
-random N = 20          6.0e-9, 2.24 (t_c = 3.7 s)  6.7e-10, 2.24               6.2e-11, 2.29
-paper_fig1 (switching) 1.2e-9, 1.33 (t_c = 1.4 s)  1.4e-10, 1.33               1.3e-11, 1.34
-=====================  ==========================  ==========================  ==========================
-
-(the random digraph of ``topology_seed=0`` is not strongly connected: its two non-root agents cost the
-offset to the roots' mean). On the paper's schedule the agreement ends late (its first interval is
-12.2 s; t_c = 19.3 s on the ring): 6.0e-10 at 8.0e4 x E* (ring), 1.0e-9 at 6.8e5 (random), 2.8e-10 at
-3.8e4 (``paper_fig1``), against the reference's 1.7e7 x E* on ``paper_fig1``.
-
-The amplitude is refused outside ``1e-12 <= ε <= 1`` (:data:`AMPLITUDE_RANGE`), where the trade above stops
-holding. Below, the reads lose their digits to rounding (the deadline error is a few ``1e-16 / ε``) for no
-energy saved (the signalling energy is already ~1e-4 of the total at 1e-6); at ε = 1e-16 the law ends no
-closer than it started. Above 1 the deadline error stops falling and grows again like ε (float64 rounding
-of motions ε times the register), while the energy keeps growing like ε², so every ε > 1 is worse than
-ε = 1 on both counts. Measured as above (medians of 20 seeds; ``tests/test_baselines_signalling.py`` runs both ends):
-
-=====================  =========  =========  =========  =========  =========  ==========  ==========
-deadline error         ε = 1e-16  ε = 1e-14  ε = 1e-12  ε = 1      ε = 1e4    ε = 1e8     ε = 1e12
-=====================  =========  =========  =========  =========  =========  ==========  ==========
-ring N = 20            3.2        3.5e-2     3.3e-4     3.4e-13    6.3e-9     6.6e-5      0.66
-random N = 20          5.8        6.3e-2     5.5e-4     2.2e-13    4.3e-9     3.7e-5      0.35
-paper_fig1 (own x0)    1.0        8.9e-3     1.4e-4     9.0e-14    1.6e-9     1.3e-5      0.12
-=====================  =========  =========  =========  =========  =========  ==========  ==========
-
-(energy / E* at ε = 1: 1.3e9, 4.4e8, 8.8e7; at 1e4: 1.3e17, 4.4e16, 8.8e15.)
+(about ``1e-16 |z| / ε``), the signalling energy grows like ``ε²``. It is refused outside
+``1e-12 <= ε <= 1`` (:data:`AMPLITUDE_RANGE`): below, rounding takes the reads' digits for no energy
+saved; above, the error grows again like ε while the energy keeps growing like ε². The measured
+figures are on the docs' optimality page (``tests/test_baselines_signalling.py`` runs both ends).
 
 - Source: this project (information is cheap, motion is not: signalling through motion in the
   spirit of implicit communication, on the minimum-time law of :mod:`fxc_env.baselines.minimum_time`).

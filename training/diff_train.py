@@ -35,10 +35,10 @@ from torch import nn
 
 from fxc_env.config import make_config
 from fxc_env.policies.torch_memory import interval_graph
-from fxc_env.training.args import TrainArgs, check_train_args
-from fxc_env.training.run_dir import RunDir
+from fxc_env.training.args import TrainArgs
 from fxc_env.training.settings import DiffSettings
-from fxc_env.training.torch_ppo import Trainer, drive, run_config
+from fxc_env.training.torch_common import drive, prepare, run_config
+from fxc_env.training.torch_ppo import Trainer
 
 #: Columns of ``progress.csv``, SB3's names where they mean the same.
 PROGRESS_COLUMNS = (
@@ -152,14 +152,8 @@ class DiffTrainer(Trainer):
 
 def train_diff(args: TrainArgs) -> Path:
     """Run (or resume) analytic policy gradients on the engine on ``args.device``; returns the run directory."""
-    args = dataclasses.replace(args, backend="diff")
-    params = check_train_args(args)  # every argument, before any work
-    settings = DiffSettings.from_mapping(params["algo"], make_config(**run_config(args, params)))
-    torch.set_num_threads(args.torch_threads)
-    device = torch.device(args.device)
-    run = RunDir.of(args)
-    checkpoint = run.resume_checkpoint(args.resume, args)
-    trainer = DiffTrainer(args, params, settings, device)
+    args, params, run, checkpoint, trainer = prepare(args, "diff", DiffSettings, DiffTrainer)
+    settings, device = trainer.diff, trainer.device
     per_batch = trainer.k_intervals * trainer.n_envs * trainer.n_agents
     record = {"diff_apg": dataclasses.asdict(settings), "timesteps_per_batch": per_batch}
     banner = (

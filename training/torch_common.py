@@ -20,13 +20,14 @@ from typing import Any
 import torch
 from torch import nn
 
+from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.fit import training_settings
 from fxc_env.policies.networks import mlp
 from fxc_env.policies.torch_memory import MessagePassingActor, RecurrentActor
 from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, one_line
-from fxc_env.training.args import TrainArgs
+from fxc_env.training.args import TrainArgs, check_train_args
 from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir
 from fxc_env.training.settings import PPOSettings
 
@@ -270,6 +271,17 @@ def init_actor(trainer: Any, source: str) -> Path:
     return path
 
 
+def prepare(args: TrainArgs, backend: str, settings_class: Any, trainer_class: Any) -> tuple[Any, ...]:
+    """Every argument checked before any work, then ``(args, params, run, checkpoint, trainer)`` of a torch back end."""
+    args = dataclasses.replace(args, backend=backend)
+    params = check_train_args(args)
+    settings = settings_class.from_mapping(params["algo"], make_config(**run_config(args, params)))
+    torch.set_num_threads(args.torch_threads)
+    run = RunDir.of(args)
+    checkpoint = run.resume_checkpoint(args.resume, args)
+    return args, params, run, checkpoint, trainer_class(args, params, settings, torch.device(args.device))
+
+
 def drive(
     args: TrainArgs,
     run: RunDir,
@@ -316,3 +328,11 @@ def drive(
     torch.save(trainer.policy_record(), run.path / "policy.pt")
     run.finish(trainer.timesteps, run.path / "policy.pt")
     return run.path
+
+
+def run_config(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:
+    """The environment keywords of this run (the hyperparameter file's ``env``, ``scenario`` first)."""
+    kwargs = {key: value for key, value in params["env"].items() if key != "n_envs"}
+    if args.critic == "central":
+        kwargs["global_state"] = "normalized"
+    return {"scenario": args.scenario, **kwargs}

@@ -35,18 +35,12 @@ newest with its step count, optimiser state and random generators, starting fres
 The policy file and the checkpoints are :mod:`fxc_env.training.torch_common`'s (the keys:
 :mod:`fxc_env.policies.torch_policy`).
 
-**Memory and messages** (``--policy-arch``, :mod:`fxc_env.policies.torch_memory`; ``mlp`` is the
-default and trains bit for bit as before). ``gru``: a GRU over each agent's own observations with a
-gain head; its memory ``[B, N, gru_size]`` is carried across the steps (and rollouts) of an episode
-and zeroed where the observation's clock reads ``k = 0`` (every episode start, partial resets
-included). The rollout stores the memory at its start; the update reruns the GRU from it over the
-T steps of whole agent sequences (``minibatch_size // T`` sequences a minibatch), so the log
-probabilities are exact for the current weights and the gradient runs through the rollout
-(truncated at rollout boundaries) at the cost of one extra forward pass, where storing every
-step's memory would freeze the memories at the old weights. ``gnn``: messages along the interval
-graph (:mod:`fxc_env.engine.graph_tensors`'s ``edge_index``/``edge_mask``, stored per step);
-minibatches are whole (step, episode) graphs. That is a communication model beyond the paper's (its
-agents sample only their in-neighbours' states). The critic is an MLP in every case.
+**Memory and messages** (``--policy-arch``, the actors of :mod:`fxc_env.policies.torch_memory`; ``mlp``
+trains bit for bit as before). ``gru``: the rollout stores the memory at its start; the update reruns
+the GRU from it over the T steps of whole agent sequences (``minibatch_size // T`` sequences a
+minibatch), so the log probabilities are exact for the current weights and the gradient runs through
+the rollout (truncated at its boundaries). ``gnn``: the interval graphs are stored per step and
+minibatches are whole (step, episode) graphs. The critic is an MLP in every case.
 """
 
 from __future__ import annotations
@@ -64,10 +58,18 @@ from fxc_env.config import make_config
 from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.graph_tensors import edge_capacity
 from fxc_env.policies.torch_memory import interval_graph
-from fxc_env.training.args import TrainArgs, check_train_args
-from fxc_env.training.run_dir import RunDir
+from fxc_env.training.args import TrainArgs
 from fxc_env.training.settings import PPOSettings
-from fxc_env.training.torch_common import ActorCritic, TrainerFiles, adam, drive, init_actor, latest_torch_checkpoint  # noqa: F401
+from fxc_env.training.torch_common import (  # noqa: F401
+    ActorCritic,
+    TrainerFiles,
+    adam,
+    drive,
+    init_actor,
+    latest_torch_checkpoint,
+    prepare,
+    run_config,
+)
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves all).
 PROGRESS_COLUMNS = (
@@ -90,14 +92,6 @@ PROGRESS_COLUMNS = (
     "train/learning_rate",
     "train/n_updates",
 )
-
-
-def run_config(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:
-    """The environment keywords of this run (the hyperparameter file's ``env``, ``scenario`` first)."""
-    kwargs = {key: value for key, value in params["env"].items() if key != "n_envs"}
-    if args.critic == "central":
-        kwargs["global_state"] = "normalized"
-    return {"scenario": args.scenario, **kwargs}
 
 
 # ---------------------------------------------------------------------------------- training
@@ -388,14 +382,8 @@ class Trainer(TrainerFiles):
 
 def train_torch(args: TrainArgs) -> Path:
     """Run (or resume) PPO on the batched engine on ``args.device``; returns the run directory."""
-    args = dataclasses.replace(args, backend="torch")
-    params = check_train_args(args)  # every argument, before any work
-    settings = PPOSettings.from_mapping(params["algo"], make_config(**run_config(args, params)))
-    torch.set_num_threads(args.torch_threads)
-    device = torch.device(args.device)
-    run = RunDir.of(args)
-    checkpoint = run.resume_checkpoint(args.resume, args)
-    trainer = Trainer(args, params, settings, device)
+    args, params, run, checkpoint, trainer = prepare(args, "torch", PPOSettings, Trainer)
+    settings, device = trainer.settings, trainer.device
     per_rollout = settings.rollout_steps * trainer.n_envs * trainer.n_agents
     record = {"torch_ppo": dataclasses.asdict(settings), "timesteps_per_rollout": per_rollout}
     banner = (

@@ -1,38 +1,14 @@
-"""A saved policy (stable-baselines3 model or RLlib checkpoint) as a policy on the local observation.
+"""A saved policy (stable-baselines3 model, torch policy, RLlib checkpoint, gain schedule) as a policy on the
+local observation: :func:`load_learned_policy` is the one place that decides how a saved policy loads.
 
-:class:`LearnedPolicy` (SB3) and :class:`RLlibPolicy` have the calling convention of
-:class:`fxc_env.ReferencePolicy`: observations ``(..., obs_size)`` in, actions
-``(..., 2 dim)`` out, deterministic. :func:`load_learned_policy` is the one place that decides
-how a saved policy loads.
-
-**Loading runs no code from the file.** An SB3 ``.zip`` is read by
-:func:`fxc_env.policies.policy_files.read_sb3_zip` (plain JSON and ``weights_only`` tensors;
-nothing is unpickled), a torch policy loads with ``weights_only=True``. Formats that can only be
-unpickled (an RLlib checkpoint, VecNormalize's ``.pkl``, SB3's own loader for networks the
-safe reader does not rebuild) need ``trusted=True``: unpickling a file runs whatever code its
-author put in it (README, "Training learned policies").
-
-**A policy meets the settings it was trained for.** A file that records its training
-environment (SB3 ``.zip`` files saved by ``fxc train`` or
-:func:`~fxc_env.policies.policy_files.save_model`, torch policies) is refused in an environment
-whose action or observation mode, input-limit feature, agent model, dimension or
-observation slots differ (:data:`fxc_env.policies.policy_files.CHECKED_SETTINGS`), with an
-error naming the setting and both values, and in one outside its **training domain** (graphs,
-N, switching, schedule, K, limits, noise: :mod:`fxc_env.policies.domain`), naming every
-difference, unless ``allow_out_of_domain=True`` (then an
-:class:`~fxc_env.policies.domain.OutOfDomainWarning` names them). :func:`load_learned_policy`
-adapts two settings:
-
-* **any obs_slots and N** (:class:`SlotAdaptedPolicy`): the observation is rebuilt in the
-  trained layout. Fewer rows than trained with are padded exactly as an environment built
-  with the trained ``obs_slots`` pads them (same actions, bit for bit); more rows are read by
-  the gain-scheduled networks (:data:`ROW_WISE_POLICIES`), grouped and rescaled to the
-  in-degree as eq. (11) scales its gains (a :class:`PolicyAdaptedWarning`), and refused for
-  a fixed-width network (an MLP), naming its architecture, its width and the environment's.
-* **dim**: a model trained in one dimension acts per axis in a ``dim > 1`` environment
-  (:class:`PerAxisPolicy`, which says so in :attr:`PerAxisPolicy.adaptation`).
-
-:class:`LearnedPolicy` itself takes only observations of the model's size.
+The readers: :class:`LearnedPolicy` (an SB3 ``.zip``, read by :mod:`fxc_env.policies.policy_files`
+without unpickling), :mod:`~fxc_env.policies.torch_policy`, :mod:`~fxc_env.policies.rllib_policy`
+(only with ``trusted=True``: RLlib unpickles) and :mod:`~fxc_env.policies.interval_gains`. Every one
+has the calling convention of :class:`fxc_env.ReferencePolicy` (observations ``(..., obs_size)`` in,
+actions ``(..., 2 dim)`` out, deterministic) and must fit the environment it is given
+(:mod:`~fxc_env.policies.fit`: sizes, the settings it was trained for, its training domain);
+:mod:`~fxc_env.policies.adapters` lets it act on another number of neighbour slots or per axis.
+**Loading runs no code from the file** unless ``trusted=True`` (README, "Training learned policies").
 """
 
 from __future__ import annotations
@@ -67,6 +43,7 @@ from fxc_env.policies.policy_files import (
     summary,
 )
 from fxc_env.policies.rllib_policy import RLLIB_MODULE, RLlibPolicy  # noqa: F401
+from fxc_env.policies.saving import innermost
 
 #: The policies that ship with the package, by name (README, "Training learned policies"):
 #: ``generalist`` (one policy for every graph family), ``saturated`` (inputs bounded by a
@@ -183,38 +160,29 @@ class LearnedPolicy:
         return np.asarray(actions, dtype=np.float64).reshape((*lead, self.action_size))
 
 
-def _recorded_settings(model: Any) -> dict[str, Any] | None:
-    """The training settings a model records: a SavedModel's ``fxc_policy.json``, or an in-memory model's env."""
-    if hasattr(model, "training"):
-        return model.training
-    get_env = getattr(model, "get_env", None)
-    vec = get_env() if callable(get_env) else None
-    while vec is not None and hasattr(vec, "venv"):
-        vec = vec.venv
-    if vec is None:
-        return None
+def _training_env(model: Any) -> Any:
+    """The environment an in-memory SB3 model trained on (under its VecEnv wrappers), or None (a SavedModel's: none)."""
+    get_env = None if hasattr(model, "training") else getattr(model, "get_env", None)
+    return innermost(get_env()) if callable(get_env) else None
+
+
+def _recorded(model: Any, read: Any) -> Any:
+    """``read`` (:func:`training_settings`, :func:`training_domain`) of ``model``'s training environment, or None."""
+    vec = _training_env(model)
     try:
-        return training_settings(vec)
+        return None if vec is None else read(vec)
     except (ArgumentError, AttributeError):
         return None
 
 
+def _recorded_settings(model: Any) -> dict[str, Any] | None:
+    """The training settings a model records: a SavedModel's ``fxc_policy.json``, or an in-memory model's env."""
+    return model.training if hasattr(model, "training") else _recorded(model, training_settings)
+
+
 def _recorded_domain(model: Any, settings: Any) -> dict[str, Any] | None:
     """The training domain a model records (a SavedModel's), an in-memory model's env's, or the part its settings give."""
-    recorded = getattr(model, "domain", None)
-    if recorded:
-        return recorded
-    if not hasattr(model, "training"):  # SB3's own model in memory: its training environment, if it has one
-        get_env = getattr(model, "get_env", None)
-        vec = get_env() if callable(get_env) else None
-        while vec is not None and hasattr(vec, "venv"):
-            vec = vec.venv
-        if vec is not None:
-            try:
-                return training_domain(vec)
-            except (ArgumentError, AttributeError):
-                pass
-    return domain_from_settings(settings)
+    return getattr(model, "domain", None) or _recorded(model, training_domain) or domain_from_settings(settings)
 
 
 def load_learned_policy(

@@ -1,4 +1,4 @@
-"""Saved SB3 policies read without running code from them, and the settings a policy was trained for.
+"""Saved SB3 policies read without running code from them (the checks of what they fit: :mod:`~fxc_env.policies.fit`).
 
 A stable-baselines3 ``.zip`` holds ``data`` (JSON, some of whose entries are cloudpickled
 objects: ``policy_class``, ``lr_schedule``, the spaces...), ``policy.pth`` (the network's state
@@ -24,9 +24,6 @@ as plain JSON beside the weights by :func:`save_model`: the member :data:`METADA
     normalization  null, or VecNormalize's {"mean", "var", "epsilon", "clip_obs"} (observations)
     env            the training environment's settings (:func:`training_settings`)
     domain         the training domain (:func:`fxc_env.policies.domain.training_domain`)
-
-:func:`check_settings` compares a policy's training settings with an environment's
-(:data:`CHECKED_SETTINGS`) and refuses a mismatch, naming the setting and both values.
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ def policy_metadata(model: Any, env: Any = None) -> dict[str, Any]:
             "epsilon": float(vec.epsilon),
             "clip_obs": float(vec.clip_obs),
         }
-    source = env if env is not None else _innermost(vec)
+    source = env if env is not None else innermost(vec)
     settings = domain = None
     if source is not None:
         from fxc_env.policies.domain import training_domain
@@ -79,7 +79,7 @@ def _extractor_name(policy: Any) -> str | None:
     return None
 
 
-def _innermost(vec: Any) -> Any:
+def innermost(vec: Any) -> Any:
     """The environment under SB3's VecEnv wrappers (``venv`` chains), or None."""
     while vec is not None and hasattr(vec, "venv"):
         vec = vec.venv
