@@ -20,7 +20,7 @@ class Backend:
 
     Attributes:
         name: ``--backend``'s value.
-        trainer: ``module:function`` that trains a run (imported when chosen).
+        trainer: ``module:function`` of :mod:`fxc_env.training` that trains a run (imported when chosen).
         algorithms: the ``--algo`` values it trains, the default first.
         checkpoint: its checkpoint's name in ``checkpoints/`` (``{}``: the timesteps).
         hyperparams_key: the algorithm's entry in the hyperparameter file (``{backend}``, ``{algo}``).
@@ -59,39 +59,12 @@ def register(backend: Backend) -> Backend:
     return backend
 
 
-register(Backend("sb3", "fxc_env.training.sb3_train:train_sb3", ("ppo", "sac"), "model_{}_steps.zip", "{algo}"))
-register(
-    Backend(
-        "rllib",
-        "fxc_env.training.rllib_train:train_rllib",
-        ("ppo",),
-        "rllib_{}_steps",
-        complete="rllib_checkpoint.json",
-    )
-)
-register(
-    Backend(
-        "torch",
-        "fxc_env.training.torch_ppo:train_torch",
-        ("ppo",),
-        "model_{}_steps.pt",
-        settings="PPOSettings",
-        torch_actor=True,
-        critics=True,
-    )
-)
-register(
-    Backend(
-        "diff",
-        "fxc_env.training.diff_train:train_diff",
-        ("apg",),
-        "model_{}_steps.pt",
-        settings="DiffSettings",
-        torch_actor=True,
-        algorithm_note=" (analytic policy gradients)",
-        requires="the engine's gradients",
-    )
-)
+PT, TORCH = "model_{}_steps.pt", {"torch_actor": True}
+APG = {"algorithm_note": " (analytic policy gradients)", "requires": "the engine's gradients"}
+register(Backend("sb3", "sb3_train:train_sb3", ("ppo", "sac"), "model_{}_steps.zip", "{algo}"))
+register(Backend("rllib", "rllib_train:train_rllib", ("ppo",), "rllib_{}_steps", complete="rllib_checkpoint.json"))
+register(Backend("torch", "torch_ppo:train_torch", ("ppo",), PT, settings="PPOSettings", critics=True, **TORCH))
+register(Backend("diff", "diff_train:train_diff", ("apg",), PT, settings="DiffSettings", **TORCH, **APG))
 
 
 def algorithms() -> tuple[str, ...]:

@@ -29,8 +29,8 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 import fxc_env
 from fxc_env.policies.learned import RLLIB_MODULE
-from fxc_env.training.args import TrainArgs, check_train_args
-from fxc_env.training.run_dir import RunDir
+from fxc_env.training.args import TrainArgs
+from fxc_env.training.run_dir import RunDir, begin_run
 from fxc_env.utils.cluster import ray_session
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves both).
@@ -103,17 +103,11 @@ def save(algo: Any, run: RunDir, timesteps: int) -> Path:
 
 def train_rllib(args: TrainArgs) -> Path:
     """Run (or resume) RLlib PPO training; returns the run directory."""
-    import torch
-
-    args = dataclasses.replace(args, backend="rllib")
-    params = check_train_args(args)  # every argument, before any work
-    torch.set_num_threads(args.torch_threads)
-    run = RunDir.of(args)
+    args, params, run, checkpoint = begin_run(args, "rllib")
     n_agents = fxc_env.make_config(**env_config(args, params)).n_agents
     per_iteration = int(params["algo"]["train_batch_size_per_learner"]) * n_agents
     iterations = math.ceil(args.timesteps / per_iteration)
     save_every = max(1, math.ceil(args.checkpoint_every / per_iteration))
-    checkpoint = run.resume_checkpoint(args.resume, args)
 
     with ray_session("--backend rllib", args.address) as ray:
         algo = algorithm_config(args, params).build_algo()

@@ -41,6 +41,7 @@ an algorithm by unpickling). With the flag, sb3 resumes with SB3's own loaders a
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import platform
 import re
@@ -54,7 +55,7 @@ from typing import Any
 
 from fxc_env.core.validation import ArgumentError
 from fxc_env.training import registry
-from fxc_env.training.args import TrainArgs, canonical_backend, default_run_dir
+from fxc_env.training.args import TrainArgs, canonical_backend, check_train_args, default_run_dir
 
 #: Checkpoint names by back end (``{}``: the timesteps it was saved at). SB3's sits beside its
 #: VecNormalize statistics (``model_vecnormalize_<steps>_steps.pkl``); RLlib's is a directory.
@@ -75,6 +76,18 @@ def versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             found[name] = "not installed"
     return found
+
+
+def begin_run(args: TrainArgs, backend: str) -> tuple[TrainArgs, dict[str, Any], RunDir, Path | None]:
+    """A back end's first steps: every argument checked before any work, torch's threads set, the run directory
+    and the checkpoint a resumed run goes on from (:meth:`RunDir.resume_checkpoint`)."""
+    import torch
+
+    args = dataclasses.replace(args, backend=backend)
+    params = check_train_args(args)
+    torch.set_num_threads(args.torch_threads)
+    run = RunDir.of(args)
+    return args, params, run, run.resume_checkpoint(args.resume, args)
 
 
 class RunDir:

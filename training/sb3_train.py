@@ -33,9 +33,9 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.policy_files import TRUST_HINT, read_sb3_zip, save_model
-from fxc_env.training.args import TrainArgs, check_train_args
+from fxc_env.training.args import TrainArgs
 from fxc_env.training.imitation import imitate_reference
-from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir
+from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
 
 #: The format of the plain-JSON VecNormalize record beside each checkpoint, and its float settings.
 VECNORMALIZE_FORMAT = "fxc_env.vecnormalize/1"
@@ -274,14 +274,9 @@ class RolloutCheckpoint(BaseCallback):
 # ------------------------------------------------------------------------------------- training
 def train_sb3(args: TrainArgs) -> Path:
     """Run (or resume) training with stable-baselines3; returns the run directory."""
-    import torch
     from stable_baselines3 import PPO, SAC
 
-    args = dataclasses.replace(args, backend="sb3")
-    params = check_train_args(args)  # every argument, before any work
-    torch.set_num_threads(args.torch_threads)
-    run = RunDir.of(args)
-    checkpoint = run.resume_checkpoint(args.resume, args)
+    args, params, run, checkpoint = begin_run(args, "sb3")
 
     # ------------------------------------------------------------------ set-up
     venv = build_env(args, params)

@@ -27,8 +27,8 @@ from fxc_env.policies.fit import training_settings
 from fxc_env.policies.networks import mlp
 from fxc_env.policies.torch_memory import MessagePassingActor, RecurrentActor
 from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, one_line
-from fxc_env.training.args import TrainArgs, check_train_args
-from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir
+from fxc_env.training.args import TrainArgs
+from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
 from fxc_env.training.settings import PPOSettings
 
 
@@ -273,12 +273,8 @@ def init_actor(trainer: Any, source: str) -> Path:
 
 def prepare(args: TrainArgs, backend: str, settings_class: Any, trainer_class: Any) -> tuple[Any, ...]:
     """Every argument checked before any work, then ``(args, params, run, checkpoint, trainer)`` of a torch back end."""
-    args = dataclasses.replace(args, backend=backend)
-    params = check_train_args(args)
+    args, params, run, checkpoint = begin_run(args, backend)
     settings = settings_class.from_mapping(params["algo"], make_config(**run_config(args, params)))
-    torch.set_num_threads(args.torch_threads)
-    run = RunDir.of(args)
-    checkpoint = run.resume_checkpoint(args.resume, args)
     return args, params, run, checkpoint, trainer_class(args, params, settings, torch.device(args.device))
 
 

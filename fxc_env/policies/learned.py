@@ -2,17 +2,18 @@
 local observation: :func:`load_learned_policy` is the one place that decides how a saved policy loads.
 
 The readers: :class:`LearnedPolicy` (an SB3 ``.zip``, read by :mod:`fxc_env.policies.policy_files`
-without unpickling), :mod:`~fxc_env.policies.torch_policy`, :mod:`~fxc_env.policies.rllib_policy`
+without unpickling), :mod:`~fxc_env.policies.torch_policy`, :class:`RLlibPolicy`
 (only with ``trusted=True``: RLlib unpickles) and :mod:`~fxc_env.policies.interval_gains`. Every one
 has the calling convention of :class:`fxc_env.ReferencePolicy` (observations ``(..., obs_size)`` in,
 actions ``(..., 2 dim)`` out, deterministic) and must fit the environment it is given
 (:mod:`~fxc_env.policies.fit`: sizes, the settings it was trained for, its training domain);
-:mod:`~fxc_env.policies.adapters` lets it act on another number of neighbour slots or per axis.
+:mod:`~fxc_env.policies.fit` also lets it act on another number of neighbour slots or per axis.
 **Loading runs no code from the file** unless ``trusted=True`` (README, "Training learned policies").
 """
 
 from __future__ import annotations
 
+import re
 import warnings
 from importlib import resources
 from pathlib import Path
@@ -23,9 +24,12 @@ import numpy as np
 from fxc_env.config import config_of
 from fxc_env.config.layout import ObservationLayout
 from fxc_env.core.validation import ArgumentError
-from fxc_env.policies.adapters import PerAxisPolicy, PolicyAdaptedWarning, SlotAdaptedPolicy, adapt_slots  # noqa: F401
 from fxc_env.policies.domain import check_domain, checked_allow, domain_from_settings, training_domain
-from fxc_env.policies.fit import (  # noqa: F401
+from fxc_env.policies.fit import (  # noqa: F401  # noqa: F401
+    PerAxisPolicy,
+    PolicyAdaptedWarning,
+    SlotAdaptedPolicy,
+    adapt_slots,
     architecture_of,
     check_fit,
     check_settings,
@@ -35,6 +39,7 @@ from fxc_env.policies.fit import (  # noqa: F401
 )
 from fxc_env.policies.policy_files import (
     MODEL_LOAD_ERRORS,
+    TRUST_HINT,
     checked_zip_path,
     normalization_stats,
     read_metadata,
@@ -42,7 +47,6 @@ from fxc_env.policies.policy_files import (
     read_sb3_zip,
     summary,
 )
-from fxc_env.policies.rllib_policy import RLLIB_MODULE, RLlibPolicy  # noqa: F401
 from fxc_env.policies.saving import innermost
 
 #: The policies that ship with the package, by name (README, "Training learned policies"):
@@ -265,3 +269,97 @@ def _adaptation(policy: Any, config: Any) -> tuple[bool, Any, int | None]:
     )
     target = axis if per_axis else layout
     return per_axis, target, trained_slots(policy.obs_size, target)
+
+
+#: The RLModule that ``fxc train --backend rllib`` shares between all agents.
+RLLIB_MODULE = "shared"
+
+
+#: RLlib checkpoints of a run: ``<run>/checkpoints/rllib_<timesteps>_steps/``.
+RLLIB_CHECKPOINT_PATTERN = re.compile(r"rllib_(\d+)_steps")
+
+
+def rllib_checkpoint(path: str | Path) -> Path | None:
+    """The RLlib algorithm checkpoint at ``path``: the directory itself, or a run directory's newest."""
+    path = Path(path)
+    if (path / "rllib_checkpoint.json").is_file():
+        return path
+    found = [
+        (int(match.group(1)), candidate)
+        for candidate in (path / "checkpoints").glob("rllib_*_steps")
+        if (match := RLLIB_CHECKPOINT_PATTERN.fullmatch(candidate.name))
+        and (candidate / "rllib_checkpoint.json").is_file()
+    ]
+    return max(found)[1] if found else None
+
+
+class RLlibPolicy:
+    """A trained RLlib module acting for every agent (parameter sharing), deterministically.
+
+    Loads only the module (``learner_group/learner/rl_module/<module_id>`` of an algorithm
+    checkpoint), on the CPU, without starting Ray; needs Ray RLlib installed. The action is
+    the mode of the module's action distribution (the Gaussian's mean), clipped to the
+    action space as during training.
+
+    Args:
+        checkpoint: an RLlib algorithm checkpoint directory, or a run directory of
+            ``fxc train --backend rllib`` (its newest checkpoint).
+        env: an fxc_env environment or EnvConfig, checked against the module's sizes.
+        module_id: the module to load.
+        trusted: must be True: RLlib restores a module by unpickling its checkpoint
+            (``class_and_ctor_args.pkl`` and friends), which runs any code a crafted
+            checkpoint holds. Without it the checkpoint is refused and nothing in it is read.
+    """
+
+    def __init__(
+        self, checkpoint: str | Path, env: Any = None, module_id: str = RLLIB_MODULE, *, trusted: bool = False
+    ) -> None:
+        found = rllib_checkpoint(checkpoint)
+        if found is None:
+            raise FileNotFoundError(
+                f"policy: no RLlib checkpoint at {checkpoint} (a directory with rllib_checkpoint.json, "
+                "or a run directory with checkpoints/rllib_<timesteps>_steps/)"
+            )
+        if not trusted:
+            raise ArgumentError(
+                f"policy: {found} is an RLlib checkpoint, which loads only by unpickling (running code from the "
+                f"files); nothing in it was read. {TRUST_HINT}"
+            )
+        self.source = found
+        self.training_settings: dict[str, Any] | None = None
+        self.training_domain: dict[str, Any] | None = None  # an RLlib checkpoint records none
+        module_dir = found / "learner_group" / "learner" / "rl_module" / module_id
+        if not module_dir.is_dir():
+            raise ArgumentError(f"policy: the RLlib checkpoint {found} has no module {module_id!r}")
+        try:
+            from ray.rllib.core.rl_module.rl_module import RLModule
+        except ModuleNotFoundError as exc:
+            raise ArgumentError(
+                f"policy: {found} is an RLlib checkpoint, and Ray RLlib is not installed here; "
+                'pip install "fxc-env[rllib]"'
+            ) from exc
+        self.checkpoint = found
+        try:
+            self.module = RLModule.from_checkpoint(module_dir)
+        except MODEL_LOAD_ERRORS as exc:
+            raise ArgumentError(f"policy: cannot load the RLlib module in {module_dir} ({summary(exc)})") from exc
+        self.module.eval()
+        self._distribution = self.module.get_inference_action_dist_cls()
+        self.obs_size = int(np.prod(self.module.observation_space.shape))
+        self.action_size = int(np.prod(self.module.action_space.shape))
+        self._low = np.asarray(self.module.action_space.low, dtype=np.float64)
+        self._high = np.asarray(self.module.action_space.high, dtype=np.float64)
+        if env is not None:
+            check_fit(self, env, "RLlibPolicy")
+
+    def __call__(self, observation: np.ndarray) -> np.ndarray:
+        """Actions ``(..., action_size)`` for observations ``(..., obs_size)``."""
+        import torch
+
+        obs = np.asarray(observation, dtype=np.float32)
+        lead = obs.shape[:-1]
+        with torch.no_grad():
+            out = self.module.forward_inference({"obs": torch.as_tensor(obs.reshape(-1, self.obs_size))})
+            actions = self._distribution.from_logits(out["action_dist_inputs"]).to_deterministic().sample()
+        actions = np.clip(actions.numpy().astype(np.float64), self._low, self._high)
+        return actions.reshape((*lead, self.action_size))
