@@ -20,9 +20,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError, choice, integer
 from fxc_env.training import registry
-from fxc_env.utils.cli_checks import yaml_mapping_file
+from fxc_env.utils.cli_checks import output_directory, yaml_mapping_file
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
 #: Views of :data:`fxc_env.training.registry.BACKENDS`: every ``--algo``, every ``--backend``, those whose
@@ -174,7 +175,6 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
     by the back end (:meth:`~fxc_env.training.run_dir.RunDir.resume_checkpoint`), which knows
     its checkpoint layout.
     """
-    from fxc_env.utils.cli_checks import output_directory
 
     def name(field: str) -> str:
         return "--" + field.replace("_", "-") if flags else field
@@ -259,8 +259,6 @@ def _check_backend_fields(args: TrainArgs, name: Any) -> None:
 
 def _checked_hyperparams(args: TrainArgs, name: Any) -> dict[str, Any]:
     """The run's entry of the hyperparameter file, its environment and the back end's settings checked."""
-    from fxc_env.config import make_config
-
     backend = registry.BACKENDS[args.backend]
     algo_key = backend.hyperparams_key.format(backend=args.backend, algo=args.algo)
     params = load_hyperparams(args.hyperparams, args.scenario, algo_key, name=name("hyperparams"))

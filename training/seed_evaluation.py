@@ -32,7 +32,7 @@ import numpy as np
 from fxc_env.baselines.suite import Contender, learned_contender, model_path
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.policies.learned import SHIPPED, architecture_of, load_learned_policy
-from fxc_env.policies.policy_files import CHECKED_SETTINGS
+from fxc_env.policies.policy_files import CHECKED_SETTINGS, read_metadata
 from fxc_env.training.seed_scores import (  # noqa: F401
     LOG_FLOOR,
     MARL_EVAL_ENV,
@@ -168,8 +168,6 @@ def _timesteps(spec: str, recorded: dict[str, Any]) -> int:
     """The agent-steps a policy was trained for: its zip's ``fxc_policy.json``, else its run's newest
     checkpoint (``checkpoints/*_<steps>_steps*``: whole rollouts, past the target), else the target
     in ``config.json``, else 0."""
-    from fxc_env.policies.policy_files import read_metadata
-
     target = model_path(spec)
     if target.suffix == ".zip" and target.is_file():
         try:

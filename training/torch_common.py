@@ -24,6 +24,7 @@ from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.fit import training_settings
+from fxc_env.policies.learned import SHIPPED, pretrained_path
 from fxc_env.policies.networks import mlp
 from fxc_env.policies.torch_memory import MessagePassingActor, RecurrentActor
 from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, one_line
@@ -234,7 +235,6 @@ def init_actor(trainer: Any, source: str) -> Path:
     (``arch``, widths, activation, memory settings) or another observation layout
     (:data:`LAYOUT_SETTINGS`) than the run's.
     """
-    from fxc_env.policies.learned import SHIPPED, pretrained_path
     from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
 
     path = pretrained_path(source) if source in SHIPPED and not Path(source).exists() else Path(source)

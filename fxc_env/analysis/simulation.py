@@ -11,6 +11,7 @@ import numpy as np
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.dynamics import advance_clipped, state_inside
 from fxc_env.core.graphs import Topology
+from fxc_env.core.linear import LinearModel, model_matrices
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.engine import ConsensusEngine, state_disagreement, with_initial_state
@@ -206,7 +207,5 @@ def _dense_linear(config: EnvConfig, z, plans, offsets, u_end):
 
 def _free_motion(config: EnvConfig, times: np.ndarray) -> np.ndarray:
     """``e^{A t}`` at ``times`` ``(P, n, n)``, for the formation offsets' trajectory."""
-    from fxc_env.core.linear import LinearModel, model_matrices
-
     model = config.model if config.model is not None else LinearModel(*model_matrices("double_integrator"))
     return model.free_motion_matrix(times)

@@ -38,6 +38,7 @@ import torch
 from torch import nn
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.engine.graph_tensors import graph_tensors
 from fxc_env.policies.networks import ACTIVATIONS, mlp
 
 #: ``--policy-arch`` choices.
@@ -215,8 +216,6 @@ def interval_graph(engine: Any, observations: Any = None, width: int | None = No
     :func:`fxc_env.engine.graph_tensors.graph_tensors` (links lost to ``link_dropout`` left out);
     ``width`` pads ``E`` (:func:`~fxc_env.engine.graph_tensors.edge_capacity` keeps it fixed).
     """
-    from fxc_env.engine.graph_tensors import graph_tensors
-
     tensors = graph_tensors(engine, observations, width)
     return torch.as_tensor(tensors.edge_index), torch.as_tensor(tensors.edge_mask)
 

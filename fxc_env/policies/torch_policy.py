@@ -22,9 +22,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from fxc_env.config.layout import ObservationLayout
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.fit import check_fit, check_width
 from fxc_env.policies.networks import ACTIVATIONS, mlp  # noqa: F401  (their public path before networks.py)
+from fxc_env.policies.torch_memory import build_actor
 
 #: The ``format`` of a policy record, and of a checkpoint (which holds one under ``"policy"``).
 POLICY_FORMAT = "fxc_env.torch_ppo.policy/1"
@@ -51,8 +53,6 @@ class TorchPolicy:
         self.action_bound = float(record["action_bound"])
         self.env: dict[str, Any] = dict(record.get("env", {}))
         self.timesteps = int(record.get("timesteps", 0))
-        from fxc_env.policies.torch_memory import build_actor
-
         #: ``mlp`` (absent in older files), ``gru`` or ``gnn`` (:mod:`fxc_env.policies.torch_memory`).
         self.arch = str(record.get("arch", "mlp"))
         self.module = build_actor(record, self.obs_size, self.action_size)
@@ -158,8 +158,6 @@ def flat_observation(observation: Any) -> np.ndarray:
             f"observations: a dict observation needs 'neighbours', 'mask' and 'clock' (obs_format='dict'); "
             f"missing {missing}"
         )
-    from fxc_env.config.layout import ObservationLayout
-
     layout = ObservationLayout(1, 1, limit_feature="input_limit" in observation)
     return layout.flat(observation)
 

@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from fxc_env.config import make_config
 from fxc_env.speed.steppers import engine_stepper
 from fxc_env.speed.timing import BLOCK_SECONDS, alternate, calibrated_count, importable, met, timed_rate
 from fxc_env.speed.vecenv import vmas_stepper
@@ -87,8 +88,6 @@ def device_engine_rate(config: Any, n_episodes: int, device: Any, rounds: int, s
 
 
 def _episode_config(n_agents: int) -> Any:
-    from fxc_env.config import make_config
-
     if n_agents == 6:
         return make_config(scenario="paper_fig1")
     return make_config(topology="random", n_agents=n_agents, mean_in_degree=4.0, dim=1)
@@ -198,8 +197,6 @@ def cuda_compare_table(
     A contender that is not importable here, or fails to start (out of memory, no GPU
     backend), is named in a note under the table instead of a row.
     """
-    from fxc_env.config import make_config
-
     agents = n_envs * 6
     timed: dict[str, Callable[[], float]] = {}
     notes: list[str] = []

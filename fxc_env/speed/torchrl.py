@@ -13,6 +13,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable, Sequence
 
+from fxc_env.config import make_config
 from fxc_env.speed.steppers import engine_stepper
 from fxc_env.speed.timing import BLOCK_SECONDS, alternate, calibrated_count, met, timed_rate
 
@@ -35,7 +36,6 @@ def torchrl_wrapper_stepper(seed: int = 0) -> Callable[[], None]:
     from tensordict.nn import TensorDictModule
     from torchrl.envs.utils import step_mdp
 
-    from fxc_env.config import make_config
     from fxc_env.envs.interop import torchrl_wrapper
     from fxc_env.policies.torchrl_reference import ReferenceModule
 
@@ -97,8 +97,6 @@ def torchrl_rates(
     ``("wrapper", 6)`` is the PettingZoo wrapper; each size in ``sizes`` (B x N, rounded up
     to whole ``paper_fig1`` episodes) has the keys of :data:`TORCHRL_ROWS`.
     """
-    from fxc_env.config import make_config
-
     config = make_config(scenario="paper_fig1")
     n = config.n_agents
     steppers: dict[tuple[str, int], tuple[Callable[[], None], int]] = {("wrapper", n): (torchrl_wrapper_stepper(), n)}
