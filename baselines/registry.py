@@ -95,18 +95,3 @@ register(Law(LeaderFollowerPolicy.NAME, LeaderFollowerPolicy, True, "uniform", *
 limited = OptIn("limited", {"allow_limit": True}, "u_max", ("uniform", "paper"))
 register(Law("signalling", SignallingPolicy, True, "uniform", "plan", "raw", ("paper",), (limited,), leaderboard=True))
 register(Law("graph_agnostic", GraphAgnosticPolicy, True, "uniform", "plan", "raw", ("paper",), leaderboard=True))
-
-
-def baselines() -> dict[str, Any]:
-    """The baseline classes by name (every law but the reference)."""
-    return {name: law.policy for name, law in LAWS.items() if name != "reference"}
-
-
-def opt_ins() -> dict[str, tuple[str, Mapping[str, Any], str]]:
-    """Opt-in spec -> (law, keyword arguments, the setting it runs under)."""
-    return {
-        law.opt_in_spec(opt, s): (law.name, opt.options, opt.setting)
-        for law in LAWS.values()
-        for opt in law.opt_ins
-        for s in opt.schedules
-    }

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.registry import LAWS, baselines, opt_ins
+from fxc_env.baselines.registry import LAWS
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core.families import AnyFamily, TopologyFamily
@@ -33,7 +33,7 @@ Policy = Callable[[np.ndarray], np.ndarray]
 
 #: Baseline policy classes by name, and the built-in contenders' settings in table order
 #: (name -> (sampled at every budget?, schedule, action mode, obs mode)): views of :data:`~fxc_env.baselines.registry.LAWS`.
-BASELINES = baselines()
+BASELINES = {name: law.policy for name, law in LAWS.items() if name != "reference"}
 BUILTIN_SETTINGS = {name: law.settings for name, law in LAWS.items()}
 
 
@@ -413,7 +413,12 @@ def quick_optimality_suite(n_seeds: int = 5, fine_intervals: int = 1000) -> Suit
 
 #: Laws run only by explicit opt-in where they would otherwise refuse a setting:
 #: spec -> (law, keyword arguments, the setting it is run under; without that setting it is the law itself).
-OPT_IN = opt_ins()
+OPT_IN = {
+    law.opt_in_spec(o, s): (law.name, o.options, o.setting)
+    for law in LAWS.values()
+    for o in law.opt_ins
+    for s in o.schedules
+}
 
 
 def optimality_contenders() -> list[Contender]:

@@ -358,11 +358,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         policy = TorchPolicy(record_policy)
     for n in measure:
         result = evaluate(policy, n, range(args.seeds))
-        print(
-            f"gru rings N = {n}, K = 200, T_s = 20, {result['seeds']} seeds: median D(T_s)/D(0) "
-            f"{result['median']:.3g} (max {result['max']:.3g}), reference {result['reference_median']:.3g}, "
-            f"{result['ratio']:.3g}x below the reference"
-        )
+        print(rings.comparison_line("gru rings", result))
     return 0
 
 

@@ -98,8 +98,7 @@ class PPOSettings:
         values["hidden"] = tuple(int(w) for w in hidden)
         for field in ("learning_rate", "clip_range", "max_grad_norm", "gamma", "gae_lambda", "ent_coef", "vf_coef"):
             values[field] = float(values[field])
-        values["log_std_init"] = float(values["log_std_init"])
-        values["actor_out_gain"] = float(values["actor_out_gain"])
+        values.update(log_std_init=float(values["log_std_init"]), actor_out_gain=float(values["actor_out_gain"]))
         return cls(**values)
 
 

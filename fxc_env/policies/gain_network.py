@@ -101,9 +101,10 @@ class GainScheduledPolicy(ActorCriticPolicy):
     def _build(self, lr_schedule: Any) -> None:
         super()._build(lr_schedule)
         self.action_net = nn.Identity()  # the extractor already returns the action mean
-        last = self.mlp_extractor.gains[-1]
-        nn.init.zeros_(last.weight)
-        nn.init.zeros_(last.bias)
+        for name in ("gains", "hold_gains"):  # every gain network starts at zero gains
+            if hasattr(self.mlp_extractor, name):
+                nn.init.zeros_(getattr(self.mlp_extractor, name)[-1].weight)
+                nn.init.zeros_(getattr(self.mlp_extractor, name)[-1].bias)
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
 
@@ -153,10 +154,3 @@ class GatedGainPolicy(GainScheduledPolicy):
 
     def _build_mlp_extractor(self) -> None:
         self.mlp_extractor = GatedGainExtractor(self.features_dim, self._hidden)
-
-    def _build(self, lr_schedule: Any) -> None:
-        super()._build(lr_schedule)
-        last = self.mlp_extractor.hold_gains[-1]
-        nn.init.zeros_(last.weight)
-        nn.init.zeros_(last.bias)
-        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
