@@ -26,7 +26,7 @@ from fxc_env.policies.domain import training_domain
 from fxc_env.policies.fit import training_settings
 from fxc_env.policies.learned import SHIPPED, pretrained_path
 from fxc_env.policies.networks import mlp
-from fxc_env.policies.torch_memory import MessagePassingActor, RecurrentActor
+from fxc_env.policies.torch_memory import build_actor
 from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, one_line
 from fxc_env.training.args import TrainArgs
 from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
@@ -171,28 +171,10 @@ class ActorCritic(nn.Module):
         rows_end: int = 0,
     ) -> None:
         super().__init__()
-        if arch == "gru":
-            self.actor: nn.Module = RecurrentActor(
-                obs_size,
-                action_size,
-                settings.hidden,
-                settings.activation,
-                settings.gru_size,
-                clock_index,
-                settings.gru_input,
-                rows_end,
-            )
-        elif arch == "gnn":
-            self.actor = MessagePassingActor(
-                obs_size,
-                action_size,
-                settings.hidden,
-                settings.activation,
-                settings.embed_size,
-                settings.message_rounds,
-            )
-        else:
-            self.actor = mlp(obs_size, action_size, settings.hidden, settings.activation, settings.actor_out_gain)
+        record = {"arch": arch, "hidden": settings.hidden, "activation": settings.activation, "rows_end": rows_end}
+        record.update(gru_size=settings.gru_size, clock_index=clock_index, gru_input=settings.gru_input)
+        record.update(embed_size=settings.embed_size, rounds=settings.message_rounds)
+        self.actor = build_actor(record, obs_size, action_size, settings.actor_out_gain)
         self.log_std = nn.Parameter(torch.full((action_size,), settings.log_std_init))
         self.critic = mlp(critic_size, 1, settings.hidden, settings.activation, 1.0)
 

@@ -19,21 +19,10 @@ tensors:
 
 Timesteps count agent-steps (B * N per environment step), as for the SB3 back end; a run
 stops at the first whole rollout past ``--timesteps``. The run directory is
-:mod:`fxc_env.training.run_dir`'s (config.json, versions.json, TensorBoard events,
-training_curve.png), with:
-
-    runs/<name>/progress.csv                       one row per rollout (:data:`PROGRESS_COLUMNS`: SB3's
-                                                   names, plus ``rollout/deadline_error``: the median
-                                                   D(T_s)/D(0) of the episodes that ended in the rollout)
-    runs/<name>/checkpoints/model_<steps>_steps.pt networks, Adam's state, step counts and RNG states
-    runs/<name>/policy.pt                          the final policy (:func:`load_torch_policy`)
-
-Checkpoints are written after an update (every ``--checkpoint-every`` timesteps, at the end,
-and on Ctrl-C, which finishes the rollout under way first); ``--resume`` goes on from the
-newest with its step count, optimiser state and random generators, starting fresh episodes.
-
-The policy file and the checkpoints are :mod:`fxc_env.training.torch_common`'s (the keys:
-:mod:`fxc_env.policies.torch_policy`).
+:mod:`fxc_env.training.run_dir`'s, ``progress.csv`` one row per rollout (:data:`PROGRESS_COLUMNS`:
+SB3's names, plus ``rollout/deadline_error``, the median D(T_s)/D(0) of the episodes that ended in
+it); checkpoints, ``policy.pt``, ``--resume`` and Ctrl-C are :mod:`fxc_env.training.torch_common`'s
+(``--resume`` starts fresh episodes from the checkpoint's step count, optimiser and generators).
 
 **Memory and messages** (``--policy-arch``, the actors of :mod:`fxc_env.policies.torch_memory`; ``mlp``
 trains bit for bit as before). ``gru``: the rollout stores the memory at its start; the update reruns

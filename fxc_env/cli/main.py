@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from fxc_env.analysis.video import add_video_arguments
-from fxc_env.baselines.benchmark import add_benchmark_parser
+from fxc_env.baselines.benchmark import add_benchmark_parser, make_out
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.speed.command import add_arguments as speed_arguments
@@ -49,10 +49,7 @@ def simulate_command(args: argparse.Namespace) -> int:
     scenario = kwargs.pop("scenario")
     trajectory = simulate("reference", scenario, seed=args.seed, points_per_interval=args.points_per_interval, **kwargs)
     c, topology = trajectory.config, trajectory.topology
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:  # a read-only file system, which os.access does not see for root
-        raise UsageError(f"--out: cannot create {str(out)!r} ({exc.strerror or exc})") from exc
+    make_out(out)
     files = write_figures(trajectory, out)
     xi = topology.consensus_weights() if c.n_agents <= 2000 and c.switching == "periodic" else None
     (out / "metrics.json").write_text(

@@ -25,7 +25,7 @@ from fxc_env.config import config_of
 from fxc_env.config.layout import ObservationLayout
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import check_domain, checked_allow, domain_from_settings, training_domain
-from fxc_env.policies.fit import (  # noqa: F401  # noqa: F401
+from fxc_env.policies.fit import (  # noqa: F401
     PerAxisPolicy,
     PolicyAdaptedWarning,
     SlotAdaptedPolicy,

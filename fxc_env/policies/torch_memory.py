@@ -220,13 +220,16 @@ def interval_graph(engine: Any, observations: Any = None, width: int | None = No
     return torch.as_tensor(tensors.edge_index), torch.as_tensor(tensors.edge_mask)
 
 
-def build_actor(record: dict[str, Any], obs_size: int, action_size: int) -> nn.Module:
-    """The actor a policy record's ``arch`` describes (``mlp``, ``gru``, ``gnn``); raise naming ``arch`` otherwise."""
+def build_actor(record: dict[str, Any], obs_size: int, action_size: int, out_gain: float = 1.0) -> nn.Module:
+    """The actor a policy record's ``arch`` describes (``mlp``, ``gru``, ``gnn``); raise naming ``arch`` otherwise.
+
+    ``out_gain``: the ``mlp``'s orthogonal gain of its output layer (a new actor's; a loaded one's weights replace it).
+    """
     arch = str(record.get("arch", "mlp"))
     hidden = tuple(int(w) for w in record["hidden"])
     activation = str(record["activation"])
     if arch == "mlp":
-        return mlp(obs_size, action_size, hidden, activation, 1.0)
+        return mlp(obs_size, action_size, hidden, activation, out_gain)
     if arch == "gru":
         return RecurrentActor(
             obs_size,
