@@ -53,6 +53,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from fxc_env.core.validation import ArgumentError
 from fxc_env.training import registry
 from fxc_env.training.args import TrainArgs, canonical_backend, check_train_args, default_run_dir
@@ -343,8 +345,7 @@ def deferred_interrupt(unit: str) -> Iterator[list[bool]]:
 
 def write_training_curve(run_dir: Path) -> Path | None:
     """Plot ``rollout/ep_rew_mean`` against ``time/total_timesteps`` from ``progress.csv`` into ``training_curve.png``."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from fxc_env.analysis.plots import new_figure, save_figure
 
     progress = run_dir / "progress.csv"
     if not progress.exists():
@@ -357,14 +358,11 @@ def write_training_curve(run_dir: Path) -> Path | None:
                 returns.append(float(row["rollout/ep_rew_mean"]))
     if not steps:
         return None
-    fig = Figure(figsize=(6.5, 3.8), dpi=120)
-    FigureCanvasAgg(fig)
+    fig = new_figure(6.5, 3.8)
     ax = fig.subplots()
     ax.plot(steps, returns, lw=0.8, color="#9ecae1", label="per rollout")
     window = 10
     if len(returns) >= window:
-        import numpy as np
-
         smooth = np.convolve(returns, np.ones(window) / window, mode="valid")
         ax.plot(steps[window - 1 :], smooth, lw=1.6, color="#08519c", label=f"mean of {window} rollouts")
         ax.legend(fontsize=8, loc="lower right")
@@ -372,7 +370,4 @@ def write_training_curve(run_dir: Path) -> Path | None:
     ax.set_ylabel("mean episode return = ln D(0)/D(T_s)")
     ax.set_title(f"training curve: {run_dir.name}", fontsize=9)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    path = run_dir / "training_curve.png"
-    fig.savefig(path)
-    return path
+    return save_figure(fig, run_dir / "training_curve.png")
