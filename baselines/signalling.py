@@ -53,13 +53,9 @@ figures are on the docs' optimality page (``tests/test_baselines_signalling.py``
   stage 2). Exact (up to rounding / ε) at the roots' mean, the unweighted mean when strongly connected.
 - Settings it runs with: ``action_mode="plan"`` (or ``"accel"``), ``obs_mode="raw"`` (the agent needs
   physical rows to subtract the coasting prediction).
-- Measurement noise: with ``obs_noise`` σ each read of a register is off by about ``σ / ε`` (and the
-  first measurement by σ, its velocity part coasting to ``σ T_s`` in the prediction), and the exact
-  factors amplify those errors. Measured on a directed ring N = 20 (K = 200, uniform, 20 seeds, medians)
-  at σ = 1e-6: deadline error 2.8e-2 at 14 x E* (ε = 1e-4), 2.8e-3 at 1.3e3 x E* (ε = 1e-3), 2.8e-4 at
-  1.3e5 x E* (ε = 1e-2); at σ = 1e-3: 2.8e-1 at 1.3e5 x E* (ε = 1e-2), 3.2e-3 at 1.3e9 x E* (ε = 1):
-  the error falls like ``σ/ε`` while the energy grows like ``ε²``. That is off the
-  frontier, so the law refuses ``obs_noise`` unless the caller chooses ``amplitude`` explicitly.
+- Measurement noise: with ``obs_noise`` σ each read of a register is off by about ``σ / ε`` and the exact
+  factors amplify it: the error falls like ``σ/ε`` while the energy grows like ``ε²`` (figures on the docs'
+  optimality page), off the frontier, so the law refuses ``obs_noise`` unless ``amplitude`` is chosen.
 - It refuses what it cannot honour, by name: a graph (or period union) without a directed spanning
   tree, topology families, ``switching='random'``, ``u_max`` (unless ``allow_limit=True``: exact
   wherever its inputs stay within the limit), ``obs_noise`` (without an explicit

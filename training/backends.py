@@ -16,6 +16,8 @@ from pathlib import Path
 from fxc_env.core import validation
 from fxc_env.training import registry
 from fxc_env.training.args import BACKENDS, TrainArgs, canonical_backend
+from fxc_env.training.run_dir import RunDir
+from fxc_env.utils.cluster import import_ray
 
 
 def train(args: TrainArgs) -> Path:
@@ -23,9 +25,6 @@ def train(args: TrainArgs) -> Path:
     backend = validation.choice("backend", canonical_backend(args.backend), BACKENDS)  # the back end checks the rest
     args = dataclasses.replace(args, backend=backend)
     if backend == "rllib":
-        from fxc_env.training.run_dir import RunDir
-        from fxc_env.utils.cluster import import_ray
-
         RunDir.of(args).resume_checkpoint(args.resume, args)  # an RLlib checkpoint needs the trust flag, Ray or not
         import_ray("--backend rllib")
     module, function = registry.BACKENDS[backend].trainer.split(":")

@@ -109,8 +109,6 @@ def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int
     options = {**DEFAULTS, **settings}
     unknown = set(options) - set(DEFAULTS)
     if unknown:
-        from fxc_env.core.validation import ArgumentError
-
         raise ArgumentError(f"hyperparams: unknown imitation key(s) {sorted(unknown)}; expected {sorted(DEFAULTS)}")
     config = config_of(venv, "imitation")
     reference = teacher_policy(str(options["teacher"]), config)

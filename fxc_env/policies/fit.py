@@ -276,9 +276,8 @@ class SlotAdaptedPolicy:
         self.reads_any_rows = reads_any_rows
         self.obs_size = layout.size
         self.action_size = policy.action_size
-        self.source = getattr(policy, "source", None)
-        self.training_settings = getattr(policy, "training_settings", None)
-        self.training_domain = getattr(policy, "training_domain", None)
+        for key in ("source", "training_settings", "training_domain"):  # the wrapped policy's record
+            setattr(self, key, getattr(policy, key, None))
         self.adaptation = f"trained with {slots} neighbour slots, acting on {layout.slots}"
 
     def trained_observation(self, observation: Any) -> np.ndarray:
@@ -361,9 +360,8 @@ class PerAxisPolicy:
         self.axis_layout = ObservationLayout(self.layout.slots, 1, limit_feature=self.layout.limit_feature)
         self.obs_size = self.layout.size
         self.action_size = config.action_size
-        self.source = getattr(policy, "source", None)
-        self.training_settings = getattr(policy, "training_settings", None)
-        self.training_domain = getattr(policy, "training_domain", None)
+        for key in ("source", "training_settings", "training_domain"):  # the wrapped policy's record
+            setattr(self, key, getattr(policy, key, None))
         self.adaptation = f"trained in dim 1, acting per axis in dim {config.dim}"
 
     def __call__(self, observation: Any) -> Any:

@@ -37,6 +37,7 @@ from fxc_env.policies.fit import (  # noqa: F401
     trained_slots,
     training_settings,
 )
+from fxc_env.policies.interval_gains import load_interval_gains
 from fxc_env.policies.policy_files import (
     MODEL_LOAD_ERRORS,
     TRUST_HINT,
@@ -221,8 +222,6 @@ def load_learned_policy(
     checked_allow(allow_out_of_domain)
     path = pretrained_path(str(path)) if str(path) in SHIPPED and not Path(path).exists() else Path(path)
     if path.suffix == ".npz":
-        from fxc_env.policies.interval_gains import load_interval_gains
-
         return load_interval_gains(path, env, allow_out_of_domain=allow_out_of_domain)  # type: ignore[return-value]
     policy = _read(path, trusted)
     if env is None:

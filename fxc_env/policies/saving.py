@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.domain import training_domain
 from fxc_env.policies.fit import training_settings
 
 #: The plain-JSON member :func:`save_model` adds to an SB3 ``.zip``, and its format.
@@ -48,8 +49,6 @@ def policy_metadata(model: Any, env: Any = None) -> dict[str, Any]:
     source = env if env is not None else innermost(vec)
     settings = domain = None
     if source is not None:
-        from fxc_env.policies.domain import training_domain
-
         try:
             settings, domain = training_settings(source), training_domain(source)
         except ArgumentError:

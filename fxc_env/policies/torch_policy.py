@@ -22,9 +22,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from fxc_env.config import make_config
 from fxc_env.config.layout import ObservationLayout
 from fxc_env.core.validation import ArgumentError
-from fxc_env.policies.fit import check_fit, check_width
+from fxc_env.policies.domain import training_domain
+from fxc_env.policies.fit import check_fit, check_width, settings_from_env_kwargs
 from fxc_env.policies.networks import ACTIVATIONS, mlp  # noqa: F401  (their public path before networks.py)
 from fxc_env.policies.torch_memory import build_actor
 
@@ -66,8 +68,6 @@ class TorchPolicy:
     def training_settings(self) -> dict[str, Any] | None:
         """The settings of the environment ``env`` describes (None when it records none or does not build)."""
         if self._settings is None and self.env:
-            from fxc_env.policies.fit import settings_from_env_kwargs
-
             self._settings = settings_from_env_kwargs(self.env)
         return self._settings
 
@@ -75,9 +75,6 @@ class TorchPolicy:
     def training_domain(self) -> dict[str, Any] | None:
         """Where it was trained (:mod:`fxc_env.policies.domain`): the record's ``domain``, else the one ``env`` makes."""
         if self._domain is None and self.env:
-            from fxc_env.config import make_config
-            from fxc_env.policies.domain import training_domain
-
             try:
                 self._domain = training_domain(make_config(**self.env))
             except (ArgumentError, TypeError):
