@@ -145,15 +145,10 @@ def custom_case(env_kwargs: dict[str, Any]) -> tuple[BenchmarkCase, float]:
     config = make_config(**env_kwargs)
     given = {k: v for k, v in env_kwargs.items() if k not in ENV_FIELDS_OF_CONTENDERS and k != "scenario"}
     conditions = []
-    for name in ("dim", "u_max", "obs_noise", "link_dropout", "switching", "position_range", "velocity_range"):
+    for name in ("u_max", "obs_noise", "link_dropout", "switching", "position_range", "velocity_range"):
         if name in given or (name == "u_max" and config.u_max_choices is not None):
-            value = {
-                "u_max": config.u_max_choices,
-                "position_range": config.position_range,
-                "velocity_range": config.velocity_range,
-            }.get(name, getattr(config, name))
-            if name != "dim":
-                conditions.append((name, value[0] if isinstance(value, tuple) and len(set(value)) == 1 else value))
+            value = config.u_max_choices if name == "u_max" else getattr(config, name)
+            conditions.append((name, value[0] if isinstance(value, tuple) and len(set(value)) == 1 else value))
     if config.formation is not None:
         raise ArgumentError(
             "--scenario: fxc evaluate scores consensus cases; formation offsets (formation scenarios) are not "
