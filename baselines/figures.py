@@ -62,13 +62,14 @@ def _visible(value: float) -> float:
     return max(value, DISPLAY_FLOOR) if np.isfinite(value) else np.nan
 
 
+def _ran(results: list[JobResult], contender: Contender, keep: Any = None) -> list[JobResult]:
+    """The results ``contender`` ran (no error), those ``keep`` accepts where given."""
+    return [r for r in results if r.error is None and r.job.contender.name == contender.name and (not keep or keep(r))]
+
+
 def _budget_panel(ax, results: list[JobResult], suite: Suite, contenders: list[Contender], case=None) -> None:
     for contender in contenders:
-        mine = [
-            r
-            for r in results
-            if r.error is None and r.job.contender.name == contender.name and case in (None, r.job.case)
-        ]
+        mine = _ran(results, contender, lambda r: case in (None, r.job.case))
         budgets = sorted({r.job.n_intervals for r in mine})
         stats = []
         for k in budgets:
@@ -109,7 +110,7 @@ def energy_vs_error_figure(results: list[JobResult], contenders: list[Contender]
     fig = new_figure(7.5, 5.0)
     ax = fig.subplots()
     for contender in contenders:
-        mine = [r for r in results if r.error is None and r.job.contender.name == contender.name]
+        mine = _ran(results, contender)
         if not mine:
             continue
         error = [_visible(quantiles(r.metrics["relative_deadline_error"])[0]) for r in mine]
@@ -179,15 +180,8 @@ def _sweep_panel(ax, results: list[JobResult], contenders: list[Contender], name
     """Median error against one condition (``obs_noise`` or ``u_max``) on the directed ring of 20; the floors seen."""
     floors: dict[str, list] = {}  # by schedule and K (the noise floor depends on the instants)
     for contender in contenders:
-        mine = [
-            r
-            for r in results
-            if r.error is None
-            and r.job.contender.name == contender.name
-            and r.job.case.family == "ring"
-            and r.job.case.n_agents == 20
-            and _condition(r.job.case, name) is not None
-        ]
+        mine = _ran(results, contender, lambda r: r.job.case.family == "ring" and r.job.case.n_agents == 20)
+        mine = [r for r in mine if _condition(r.job.case, name) is not None]
         if not mine:
             continue
         mine.sort(key=lambda r: _condition(r.job.case, name))
@@ -209,11 +203,7 @@ def _sweep_panel(ax, results: list[JobResult], contenders: list[Contender], name
 def _energy_panel(energy_ax: Any, results: list[JobResult], contenders: list[Contender]) -> None:
     """Deadline error against energy / E* on the ideal cases, one point per law and case, and the line E*."""
     for contender in contenders:
-        mine = [
-            r
-            for r in results
-            if r.error is None and r.job.contender.name == contender.name and not r.job.case.conditions
-        ]
+        mine = _ran(results, contender, lambda r: not r.job.case.conditions)
         ratio = [_visible(quantiles(r.metrics["energy_ratio"])[0]) for r in mine]
         error = [_visible(quantiles(r.metrics["relative_deadline_error"])[0]) for r in mine]
         marker, colour = optimality_style(contenders, contender.name)

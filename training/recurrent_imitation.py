@@ -336,17 +336,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.evaluate is not None:
         policy = load_torch_policy(args.evaluate)
     else:
-        record_policy, _ = train(
-            sizes,
-            args.rounds,
-            args.episodes,
-            args.steps,
-            args.batch,
-            args.lr,
-            args.gru_size,
-            seed=args.seed,
-            gru_input=args.gru_input,
-        )
+        settings = ("rounds", "episodes", "steps", "batch", "lr", "gru_size", "seed", "gru_input")
+        record_policy, _ = train(sizes, **{name: getattr(args, name) for name in settings})
         info = json.loads(record_policy["imitation"])
         info["command"] = "python -m fxc_env.training.recurrent_imitation " + " ".join(sys.argv[1:])
         record_policy["imitation"] = json.dumps(info)
