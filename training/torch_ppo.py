@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -244,23 +245,25 @@ class Trainer(TrainerFiles):
         total = obs.shape[0]
         sums = torch.zeros(5, dtype=torch.float32, device=self.device)
         count = 0
-        for _ in range(s.epochs):
-            order = torch.randperm(total, generator=self.generator, device=self.device)
-            for start in range(0, total, s.minibatch_size):
-                index = order[start : start + s.minibatch_size]
-                batch = obs[index]
-                if self.central:
-                    value_index = torch.div(index, n, rounding_mode="floor")
-                    value, target = model.critic(states[value_index]).squeeze(-1), targets[value_index]
-                else:
-                    value, target = model.critic(batch).squeeze(-1), targets[index]
-                mean = model.actor(batch)
-                sums += self._minibatch_step(
-                    mean, actions[index], old_log_probs[index], per_agent[index], value, target
-                )
-                count += 1
+        for index in self._minibatches(total, s.minibatch_size):
+            batch = obs[index]
+            if self.central:
+                value_index = torch.div(index, n, rounding_mode="floor")
+                value, target = model.critic(states[value_index]).squeeze(-1), targets[value_index]
+            else:
+                value, target = model.critic(batch).squeeze(-1), targets[index]
+            mean = model.actor(batch)
+            sums += self._minibatch_step(mean, actions[index], old_log_probs[index], per_agent[index], value, target)
+            count += 1
         self.n_updates += count
         return sums / count
+
+    def _minibatches(self, total: int, size: int) -> Iterator[torch.Tensor]:
+        """``epochs`` passes over ``total`` items, each in a fresh order from the generator, ``size`` at a time."""
+        for _ in range(self.settings.epochs):
+            order = torch.randperm(total, generator=self.generator, device=self.device)
+            for first in range(0, total, size):
+                yield order[first : first + size]
 
     def _minibatch_step(
         self,
@@ -316,22 +319,19 @@ class Trainer(TrainerFiles):
         size = max(1, s.minibatch_size // t)
         sums = torch.zeros(5, dtype=torch.float32, device=self.device)
         count = 0
-        for _ in range(s.epochs):
-            order = torch.randperm(sequences, generator=self.generator, device=self.device)
-            for first in range(0, sequences, size):
-                index = order[first : first + size]
-                mean, _ = model.actor.sequence(obs[:, index], start[index])
-                if self.central:
-                    episodes = torch.unique(torch.div(index, n, rounding_mode="floor"))
-                    value = model.critic(states[:, episodes]).squeeze(-1)
-                    target = value_targets[:, episodes]
-                else:
-                    value = model.critic(obs[:, index]).squeeze(-1)
-                    target = value_targets[:, index]
-                sums += self._minibatch_step(
-                    mean, actions[:, index], old_log_probs[:, index], per_agent[:, index], value, target
-                )
-                count += 1
+        for index in self._minibatches(sequences, size):
+            mean, _ = model.actor.sequence(obs[:, index], start[index])
+            if self.central:
+                episodes = torch.unique(torch.div(index, n, rounding_mode="floor"))
+                value = model.critic(states[:, episodes]).squeeze(-1)
+                target = value_targets[:, episodes]
+            else:
+                value = model.critic(obs[:, index]).squeeze(-1)
+                target = value_targets[:, index]
+            sums += self._minibatch_step(
+                mean, actions[:, index], old_log_probs[:, index], per_agent[:, index], value, target
+            )
+            count += 1
         self.n_updates += count
         return sums / count
 
@@ -352,19 +352,16 @@ class Trainer(TrainerFiles):
         size = max(1, s.minibatch_size // n)
         sums = torch.zeros(5, dtype=torch.float32, device=self.device)
         count = 0
-        for _ in range(s.epochs):
-            order = torch.randperm(graphs, generator=self.generator, device=self.device)
-            for first in range(0, graphs, size):
-                index = order[first : first + size]
-                mean = model.actor(obs[index], edge_index[index], edge_mask[index])
-                if self.central:
-                    value = model.critic(states[index]).squeeze(-1)
-                else:
-                    value = model.critic(obs[index]).squeeze(-1)
-                sums += self._minibatch_step(
-                    mean, actions[index], old_log_probs[index], per_agent[index], value, value_targets[index]
-                )
-                count += 1
+        for index in self._minibatches(graphs, size):
+            mean = model.actor(obs[index], edge_index[index], edge_mask[index])
+            if self.central:
+                value = model.critic(states[index]).squeeze(-1)
+            else:
+                value = model.critic(obs[index]).squeeze(-1)
+            sums += self._minibatch_step(
+                mean, actions[index], old_log_probs[index], per_agent[index], value, value_targets[index]
+            )
+            count += 1
         self.n_updates += count
         return sums / count
 
