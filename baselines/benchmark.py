@@ -23,8 +23,8 @@ from typing import Any
 
 from fxc_env.baselines import figures, report
 from fxc_env.baselines.jobs import JobResult, make_jobs, run_job
+from fxc_env.baselines.registry import LAWS
 from fxc_env.baselines.suite import (
-    BUILTIN_SETTINGS,
     Contender,
     Suite,
     builtin_contenders,
@@ -155,6 +155,14 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         help="with --ray: the Ray cluster to join (auto, or HOST:6379); every node needs fxc-env, and "
         "learned policies at the same path",
     )
+    _add_contender_arguments(parser)
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=benchmark_command)
+    return parser
+
+
+def _add_contender_arguments(parser: argparse.ArgumentParser) -> None:
+    """``fxc benchmark``'s flags that choose the contenders and a learned policy's settings."""
     parser.add_argument("--fine-intervals", type=int, help="K of continuous laws (default 4000; 1000 with --quick)")
     parser.add_argument("--policies", help="comma-separated built-in policies (default: reference and every baseline)")
     parser.add_argument(
@@ -165,18 +173,7 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         help="a saved SB3 model (PPO or SAC .zip), a torch policy (policy.pt or its run directory), an RLlib checkpoint or run directory, or 'pretrained' "
         "for the one shipped with fxc_env, to score as well; repeatable",
     )
-    parser.add_argument(
-        "--trust-policy-file",
-        action="store_true",
-        help="allow saved policies whose format must unpickle (RLlib checkpoints, SB3 zips without fxc_policy.json, "
-        "VecNormalize .pkl): unpickling runs code from the file, so only for files you made or trust",
-    )
-    parser.add_argument(
-        "--allow-out-of-domain",
-        action="store_true",
-        help="run learned policies on cases outside the training domain their files record (graphs, N, switching, "
-        "schedule, K, ...), with a warning naming every difference; without it such cases are reported as not run",
-    )
+    add_policy_file_flags(parser)
     parser.add_argument(
         "--learned-schedule",
         choices=("paper", "uniform"),
@@ -191,9 +188,37 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
         choices=("normalized", "raw"),
         help="observation mode of learned policies",
     )
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.set_defaults(handler=benchmark_command)
-    return parser
+
+
+def add_policy_file_flags(parser: argparse.ArgumentParser) -> None:
+    """``--trust-policy-file`` and ``--allow-out-of-domain``: what ``fxc benchmark`` and ``fxc evaluate`` may load."""
+    parser.add_argument(
+        "--trust-policy-file",
+        action="store_true",
+        help="allow saved policies whose format must unpickle (RLlib checkpoints, SB3 zips without fxc_policy.json, "
+        "VecNormalize .pkl): unpickling runs code from the file, so only for files you made or trust",
+    )
+    parser.add_argument(
+        "--allow-out-of-domain",
+        action="store_true",
+        help="run learned policies on cases outside the training domain their files record (graphs, N, switching, "
+        "schedule, K, ...), with a warning naming every difference; without it such cases are reported as not run",
+    )
+
+
+def make_out(out: Path) -> None:
+    """Create the output directory ``--out`` (checked earlier by ``output_directory``), or refuse naming it."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a read-only file system, which os.access does not see for root
+        raise ArgumentError(f"--out: cannot create {str(out)!r} ({exc.strerror or exc})") from exc
+
+
+def refuse_unrun_policy(flag: str, contender: str, results: list[Any]) -> None:
+    """Refuse (naming ``flag`` and the first reason) a learned ``contender`` that every case of the suite refused."""
+    own = [result for result in results if result.job.contender.name == contender]
+    if own and all(result.error is not None for result in own):
+        raise ArgumentError(f"{flag}: {contender} could not run on any case of the suite ({own[0].error})")
 
 
 def benchmark_command(args: argparse.Namespace) -> int:
@@ -209,16 +234,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
     if args.address is not None and args.workers is not None:
         raise ArgumentError("--workers: sets the cores of a local Ray; the cluster at --address has its own")
     out = output_directory("--out", args.out)
-    names = None if args.policies is None else [n.strip() for n in args.policies.split(",") if n.strip()]
-    if names is not None:
-        unknown = [n for n in names if n not in BUILTIN_SETTINGS]
-        if unknown:
-            raise ArgumentError(f"--policies: unknown name(s) {unknown}; expected some of {tuple(BUILTIN_SETTINGS)}")
-        twice = sorted({n for n in names if names.count(n) > 1})
-        if twice:
-            raise ArgumentError(f"--policies: {twice[0]!r} is named twice in {args.policies!r}")
-        if not names and not args.policy:
-            raise ArgumentError(f"--policies: expected at least one of {tuple(BUILTIN_SETTINGS)} (or a --policy)")
+    names = _policy_names(args)
     suites = {"full": full_suite, "realism": realism_suite, "models": models_suite, "optimality": optimality_suite}
     if args.suite == "optimality":
         make_suite = quick_optimality_suite if args.quick else optimality_suite
@@ -244,10 +260,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
             )
         )
     command = "fxc benchmark " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["benchmark"] else None
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:  # a read-only file system, which os.access does not see for root
-        raise ArgumentError(f"--out: cannot create {str(out)!r} ({exc.strerror or exc})") from exc
+    make_out(out)
     output = run_benchmark(
         suite,
         contenders,
@@ -262,7 +275,20 @@ def benchmark_command(args: argparse.Namespace) -> int:
     print("wrote " + ", ".join(str(f) for f in output.files))
     print(f"benchmark wall time: {output.seconds:.1f} s")
     for learned in contenders[len(contenders) - len(args.policy) :]:  # a --policy no case could run
-        own = [r for r in output.results if r.job.contender.name == learned.name]
-        if own and all(r.error is not None for r in own):
-            raise ArgumentError(f"--policy: {learned.name} could not run on any case of the suite ({own[0].error})")
+        refuse_unrun_policy("--policy", learned.name, output.results)
     return 0
+
+
+def _policy_names(args: argparse.Namespace) -> list[str] | None:
+    """``--policies`` as names of :data:`~fxc_env.baselines.registry.LAWS` (None: not given)."""
+    names = None if args.policies is None else [n.strip() for n in args.policies.split(",") if n.strip()]
+    if names is not None:
+        unknown = [n for n in names if n not in LAWS]
+        if unknown:
+            raise ArgumentError(f"--policies: unknown name(s) {unknown}; expected some of {tuple(LAWS)}")
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ArgumentError(f"--policies: {twice[0]!r} is named twice in {args.policies!r}")
+        if not names and not args.policy:
+            raise ArgumentError(f"--policies: expected at least one of {tuple(LAWS)} (or a --policy)")
+    return names

@@ -15,7 +15,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -82,13 +82,14 @@ def _visible(value: float) -> float:
     return max(value, DISPLAY_FLOOR) if np.isfinite(value) else np.nan
 
 
+def _ran(results: list[JobResult], contender: Contender, keep: Any = None) -> list[JobResult]:
+    """The results ``contender`` ran (no error), those ``keep`` accepts where given."""
+    return [r for r in results if r.error is None and r.job.contender.name == contender.name and (not keep or keep(r))]
+
+
 def _budget_panel(ax, results: list[JobResult], suite: Suite, contenders: list[Contender], case=None) -> None:
     for contender in contenders:
-        mine = [
-            r
-            for r in results
-            if r.error is None and r.job.contender.name == contender.name and case in (None, r.job.case)
-        ]
+        mine = _ran(results, contender, lambda r: case in (None, r.job.case))
         budgets = sorted({r.job.n_intervals for r in mine})
         stats = []
         for k in budgets:
@@ -129,7 +130,7 @@ def energy_vs_error_figure(results: list[JobResult], contenders: list[Contender]
     fig = new_figure(7.5, 5.0)
     ax = fig.subplots()
     for contender in contenders:
-        mine = [r for r in results if r.error is None and r.job.contender.name == contender.name]
+        mine = _ran(results, contender)
         if not mine:
             continue
         error = [_visible(quantiles(r.metrics["relative_deadline_error"])[0]) for r in mine]
@@ -199,15 +200,8 @@ def _sweep_panel(ax, results: list[JobResult], contenders: list[Contender], name
     """Median error against one condition (``obs_noise`` or ``u_max``) on the directed ring of 20; the floors seen."""
     floors: dict[str, list] = {}  # by schedule and K (the noise floor depends on the instants)
     for contender in contenders:
-        mine = [
-            r
-            for r in results
-            if r.error is None
-            and r.job.contender.name == contender.name
-            and r.job.case.family == "ring"
-            and r.job.case.n_agents == 20
-            and _condition(r.job.case, name) is not None
-        ]
+        mine = _ran(results, contender, lambda r: r.job.case.family == "ring" and r.job.case.n_agents == 20)
+        mine = [r for r in mine if _condition(r.job.case, name) is not None]
         if not mine:
             continue
         mine.sort(key=lambda r: _condition(r.job.case, name))
@@ -226,25 +220,10 @@ def _sweep_panel(ax, results: list[JobResult], contenders: list[Contender], name
     return floors
 
 
-def optimality_figure(results: list[JobResult], contenders: list[Contender], path: Path) -> Path:
-    """Three panels, medians over seeds, one marker and colour per law, the legend outside the axes.
-
-    1. Deadline error against energy / E* (ideal cases), one point per (policy, case): exact
-       consensus costs at least E* (:func:`fxc_env.core.optimality.energy_bound`), so no point with an
-       error at round-off lies left of the line at energy / E* = 1.
-    2. Error against ``obs_noise`` sigma on the directed ring of 20, with the noise floor of each
-       schedule (:func:`fxc_env.core.floors.noise_floor`): no controller lies below it on average.
-    3. Error against ``u_max`` on the directed ring of 20, with the input floor
-       (:func:`fxc_env.core.floors.input_floor`): left of it no controller is exact.
-    """
-    fig = new_figure(17.0, 5.0)
-    energy_ax, noise_ax, limit_ax = fig.subplots(1, 3)
+def _energy_panel(energy_ax: Any, results: list[JobResult], contenders: list[Contender]) -> None:
+    """Deadline error against energy / E* on the ideal cases, one point per law and case, and the line E*."""
     for contender in contenders:
-        mine = [
-            r
-            for r in results
-            if r.error is None and r.job.contender.name == contender.name and not r.job.case.conditions
-        ]
+        mine = _ran(results, contender, lambda r: not r.job.case.conditions)
         ratio = [_visible(quantiles(r.metrics["energy_ratio"])[0]) for r in mine]
         error = [_visible(quantiles(r.metrics["relative_deadline_error"])[0]) for r in mine]
         marker, colour = optimality_style(contenders, contender.name)
@@ -270,6 +249,32 @@ def optimality_figure(results: list[JobResult], contenders: list[Contender], pat
     )
     energy_ax.grid(alpha=0.3, which="both")
 
+
+def _legend_entries(axes: Any) -> tuple[list, list]:
+    """Every labelled handle of ``axes``, each label once."""
+    handles, labels = [], []
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            if label not in labels:
+                handles.append(handle)
+                labels.append(label)
+    return handles, labels
+
+
+def optimality_figure(results: list[JobResult], contenders: list[Contender], path: Path) -> Path:
+    """Three panels, medians over seeds, one marker and colour per law, the legend outside the axes.
+
+    1. Deadline error against energy / E* (ideal cases), one point per (policy, case): exact
+       consensus costs at least E* (:func:`fxc_env.core.optimality.energy_bound`), so no point with an
+       error at round-off lies left of the line at energy / E* = 1.
+    2. Error against ``obs_noise`` sigma on the directed ring of 20, with the noise floor of each
+       schedule (:func:`fxc_env.core.floors.noise_floor`): no controller lies below it on average.
+    3. Error against ``u_max`` on the directed ring of 20, with the input floor
+       (:func:`fxc_env.core.floors.input_floor`): left of it no controller is exact.
+    """
+    fig = new_figure(17.0, 5.0)
+    energy_ax, noise_ax, limit_ax = fig.subplots(1, 3)
+    _energy_panel(energy_ax, results, contenders)
     styles = ("--", ":", "-.", (0, (5, 1, 1, 1, 1, 1)))
     for index, (key, points) in enumerate(sorted(_sweep_panel(noise_ax, results, contenders, "obs_noise").items())):
         points = sorted(dict(points).items())
@@ -294,12 +299,7 @@ def optimality_figure(results: list[JobResult], contenders: list[Contender], pat
     limit_ax.set_ylabel("D(T_s)/D(0) (median over seeds)")
     limit_ax.set_title("ring N=20 under an input limit\n(left of the floor: no controller is exact)", fontsize=9)
 
-    handles, labels = [], []
-    for ax in (energy_ax, noise_ax, limit_ax):
-        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
-            if label not in labels:
-                handles.append(handle)
-                labels.append(label)
+    handles, labels = _legend_entries((energy_ax, noise_ax, limit_ax))
     fig.legend(handles, labels, loc="center left", bbox_to_anchor=(0.83, 0.5), fontsize=7, frameon=False)
     fig.tight_layout(rect=(0.0, 0.0, 0.83, 1.0))
     fig.savefig(path)

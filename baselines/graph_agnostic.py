@@ -73,8 +73,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines.policy import describe_law
-from fxc_env.baselines.signalling import (
+from fxc_env.baselines.motion_signals import (
     advance,
     current_instant,
     deviation_of,
@@ -87,6 +86,7 @@ from fxc_env.baselines.signalling import (
     signal_plan,
     steer_plan,
 )
+from fxc_env.baselines.policy import describe_law
 from fxc_env.config import config_of
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError

@@ -85,12 +85,8 @@ def run_job(job: Job) -> JobResult:
     result = JobResult(job)
     try:
         config = contender_config(job.contender, job.case, job.n_intervals, job.settling_time)
-        policy = load_policy(
-            job.contender.spec,
-            config,
-            trusted=job.contender.trusted,
-            allow_out_of_domain=job.contender.allow_out_of_domain,
-        )
+        trust = {"trusted": job.contender.trusted, "allow_out_of_domain": job.contender.allow_out_of_domain}
+        policy = load_policy(job.contender.spec, config, **trust)
     except ArgumentError as exc:
         result.error = str(exc)
         return result

@@ -379,6 +379,40 @@ def initial_state_text(suite: Suite) -> str:
     return f"positions {draw(position, 'm')}, velocities {draw(velocity, 'm/s')}"
 
 
+def _condition_sections(results: list[JobResult], suite: Suite, contenders: list[Contender]) -> list[str]:
+    """The realism table where cases carry conditions; the optimality table for the optimality suites."""
+    parts: list[str] = []
+    if any(case.conditions for case in suite.cases):
+        parts += [
+            "### Realism: median deadline error D(T_s)/D(0) · share of agent-time at the input limit · energy (m²/s³)",
+            "",
+            realism_table(results, suite, contenders),
+            "",
+            "Floor: what no controller, centralised or not, beats under the condition (medians over seeds): the "
+            "least expected D(T_s)/D(0) under measurement noise, and the least u_max of exact consensus at T_s.",
+            "",
+        ]
+    if suite.name.startswith("optimality"):
+        parts += [
+            "### How far from optimal: median [q25, q75] over seeds",
+            "",
+            optimality_table(results, suite, contenders),
+            "",
+            "E*: the least energy of any exact consensus at T_s from the episode's initial state (steer every "
+            "agent once, minimum-energy, to the mean of the coasted states). Intervals used: median over seeds "
+            "of the interval after which D(t_k)/D(0) stayed below 1e-9 ('not by T_s' when the median episode "
+            "did not). Radius bound: the fewest intervals in which any law can be exact (the graph's radius: one "
+            "agent's information must reach every agent). All-roots bound: the fewest after which every agent can "
+            "have heard from every root, a bound only for laws whose value depends on every root (the paper's, "
+            "the E*-optimal mean); n/a for random switching. ",
+            "Floor (cases with noise or an input limit): D/D(0) ≥ the least expected error any controller leaves "
+            "under the noise (least squares on every row the team receives); u_max ≥ the least input limit for "
+            "which any controller reaches exact consensus (a linear programme).",
+            "",
+        ]
+    return parts
+
+
 def markdown_report(
     results: list[JobResult],
     suite: Suite,
@@ -411,34 +445,7 @@ def markdown_report(
         case_table(results, suite, contenders),
         "",
     ]
-    if any(case.conditions for case in suite.cases):
-        parts += [
-            "### Realism: median deadline error D(T_s)/D(0) · share of agent-time at the input limit · energy (m²/s³)",
-            "",
-            realism_table(results, suite, contenders),
-            "",
-            "Floor: what no controller, centralised or not, beats under the condition (medians over seeds): the "
-            "least expected D(T_s)/D(0) under measurement noise, and the least u_max of exact consensus at T_s.",
-            "",
-        ]
-    if suite.name.startswith("optimality"):
-        parts += [
-            "### How far from optimal: median [q25, q75] over seeds",
-            "",
-            optimality_table(results, suite, contenders),
-            "",
-            "E*: the least energy of any exact consensus at T_s from the episode's initial state (steer every "
-            "agent once, minimum-energy, to the mean of the coasted states). Intervals used: median over seeds "
-            "of the interval after which D(t_k)/D(0) stayed below 1e-9 ('not by T_s' when the median episode "
-            "did not). Radius bound: the fewest intervals in which any law can be exact (the graph's radius: one "
-            "agent's information must reach every agent). All-roots bound: the fewest after which every agent can "
-            "have heard from every root, a bound only for laws whose value depends on every root (the paper's, "
-            "the E*-optimal mean); n/a for random switching. ",
-            "Floor (cases with noise or an input limit): D/D(0) ≥ the least expected error any controller leaves "
-            "under the noise (least squares on every row the team receives); u_max ≥ the least input limit for "
-            "which any controller reaches exact consensus (a linear programme).",
-            "",
-        ]
+    parts += _condition_sections(results, suite, contenders)
     parts += [
         "### Relative deadline error against the communication budget K (all cases pooled)",
         "",

@@ -41,38 +41,10 @@ the free-motion predictions ``p_i = (x_i + T_s v_i, v_i)``. Each agent only need
 
 The signalling amplitude ``ε`` (dimensionless: metres of deviation per metre of register) trades
 energy for accuracy: the reading error of a register is the rounding of a measured row over ``ε``
-(about ``1e-16 |z| / ε``), the signalling energy grows like ``ε²``. Measured (K = 200, T_s = 20 s, uniform
-schedule, raw plans, 20 seeded initial states, medians; relative deadline error, energy / E*):
-
-=====================  ==========================  ==========================  ==========================
-case                   ε = 1e-7                    ε = 1e-6 (default)          ε = 1e-5
-=====================  ==========================  ==========================  ==========================
-ring N = 20            3.3e-9, 1.45 (t_c = 1.8 s)  3.6e-10, 1.45               3.5e-11, 1.58
-random N = 20          6.0e-9, 2.24 (t_c = 3.7 s)  6.7e-10, 2.24               6.2e-11, 2.29
-paper_fig1 (switching) 1.2e-9, 1.33 (t_c = 1.4 s)  1.4e-10, 1.33               1.3e-11, 1.34
-=====================  ==========================  ==========================  ==========================
-
-(the random digraph of ``topology_seed=0`` is not strongly connected: its two non-root agents cost the
-offset to the roots' mean). On the paper's schedule the agreement ends late (its first interval is
-12.2 s; t_c = 19.3 s on the ring): 6.0e-10 at 8.0e4 x E* (ring), 1.0e-9 at 6.8e5 (random), 2.8e-10 at
-3.8e4 (``paper_fig1``), against the reference's 1.7e7 x E* on ``paper_fig1``.
-
-The amplitude is refused outside ``1e-12 <= ε <= 1`` (:data:`AMPLITUDE_RANGE`), where the trade above stops
-holding. Below, the reads lose their digits to rounding (the deadline error is a few ``1e-16 / ε``) for no
-energy saved (the signalling energy is already ~1e-4 of the total at 1e-6); at ε = 1e-16 the law ends no
-closer than it started. Above 1 the deadline error stops falling and grows again like ε (float64 rounding
-of motions ε times the register), while the energy keeps growing like ε², so every ε > 1 is worse than
-ε = 1 on both counts. Measured as above (medians of 20 seeds; ``tests/test_baselines_signalling.py`` runs both ends):
-
-=====================  =========  =========  =========  =========  =========  ==========  ==========
-deadline error         ε = 1e-16  ε = 1e-14  ε = 1e-12  ε = 1      ε = 1e4    ε = 1e8     ε = 1e12
-=====================  =========  =========  =========  =========  =========  ==========  ==========
-ring N = 20            3.2        3.5e-2     3.3e-4     3.4e-13    6.3e-9     6.6e-5      0.66
-random N = 20          5.8        6.3e-2     5.5e-4     2.2e-13    4.3e-9     3.7e-5      0.35
-paper_fig1 (own x0)    1.0        8.9e-3     1.4e-4     9.0e-14    1.6e-9     1.3e-5      0.12
-=====================  =========  =========  =========  =========  =========  ==========  ==========
-
-(energy / E* at ε = 1: 1.3e9, 4.4e8, 8.8e7; at 1e4: 1.3e17, 4.4e16, 8.8e15.)
+(about ``1e-16 |z| / ε``), the signalling energy grows like ``ε²``. It is refused outside
+``1e-12 <= ε <= 1`` (:data:`AMPLITUDE_RANGE`): below, rounding takes the reads' digits for no energy
+saved; above, the error grows again like ε while the energy keeps growing like ε². The measured
+figures are on the docs' optimality page (``tests/test_baselines_signalling.py`` runs both ends).
 
 - Source: this project (information is cheap, motion is not: signalling through motion in the
   spirit of implicit communication, on the minimum-time law of :mod:`fxc_env.baselines.minimum_time`).
@@ -81,13 +53,9 @@ paper_fig1 (own x0)    1.0        8.9e-3     1.4e-4     9.0e-14    1.6e-9     1.
   stage 2). Exact (up to rounding / ε) at the roots' mean, the unweighted mean when strongly connected.
 - Settings it runs with: ``action_mode="plan"`` (or ``"accel"``), ``obs_mode="raw"`` (the agent needs
   physical rows to subtract the coasting prediction).
-- Measurement noise: with ``obs_noise`` σ each read of a register is off by about ``σ / ε`` (and the
-  first measurement by σ, its velocity part coasting to ``σ T_s`` in the prediction), and the exact
-  factors amplify those errors. Measured on a directed ring N = 20 (K = 200, uniform, 20 seeds, medians)
-  at σ = 1e-6: deadline error 2.8e-2 at 14 x E* (ε = 1e-4), 2.8e-3 at 1.3e3 x E* (ε = 1e-3), 2.8e-4 at
-  1.3e5 x E* (ε = 1e-2); at σ = 1e-3: 2.8e-1 at 1.3e5 x E* (ε = 1e-2), 3.2e-3 at 1.3e9 x E* (ε = 1):
-  the error falls like ``σ/ε`` while the energy grows like ``ε²``. That is off the
-  frontier, so the law refuses ``obs_noise`` unless the caller chooses ``amplitude`` explicitly.
+- Measurement noise: with ``obs_noise`` σ each read of a register is off by about ``σ / ε`` and the exact
+  factors amplify it: the error falls like ``σ/ε`` while the energy grows like ``ε²`` (figures on the docs'
+  optimality page), off the frontier, so the law refuses ``obs_noise`` unless ``amplitude`` is chosen.
 - It refuses what it cannot honour, by name: a graph (or period union) without a directed spanning
   tree, topology families, ``switching='random'``, ``u_max`` (unless ``allow_limit=True``: exact
   wherever its inputs stay within the limit), ``obs_noise`` (without an explicit
@@ -101,33 +69,29 @@ from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse import csgraph
 
+from fxc_env.baselines.motion_signals import (
+    advance,
+    averaging_weights,
+    current_instant,
+    deviation_of,
+    initial_offset,
+    leja_order,
+    plan_action,
+    predicted_register,
+    read_deviation,
+    refuse_unless_exact_raw_rows,
+    register_eigenvalues,
+    register_of,
+    signal_plan,
+    steer_plan,
+    union_graph,
+)
 from fxc_env.baselines.policy import describe_law
 from fxc_env.config import config_of
 from fxc_env.core import validation
-from fxc_env.core.dynamics import input_from_plan
-from fxc_env.core.graphs import Topology
 from fxc_env.core.optimality import root_set
 from fxc_env.core.validation import ArgumentError
-
-__all__ = [
-    "SignallingPolicy",
-    "advance",
-    "averaging_weights",
-    "current_instant",
-    "deviation_of",
-    "initial_offset",
-    "leja_order",
-    "plan_action",
-    "predicted_register",
-    "read_deviation",
-    "register_eigenvalues",
-    "register_of",
-    "signal_plan",
-    "steer_plan",
-]
 
 #: Default signalling amplitude ε: a deviation of 1e-6 of the register, read about 1e10 above the
 #: float64 rounding of a row (1e-16 relative), at an energy about 1e-12 of the state scale squared.
@@ -135,165 +99,6 @@ DEFAULT_AMPLITUDE = 1e-6
 
 #: The amplitudes the law accepts, ``(smallest, largest)``: outside, it loses accuracy for nothing (module docstring).
 AMPLITUDE_RANGE = (1e-12, 1.0)
-
-
-# ----------------------------------------------------------------------------- numbers carried by motion
-# The machinery every law that signals through small motions shares (this law and
-# :mod:`fxc_env.baselines.graph_agnostic`). Arrays end in ``(2, dim)``: position and velocity parts.
-
-
-def initial_offset(row: np.ndarray, t: float) -> np.ndarray:
-    """``z_j(0) - z_i(0)`` ``(..., 2, dim)`` from a row measured at ``t`` before anyone deviated from coasting."""
-    return np.stack([row[..., 0, :] - t * row[..., 1, :], row[..., 1, :]], axis=-2)
-
-
-def read_deviation(row: np.ndarray, base: np.ndarray, own: np.ndarray, t: float) -> np.ndarray:
-    """The neighbour's deviation from coasting ``d_j(t)`` ``(..., 2, dim)``: its row at ``t`` less the coasted
-    initial offset ``Φ(t) base``, plus the reader's own deviation ``own`` (which the row subtracts)."""
-    dev_x = row[..., 0, :] - (base[..., 0, :] + t * base[..., 1, :]) + own[..., 0, :]
-    dev_v = row[..., 1, :] - base[..., 1, :] + own[..., 1, :]
-    return np.stack([dev_x, dev_v], axis=-2)
-
-
-def register_of(deviation: np.ndarray, amplitude: float, settling_time: float) -> np.ndarray:
-    """The complex register ``(..., dim)`` a deviation ``ε (Re c, Im c / T_s)`` carries."""
-    return deviation[..., 0, :] / amplitude + 1j * (settling_time * deviation[..., 1, :] / amplitude)
-
-
-def deviation_of(register: np.ndarray, amplitude: float, settling_time: float) -> np.ndarray:
-    """The deviation ``ε (Re c, Im c / T_s)`` ``(..., 2, dim)`` that carries a complex register (inverse of
-    :func:`register_of`; with ``ε = 1`` the deviation at ``T_s`` that moves ``p_i`` by ``c``)."""
-    return np.stack([amplitude * register.real, amplitude * register.imag / settling_time], axis=-2)
-
-
-def predicted_register(base: np.ndarray, settling_time: float) -> np.ndarray:
-    """``q_j(0) - q_i(0)`` ``(..., dim)`` from ``z_j(0) - z_i(0)``: the free-motion prediction's difference
-    ``(x + T_s v, v)`` as a register ``p_x + i T_s p_v``."""
-    velocity = settling_time * base[..., 1, :]
-    return base[..., 0, :] + velocity + 1j * velocity
-
-
-def signal_plan(target: np.ndarray, d: np.ndarray, interval: float) -> np.ndarray:
-    """The plan ``(a_x, a_v)`` ``(..., 2, dim)`` that sets the deviation at the interval's end to ``target``."""
-    return np.stack([target[..., 0, :] - d[..., 0, :] - interval * d[..., 1, :], target[..., 1, :] - d[..., 1, :]], -2)
-
-
-def steer_plan(goal: np.ndarray, d: np.ndarray, t: float, interval: float, settling_time: float) -> np.ndarray:
-    """The piece over ``[t, t + T]`` of the minimum-energy input (paper Remark 1) from deviation ``d`` at ``t``
-    to deviation ``goal`` at ``T_s``, as a plan ``(..., 2, dim)``: the input ``λ_1 (H - s) + λ_2``,
-    ``λ = G(H)^{-1} Δ``, ``H = T_s - t``, is affine on the interval, so the environment realises it exactly."""
-    H, T = settling_time - t, interval
-    need_x = goal[..., 0, :] - d[..., 0, :] - H * d[..., 1, :]
-    need_v = goal[..., 1, :] - d[..., 1, :]
-    lam1 = 12.0 * need_x / H**3 - 6.0 * need_v / H**2
-    lam2 = -6.0 * need_x / H**2 + 4.0 * need_v / H
-    a_x = lam1 * (H * T**2 / 2.0 - T**3 / 6.0) + lam2 * T**2 / 2.0
-    a_v = lam1 * (H * T - T**2 / 2.0) + lam2 * T
-    return np.stack([a_x, a_v], axis=-2)
-
-
-def advance(d: np.ndarray, plan: np.ndarray, interval: float) -> np.ndarray:
-    """The deviation at the interval's end: coasted ``P_k d`` plus the plan."""
-    return np.stack([d[..., 0, :] + interval * d[..., 1, :] + plan[..., 0, :], d[..., 1, :] + plan[..., 1, :]], -2)
-
-
-def current_instant(
-    obs: np.ndarray, config: Any, law: str, next_instant: int, memory: tuple[int, ...] | None
-) -> tuple[int, np.ndarray]:
-    """The instant k of every agent's observation ``(..., N, obs_size)`` and its rows, checked against the memory.
-
-    A law with memory is called with every agent's observation at once, one instant after the other from
-    ``k = 0`` (which starts a new episode); ``memory`` is the lead shape ``(..., N)`` its memory holds (None:
-    none yet). Raises ArgumentError naming ``observation`` otherwise.
-    """
-    layout = config.layout
-    if obs.ndim < 2 or obs.shape[-2] != config.n_agents:
-        raise ArgumentError(
-            f"observation: {law} has memory and needs every agent's observation at once, "
-            f"shape (..., {config.n_agents}, {layout.size}); got {obs.shape}"
-        )
-    rows, _, clock = layout.split(obs)
-    ks = np.rint(clock[..., 2] * config.n_intervals).astype(np.int64)
-    k = int(ks.reshape(-1)[0])
-    if np.any(ks != k):
-        raise ArgumentError("observation: every agent and episode of one call must be at the same instant")
-    if k != 0 and (memory is None or k != next_instant or memory != obs.shape[:-1]):
-        raise ArgumentError(
-            f"observation: instant k = {k}, but the law's memory expects k = {next_instant} of the "
-            "same batch (call it from k = 0, one instant after the other)"
-        )
-    return k, rows
-
-
-def plan_action(plan: np.ndarray, config: Any, interval: float) -> np.ndarray:
-    """The action ``(..., 2 dim)`` of a plan ``(..., 2, dim)``: the plan itself, or its end inputs in ``accel`` mode."""
-    plan_x, plan_v = plan[..., 0, :], plan[..., 1, :]
-    if config.action_mode == "plan":
-        return np.concatenate([plan_x, plan_v], axis=-1)
-    return np.concatenate(input_from_plan(plan_x, plan_v, interval), axis=-1)
-
-
-def averaging_weights(topology: Topology) -> np.ndarray:
-    """``ξ`` ``(N,)``: the left null vector of ``Ŵ = (D + I)^{-1} L`` on the (union) graph, ``Σ ξ = 1``.
-
-    Positive on the root set (:func:`fxc_env.core.optimality.root_set`), zero elsewhere: exact
-    consensus by polynomials in ``Ŵ`` ends at ``ξᵀ q(0)`` (paper Theorem 1's weights, on the union).
-
-    Raises:
-        ArgumentError naming ``topology`` when the (union) graph has no directed spanning tree.
-    """
-    union = _union(topology)  # [i, j] = 1: i receives from j in some graph of the period
-    roots = root_set(topology)
-    degree = np.asarray(union.sum(axis=1)).ravel()
-    w_hat = ((sp.diags_array(degree) - union).toarray() / (degree + 1.0)[:, None])[np.ix_(roots, roots)]
-    # xi^T W-hat_RR = 0 with sum(xi) = 1: least squares on [W_RR^T; 1^T] xi = [0; 1] (exact: rank R - 1).
-    system = np.vstack([w_hat.T, np.ones((1, len(roots)))])
-    rhs = np.zeros(len(roots) + 1)
-    rhs[-1] = 1.0
-    xi = np.zeros(topology.n_agents)
-    xi[roots] = np.linalg.lstsq(system, rhs, rcond=None)[0]
-    return xi
-
-
-def register_eigenvalues(topology: Topology) -> np.ndarray:
-    """The ``N - 1`` nonzero eigenvalues of ``Ŵ = (D + I)^{-1} L`` on the (union) graph, complex.
-
-    Block by block over the strongly connected components (``Ŵ`` is block triangular in their
-    order), so eigenvalues repeated across components come out exactly repeated; the consensus
-    eigenvalue 0, simple under a directed spanning tree, lies in the root component.
-    """
-    union = _union(topology)
-    degree = np.asarray(union.sum(axis=1)).ravel()
-    w_hat = (sp.diags_array(degree) - union).toarray() / (degree + 1.0)[:, None]
-    _, labels = csgraph.connected_components(union.T, directed=True, connection="strong")
-    roots = root_set(topology)
-    values = []
-    for comp in np.unique(labels):
-        members = np.flatnonzero(labels == comp)
-        block = np.linalg.eigvals(w_hat[np.ix_(members, members)])
-        if labels[roots[0]] == comp:
-            block = np.delete(block, np.argmin(np.abs(block)))
-        values.append(block)
-    return np.concatenate(values)
-
-
-def leja_order(eigenvalues: np.ndarray) -> np.ndarray:
-    """The eigenvalues ``(N - 1,)`` in the order that keeps partial products small.
-
-    Each next factor ``(1 - μ'/μ)`` kills the mode whose partial product ``|Π (1 - μ'/μ_k)|`` is
-    largest so far (the first: the largest ``|μ|``).
-    """
-    points = np.asarray(eigenvalues, dtype=complex)
-    remaining = list(range(len(points)))
-    log_q = np.zeros(len(points))
-    order = []
-    while remaining:
-        pick = max(remaining, key=lambda i: (log_q[i], abs(points[i])))
-        order.append(points[pick])
-        remaining.remove(pick)
-        with np.errstate(divide="ignore"):
-            log_q = log_q + np.log(np.abs(1.0 - points / points[pick]))
-    return np.array(order, dtype=complex)
 
 
 class SignallingPolicy:
@@ -356,7 +161,7 @@ class SignallingPolicy:
         #: The second stage (moving ``ξᵀ q`` to the roots' unweighted mean) is needed unless ``ξ`` is uniform.
         self.two_stages = bool(np.max(np.abs(self.xi[self.roots] * len(self.roots) - 1.0)) > 1e-12)
         self.eigenvalues = leja_order(register_eigenvalues(topology))
-        degree = np.asarray(_union(topology).sum(axis=1)).ravel()
+        degree = np.asarray(union_graph(topology).sum(axis=1)).ravel()
         self._gain = 1.0 / (degree + 1.0)  # the row weight of W-hat = (D + I)^{-1} L
         # gamma_i = -(1/R - xi_i) o_i / xi_i on the roots (0 elsewhere): xi^T gamma = -sum_R (1/R - xi_i) o_i.
         self._correction = np.zeros(n)
@@ -375,7 +180,7 @@ class SignallingPolicy:
         self._times = np.asarray(config.schedule.times, dtype=np.float64)
         self._intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
         # The union in-neighbours of every agent, and where slot s of graph g puts its row among them.
-        union = _union(topology)
+        union = union_graph(topology)
         union_neighbours = [np.sort(union[[i], :].indices) for i in range(n)]
         self._union_slots = max(1, max(len(u) for u in union_neighbours))
         self._union_mask = np.zeros((n, self._union_slots))
@@ -519,14 +324,6 @@ def _amplitude(value: Any) -> float:
     return amplitude
 
 
-def _union(topology: Topology) -> sp.csr_array:
-    """0/1 adjacency of the union of the period's graphs, sparse ``(N, N)``."""
-    union = sp.csr_array(topology.union())
-    union.data = np.ones_like(union.data)
-    union.eliminate_zeros()
-    return union
-
-
 def _refuse_what_it_cannot_honour(config: Any, allow_limit: bool = False) -> None:
     name = "SignallingPolicy"
     if config.family is not None:
@@ -543,26 +340,3 @@ def _refuse_what_it_cannot_honour(config: Any, allow_limit: bool = False) -> Non
             "anyway: exact wherever its inputs stay within the limit)"
         )
     refuse_unless_exact_raw_rows(config, name)
-
-
-def refuse_unless_exact_raw_rows(config: Any, name: str) -> None:
-    """Raise :class:`ArgumentError` naming what a law that reads numbers off motions cannot honour.
-
-    Lost links, agent models other than the double integrator, observations other than raw
-    (the coasting prediction is subtracted from physical rows) and actions other than plan/accel.
-    """
-    if config.link_dropout != 0:
-        raise ArgumentError(
-            f"link_dropout: {name} reads numbers from every link of its graph; got link_dropout={config.link_dropout!r}"
-        )
-    if config.model is not None:
-        raise ArgumentError(
-            f"agent_model: {name} is designed for the double integrator; got agent_model={config.agent_model!r}"
-        )
-    if config.obs_mode != "raw":
-        raise ArgumentError(
-            f"obs_mode: {name} subtracts the coasting prediction from physical rows and needs obs_mode='raw', "
-            f"got {config.obs_mode!r}"
-        )
-    if config.action_mode not in ("plan", "accel"):
-        raise ArgumentError(f"action_mode: {name} supports 'plan' and 'accel', got {config.action_mode!r}")

@@ -21,57 +21,20 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.bounded_steer import BoundedSteerPolicy
-from fxc_env.baselines.finite_time import FiniteTimePolicy
-from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
-from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
-from fxc_env.baselines.linear import LinearConsensusPolicy
-from fxc_env.baselines.minimum_time import MinimumTimePolicy
-from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
-from fxc_env.baselines.sampled import SampledLinearPolicy
-from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
-from fxc_env.baselines.signalling import SignallingPolicy
+from fxc_env.baselines.registry import LAWS
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core.families import AnyFamily, TopologyFamily
 from fxc_env.core.graphs import Topology
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.learned import SHIPPED, SHIPPED_SCHEDULES, architecture_of, load_learned_policy, pretrained_path
-from fxc_env.policies.reference import ReferencePolicy
 
 Policy = Callable[[np.ndarray], np.ndarray]
 
-#: Baseline policy classes by name.
-BASELINES = {
-    cls.NAME: cls
-    for cls in (
-        SampledLinearPolicy,
-        LinearConsensusPolicy,
-        FiniteTimePolicy,
-        PrescribedTimePolicy,
-        SaturationAwarePolicy,
-        MinimumTimePolicy,
-        LeaderFollowerPolicy,
-        SignallingPolicy,
-        GraphAgnosticPolicy,
-        BoundedSteerPolicy,
-    )
-}
-
-#: Built-in contenders in table order: name -> (sampled at every budget?, schedule, action mode, obs mode).
-BUILTIN_SETTINGS = {
-    "reference": (True, "paper", "plan", "normalized"),
-    "linear_sampled": (True, "uniform", "accel", "raw"),
-    "linear": (False, "uniform", "accel", "raw"),
-    "finite_time": (False, "uniform", "accel", "raw"),
-    "prescribed_time": (False, "uniform", "accel", "raw"),
-    "saturation_aware": (True, "uniform", "accel", "raw"),
-    "minimum_time": (True, "uniform", "plan", "normalized"),
-    "leader_follower": (True, "uniform", "plan", "normalized"),
-    "signalling": (True, "uniform", "plan", "raw"),
-    "graph_agnostic": (True, "uniform", "plan", "raw"),
-    "bounded_steer": (True, "uniform", "plan", "raw"),
-}
+#: Baseline policy classes by name, and the built-in contenders' settings in table order
+#: (name -> (sampled at every budget?, schedule, action mode, obs mode)): views of :data:`~fxc_env.baselines.registry.LAWS`.
+BASELINES = {name: law.policy for name, law in LAWS.items() if name != "reference"}
+BUILTIN_SETTINGS = {name: law.settings for name, law in LAWS.items()}
 
 
 @dataclass(frozen=True)
@@ -175,7 +138,7 @@ class Contender:
 
 
 def builtin_contenders(names: list[str] | None = None) -> list[Contender]:
-    """The reference and the four baselines (or those named), with their settings."""
+    """Every registered law (or those named), with its settings."""
     chosen = list(BUILTIN_SETTINGS) if names is None else names
     unknown = [n for n in chosen if n not in BUILTIN_SETTINGS]
     if unknown:
@@ -451,33 +414,22 @@ def quick_optimality_suite(n_seeds: int = 5, fine_intervals: int = 1000) -> Suit
 #: Laws run only by explicit opt-in where they would otherwise refuse a setting:
 #: spec -> (law, keyword arguments, the setting it is run under; without that setting it is the law itself).
 OPT_IN = {
-    "minimum_time/noisy": ("minimum_time", {"allow_noise": True}, "obs_noise"),
-    "signalling/limited": ("signalling", {"allow_limit": True}, "u_max"),
-    "signalling/paper/limited": ("signalling", {"allow_limit": True}, "u_max"),
+    law.opt_in_spec(o, s): (law.name, o.options, o.setting)
+    for law in LAWS.values()
+    for o in law.opt_ins
+    for s in o.schedules
 }
 
 
 def optimality_contenders() -> list[Contender]:
-    """Every registered law (:data:`BUILTIN_SETTINGS`) with its settings; the reference, the minimum-time,
-    signalling and graph-agnostic laws on both schedules; and the opt-ins of :data:`OPT_IN` (they run only where
-    their setting is on)."""
-    both = [
-        Contender("reference", "reference", True, "paper", "plan", "normalized"),
-        Contender("reference/uniform", "reference", True, "uniform", "plan", "normalized"),
-        Contender("minimum_time", "minimum_time", True, "uniform", "plan", "normalized"),
-        Contender("minimum_time/paper", "minimum_time", True, "paper", "plan", "normalized"),
-        Contender("minimum_time/noisy", "minimum_time/noisy", True, "uniform", "plan", "normalized"),
-        Contender("signalling", "signalling", True, "uniform", "plan", "raw"),
-        Contender("signalling/paper", "signalling", True, "paper", "plan", "raw"),
-        Contender("signalling/limited", "signalling/limited", True, "uniform", "plan", "raw"),
-        Contender("signalling/paper/limited", "signalling/paper/limited", True, "paper", "plan", "raw"),
-        Contender("graph_agnostic", "graph_agnostic", True, "uniform", "plan", "raw"),
-        Contender("graph_agnostic/paper", "graph_agnostic", True, "paper", "plan", "raw"),
+    """Every registered law (:data:`~fxc_env.baselines.registry.LAWS`): those with further schedules or opt-ins
+    (:data:`OPT_IN`, run only where their setting is on) first, with every variant, then the others."""
+    laws = sorted(LAWS.values(), key=lambda law: not (law.also_on or law.opt_ins))
+    return [
+        Contender(name, spec, law.sampled, schedule, law.action_mode, law.obs_mode)
+        for law in laws
+        for name, spec, schedule in law.variants()
     ]
-    others = [
-        name for name in BUILTIN_SETTINGS if name not in ("reference", "minimum_time", "signalling", "graph_agnostic")
-    ]
-    return both + builtin_contenders(others)
 
 
 def contender_config(contender: Contender, case: BenchmarkCase, n_intervals: int, settling_time: float) -> EnvConfig:
@@ -503,15 +455,13 @@ def load_policy(spec: str, config: EnvConfig, trusted: bool = False, allow_out_o
     the file is not a readable model, the model does not fit, or ``config`` lies outside its
     training domain; ``trusted`` and ``allow_out_of_domain`` as in :func:`learned_contender`.
     """
-    if spec == "reference":
-        return ReferencePolicy(config)
-    if spec in BASELINES:
-        return BASELINES[spec](config)
+    if spec in LAWS:
+        return LAWS[spec].policy(config)
     if spec in OPT_IN:
         name, options, setting = OPT_IN[spec]
         if (config.obs_noise == 0) if setting == "obs_noise" else (config.u_max_choices is None):
             raise ArgumentError(f"{setting}: {spec} is {name} opted in under {setting}; without it it is {name} itself")
-        return BASELINES[name](config, **options)
+        return LAWS[name].policy(config, **options)
     path = model_path(spec)
     if spec in SHIPPED or path.suffix == ".zip" or path.exists():
         try:

@@ -20,18 +20,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError, choice, integer
-from fxc_env.utils.cli_checks import yaml_mapping_file
+from fxc_env.training import registry
+from fxc_env.utils.cli_checks import output_directory, yaml_mapping_file
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
-ALGORITHMS = ("ppo", "sac", "apg")
-#: ``apg`` (analytic policy gradients) is the algorithm of ``--backend diff``, and only of it.
-BACKEND_ALGORITHMS = {"diff": ("apg",)}
-BACKENDS = ("sb3", "rllib", "torch", "diff")
-#: Back ends whose actor is one of :data:`POLICY_ARCHS`, on a torch device, saved as ``policy.pt``.
-TORCH_BACKENDS = ("torch", "diff")
-#: Old back-end names, still accepted: ``torchrl`` was the torch loop's name (it never used TorchRL).
-BACKEND_ALIASES = {"torchrl": "torch"}
+#: Views of :data:`fxc_env.training.registry.BACKENDS`: every ``--algo``, every ``--backend``, those whose
+#: actor is one of :data:`POLICY_ARCHS` on a torch device (saved as ``policy.pt``), and the old names.
+ALGORITHMS = registry.algorithms()
+BACKENDS = tuple(registry.BACKENDS)
+TORCH_BACKENDS = registry.with_flag("torch_actor")
+BACKEND_ALIASES = registry.ALIASES
 #: ``--critic`` of the torch back end: per-agent values, or one value per episode from the global state.
 CRITICS = ("local", "central")
 #: ``--policy-arch`` of the torch back end (:mod:`fxc_env.policies.torch_memory`).
@@ -175,8 +175,6 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
     by the back end (:meth:`~fxc_env.training.run_dir.RunDir.resume_checkpoint`), which knows
     its checkpoint layout.
     """
-    from fxc_env.config import make_config
-    from fxc_env.utils.cli_checks import output_directory
 
     def name(field: str) -> str:
         return "--" + field.replace("_", "-") if flags else field
@@ -188,39 +186,7 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
         )
     choice(name("backend"), canonical_backend(args.backend), BACKENDS)
     args = dataclasses.replace(args, backend=canonical_backend(args.backend, warn=False))
-    if args.backend in ("rllib", "torch") and args.algo != "ppo":
-        raise ArgumentError(f"{name('algo')}: the {args.backend} backend trains 'ppo', got {args.algo!r}")
-    if args.backend == "diff" and args.algo != "apg":
-        raise ArgumentError(
-            f"{name('algo')}: the diff backend trains 'apg' (analytic policy gradients), got {args.algo!r}"
-        )
-    if args.backend != "diff" and args.algo == "apg":
-        raise ArgumentError(f"{name('algo')}: 'apg' needs the engine's gradients: use --backend diff")
-    choice(name("critic"), args.critic, CRITICS)
-    choice(name("policy_arch"), args.policy_arch, POLICY_ARCHS)
-    if args.backend not in TORCH_BACKENDS and args.policy_arch != "mlp":
-        raise ArgumentError(
-            f"{name('policy_arch')}: only the torch and diff backends have a choice of actor, got {args.policy_arch!r}"
-        )
-    if args.backend != "torch" and args.critic != "local":
-        raise ArgumentError(f"{name('critic')}: only the torch backend has a choice of critic, got {args.critic!r}")
-    if args.backend not in TORCH_BACKENDS and args.device != "cpu":
-        raise ArgumentError(
-            f"{name('device')}: only the torch and diff backends run on a chosen device, got {args.device!r}"
-        )
-    if args.backend in TORCH_BACKENDS:
-        torch_device(name("device"), args.device)
-    if args.init_from is not None:
-        if args.backend not in TORCH_BACKENDS:
-            raise ArgumentError(
-                f"{name('init_from')}: only the torch and diff backends start from a policy file, "
-                f"not the {args.backend} backend"
-            )
-        if args.resume:
-            raise ArgumentError(
-                f"{name('init_from')}: --resume goes on from the run's own checkpoint; "
-                "--init-from starts a fresh run (leave one out)"
-            )
+    _check_backend_fields(args, name)
     choice(name("algo"), args.algo, ALGORITHMS)
     integer(name("timesteps"), args.timesteps, 1)
     integer(name("seed"), args.seed, 0, 2**32 - 1)  # numpy's legacy seeding, which SB3 uses, takes 32 bits
@@ -235,15 +201,66 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
             f"{name('trust_policy_file')}: only --resume reads files from a run directory; a fresh run would ignore it "
             "(add --resume, or leave it out)"
         )
-    if args.backend != "rllib":
-        for field in RLLIB_ONLY:
-            value, default = getattr(args, field), TrainArgs.__dataclass_fields__[field].default
-            if value != default:
-                raise ArgumentError(
-                    f"{name(field)}: only the rllib backend reads it; the {args.backend} backend would ignore "
-                    f"{value!r} (use --backend rllib, or leave it out)"
-                )
-    algo_key = f"{args.backend}_{args.algo}" if args.backend in ("rllib", *TORCH_BACKENDS) else args.algo
+    for field in RLLIB_ONLY if args.backend != "rllib" else ():
+        value, default = getattr(args, field), TrainArgs.__dataclass_fields__[field].default
+        if value != default:
+            raise ArgumentError(
+                f"{name(field)}: only the rllib backend reads it; the {args.backend} backend would ignore "
+                f"{value!r} (use --backend rllib, or leave it out)"
+            )
+    params = _checked_hyperparams(args, name)
+    output_directory(name("run_dir"), args.run_dir or default_run_dir(args))
+    return params
+
+
+def _only(flag: str) -> str:
+    """``the torch and diff backends``: the back ends with ``flag`` set, for error messages."""
+    names = registry.with_flag(flag)
+    return f"the {' and '.join(names)} backend{'s' if len(names) > 1 else ''}"
+
+
+def _check_backend_fields(args: TrainArgs, name: Any) -> None:
+    """The algorithm, actor, critic, device and ``--init-from`` that ``args.backend`` can honour."""
+    backend = registry.BACKENDS[args.backend]
+    if args.algo in ALGORITHMS and args.algo not in backend.algorithms:
+        owners = [b for b in registry.BACKENDS.values() if args.algo in b.algorithms]
+        if len(backend.algorithms) > 1 and len(owners) == 1:  # a back end with a choice: say where it is
+            raise ArgumentError(
+                f"{name('algo')}: {args.algo!r} needs {owners[0].requires}: use --backend {owners[0].name}"
+            )
+        expected = " or ".join(repr(a) for a in backend.algorithms)
+        raise ArgumentError(
+            f"{name('algo')}: the {args.backend} backend trains {expected}{backend.algorithm_note}, got {args.algo!r}"
+        )
+    choice(name("critic"), args.critic, CRITICS)
+    choice(name("policy_arch"), args.policy_arch, POLICY_ARCHS)
+    if not backend.torch_actor and args.policy_arch != "mlp":
+        raise ArgumentError(
+            f"{name('policy_arch')}: only {_only('torch_actor')} have a choice of actor, got {args.policy_arch!r}"
+        )
+    if not backend.critics and args.critic != "local":
+        raise ArgumentError(f"{name('critic')}: only {_only('critics')} has a choice of critic, got {args.critic!r}")
+    if not backend.torch_actor and args.device != "cpu":
+        raise ArgumentError(
+            f"{name('device')}: only {_only('torch_actor')} run on a chosen device, got {args.device!r}"
+        )
+    if backend.torch_actor:
+        torch_device(name("device"), args.device)
+    if args.init_from is not None and not backend.torch_actor:
+        raise ArgumentError(
+            f"{name('init_from')}: only {_only('torch_actor')} start from a policy file, not the {args.backend} backend"
+        )
+    if args.init_from is not None and args.resume:
+        raise ArgumentError(
+            f"{name('init_from')}: --resume goes on from the run's own checkpoint; "
+            "--init-from starts a fresh run (leave one out)"
+        )
+
+
+def _checked_hyperparams(args: TrainArgs, name: Any) -> dict[str, Any]:
+    """The run's entry of the hyperparameter file, its environment and the back end's settings checked."""
+    backend = registry.BACKENDS[args.backend]
+    algo_key = backend.hyperparams_key.format(backend=args.backend, algo=args.algo)
     params = load_hyperparams(args.hyperparams, args.scenario, algo_key, name=name("hyperparams"))
     if args.backend == "rllib":
         batch = params["algo"].get("train_batch_size_per_learner")
@@ -252,15 +269,10 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
         config = make_config(args.scenario, **{k: v for k, v in params["env"].items() if k != "n_envs"})
     except ArgumentError as exc:
         raise type(exc)(f"{name('scenario')} {args.scenario!r} with the env of {args.hyperparams}: {exc}") from exc
-    if args.backend == "torch":
-        from fxc_env.training.torch_ppo import PPOSettings
+    if backend.settings is not None:
+        from fxc_env.training import settings
 
-        PPOSettings.from_mapping(params["algo"], config, name=name("hyperparams"))
-    if args.backend == "diff":
-        from fxc_env.training.diff_train import DiffSettings
-
-        DiffSettings.from_mapping(params["algo"], config, name=name("hyperparams"))
-    output_directory(name("run_dir"), args.run_dir or default_run_dir(args))
+        getattr(settings, backend.settings).from_mapping(params["algo"], config, name=name("hyperparams"))
     return params
 
 
@@ -352,6 +364,7 @@ def args_from_namespace(namespace: argparse.Namespace) -> TrainArgs:
         new = BACKEND_ALIASES[values["backend"]]
         print(f"fxc train: --backend {values['backend']} is deprecated; use --backend {new}", file=sys.stderr)
         values["backend"] = new
-    if values["backend"] in BACKEND_ALGORITHMS and "algo" not in getattr(namespace, "given_flags", set()):
-        values["algo"] = BACKEND_ALGORITHMS[values["backend"]][0]  # --backend diff alone trains its one algorithm
+    backend = registry.BACKENDS.get(values["backend"])
+    if backend and values["algo"] not in backend.algorithms and "algo" not in getattr(namespace, "given_flags", set()):
+        values["algo"] = backend.algorithms[0]  # --backend diff alone trains its one algorithm
     return TrainArgs(**values)

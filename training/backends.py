@@ -10,10 +10,14 @@ gradients through the engine, :mod:`fxc_env.training.diff_train`).
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from pathlib import Path
 
 from fxc_env.core import validation
+from fxc_env.training import registry
 from fxc_env.training.args import BACKENDS, TrainArgs, canonical_backend
+from fxc_env.training.run_dir import RunDir
+from fxc_env.utils.cluster import import_ray
 
 
 def train(args: TrainArgs) -> Path:
@@ -21,23 +25,7 @@ def train(args: TrainArgs) -> Path:
     backend = validation.choice("backend", canonical_backend(args.backend), BACKENDS)  # the back end checks the rest
     args = dataclasses.replace(args, backend=backend)
     if backend == "rllib":
-        from fxc_env.training.run_dir import RunDir
-        from fxc_env.utils.cluster import import_ray
-
         RunDir.of(args).resume_checkpoint(args.resume, args)  # an RLlib checkpoint needs the trust flag, Ray or not
-
         import_ray("--backend rllib")
-        from fxc_env.training.rllib_train import train_rllib
-
-        return train_rllib(args)
-    if backend == "torch":
-        from fxc_env.training.torch_ppo import train_torch
-
-        return train_torch(args)
-    if backend == "diff":
-        from fxc_env.training.diff_train import train_diff
-
-        return train_diff(args)
-    from fxc_env.training.sb3_train import train_sb3
-
-    return train_sb3(args)
+    module, function = registry.BACKENDS[backend].trainer.split(":")
+    return getattr(importlib.import_module(f"fxc_env.training.{module}"), function)(args)

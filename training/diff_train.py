@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -34,16 +33,13 @@ import numpy as np
 import torch
 from torch import nn
 
-from fxc_env.config import EnvConfig, make_config
-from fxc_env.core import validation
-from fxc_env.core.validation import ArgumentError
+from fxc_env.config import make_config
 from fxc_env.policies.torch_memory import interval_graph
-from fxc_env.training.args import TrainArgs, check_train_args
-from fxc_env.training.run_dir import RunDir
-from fxc_env.training.torch_ppo import PPOSettings, Trainer, drive, run_config
+from fxc_env.training.args import TrainArgs
+from fxc_env.training.settings import DiffSettings
+from fxc_env.training.torch_common import drive, prepare, run_config
+from fxc_env.training.torch_ppo import Trainer
 
-#: The losses of :class:`DiffSettings` (see the module docstring).
-LOSSES = ("log_error", "return")
 #: Columns of ``progress.csv``, SB3's names where they mean the same.
 PROGRESS_COLUMNS = (
     "time/iterations",
@@ -61,60 +57,6 @@ PROGRESS_COLUMNS = (
 )
 #: Below this D(t) the log is taken of the floor instead (an exact 0 would give -inf and a NaN gradient).
 TINY = 1e-300
-
-
-@dataclasses.dataclass(frozen=True)
-class DiffSettings:
-    """The ``diff_apg`` entry of the hyperparameter file (every key optional)."""
-
-    n_envs: int = 64
-    """B, the parallel episodes (``--n-envs`` overrides it)."""
-    window: int | None = None
-    """Steps per truncated back-propagation window: K or a divisor of K; None (the default): the whole episode."""
-    loss: str = "log_error"
-    """``log_error`` (mean ln D(T_s)/D(0)) or ``return`` (minus the mean return)."""
-    learning_rate: float = 1.0e-3
-    max_grad_norm: float = 1.0
-    """The gradient's norm is clipped to this before each Adam step."""
-    hidden: tuple[int, ...] = (64, 64)
-    activation: str = "tanh"
-    gru_size: int = 64
-    gru_input: str = "observation"
-    embed_size: int = 64
-    message_rounds: int = 2
-
-    #: The keys the actor shares with the torch back end (checked by :meth:`PPOSettings.from_mapping`).
-    SHARED = ("n_envs", "learning_rate", "max_grad_norm", "hidden", "activation", "gru_size", "gru_input")
-    SHARED += ("embed_size", "message_rounds")
-
-    @classmethod
-    def from_mapping(cls, entry: Mapping[str, Any], config: EnvConfig, *, name: str = "hyperparams") -> DiffSettings:
-        """Checked settings from a hyperparameter entry; raise naming ``name: diff_apg.<key>``."""
-        known = sorted(field.name for field in dataclasses.fields(cls))
-        unknown = sorted(set(entry) - set(known))
-        if unknown:
-            raise ArgumentError(f"{name}: diff_apg has no setting {unknown[0]!r}; expected some of {known}")
-        k_intervals = config.n_intervals
-        window = entry.get("window")
-        if window is not None:
-            validation.integer(f"{name}: diff_apg.window", window, 1, k_intervals)
-            if k_intervals % window:
-                raise ArgumentError(
-                    f"{name}: diff_apg.window: expected K = {k_intervals} or a divisor of it (or null), got {window}"
-                )
-        loss = validation.choice(f"{name}: diff_apg.loss", entry.get("loss", cls.loss), LOSSES)
-        shared = PPOSettings.from_mapping(
-            {key: entry[key] for key in cls.SHARED if key in entry} | {"rollout_steps": window or k_intervals},
-            config,
-            name=name,
-            section="diff_apg",
-        )
-        return cls(window=window, loss=loss, **{key: getattr(shared, key) for key in cls.SHARED})
-
-    def ppo(self, k_intervals: int) -> PPOSettings:
-        """The torch back end's settings that build the same actor (its trainer holds the networks and files)."""
-        shared = {key: getattr(self, key) for key in self.SHARED}
-        return PPOSettings(rollout_steps=self.window or k_intervals, **shared)
 
 
 def cut_graph(engine: Any) -> None:
@@ -210,14 +152,8 @@ class DiffTrainer(Trainer):
 
 def train_diff(args: TrainArgs) -> Path:
     """Run (or resume) analytic policy gradients on the engine on ``args.device``; returns the run directory."""
-    args = dataclasses.replace(args, backend="diff")
-    params = check_train_args(args)  # every argument, before any work
-    settings = DiffSettings.from_mapping(params["algo"], make_config(**run_config(args, params)))
-    torch.set_num_threads(args.torch_threads)
-    device = torch.device(args.device)
-    run = RunDir.of(args)
-    checkpoint = run.resume_checkpoint(args.resume, args)
-    trainer = DiffTrainer(args, params, settings, device)
+    args, params, run, checkpoint, trainer = prepare(args, "diff", DiffSettings, DiffTrainer)
+    settings, device = trainer.diff, trainer.device
     per_batch = trainer.k_intervals * trainer.n_envs * trainer.n_agents
     record = {"diff_apg": dataclasses.asdict(settings), "timesteps_per_batch": per_batch}
     banner = (

@@ -13,7 +13,7 @@ import sys
 from dataclasses import replace
 from typing import Any
 
-from fxc_env.baselines.benchmark import run_benchmark
+from fxc_env.baselines.benchmark import add_policy_file_flags, make_out, refuse_unrun_policy, run_benchmark
 from fxc_env.baselines.suite import (
     BenchmarkCase,
     Suite,
@@ -123,18 +123,7 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
         default=DEFAULT_BOOTSTRAP_SEED,
         help=f"with --runs: seed of the bootstrap's generator ({DEFAULT_BOOTSTRAP_SEED}; fixed, so reruns agree)",
     )
-    parser.add_argument(
-        "--trust-policy-file",
-        action="store_true",
-        help="allow saved policies whose format must unpickle (RLlib checkpoints, SB3 zips without fxc_policy.json, "
-        "VecNormalize .pkl): unpickling runs code from the file, so only for files you made or trust",
-    )
-    parser.add_argument(
-        "--allow-out-of-domain",
-        action="store_true",
-        help="run learned policies on cases outside the training domain their files record (graphs, N, switching, "
-        "schedule, K, ...), with a warning naming every difference; without it such cases are reported as not run",
-    )
+    add_policy_file_flags(parser)
     parser.add_argument("--suite", choices=SUITES, help="a named suite (default 'evaluate' without environment flags)")
     parser.add_argument(
         "--task",
@@ -156,15 +145,10 @@ def custom_case(env_kwargs: dict[str, Any]) -> tuple[BenchmarkCase, float]:
     config = make_config(**env_kwargs)
     given = {k: v for k, v in env_kwargs.items() if k not in ENV_FIELDS_OF_CONTENDERS and k != "scenario"}
     conditions = []
-    for name in ("dim", "u_max", "obs_noise", "link_dropout", "switching", "position_range", "velocity_range"):
+    for name in ("u_max", "obs_noise", "link_dropout", "switching", "position_range", "velocity_range"):
         if name in given or (name == "u_max" and config.u_max_choices is not None):
-            value = {
-                "u_max": config.u_max_choices,
-                "position_range": config.position_range,
-                "velocity_range": config.velocity_range,
-            }.get(name, getattr(config, name))
-            if name != "dim":
-                conditions.append((name, value[0] if isinstance(value, tuple) and len(set(value)) == 1 else value))
+            value = config.u_max_choices if name == "u_max" else getattr(config, name)
+            conditions.append((name, value[0] if isinstance(value, tuple) and len(set(value)) == 1 else value))
     if config.formation is not None:
         raise ArgumentError(
             "--scenario: fxc evaluate scores consensus cases; formation offsets (formation scenarios) are not "
@@ -185,6 +169,48 @@ ENV_FIELDS_OF_CONTENDERS = ("n_intervals", "schedule", "action_mode", "obs_mode"
 
 def evaluate_command(args: argparse.Namespace) -> int:
     """Handler of ``fxc evaluate``: every value is checked (and the policy loaded) before the suite runs."""
+    task = _checked_task(args)
+    seeds = integer("--seeds", 20 if args.seeds is None else args.seeds, 1)
+    budgets = parse_budgets("--budgets", "200" if args.budgets is None else args.budgets)
+    if args.workers is not None:
+        integer("--workers", args.workers, 1)
+    out = output_directory("--out", args.out)
+    suite, learned = _evaluation_suite(args, task, seeds, budgets)
+    contenders = builtin_contenders(None if args.baselines else ["reference"])
+    runs: list[Any] = []
+    if args.runs is not None:
+        from fxc_env.training import seed_evaluation
+
+        runs = [seed_evaluation.resolve_run(entry) for entry in seed_evaluation.expand_runs(args.runs)]
+        label = args.label or seed_evaluation.default_label(runs)
+        own = seed_evaluation.seed_contenders(
+            runs, label, trusted=args.trust_policy_file, allow_out_of_domain=args.allow_out_of_domain, **learned
+        )
+        contenders += own
+    elif args.policy != "reference":
+        trust = {"trusted": args.trust_policy_file, "allow_out_of_domain": args.allow_out_of_domain}
+        contenders.append(learned_contender(args.policy, name="--policy", **trust, **learned))
+    command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["evaluate"] else None
+    make_out(out)
+    output = run_benchmark(suite, contenders, out, workers=args.workers, progress=not args.no_progress, command=command)
+    print(output.markdown)
+    files = list(output.files)
+    if runs:
+        scores = seed_evaluation.case_scores(output.results, suite, own, runs)
+        table, written = seed_evaluation.write_seed_report(
+            out, scores, runs, label, reps=args.bootstrap_reps, seed=args.bootstrap_seed, command=command
+        )
+        print(f"\n{label} over training seeds {', '.join(str(r.seed) for r in runs)} (95% stratified bootstrap):\n")
+        print(table)
+        files += written
+    print("wrote " + ", ".join(str(f) for f in files))
+    for contender in own if runs else contenders[-1:] if args.policy != "reference" else ():
+        refuse_unrun_policy("--runs" if runs else "--policy", contender.name, output.results)
+    return 0
+
+
+def _checked_task(args: argparse.Namespace) -> NamedTask | None:
+    """``--policy`` or ``--runs`` with the flags only ``--runs`` reads, the bootstrap's; the ``--task`` named."""
     if (args.policy is None) == (args.runs is None):
         raise ArgumentError("--policy: give one policy (--policy) or the training seeds of one (--runs)")
     if args.runs is None:
@@ -198,19 +224,17 @@ def evaluate_command(args: argparse.Namespace) -> int:
     integer("--bootstrap-reps", args.bootstrap_reps, 1)
     optional_seed("--bootstrap-seed", args.bootstrap_seed)
     task = None if args.task is None else get_task(args.task, "--task")
-    if task is not None:
-        for flag in TASK_FIXES:
-            if getattr(args, flag[2:]) is not None:
-                raise ArgumentError(
-                    f"{flag}: --task {task.id} fixes its settings, K and evaluation seeds; leave it out"
-                )
-    seeds = integer("--seeds", 20 if args.seeds is None else args.seeds, 1)
-    budgets = parse_budgets("--budgets", "200" if args.budgets is None else args.budgets)
-    if args.workers is not None:
-        integer("--workers", args.workers, 1)
-    out = output_directory("--out", args.out)
-    env_kwargs = env_kwargs_from(args)
-    custom = {k: v for k, v in env_kwargs.items() if v is not None}
+    for flag in TASK_FIXES if task is not None else ():
+        if getattr(args, flag[2:]) is not None:
+            raise ArgumentError(f"{flag}: --task {task.id} fixes its settings, K and evaluation seeds; leave it out")
+    return task
+
+
+def _evaluation_suite(
+    args: argparse.Namespace, task: NamedTask | None, seeds: int, budgets: tuple[int, ...]
+) -> tuple[Suite, dict[str, Any]]:
+    """The suite the flags ask for, and the learned policy's own settings (schedule, modes) among them."""
+    custom = {k: v for k, v in env_kwargs_from(args).items() if v is not None}
     if custom and args.suite is not None:
         raise ArgumentError("--suite: give a named suite or environment flags, not both")
     if custom and task is not None:
@@ -229,77 +253,14 @@ def evaluate_command(args: argparse.Namespace) -> int:
     if "n_intervals" in custom:
         raise ArgumentError("--n-intervals: the budgets K come from --budgets")
     if task is not None:
-        suite, learned = task_suite(task)
-    elif custom:
+        return task_suite(task)
+    if custom:
         case, settling_time = custom_case(custom)
-        suite = replace(
-            evaluation_suite(seeds, budgets),
-            cases=(case,),
-            trace_case=case,
-            settling_time=settling_time,
-            name="custom",
-        )
-    elif args.suite == "generalisation":
-        suite = generalisation_suite(seeds, budgets)
-    elif args.suite == "realism":
-        suite = replace(realism_suite(seeds), budgets=budgets, headline_budget=200 if 200 in budgets else max(budgets))
-    else:
-        suite = evaluation_suite(seeds, budgets)
-    contenders = builtin_contenders(None if args.baselines else ["reference"])
-    runs: list[Any] = []
-    if args.runs is not None:
-        from fxc_env.training import seed_evaluation
-
-        runs = [seed_evaluation.resolve_run(entry) for entry in seed_evaluation.expand_runs(args.runs)]
-        label = args.label or seed_evaluation.default_label(runs)
-        own = seed_evaluation.seed_contenders(
-            runs, label, trusted=args.trust_policy_file, allow_out_of_domain=args.allow_out_of_domain, **learned
-        )
-        contenders += own
-    elif args.policy != "reference":
-        contenders.append(
-            learned_contender(
-                args.policy,
-                name="--policy",
-                trusted=args.trust_policy_file,
-                allow_out_of_domain=args.allow_out_of_domain,
-                **learned,
-            )
-        )
-    command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["evaluate"] else None
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:  # a read-only file system, which os.access does not see for root
-        raise ArgumentError(f"--out: cannot create {str(out)!r} ({exc.strerror or exc})") from exc
-    output = run_benchmark(
-        suite,
-        contenders,
-        out,
-        workers=args.workers,
-        progress=not args.no_progress,
-        command=command,
-    )
-    print(output.markdown)
-    files = list(output.files)
-    if runs:
-        scores = seed_evaluation.case_scores(output.results, suite, own, runs)
-        table, written = seed_evaluation.write_seed_report(
-            out, scores, runs, label, reps=args.bootstrap_reps, seed=args.bootstrap_seed, command=command
-        )
-        print(f"\n{label} over training seeds {', '.join(str(r.seed) for r in runs)} (95% stratified bootstrap):\n")
-        print(table)
-        files += written
-    print("wrote " + ", ".join(str(f) for f in files))
-    if runs:
-        for contender in own:
-            refuse_unrun_policy("--runs", contender.name, output.results)
-    elif args.policy != "reference":
-        refuse_unrun_policy("--policy", contenders[-1].name, output.results)
-    return 0
-
-
-def refuse_unrun_policy(flag: str, contender: str, results: list[Any]) -> None:
-    """Refuse (naming ``flag`` and the first reason) a learned ``contender`` that every case of the suite refused."""
-    own = [result for result in results if result.job.contender.name == contender]
-    if own and all(result.error is not None for result in own):
-        raise ArgumentError(f"{flag}: {contender} could not run on any case of the suite ({own[0].error})")
+        named = replace(evaluation_suite(seeds, budgets), cases=(case,), trace_case=case, name="custom")
+        return replace(named, settling_time=settling_time), learned
+    if args.suite == "generalisation":
+        return generalisation_suite(seeds, budgets), learned
+    if args.suite == "realism":
+        headline = 200 if 200 in budgets else max(budgets)
+        return replace(realism_suite(seeds), budgets=budgets, headline_budget=headline), learned
+    return evaluation_suite(seeds, budgets), learned

@@ -23,6 +23,11 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
+from fxc_env.config import config_of
+from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.reference import ReferencePolicy
+
 #: Defaults of the ``imitation`` entry of the hyperparameter file.
 DEFAULTS = {
     "teacher": "reference",  # the paper's controller, or "saturation_aware" (fxc_env.baselines)
@@ -38,10 +43,6 @@ DEFAULTS = {
 
 def teacher_policy(name: str, config: Any) -> Any:
     """The policy to copy, in the run's own units (plan actions, normalized observations)."""
-    from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
-    from fxc_env.core.validation import ArgumentError
-    from fxc_env.policies.reference import ReferencePolicy
-
     teachers = {"reference": ReferencePolicy, "saturation_aware": SaturationAwarePolicy}
     if name not in teachers:
         raise ArgumentError(f"hyperparams: imitation teacher {name!r}; expected one of {tuple(teachers)}")
@@ -73,8 +74,6 @@ def demonstrations(
     ``noise`` (normalized units, drawn from ``rng``), so that states off the teacher's path
     are covered; the labels are the clean actions.
     """
-    from fxc_env.config import config_of
-
     config = config_of(venv, "imitation")
     n_envs, episode = venv.num_envs, config.n_intervals
     steps = math.ceil(int(samples) / (n_envs * episode)) * episode  # whole episodes
@@ -107,13 +106,9 @@ def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int
     """
     import torch
 
-    from fxc_env.config import config_of
-
     options = {**DEFAULTS, **settings}
     unknown = set(options) - set(DEFAULTS)
     if unknown:
-        from fxc_env.core.validation import ArgumentError
-
         raise ArgumentError(f"hyperparams: unknown imitation key(s) {sorted(unknown)}; expected {sorted(DEFAULTS)}")
     config = config_of(venv, "imitation")
     reference = teacher_policy(str(options["teacher"]), config)

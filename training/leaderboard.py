@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.baselines import registry
 from fxc_env.baselines.benchmark import run_benchmark
 from fxc_env.baselines.suite import builtin_contenders, learned_contender
 from fxc_env.config import make_config
@@ -51,7 +52,7 @@ ALGORITHMS = {
     "mappo_gnn": ("MappoConfig", "gnn"),
 }
 #: The analytic laws beside them (fxc_env.baselines).
-LAWS = ("reference", "minimum_time", "leader_follower", "graph_agnostic", "signalling")
+LAWS = tuple(name for name, law in registry.LAWS.items() if law.leaderboard)
 #: Every shipped learned policy (``pretrained`` is the generalist under another name).
 SHIPPED_POLICIES = tuple(name for name in SHIPPED if name != "pretrained")
 

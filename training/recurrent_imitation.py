@@ -216,8 +216,7 @@ def train(
     optimiser = torch.optim.Adam(actor.parameters(), lr=lr)
     generator = torch.Generator().manual_seed(seed)
     bound = float(TASK["action_bound"])
-    data_obs: list[torch.Tensor] = []
-    data_targets: list[torch.Tensor] = []
+    data_obs, data_targets = [], []  # every round's demonstrations, sequences along dim 1
     record: dict[str, Any] = {"sizes": list(sizes), "rounds": rounds, "episodes": episodes, "steps": steps}
     began = time.perf_counter()
     next_seed = DEMONSTRATION_SEED + 1000 * seed
@@ -237,21 +236,34 @@ def train(
             group["lr"] = lr * (0.5**r)
         losses = fit(actor, optimiser, observations, targets, steps, batch, generator)
         polished = polish(actor, observations, targets) if gru_input == "schedule" else None
-        who = "teacher" if r == 0 else "student"
+        who, last_mse = ("teacher" if r == 0 else "student"), float(np.mean(losses[-20:]))
         log(
             f"round {r}: {who} played {len(sizes) * episodes} episodes (median D(T_s)/D(0) per size "
             f"{', '.join(f'{e:.3g}' for e in errors)}); {observations.shape[1]} sequences; "
-            f"MSE {losses[0]:.3g} -> {np.mean(losses[-20:]):.3g}"
+            f"MSE {losses[0]:.3g} -> {last_mse:.3g}"
             + ("" if polished is None else f", last layer by least squares: RMS {polished:.3g}")
             + f" ({time.perf_counter() - began:.0f} s)"
         )
-        record[f"round_{r}"] = {
-            "player": who,
-            "median_deadline_error": errors,
-            "last_mse": float(np.mean(losses[-20:])),
-        }
+        record[f"round_{r}"] = {"player": who, "median_deadline_error": errors, "last_mse": last_mse}
     record["wall_s"] = round(time.perf_counter() - began, 1)
-    policy = {
+    policy = _policy_record(actor, configs, sizes, hidden, gru_size, gru_input, bound)
+    policy["imitation"] = json.dumps(record)
+    return policy, record
+
+
+def _policy_record(
+    actor: Any,
+    configs: list,
+    sizes: Sequence[int],
+    hidden: tuple[int, ...],
+    gru_size: int,
+    gru_input: str,
+    bound: float,
+) -> dict[str, Any]:
+    """The trained ``actor``'s policy record, as ``fxc train --backend torch`` writes one for a ``gru``."""
+    layout = configs[0].layout
+    clock_index = layout.clock_end - 1
+    return {
         "format": POLICY_FORMAT,
         "arch": "gru",
         "obs_size": layout.size,
@@ -268,9 +280,7 @@ def train(
         "env": env_record(int(sizes[0])),
         "domain": training_domain(*configs),
         "timesteps": 0,
-        "imitation": json.dumps(record),
     }
-    return policy, record
 
 
 # ---------------------------------------------------------------------------------- evaluation
@@ -287,7 +297,7 @@ def evaluate(policy: TorchPolicy, n_agents: int = 20, seeds: Sequence[int] = ran
     return rings.comparison(n_agents, ours, reference)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m fxc_env.training.recurrent_imitation", description=__doc__.splitlines()[0]
     )
@@ -310,7 +320,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--evaluate", default=None, help="only measure the policy saved at this path")
     parser.add_argument("--n-agents", default="20", help="comma-separated ring sizes to measure on")
     parser.add_argument("--seeds", type=int, default=20, help="evaluation episodes (seeds 0 ..)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
     for flag in ("rounds", "episodes", "steps", "batch", "gru_size", "seeds", "torch_threads"):
         integer("--" + flag.replace("_", "-"), getattr(args, flag), 0 if flag == "rounds" else 1)
     torch.set_num_threads(args.torch_threads)
@@ -322,17 +336,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.evaluate is not None:
         policy = load_torch_policy(args.evaluate)
     else:
-        record_policy, _ = train(
-            sizes,
-            args.rounds,
-            args.episodes,
-            args.steps,
-            args.batch,
-            args.lr,
-            args.gru_size,
-            seed=args.seed,
-            gru_input=args.gru_input,
-        )
+        settings = ("rounds", "episodes", "steps", "batch", "lr", "gru_size", "seed", "gru_input")
+        record_policy, _ = train(sizes, **{name: getattr(args, name) for name in settings})
         info = json.loads(record_policy["imitation"])
         info["command"] = "python -m fxc_env.training.recurrent_imitation " + " ".join(sys.argv[1:])
         record_policy["imitation"] = json.dumps(info)
@@ -344,11 +349,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         policy = TorchPolicy(record_policy)
     for n in measure:
         result = evaluate(policy, n, range(args.seeds))
-        print(
-            f"gru rings N = {n}, K = 200, T_s = 20, {result['seeds']} seeds: median D(T_s)/D(0) "
-            f"{result['median']:.3g} (max {result['max']:.3g}), reference {result['reference_median']:.3g}, "
-            f"{result['ratio']:.3g}x below the reference"
-        )
+        print(rings.comparison_line("gru rings", result))
     return 0
 
 

@@ -260,6 +260,15 @@ def comparison(n_agents: int, ours: np.ndarray, reference: np.ndarray) -> dict[s
     }
 
 
+def comparison_line(label: str, result: dict[str, float]) -> str:
+    """One line of :func:`comparison`: the policy's median (and max) beside the reference's, and their ratio."""
+    return (
+        f"{label} N = {result['n_agents']}, K = 200, T_s = 20, {result['seeds']} seeds: median D(T_s)/D(0) "
+        f"{result['median']:.3g} (max {result['max']:.3g}), reference {result['reference_median']:.3g}, "
+        f"{result['ratio']:.3g}x below the reference"
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fxc_env.training.rings", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=None, help="where to save the policy (.npz)")
@@ -288,11 +297,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.out:
             print("wrote", policy.save(args.out))
     result = evaluate(policy, args.n_agents, range(EVALUATION_SEED, EVALUATION_SEED + args.seeds))
-    print(
-        f"rings N = {result['n_agents']}, K = 200, T_s = 20, {result['seeds']} seeds: median D(T_s)/D(0) "
-        f"{result['median']:.3g} (max {result['max']:.3g}), reference {result['reference_median']:.3g}, "
-        f"{result['ratio']:.3g}x below the reference"
-    )
+    print(comparison_line("rings", result))
     return 0
 
 

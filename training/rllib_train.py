@@ -29,8 +29,8 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 import fxc_env
 from fxc_env.policies.learned import RLLIB_MODULE
-from fxc_env.training.args import TrainArgs, check_train_args
-from fxc_env.training.run_dir import RunDir
+from fxc_env.training.args import TrainArgs
+from fxc_env.training.run_dir import RunDir, begin_run
 from fxc_env.utils.cluster import ray_session
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves both).
@@ -103,34 +103,21 @@ def save(algo: Any, run: RunDir, timesteps: int) -> Path:
 
 def train_rllib(args: TrainArgs) -> Path:
     """Run (or resume) RLlib PPO training; returns the run directory."""
-    import torch
-
-    args = dataclasses.replace(args, backend="rllib")
-    params = check_train_args(args)  # every argument, before any work
-    torch.set_num_threads(args.torch_threads)
-    run = RunDir.of(args)
+    args, params, run, checkpoint = begin_run(args, "rllib")
     n_agents = fxc_env.make_config(**env_config(args, params)).n_agents
     per_iteration = int(params["algo"]["train_batch_size_per_learner"]) * n_agents
     iterations = math.ceil(args.timesteps / per_iteration)
     save_every = max(1, math.ceil(args.checkpoint_every / per_iteration))
-    checkpoint = run.resume_checkpoint(args.resume, args)
 
     with ray_session("--backend rllib", args.address) as ray:
-        # ------------------------------------------------------------------ set-up
         algo = algorithm_config(args, params).build_algo()
         if checkpoint is not None:
             algo.restore_from_path(str(checkpoint.resolve()))
             run.announce_resume(checkpoint, f"iteration {algo.iteration}")
         else:
-            run.start(
-                {
-                    "args": dataclasses.asdict(args),
-                    "hyperparams": params,
-                    "n_agents": n_agents,
-                    "timesteps_per_iteration": per_iteration,
-                    "ray_cluster_cpus": ray.cluster_resources().get("CPU"),
-                }
-            )
+            record = {"args": dataclasses.asdict(args), "hyperparams": params, "n_agents": n_agents}
+            cpus = ray.cluster_resources().get("CPU")
+            run.start({**record, "timesteps_per_iteration": per_iteration, "ray_cluster_cpus": cpus})
         print(
             f"fxc train: RLlib PPO on {args.scenario} (N = {n_agents}, one shared module), "
             f"{args.num_env_runners} env runner(s) x {args.envs_per_runner} env(s), "
@@ -138,7 +125,6 @@ def train_rllib(args: TrainArgs) -> Path:
             f"{iterations} iteration(s) of {per_iteration} timesteps"
         )
 
-        # ------------------------------------------------------------------- loop
         resumed_at = (algo.iteration, algo.iteration * per_iteration) if checkpoint is not None else None
         try:
             with (

@@ -41,6 +41,7 @@ an algorithm by unpickling). With the flag, sb3 resumes with SB3's own loaders a
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import platform
 import re
@@ -52,19 +53,15 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from fxc_env.core.validation import ArgumentError
-from fxc_env.training.args import TrainArgs, canonical_backend, default_run_dir
+from fxc_env.training import registry
+from fxc_env.training.args import TrainArgs, canonical_backend, check_train_args, default_run_dir
 
 #: Checkpoint names by back end (``{}``: the timesteps it was saved at). SB3's sits beside its
 #: VecNormalize statistics (``model_vecnormalize_<steps>_steps.pkl``); RLlib's is a directory.
-CHECKPOINT_NAMES = {
-    "sb3": "model_{}_steps.zip",
-    "torch": "model_{}_steps.pt",
-    "diff": "model_{}_steps.pt",
-    "rllib": "rllib_{}_steps",
-}
-#: A checkpoint directory is whole once this file is in it (RLlib writes it last).
-_COMPLETE = {"rllib": "rllib_checkpoint.json"}
+CHECKPOINT_NAMES = {name: backend.checkpoint for name, backend in registry.BACKENDS.items()}
 #: The end of every refusal to read a run directory's file that only unpickling would read.
 TRAIN_TRUST_HINT = (
     "nothing in it was run; pass --trust-policy-file (TrainArgs.trust_policy_file) only if you trust whoever "
@@ -81,6 +78,18 @@ def versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             found[name] = "not installed"
     return found
+
+
+def begin_run(args: TrainArgs, backend: str) -> tuple[TrainArgs, dict[str, Any], RunDir, Path | None]:
+    """A back end's first steps: every argument checked before any work, torch's threads set, the run directory
+    and the checkpoint a resumed run goes on from (:meth:`RunDir.resume_checkpoint`)."""
+    import torch
+
+    args = dataclasses.replace(args, backend=backend)
+    params = check_train_args(args)
+    torch.set_num_threads(args.torch_threads)
+    run = RunDir.of(args)
+    return args, params, run, run.resume_checkpoint(args.resume, args)
 
 
 class RunDir:
@@ -111,7 +120,7 @@ class RunDir:
 
     def newest_checkpoint(self) -> Path | None:
         """The whole checkpoint with the most timesteps (None if there is none)."""
-        marker = _COMPLETE.get(self.backend)
+        marker = registry.BACKENDS[self.backend].complete  # a checkpoint directory is whole once it holds this
         found = [
             (steps, path)
             for path in self.checkpoints.glob(self.checkpoint_name.format("*"))
@@ -336,8 +345,7 @@ def deferred_interrupt(unit: str) -> Iterator[list[bool]]:
 
 def write_training_curve(run_dir: Path) -> Path | None:
     """Plot ``rollout/ep_rew_mean`` against ``time/total_timesteps`` from ``progress.csv`` into ``training_curve.png``."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from fxc_env.analysis.plots import new_figure, save_figure
 
     progress = run_dir / "progress.csv"
     if not progress.exists():
@@ -350,14 +358,11 @@ def write_training_curve(run_dir: Path) -> Path | None:
                 returns.append(float(row["rollout/ep_rew_mean"]))
     if not steps:
         return None
-    fig = Figure(figsize=(6.5, 3.8), dpi=120)
-    FigureCanvasAgg(fig)
+    fig = new_figure(6.5, 3.8)
     ax = fig.subplots()
     ax.plot(steps, returns, lw=0.8, color="#9ecae1", label="per rollout")
     window = 10
     if len(returns) >= window:
-        import numpy as np
-
         smooth = np.convolve(returns, np.ones(window) / window, mode="valid")
         ax.plot(steps[window - 1 :], smooth, lw=1.6, color="#08519c", label=f"mean of {window} rollouts")
         ax.legend(fontsize=8, loc="lower right")
@@ -365,7 +370,4 @@ def write_training_curve(run_dir: Path) -> Path | None:
     ax.set_ylabel("mean episode return = ln D(0)/D(T_s)")
     ax.set_title(f"training curve: {run_dir.name}", fontsize=9)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    path = run_dir / "training_curve.png"
-    fig.savefig(path)
-    return path
+    return save_figure(fig, run_dir / "training_curve.png")

@@ -33,12 +33,10 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.policy_files import TRUST_HINT, read_sb3_zip, save_model
-from fxc_env.training.args import TrainArgs, check_train_args
+from fxc_env.training.args import TrainArgs
 from fxc_env.training.imitation import imitate_reference
-from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir
+from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
 
-#: ``policy_kwargs.activation_fn`` as written in the hyperparameter file.
-ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu")
 #: The format of the plain-JSON VecNormalize record beside each checkpoint, and its float settings.
 VECNORMALIZE_FORMAT = "fxc_env.vecnormalize/1"
 VECNORMALIZE_FLOATS = ("clip_obs", "clip_reward", "gamma", "epsilon")
@@ -63,15 +61,14 @@ def build_env(args: TrainArgs, params: dict[str, Any]):
 
 def with_activation_class(policy_kwargs: dict[str, Any]) -> dict[str, Any]:
     """``policy_kwargs`` with ``activation_fn`` given by name (``relu``) turned into torch's class."""
-    import torch
+    from fxc_env.policies.networks import SB3_ACTIVATIONS
 
     name = policy_kwargs.get("activation_fn")
     if name is None or not isinstance(name, str):
         return dict(policy_kwargs)
-    classes = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU, "elu": torch.nn.ELU, "leaky_relu": torch.nn.LeakyReLU}
-    if name not in classes:
-        raise ArgumentError(f"hyperparams: activation_fn {name!r}; expected one of {ACTIVATIONS}")
-    return {**policy_kwargs, "activation_fn": classes[name]}
+    if name not in SB3_ACTIVATIONS:
+        raise ArgumentError(f"hyperparams: activation_fn {name!r}; expected one of {tuple(SB3_ACTIVATIONS)}")
+    return {**policy_kwargs, "activation_fn": SB3_ACTIVATIONS[name]}
 
 
 def policy_class(name: str) -> Any:
@@ -277,14 +274,9 @@ class RolloutCheckpoint(BaseCallback):
 # ------------------------------------------------------------------------------------- training
 def train_sb3(args: TrainArgs) -> Path:
     """Run (or resume) training with stable-baselines3; returns the run directory."""
-    import torch
     from stable_baselines3 import PPO, SAC
 
-    args = dataclasses.replace(args, backend="sb3")
-    params = check_train_args(args)  # every argument, before any work
-    torch.set_num_threads(args.torch_threads)
-    run = RunDir.of(args)
-    checkpoint = run.resume_checkpoint(args.resume, args)
+    args, params, run, checkpoint = begin_run(args, "sb3")
 
     # ------------------------------------------------------------------ set-up
     venv = build_env(args, params)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from fxc_env.core.validation import ArgumentError
 from fxc_env.training.args import TrainArgs, check_train_args, default_run_dir
+from fxc_env.training.run_dir import RunDir
 
 #: Most seeds one ``--seeds`` may name (each is a whole training run).
 MAX_SEEDS = 1000
@@ -81,8 +82,6 @@ def plan_seed_runs(args: TrainArgs, *, flags: bool = True) -> list[SeedRun]:
     Raises :class:`~fxc_env.core.validation.ArgumentError` naming the flag (with ``flags``) or
     field for a bad ``--seeds`` or any seed's bad arguments, run directory or resume checks.
     """
-    from fxc_env.training.run_dir import RunDir
-
     name = "--seeds" if flags else "seeds"
     seeds = parse_seeds(args.seeds, name)
     planned = []

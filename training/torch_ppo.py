@@ -19,50 +19,24 @@ tensors:
 
 Timesteps count agent-steps (B * N per environment step), as for the SB3 back end; a run
 stops at the first whole rollout past ``--timesteps``. The run directory is
-:mod:`fxc_env.training.run_dir`'s (config.json, versions.json, TensorBoard events,
-training_curve.png), with:
+:mod:`fxc_env.training.run_dir`'s, ``progress.csv`` one row per rollout (:data:`PROGRESS_COLUMNS`:
+SB3's names, plus ``rollout/deadline_error``, the median D(T_s)/D(0) of the episodes that ended in
+it); checkpoints, ``policy.pt``, ``--resume`` and Ctrl-C are :mod:`fxc_env.training.torch_common`'s
+(``--resume`` starts fresh episodes from the checkpoint's step count, optimiser and generators).
 
-    runs/<name>/progress.csv                       one row per rollout (:data:`PROGRESS_COLUMNS`: SB3's
-                                                   names, plus ``rollout/deadline_error``: the median
-                                                   D(T_s)/D(0) of the episodes that ended in the rollout)
-    runs/<name>/checkpoints/model_<steps>_steps.pt networks, Adam's state, step counts and RNG states
-    runs/<name>/policy.pt                          the final policy (:func:`load_torch_policy`)
-
-Checkpoints are written after an update (every ``--checkpoint-every`` timesteps, at the end,
-and on Ctrl-C, which finishes the rollout under way first); ``--resume`` goes on from the
-newest with its step count, optimiser state and random generators, starting fresh episodes.
-
-**The policy file** (``policy.pt``, read by :func:`load_torch_policy`) is a ``torch.save``
-of a plain dictionary (it loads with ``weights_only=True``): ``format``
-(:data:`POLICY_FORMAT`), ``obs_size``, ``action_size``, ``action_bound``, ``hidden`` (the
-widths), ``activation``, ``actor`` (the state dict of the mean network, an ``nn.Sequential``
-of ``Linear`` and activation layers), ``log_std`` (the exploration noise, unused by the
-deterministic policy), ``env`` (``scenario`` and the environment keywords it was trained on)
-and ``timesteps``; ``arch`` (``mlp``; absent in older files) with, for ``gru``, ``gru_size`` and
-``clock_index``, ``gru_input``, ``rows_end`` and, for ``gnn``, ``embed_size`` and ``rounds``. Every checkpoint holds the same
-dictionary under ``"policy"``.
-
-**Memory and messages** (``--policy-arch``, :mod:`fxc_env.policies.torch_memory`; ``mlp`` is the
-default and trains bit for bit as before). ``gru``: a GRU over each agent's own observations with a
-gain head; its memory ``[B, N, gru_size]`` is carried across the steps (and rollouts) of an episode
-and zeroed where the observation's clock reads ``k = 0`` (every episode start, partial resets
-included). The rollout stores the memory at its start; the update reruns the GRU from it over the
-T steps of whole agent sequences (``minibatch_size // T`` sequences a minibatch), so the log
-probabilities are exact for the current weights and the gradient runs through the rollout
-(truncated at rollout boundaries) at the cost of one extra forward pass, where storing every
-step's memory would freeze the memories at the old weights. ``gnn``: messages along the interval
-graph (:mod:`fxc_env.engine.graph_tensors`'s ``edge_index``/``edge_mask``, stored per step);
-minibatches are whole (step, episode) graphs. That is a communication model beyond the paper's (its
-agents sample only their in-neighbours' states). The critic is an MLP in every case.
+**Memory and messages** (``--policy-arch``, the actors of :mod:`fxc_env.policies.torch_memory`; ``mlp``
+trains bit for bit as before). ``gru``: the rollout stores the memory at its start; the update reruns
+the GRU from it over the T steps of whole agent sequences (``minibatch_size // T`` sequences a
+minibatch), so the log probabilities are exact for the current weights and the gradient runs through
+the rollout (truncated at its boundaries). ``gnn``: the interval graphs are stored per step and
+minibatches are whole (step, episode) graphs. The critic is an MLP in every case.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
-import pickle
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -70,16 +44,22 @@ import numpy as np
 import torch
 from torch import nn
 
-from fxc_env.config import EnvConfig, make_config
-from fxc_env.core import validation
-from fxc_env.core.validation import ArgumentError
+from fxc_env.config import make_config
 from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.graph_tensors import edge_capacity
-from fxc_env.policies.domain import training_domain
-from fxc_env.policies.torch_memory import GRU_INPUTS, MessagePassingActor, RecurrentActor, interval_graph
-from fxc_env.policies.torch_policy import ACTIVATIONS, CHECKPOINT_FORMAT, POLICY_FORMAT, mlp, one_line
-from fxc_env.training.args import TrainArgs, check_train_args
-from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir
+from fxc_env.policies.torch_memory import interval_graph
+from fxc_env.training.args import TrainArgs
+from fxc_env.training.settings import PPOSettings
+from fxc_env.training.torch_common import (  # noqa: F401
+    ActorCritic,
+    TrainerFiles,
+    adam,
+    drive,
+    init_actor,
+    latest_torch_checkpoint,
+    prepare,
+    run_config,
+)
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves all).
 PROGRESS_COLUMNS = (
@@ -102,229 +82,10 @@ PROGRESS_COLUMNS = (
     "train/learning_rate",
     "train/n_updates",
 )
-LOG_2PI = math.log(2.0 * math.pi)
-
-
-# ---------------------------------------------------------------------------------- settings
-@dataclasses.dataclass(frozen=True)
-class PPOSettings:
-    """The ``torch_ppo`` entry of the hyperparameter file (every key optional)."""
-
-    n_envs: int = 256
-    """B, the parallel episodes (``--n-envs`` overrides it)."""
-    rollout_steps: int = 200
-    """T, environment steps per rollout: K or a divisor of K."""
-    learning_rate: float = 3.0e-4
-    epochs: int = 4
-    """Passes over a rollout's agent-steps per update."""
-    minibatch_size: int = 8192
-    """Agent-steps per gradient step."""
-    gamma: float = 1.0
-    """1: the per-step rewards telescope to the episode's log reduction ln D(0)/D(T_s)."""
-    gae_lambda: float = 0.95
-    clip_range: float = 0.2
-    ent_coef: float = 0.0
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
-    hidden: tuple[int, ...] = (64, 64)
-    """Widths of the hidden layers of the policy's mean and of the critic (separate networks)."""
-    activation: str = "tanh"
-    log_std_init: float = -2.0
-    """Initial log standard deviation of the exploration noise (state independent, learned)."""
-    actor_out_gain: float = 0.01
-    """Orthogonal gain of the ``mlp`` actor's output layer; 0 starts it at exactly zero (with
-    ``action_mode: residual`` the untrained policy is then the reference; README, "PPO from scratch")."""
-    normalize_advantage: bool = True
-    gru_size: int = 64
-    """``--policy-arch gru``: the width of the GRU's hidden state."""
-    gru_input: str = "observation"
-    """``--policy-arch gru``: what the GRU reads, ``observation`` or ``schedule`` (:class:`RecurrentActor`)."""
-    embed_size: int = 64
-    """``--policy-arch gnn``: the width of each agent's embedding."""
-    message_rounds: int = 2
-    """``--policy-arch gnn``: rounds of messages (each reaches one hop further upstream)."""
-
-    @classmethod
-    def from_mapping(
-        cls, entry: Mapping[str, Any], config: EnvConfig, *, name: str = "hyperparams", section: str = "torch_ppo"
-    ) -> PPOSettings:
-        """Checked settings from a hyperparameter entry; raise naming ``name: <section>.<key>``."""
-        known = {field.name for field in dataclasses.fields(cls)}
-        unknown = sorted(set(entry) - known)
-        if unknown:
-            raise ArgumentError(f"{name}: {section} has no setting {unknown[0]!r}; expected some of {sorted(known)}")
-        values = {**{f.name: f.default for f in dataclasses.fields(cls)}, **entry}
-
-        def key(k: str) -> str:
-            return f"{name}: {section}.{k}"
-
-        k_intervals = config.n_intervals
-        for field in ("n_envs", "rollout_steps", "epochs", "minibatch_size", "gru_size", "embed_size"):
-            validation.integer(key(field), values[field], 1)
-        validation.integer(key("message_rounds"), values["message_rounds"], 1, 8)
-        if k_intervals % values["rollout_steps"]:
-            raise ArgumentError(
-                f"{key('rollout_steps')}: expected K = {k_intervals} or a divisor of it, got {values['rollout_steps']}"
-            )
-        for field in ("learning_rate", "clip_range", "max_grad_norm"):
-            validation.real(key(field), values[field], positive=True)
-        for field in ("gamma", "gae_lambda"):
-            validation.real(key(field), values[field], 0.0, 1.0)
-        for field in ("ent_coef", "vf_coef", "log_std_init"):
-            validation.real(key(field), values[field])
-        validation.real(key("actor_out_gain"), values["actor_out_gain"], 0.0)
-        hidden = values["hidden"]
-        if not isinstance(hidden, list | tuple) or not hidden:
-            raise ArgumentError(f"{key('hidden')}: expected a list of layer widths, got {hidden!r}")
-        for width in hidden:
-            validation.integer(key("hidden"), width, 1, 1_000_000)
-        validation.choice(key("activation"), values["activation"], tuple(ACTIVATIONS))
-        validation.choice(key("gru_input"), values["gru_input"], GRU_INPUTS)
-        if not isinstance(values["normalize_advantage"], bool):
-            raise ArgumentError(f"{key('normalize_advantage')}: expected true or false")
-        values["hidden"] = tuple(int(w) for w in hidden)
-        for field in ("learning_rate", "clip_range", "max_grad_norm", "gamma", "gae_lambda", "ent_coef", "vf_coef"):
-            values[field] = float(values[field])
-        values["log_std_init"] = float(values["log_std_init"])
-        values["actor_out_gain"] = float(values["actor_out_gain"])
-        return cls(**values)
-
-
-def run_config(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:
-    """The environment keywords of this run (the hyperparameter file's ``env``, ``scenario`` first)."""
-    kwargs = {key: value for key, value in params["env"].items() if key != "n_envs"}
-    if args.critic == "central":
-        kwargs["global_state"] = "normalized"
-    return {"scenario": args.scenario, **kwargs}
-
-
-# ---------------------------------------------------------------------------------- networks
-class ActorCritic(nn.Module):
-    """The shared Gaussian policy (mean network, state-independent log std) and the critic.
-
-    ``arch``: the mean network, an MLP of the observation (``mlp``), a GRU over the agent's
-    observations with a gain head (``gru``) or messages along the interval graph (``gnn``),
-    :mod:`fxc_env.policies.torch_memory`; ``clock_index``: the observation entry of ``k/K``
-    (``gru`` resets its memory where it is 0). The critic is an MLP in every case.
-    """
-
-    def __init__(
-        self,
-        obs_size: int,
-        action_size: int,
-        critic_size: int,
-        settings: PPOSettings,
-        arch: str = "mlp",
-        clock_index: int = -1,
-        rows_end: int = 0,
-    ) -> None:
-        super().__init__()
-        if arch == "gru":
-            self.actor: nn.Module = RecurrentActor(
-                obs_size,
-                action_size,
-                settings.hidden,
-                settings.activation,
-                settings.gru_size,
-                clock_index,
-                settings.gru_input,
-                rows_end,
-            )
-        elif arch == "gnn":
-            self.actor = MessagePassingActor(
-                obs_size,
-                action_size,
-                settings.hidden,
-                settings.activation,
-                settings.embed_size,
-                settings.message_rounds,
-            )
-        else:
-            self.actor = mlp(obs_size, action_size, settings.hidden, settings.activation, settings.actor_out_gain)
-        self.log_std = nn.Parameter(torch.full((action_size,), settings.log_std_init))
-        self.critic = mlp(critic_size, 1, settings.hidden, settings.activation, 1.0)
-
-    def log_prob(self, mean: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-        z = (actions - mean) * torch.exp(-self.log_std)
-        return -0.5 * (z * z).sum(-1) - self.log_std.sum() - 0.5 * LOG_2PI * mean.shape[-1]
-
-    def entropy(self) -> torch.Tensor:
-        return (self.log_std + 0.5 * (1.0 + LOG_2PI)).sum()
-
-
-def adam(parameters: Iterator[nn.Parameter], learning_rate: float) -> torch.optim.Adam:
-    """SB3's Adam (``eps = 1e-5``), fused where torch has it for the device.
-
-    Fused: one kernel for every parameter; the optimiser step is about a third of the cost
-    of a minibatch of 2048 on the CPU. torch < 2.4 has no fused Adam on the CPU.
-    """
-    parameters = list(parameters)
-    try:
-        return torch.optim.Adam(parameters, lr=learning_rate, eps=1e-5, fused=True)
-    except (RuntimeError, TypeError):
-        return torch.optim.Adam(parameters, lr=learning_rate, eps=1e-5)
-
-
-# ------------------------------------------------------------------------------- checkpoints
-def latest_torch_checkpoint(run_dir: Path) -> Path | None:
-    """The checkpoint with the most timesteps in ``run_dir/checkpoints`` (None if there is none)."""
-    return RunDir(run_dir, "torch").newest_checkpoint()
-
-
-# ------------------------------------------------------------------------------- --init-from
-#: The settings of a policy's environment that fix what its observation and action entries mean.
-LAYOUT_SETTINGS = ("obs_mode", "obs_slots", "obs_size", "limit_feature", "dim", "action_mode", "action_size")
-
-
-def init_actor(trainer: Trainer, source: str) -> Path:
-    """Load the actor (and exploration noise) of ``source`` into ``trainer``'s model (``--init-from``).
-
-    ``source``: a shipped policy's name (resolved as :func:`~fxc_env.policies.learned.load_learned_policy`
-    resolves it), a ``policy.pt``, a checkpoint or a run directory of the torch or diff back end.
-    Refused by name, the model unchanged: a file that is not a torch policy, another architecture
-    (``arch``, widths, activation, memory settings) or another observation layout
-    (:data:`LAYOUT_SETTINGS`) than the run's.
-    """
-    from fxc_env.policies.learned import SHIPPED, pretrained_path
-    from fxc_env.policies.policy_files import training_settings
-    from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
-
-    path = pretrained_path(source) if source in SHIPPED and not Path(source).exists() else Path(source)
-    if not is_torch_policy(path):
-        raise ArgumentError(
-            f"init_from: {source!r} is not a torch policy (expected a shipped torch policy such as 'rings_gru', a "
-            "policy.pt or checkpoint of --backend torch or diff, or such a run directory)"
-        )
-    try:
-        policy = load_torch_policy(path)
-    except ArgumentError as exc:
-        raise ArgumentError(f"init_from: {exc}") from exc
-    file = path / "policy.pt" if path.is_dir() else path
-    record = torch.load(file, map_location="cpu", weights_only=True)  # load_torch_policy read it already
-    record = record.get("policy", record) if record.get("format") == CHECKPOINT_FORMAT else record
-    run = trainer.policy_record()
-    for key in ("arch", "obs_size", "action_size", "hidden", "activation", *trainer.arch_entries()):
-        theirs, ours = record.get(key, "mlp" if key == "arch" else None), run[key]
-        if theirs != ours:
-            what = "observation layout" if key == "obs_size" else "architecture"
-            raise ArgumentError(
-                f"init_from: {source!r} has another {what} than this run: {key} {theirs!r} there, {ours!r} here"
-            )
-    trained, here = policy.training_settings, training_settings(trainer.config)
-    for key in LAYOUT_SETTINGS if trained else ():
-        if key in trained and trained[key] != here[key]:
-            raise ArgumentError(
-                f"init_from: {source!r} has another observation layout than this run: {key} {trained[key]!r} there, "
-                f"{here[key]!r} here"
-            )
-    trainer.model.actor.load_state_dict(policy.module.state_dict())
-    with torch.no_grad():
-        trainer.model.log_std.copy_(record["log_std"].to(trainer.model.log_std))
-    return path
 
 
 # ---------------------------------------------------------------------------------- training
-class Trainer:
+class Trainer(TrainerFiles):
     """The state of one run: engine, networks, optimiser, generators, counters and buffers."""
 
     def __init__(self, args: TrainArgs, params: dict[str, Any], settings: PPOSettings, device: torch.device) -> None:
@@ -484,23 +245,25 @@ class Trainer:
         total = obs.shape[0]
         sums = torch.zeros(5, dtype=torch.float32, device=self.device)
         count = 0
-        for _ in range(s.epochs):
-            order = torch.randperm(total, generator=self.generator, device=self.device)
-            for start in range(0, total, s.minibatch_size):
-                index = order[start : start + s.minibatch_size]
-                batch = obs[index]
-                if self.central:
-                    value_index = torch.div(index, n, rounding_mode="floor")
-                    value, target = model.critic(states[value_index]).squeeze(-1), targets[value_index]
-                else:
-                    value, target = model.critic(batch).squeeze(-1), targets[index]
-                mean = model.actor(batch)
-                sums += self._minibatch_step(
-                    mean, actions[index], old_log_probs[index], per_agent[index], value, target
-                )
-                count += 1
+        for index in self._minibatches(total, s.minibatch_size):
+            batch = obs[index]
+            if self.central:
+                value_index = torch.div(index, n, rounding_mode="floor")
+                value, target = model.critic(states[value_index]).squeeze(-1), targets[value_index]
+            else:
+                value, target = model.critic(batch).squeeze(-1), targets[index]
+            mean = model.actor(batch)
+            sums += self._minibatch_step(mean, actions[index], old_log_probs[index], per_agent[index], value, target)
+            count += 1
         self.n_updates += count
         return sums / count
+
+    def _minibatches(self, total: int, size: int) -> Iterator[torch.Tensor]:
+        """``epochs`` passes over ``total`` items, each in a fresh order from the generator, ``size`` at a time."""
+        for _ in range(self.settings.epochs):
+            order = torch.randperm(total, generator=self.generator, device=self.device)
+            for first in range(0, total, size):
+                yield order[first : first + size]
 
     def _minibatch_step(
         self,
@@ -556,22 +319,19 @@ class Trainer:
         size = max(1, s.minibatch_size // t)
         sums = torch.zeros(5, dtype=torch.float32, device=self.device)
         count = 0
-        for _ in range(s.epochs):
-            order = torch.randperm(sequences, generator=self.generator, device=self.device)
-            for first in range(0, sequences, size):
-                index = order[first : first + size]
-                mean, _ = model.actor.sequence(obs[:, index], start[index])
-                if self.central:
-                    episodes = torch.unique(torch.div(index, n, rounding_mode="floor"))
-                    value = model.critic(states[:, episodes]).squeeze(-1)
-                    target = value_targets[:, episodes]
-                else:
-                    value = model.critic(obs[:, index]).squeeze(-1)
-                    target = value_targets[:, index]
-                sums += self._minibatch_step(
-                    mean, actions[:, index], old_log_probs[:, index], per_agent[:, index], value, target
-                )
-                count += 1
+        for index in self._minibatches(sequences, size):
+            mean, _ = model.actor.sequence(obs[:, index], start[index])
+            if self.central:
+                episodes = torch.unique(torch.div(index, n, rounding_mode="floor"))
+                value = model.critic(states[:, episodes]).squeeze(-1)
+                target = value_targets[:, episodes]
+            else:
+                value = model.critic(obs[:, index]).squeeze(-1)
+                target = value_targets[:, index]
+            sums += self._minibatch_step(
+                mean, actions[:, index], old_log_probs[:, index], per_agent[:, index], value, target
+            )
+            count += 1
         self.n_updates += count
         return sums / count
 
@@ -592,147 +352,24 @@ class Trainer:
         size = max(1, s.minibatch_size // n)
         sums = torch.zeros(5, dtype=torch.float32, device=self.device)
         count = 0
-        for _ in range(s.epochs):
-            order = torch.randperm(graphs, generator=self.generator, device=self.device)
-            for first in range(0, graphs, size):
-                index = order[first : first + size]
-                mean = model.actor(obs[index], edge_index[index], edge_mask[index])
-                if self.central:
-                    value = model.critic(states[index]).squeeze(-1)
-                else:
-                    value = model.critic(obs[index]).squeeze(-1)
-                sums += self._minibatch_step(
-                    mean, actions[index], old_log_probs[index], per_agent[index], value, value_targets[index]
-                )
-                count += 1
+        for index in self._minibatches(graphs, size):
+            mean = model.actor(obs[index], edge_index[index], edge_mask[index])
+            if self.central:
+                value = model.critic(states[index]).squeeze(-1)
+            else:
+                value = model.critic(obs[index]).squeeze(-1)
+            sums += self._minibatch_step(
+                mean, actions[index], old_log_probs[index], per_agent[index], value, value_targets[index]
+            )
+            count += 1
         self.n_updates += count
         return sums / count
-
-    # ---------------------------------------------------------------------- state
-    def policy_record(self) -> dict[str, Any]:
-        """The policy file's dictionary (see the module docstring)."""
-        return {
-            "format": POLICY_FORMAT,
-            "obs_size": self.obs_size,
-            "action_size": self.action_size,
-            "action_bound": self.bound,
-            "hidden": list(self.settings.hidden),
-            "activation": self.settings.activation,
-            "arch": self.arch,
-            **self.arch_entries(),
-            "actor": {k: v.detach().cpu().clone() for k, v in self.model.actor.state_dict().items()},
-            "log_std": self.model.log_std.detach().cpu().clone(),
-            "env": dict(self.env_kwargs),
-            "domain": training_domain(self.config),
-            "timesteps": self.timesteps,
-        }
-
-    def arch_entries(self) -> dict[str, Any]:
-        """The policy record's entries of the ``gru`` (``gru_size``, ``clock_index``, ``gru_input``,
-        ``rows_end``) or ``gnn`` (``embed_size``, ``rounds``) actor."""
-        if self.arch == "gru":
-            return {
-                "gru_size": self.settings.gru_size,
-                "clock_index": self.clock_index,
-                "gru_input": self.settings.gru_input,
-                "rows_end": self.rows_end,
-            }
-        if self.arch == "gnn":
-            return {"embed_size": self.settings.embed_size, "rounds": self.settings.message_rounds}
-        return {}
-
-    def save_checkpoint(self, run: RunDir) -> Path:
-        """Networks, Adam's state, counters and every generator's state as ``checkpoints/model_<timesteps>_steps.pt``."""
-        path = run.checkpoint_path(self.timesteps)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        engine_rng = self.engine.rng.get_state() if isinstance(self.engine.rng, torch.Generator) else None
-        record = {
-            "format": CHECKPOINT_FORMAT,
-            "timesteps": self.timesteps,
-            "iterations": self.iterations,
-            "n_updates": self.n_updates,
-            "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
-            "optimizer": self.optimizer.state_dict(),
-            "rng": {
-                "torch": torch.get_rng_state(),
-                "generator": self.generator.get_state(),
-                "engine": engine_rng,
-                "host": self.host_rng.bit_generator.state,
-            },
-            "policy": self.policy_record(),
-        }
-        partial = path.with_suffix(".pt.partial")
-        torch.save(record, partial)
-        partial.replace(path)  # a checkpoint is either whole or absent
-        return path
-
-    def load_checkpoint(self, path: Path, *, trusted: bool = False) -> None:
-        """Go on from the checkpoint at ``path``: read with ``weights_only=True`` (tensors and plain values, no
-        code), or, with ``trusted`` (``--trust-policy-file``), unpickled (:mod:`fxc_env.training.run_dir`)."""
-        try:
-            record = torch.load(path, map_location="cpu", weights_only=not trusted)
-        except pickle.UnpicklingError as exc:  # weights_only met a pickled object (a crafted file) or garbage
-            raise ArgumentError(
-                f"resume: cannot read the checkpoint {str(path)!r} as tensors and plain values ({one_line(exc, 160)}); "
-                f"{TRAIN_TRUST_HINT}"
-            ) from exc
-        except (OSError, EOFError, RuntimeError, ValueError) as exc:  # garbage or cut short
-            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-            raise ArgumentError(f"resume: cannot read the checkpoint {str(path)!r} ({first})") from exc
-        if not isinstance(record, dict) or record.get("format") != CHECKPOINT_FORMAT:
-            raise ArgumentError(f"resume: {str(path)!r} is not a torch back-end checkpoint")
-
-        rng = record.get("rng")
-        missing = [
-            key for key in ("model", "optimizer", "timesteps", "iterations", "n_updates", "rng") if key not in record
-        ]
-        missing += [
-            f"rng.{key}" for key in ("torch", "generator", "engine", "host") if isinstance(rng, dict) and key not in rng
-        ]
-        if missing:
-            raise ArgumentError(
-                f"resume: the checkpoint {str(path)!r} lacks {', '.join(missing)} (damaged, or another version's)"
-            )
-        try:
-            self.model.load_state_dict(record["model"])
-        except (RuntimeError, TypeError, AttributeError) as exc:  # missing, extra or misshapen weights
-            raise ArgumentError(
-                f"resume: {str(path)!r} was trained with other network settings: {one_line(exc)}"
-            ) from exc
-        try:
-            self.optimizer.load_state_dict(record["optimizer"])
-            for group in self.optimizer.param_groups:  # Adam's moments must fit the weights they follow
-                for weight in group["params"]:
-                    for name, value in self.optimizer.state.get(weight, {}).items():
-                        if isinstance(value, torch.Tensor) and value.ndim and value.shape != weight.shape:
-                            raise ValueError(
-                                f"optimizer state {name!r} of shape {tuple(value.shape)} for a weight {tuple(weight.shape)}"
-                            )
-            self.timesteps = int(record["timesteps"])
-            self.iterations = int(record["iterations"])
-            self.n_updates = int(record["n_updates"])
-            torch.set_rng_state(rng["torch"])
-            self.generator.set_state(rng["generator"])
-            if rng["engine"] is not None and isinstance(self.engine.rng, torch.Generator):
-                self.engine.rng.set_state(rng["engine"])
-            self.host_rng.bit_generator.state = rng["host"]
-        except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as exc:
-            raise ArgumentError(
-                f"resume: the checkpoint {str(path)!r} holds a damaged optimizer, counter or generator state: {one_line(exc)}"
-            ) from exc
-        self._reset()  # a resumed run starts fresh episodes
 
 
 def train_torch(args: TrainArgs) -> Path:
     """Run (or resume) PPO on the batched engine on ``args.device``; returns the run directory."""
-    args = dataclasses.replace(args, backend="torch")
-    params = check_train_args(args)  # every argument, before any work
-    settings = PPOSettings.from_mapping(params["algo"], make_config(**run_config(args, params)))
-    torch.set_num_threads(args.torch_threads)
-    device = torch.device(args.device)
-    run = RunDir.of(args)
-    checkpoint = run.resume_checkpoint(args.resume, args)
-    trainer = Trainer(args, params, settings, device)
+    args, params, run, checkpoint, trainer = prepare(args, "torch", PPOSettings, Trainer)
+    settings, device = trainer.settings, trainer.device
     per_rollout = settings.rollout_steps * trainer.n_envs * trainer.n_agents
     record = {"torch_ppo": dataclasses.asdict(settings), "timesteps_per_rollout": per_rollout}
     banner = (
@@ -757,55 +394,9 @@ def train_torch(args: TrainArgs) -> Path:
         )
         return row, line
 
-    return drive(args, run, trainer, checkpoint, params, record, banner, "rollout", rollout_and_update)
-
-
-def drive(
-    args: TrainArgs,
-    run: RunDir,
-    trainer: Trainer,
-    checkpoint: Path | None,
-    params: Mapping[str, Any],
-    record: Mapping[str, Any],
-    banner: str,
-    unit: str,
-    iterate: Any,
-    columns: tuple[str, ...] = PROGRESS_COLUMNS,
-) -> Path:
-    """The run every back end on the torch engine shares (``torch``, ``diff``); returns the run directory.
-
-    Resumes ``checkpoint`` (or starts the run directory with the arguments, hyperparameters and
-    ``record``), then calls ``iterate(start_steps, start_time)`` — one ``unit`` of work that advances
-    ``trainer.timesteps`` and returns its progress row (``columns``) and console line — until ``args.timesteps``,
-    with checkpoints every ``args.checkpoint_every`` and on Ctrl-C, and writes ``policy.pt``.
-    """
-    if checkpoint is not None:
-        trainer.load_checkpoint(checkpoint, trusted=args.trust_policy_file)
-        run.announce_resume(checkpoint, f"{trainer.timesteps} timesteps")
-    else:
-        meta = {"n_envs": trainer.n_envs, "n_agents": trainer.n_agents}
-        run.start({"args": dataclasses.asdict(args), "hyperparams": params, **record, **meta})
-    if args.progress_bar:
-        print(banner)
-    resumed_at = (trainer.iterations, trainer.timesteps) if checkpoint is not None else None
-    start_steps, start_time = trainer.timesteps, time.perf_counter()
-    last_checkpoint = trainer.timesteps
-    with (
-        run.progress(columns, tensorboard=True, resumed_at=resumed_at) as progress,
-        run.interruptible(unit, lambda: trainer.save_checkpoint(run)) as interrupted,
-    ):
-        while trainer.timesteps < args.timesteps and not interrupted:
-            row, line = iterate(start_steps, start_time)
-            progress.write(row)
-            if args.progress_bar:
-                print(line)
-            if trainer.timesteps - last_checkpoint >= args.checkpoint_every:
-                trainer.save_checkpoint(run)
-                last_checkpoint = trainer.timesteps
-    trainer.save_checkpoint(run)  # a later --resume with more --timesteps goes on from here
-    torch.save(trainer.policy_record(), run.path / "policy.pt")
-    run.finish(trainer.timesteps, run.path / "policy.pt")
-    return run.path
+    return drive(
+        args, run, trainer, checkpoint, params, record, banner, "rollout", rollout_and_update, PROGRESS_COLUMNS
+    )
 
 
 def progress_row(

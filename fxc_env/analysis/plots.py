@@ -9,6 +9,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from fxc_env.analysis.simulation import Trajectory
+from fxc_env.core.graphs import Topology
 from fxc_env.envs.rendering import agent_colours, draw_graph
 
 #: Agents drawn individually; beyond this the curves carry no legend.
@@ -50,8 +51,6 @@ def topology_figure(trajectory: Trajectory, path: Path) -> Path:
         title = f"G_{g}" if m > 1 else "G"
         draw_graph(axes[g], topology, g, title=title + f"  ({len(topology.edges[g])} edges)")
     if m > 1:
-        from fxc_env.core.graphs import Topology
-
         union = Topology(topology.n_agents, (np.concatenate(topology.edges),))
         draw_graph(axes[m], union, 0, title="union of the period")
     heading = topology.name + (f": {topology.note}" if topology.note else "")

@@ -11,6 +11,7 @@ import numpy as np
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.dynamics import advance_clipped, state_inside
 from fxc_env.core.graphs import Topology
+from fxc_env.core.linear import LinearModel, model_matrices
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.engine import ConsensusEngine, state_disagreement, with_initial_state
@@ -106,6 +107,12 @@ def simulate(
         raise ArgumentError(f"policy: expected 'reference' or a callable, got {policy!r}")
     engine.reset_from_draws([draw], rng=rng)
     u_max = None if engine.u_max is None else float(engine.u_max[0])
+    states, u_start, u_end, plans, graphs = _play(engine, act)
+    return _trajectory(config, engine, states, u_start, u_end, plans, graphs, points_per_interval, u_max)
+
+
+def _play(engine: ConsensusEngine, act: Any) -> tuple[list, list, list, list, list]:
+    """One episode of ``act``: the states after every step (the first before), inputs, plans and graphs."""
     states = [engine.state[0].copy()]  # (N, n, dim) in the engine's coordinates (formation error)
     u_start, u_end, plans, graphs = [], [], [], []
     while not engine.done:
@@ -117,6 +124,11 @@ def simulate(
         u_end.append(outcome.u_end[0])
         if outcome.plan is not None:
             plans.append(outcome.plan[0])
+    return states, u_start, u_end, plans, graphs
+
+
+def _trajectory(config, engine, states, u_start, u_end, plans, graphs, points_per_interval, u_max) -> Trajectory:
+    """The episode's :class:`Trajectory`, dense in time in closed form."""
     z = np.array(states)  # (K + 1, N, n, dim)
     u0, u1 = np.array(u_start), np.array(u_end)
     times, intervals = config.schedule.times, config.schedule.intervals
@@ -195,7 +207,5 @@ def _dense_linear(config: EnvConfig, z, plans, offsets, u_end):
 
 def _free_motion(config: EnvConfig, times: np.ndarray) -> np.ndarray:
     """``e^{A t}`` at ``times`` ``(P, n, n)``, for the formation offsets' trajectory."""
-    from fxc_env.core.linear import LinearModel, model_matrices
-
     model = config.model if config.model is not None else LinearModel(*model_matrices("double_integrator"))
     return model.free_motion_matrix(times)

@@ -30,6 +30,7 @@ from fxc_env.core.dynamics import advance_clipped, state_inside
 from fxc_env.core.validation import ArgumentError, integer, real
 from fxc_env.engine import state_disagreement
 from fxc_env.envs.rendering import FRAME_SIZE, SceneRenderer, data_limits, frame_size
+from fxc_env.utils.cli_checks import output_directory
 
 #: Frames per second of a video, and its length in seconds (``fxc simulate --video``).
 VIDEO_FPS = 15
@@ -96,8 +97,6 @@ def check_video_path(name: str, path: Any, size: tuple[int, int] = FRAME_SIZE) -
     nothing is downloaded) or with an odd frame side (H.264 needs even ones), an existing
     directory, and a folder that cannot be created or written.
     """
-    from fxc_env.utils.cli_checks import output_directory
-
     text = os.fspath(path)
     target = Path(text)
     suffix = target.suffix.lower()
@@ -116,8 +115,6 @@ def check_video_path(name: str, path: Any, size: tuple[int, int] = FRAME_SIZE) -
 
 def check_strip_path(name: str, path: Any) -> Path:
     """``path`` as a PNG file to write (refused naming ``name`` otherwise)."""
-    from fxc_env.utils.cli_checks import output_directory
-
     text = os.fspath(path)
     target = Path(text)
     if target.suffix.lower() != ".png":

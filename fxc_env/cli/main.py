@@ -14,9 +14,10 @@ import json
 import math
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from fxc_env.analysis.video import add_video_arguments
-from fxc_env.baselines.benchmark import add_benchmark_parser
+from fxc_env.baselines.benchmark import add_benchmark_parser, make_out
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.speed.command import add_arguments as speed_arguments
@@ -47,43 +48,60 @@ def simulate_command(args: argparse.Namespace) -> int:
     kwargs = env_kwargs_from(args)
     scenario = kwargs.pop("scenario")
     trajectory = simulate("reference", scenario, seed=args.seed, points_per_interval=args.points_per_interval, **kwargs)
-    c, m, topology = trajectory.config, trajectory.metrics, trajectory.topology
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:  # a read-only file system, which os.access does not see for root
-        raise UsageError(f"--out: cannot create {str(out)!r} ({exc.strerror or exc})") from exc
+    c, topology = trajectory.config, trajectory.topology
+    make_out(out)
     files = write_figures(trajectory, out)
     xi = topology.consensus_weights() if c.n_agents <= 2000 and c.switching == "periodic" else None
-    record = {
-        "scenario": scenario,
-        "settings": {
-            "topology": topology.describe(),
-            "topology_note": topology.note,
-            "n_agents": c.n_agents,
-            "n_intervals": c.n_intervals,
-            "settling_time": c.settling_time,
-            "schedule": c.schedule.name,
-            "dim": c.dim,
-            "agent_model": c.agent_model,
-            "n_states": c.n_states,
-            "formation_offsets": None if c.formation is None else c.formation.tolist(),
-            "action_mode": c.action_mode,
-            "obs_mode": c.obs_mode,
-            "seed": args.seed,
-            "u_max": trajectory.u_max,
-            "edges": [edges.tolist() for edges in topology.edges],
-        },
-        "xi": None if xi is None else xi.tolist(),
-        "metrics": m.as_dict(),
-    }
-    (out / "metrics.json").write_text(json.dumps(record, indent=2) + "\n")
+    (out / "metrics.json").write_text(
+        json.dumps(_simulate_record(trajectory, scenario, args.seed, xi), indent=2) + "\n"
+    )
     files.append(out / "metrics.json")
     if video is not None:
-        drawn = write_video(
-            trajectory, video[0], video[2], strip=video[1], title=f"{scenario or 'custom'}: reference policy"
-        )
+        title = f"{scenario or 'custom'}: reference policy"
+        drawn = write_video(trajectory, video[0], video[2], strip=video[1], title=title)
         files += [path for path in (drawn.video, drawn.strip) if path is not None]
+    _print_simulation(trajectory, scenario, xi)
+    if video is not None:
+        width, height = drawn.size
+        print(
+            f"\nvideo: {drawn.n_frames} frames of {width}x{height} px, uniform in t from 0 to T_s, {drawn.fps} frames/s; "
+            f"drawn at {drawn.draw_rate:.1f} frames/s"
+        )
+    print("\nwrote " + ", ".join(str(f) for f in files))
+    return 0
 
+
+def _simulate_record(trajectory: Any, scenario: str | None, seed: int | None, xi: Any) -> dict[str, Any]:
+    """``metrics.json`` of ``fxc simulate``: the settings, the consensus weights and the metrics."""
+    c, topology = trajectory.config, trajectory.topology
+    settings = {"topology": topology.describe(), "topology_note": topology.note}
+    settings.update({key: getattr(c, key) for key in ("n_agents", "n_intervals", "settling_time")})
+    settings.update(schedule=c.schedule.name, dim=c.dim, agent_model=c.agent_model, n_states=c.n_states)
+    settings["formation_offsets"] = None if c.formation is None else c.formation.tolist()
+    settings.update(action_mode=c.action_mode, obs_mode=c.obs_mode, seed=seed, u_max=trajectory.u_max)
+    settings["edges"] = [edges.tolist() for edges in topology.edges]
+    return {
+        "scenario": scenario,
+        "settings": settings,
+        "xi": None if xi is None else xi.tolist(),
+        "metrics": trajectory.metrics.as_dict(),
+    }
+
+
+def _table(header: tuple[str, str, str], rows: list[tuple[str, Any, Any]]) -> None:
+    """A three-column Markdown table; numbers as :func:`_format` writes them."""
+    text = [
+        (name, b if isinstance(b, str) else _format(b), c if isinstance(c, str) else _format(c)) for name, b, c in rows
+    ]
+    print(f"\n| {header[0]:<38} | {header[1]:>22} | {header[2]:>22} |")
+    print(f"|{'-' * 40}|{'-' * 24}|{'-' * 24}|")
+    for name, b, c in text:
+        print(f"| {name:<38} | {b:>22} | {c:>22} |")
+
+
+def _print_simulation(trajectory: Any, scenario: str | None, xi: Any) -> None:
+    """The settings, the metrics against the prediction and how far from optimal (README) the reference was."""
+    c, m, topology = trajectory.config, trajectory.metrics, trajectory.topology
     print(f"fxc simulate: {scenario or 'custom'} — {topology.describe()}")
     if topology.note:
         print(f"  topology: {topology.note}")
@@ -96,50 +114,27 @@ def simulate_command(args: argparse.Namespace) -> int:
     rows = [
         ("x*(T_s): mean position", m.predicted_final_position, m.achieved_final_position),
         ("v*: mean velocity", m.predicted_final_velocity, m.achieved_final_velocity),
+        ("relative deadline error D(T_s)/D(0)", "", m.relative_deadline_error),
+        ("position spread e_x(T_s) (m)", "", m.final_position_spread),
+        ("velocity spread e_v(T_s) (m/s)", "", m.final_velocity_spread),
+        ("t_eps, eps = 1e-2 (s)", "", m.t_eps_1e_2),
+        ("t_eps, eps = 1e-6 (s)", "", m.t_eps_1e_6),
+        ("energy sum_i ∫ u_i² dt (m²/s³)", "", m.energy),
+        ("peak abs(u) (m/s²)", "", m.peak_input),
+        ("sampling instants K", "", float(m.sampling_instants)),
     ]
-    print()
-    print(f"| {'quantity':<38} | {'predicted (xi)':>22} | {'achieved':>22} |")
-    print(f"|{'-' * 40}|{'-' * 24}|{'-' * 24}|")
-    for name, predicted, achieved in rows:
-        print(f"| {name:<38} | {_format(predicted):>22} | {_format(achieved):>22} |")
-    singles = [
-        ("relative deadline error D(T_s)/D(0)", m.relative_deadline_error),
-        ("position spread e_x(T_s) (m)", m.final_position_spread),
-        ("velocity spread e_v(T_s) (m/s)", m.final_velocity_spread),
-        ("t_eps, eps = 1e-2 (s)", m.t_eps_1e_2),
-        ("t_eps, eps = 1e-6 (s)", m.t_eps_1e_6),
-        ("energy sum_i ∫ u_i² dt (m²/s³)", m.energy),
-        ("peak abs(u) (m/s²)", m.peak_input),
-        ("sampling instants K", float(m.sampling_instants)),
+    _table(("quantity", "predicted (xi)", "achieved"), rows)
+    bounds = [
+        ("energy (m²/s³), any law", m.energy_bound, m.energy),
+        ("energy / E*, any law", 1.0, m.energy_ratio),
+        ("intervals to 1e-9, any law (radius)", m.radius_bound, m.settled_interval),
+        ("intervals, laws using every root", m.all_roots_bound, m.settled_interval),
     ]
-    for name, value in singles:
-        print(f"| {name:<38} | {'':>22} | {_format(value):>22} |")
-    # How far from optimal (README): what no controller can beat, beside what the reference did.
-    print()
-    print(f"| {'how far from optimal':<38} | {'lower bound':>22} | {'reference':>22} |")
-    print(f"|{'-' * 40}|{'-' * 24}|{'-' * 24}|")
-    print(f"| {'energy (m²/s³), any law':<38} | {_format(m.energy_bound):>22} | {_format(m.energy):>22} |")
-    print(f"| {'energy / E*, any law':<38} | {_format(1.0):>22} | {_format(m.energy_ratio):>22} |")
-    settled = _format(m.settled_interval)
-    print(f"| {'intervals to 1e-9, any law (radius)':<38} | {_format(m.radius_bound):>22} | {settled:>22} |")
-    print(f"| {'intervals, laws using every root':<38} | {_format(m.all_roots_bound):>22} | {settled:>22} |")
     if m.noise_floor == m.noise_floor:  # under obs_noise (NaN otherwise)
-        print(
-            f"| {'D(T_s)/D(0) under the noise':<38} | {_format(m.noise_floor):>22} | {_format(m.relative_deadline_error):>22} |"
-        )
+        bounds.append(("D(T_s)/D(0) under the noise", m.noise_floor, m.relative_deadline_error))
     if m.input_floor == m.input_floor:  # under u_max: the least limit of exact consensus, beside the limit run
-        limit = f"u_max = {trajectory.u_max:g}"
-        print(f"| {'u_max of exact consensus (m/s²)':<38} | {_format(m.input_floor):>22} | {limit:>22} |")
-    if video is not None:
-        print()
-        width, height = drawn.size
-        print(
-            f"video: {drawn.n_frames} frames of {width}x{height} px, uniform in t from 0 to T_s, {drawn.fps} frames/s; "
-            f"drawn at {drawn.draw_rate:.1f} frames/s"
-        )
-    print()
-    print("wrote " + ", ".join(str(f) for f in files))
-    return 0
+        bounds.append(("u_max of exact consensus (m/s²)", m.input_floor, f"u_max = {trajectory.u_max:g}"))
+    _table(("how far from optimal", "lower bound", "reference"), bounds)
 
 
 def speed_command(args: argparse.Namespace) -> int:

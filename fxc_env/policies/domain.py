@@ -47,6 +47,8 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.config import config_of
+from fxc_env.core.families import TopologyMixture, edge_lists
 from fxc_env.core.validation import ArgumentError
 
 #: The ``format`` entry of a domain record.
@@ -82,8 +84,6 @@ def training_domain(config: Any, *more: Any) -> dict[str, Any]:
     Each is an EnvConfig or an fxc_env environment. Several configs (a policy trained on several
     settings) give the union: the graphs of all, the smallest ranges holding every value.
     """
-    from fxc_env.config import config_of
-
     configs = [config_of(c, "training_domain") for c in (config, *more)]
     graphs: list[dict[str, Any]] = []
     for c in configs:
@@ -137,8 +137,6 @@ def domain_from_settings(settings: Mapping[str, Any] | None) -> dict[str, Any] |
 
 
 def _graph_entries(config: Any) -> list[dict[str, Any]]:
-    from fxc_env.core.families import TopologyMixture, edge_lists
-
     family = config.family
     if family is None:
         topology = config.topology
@@ -160,8 +158,6 @@ def domain_differences(domain: Mapping[str, Any] | None, config: Any) -> list[tu
     ``exact`` marks an extrapolation that is exact by construction (see the module): it warns
     but is not refused. A missing field (or a None domain) checks nothing.
     """
-    from fxc_env.config import config_of
-
     if not domain:
         return []
     c = config_of(config, "policy")
@@ -254,8 +250,6 @@ def _time_rescales(config: Any) -> bool:
 
 def _switches(config: Any) -> bool:
     """Whether the environment's graph can change from interval to interval."""
-    from fxc_env.core.families import TopologyMixture
-
     if config.family is None:
         return config.topology.period > 1
     members = config.family.families if isinstance(config.family, TopologyMixture) else (config.family,)
@@ -287,8 +281,6 @@ def graph_label(entry: Mapping[str, Any]) -> str:
 # ------------------------------------------------------------------------------ graph coverage
 def _uncovered_graphs(graphs: Sequence[Mapping[str, Any]], config: Any) -> str:
     """What of the environment's graphs no trained entry covers, as text ('' when all are covered)."""
-    from fxc_env.core.families import TopologyMixture
-
     if config.family is None:
         topology = config.topology
         if any(_covers_fixed(entry, topology) for entry in graphs):

@@ -42,6 +42,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from torch import nn
 
 from fxc_env.config.layout import CLOCK_SIZE
+from fxc_env.policies.networks import mlp
 
 
 class GainScheduledExtractor(nn.Module):
@@ -65,8 +66,8 @@ class GainScheduledExtractor(nn.Module):
         context_size = obs_size - self.rows_end
         self.latent_dim_pi = 2
         self.latent_dim_vf = hidden[-1]
-        self.gains = _mlp(context_size, hidden, 4 * slots)
-        self.value = _mlp(obs_size, hidden, None)
+        self.gains = mlp(context_size, 4 * slots, hidden)
+        self.value = mlp(obs_size, None, hidden)
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.forward_actor(features), self.forward_critic(features)
@@ -85,17 +86,6 @@ class GainScheduledExtractor(nn.Module):
         return self.value(features)
 
 
-def _mlp(inputs: int, hidden: tuple[int, ...], outputs: int | None) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    width = inputs
-    for size in hidden:
-        layers += [nn.Linear(width, size), nn.Tanh()]
-        width = size
-    if outputs is not None:
-        layers.append(nn.Linear(width, outputs))
-    return nn.Sequential(*layers)
-
-
 class GainScheduledPolicy(ActorCriticPolicy):
     """SB3 actor-critic policy whose mean action is :class:`GainScheduledExtractor`'s (see the module)."""
 
@@ -111,9 +101,10 @@ class GainScheduledPolicy(ActorCriticPolicy):
     def _build(self, lr_schedule: Any) -> None:
         super()._build(lr_schedule)
         self.action_net = nn.Identity()  # the extractor already returns the action mean
-        last = self.mlp_extractor.gains[-1]
-        nn.init.zeros_(last.weight)
-        nn.init.zeros_(last.bias)
+        for name in ("gains", "hold_gains"):  # every gain network starts at zero gains
+            if hasattr(self.mlp_extractor, name):
+                nn.init.zeros_(getattr(self.mlp_extractor, name)[-1].weight)
+                nn.init.zeros_(getattr(self.mlp_extractor, name)[-1].bias)
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
 
@@ -135,7 +126,7 @@ class GatedGainExtractor(GainScheduledExtractor):
         super().__init__(obs_size, hidden)
         if (obs_size - CLOCK_SIZE) % 3 != 1:
             raise ValueError(f"GatedGainPolicy: observations of size {obs_size} have no input-limit entry")
-        self.hold_gains = _mlp(obs_size - self.rows_end, hidden, 4 * self.slots)
+        self.hold_gains = mlp(obs_size - self.rows_end, 4 * self.slots, hidden)
         self.sharpness = nn.Parameter(torch.tensor(20.0))
 
     def _linear_law(self, gain_network: nn.Module, features: torch.Tensor) -> torch.Tensor:
@@ -163,10 +154,3 @@ class GatedGainPolicy(GainScheduledPolicy):
 
     def _build_mlp_extractor(self) -> None:
         self.mlp_extractor = GatedGainExtractor(self.features_dim, self._hidden)
-
-    def _build(self, lr_schedule: Any) -> None:
-        super()._build(lr_schedule)
-        last = self.mlp_extractor.hold_gains[-1]
-        nn.init.zeros_(last.weight)
-        nn.init.zeros_(last.bias)
-        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)

@@ -1,4 +1,4 @@
-"""Saved SB3 policies read without running code from them, and the settings a policy was trained for.
+"""Saved SB3 policies read without running code from them (the checks of what they fit: :mod:`~fxc_env.policies.fit`).
 
 A stable-baselines3 ``.zip`` holds ``data`` (JSON, some of whose entries are cloudpickled
 objects: ``policy_class``, ``lr_schedule``, the spaces...), ``policy.pth`` (the network's state
@@ -24,18 +24,16 @@ as plain JSON beside the weights by :func:`save_model`: the member :data:`METADA
     normalization  null, or VecNormalize's {"mean", "var", "epsilon", "clip_obs"} (observations)
     env            the training environment's settings (:func:`training_settings`)
     domain         the training domain (:func:`fxc_env.policies.domain.training_domain`)
-
-:func:`check_settings` compares a policy's training settings with an environment's
-(:data:`CHECKED_SETTINGS`) and refuses a mismatch, naming the setting and both values.
 """
 
 from __future__ import annotations
 
-import functools
 import io
 import json
+import pickle
 import re
 import zipfile
+import zlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -43,10 +41,9 @@ from typing import Any
 import numpy as np
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.fit import CHECKED_SETTINGS, check_settings, settings_from_env_kwargs, training_settings  # noqa: F401
+from fxc_env.policies.saving import METADATA_FORMAT, METADATA_MEMBER, add_metadata, policy_metadata, save_model  # noqa: F401
 
-#: The plain-JSON member :func:`save_model` adds to an SB3 ``.zip``, and its format.
-METADATA_MEMBER = "fxc_policy.json"
-METADATA_FORMAT = "fxc_env.sb3_policy/1"
 #: Policy classes whose network :func:`read_sb3_zip` rebuilds, by algorithm.
 KNOWN_POLICIES = {
     "PPO": ("ActorCriticPolicy", "GainScheduledPolicy", "GatedGainPolicy"),
@@ -74,115 +71,7 @@ PARAMETER_PREFIXES = {
 }
 #: Activations by name (SB3's defaults: tanh for actor-critic policies, relu for SAC).
 ACTIVATION_NAMES = ("tanh", "relu", "elu", "leaky_relu")
-#: The settings of the training environment a loaded policy must meet (README, "Training learned
-#: policies"): the meaning of its inputs and outputs (action and observation modes, whether the
-#: observation carries the input-limit (``u_max``) feature, the agent model), the dimension and the
-#: observation slots (:func:`fxc_env.policies.learned.load_learned_policy` adapts the last two where
-#: it can). Where the policy was trained (graphs, N, K, schedule, ...) is its training domain,
-#: checked by :func:`fxc_env.policies.domain.check_domain`.
-CHECKED_SETTINGS = ("action_mode", "obs_mode", "limit_feature", "agent_model", "dim", "obs_slots")
-#: How a setting is named in refusals.
-SETTING_LABELS = {"limit_feature": "the u_max feature (limit_feature)"}
-#: The keyword of :func:`fxc_env.make_config` that sets each checked setting, for the hint.
-SETTING_KEYWORDS = {
-    "schedule": "schedule",
-    "action_mode": "action_mode",
-    "obs_mode": "obs_mode",
-    "limit_feature": "u_max",
-    "agent_model": "agent_model",
-    "dim": "dim",
-    "obs_slots": "obs_slots",
-}
 TRUST_HINT = "pass trusted=True (fxc: --trust-policy-file) only if you trust whoever made the file"
-
-
-# ----------------------------------------------------------------------------- training settings
-def training_settings(config: Any) -> dict[str, Any]:
-    """The settings of an environment that a policy trained on it depends on, as plain JSON values.
-
-    ``schedule`` (its name: ``paper``, ``uniform`` or ``custom``), ``action_mode``, ``obs_mode``,
-    ``limit_feature`` (the observation's input-limit entry), ``agent_model`` (and ``model_A``,
-    ``model_B`` for a model other than the double integrator), ``dim``, ``obs_slots``,
-    ``obs_size``, ``action_size``, ``action_bound``; and, for the record, ``scenario``,
-    ``n_agents``, ``n_intervals``, ``settling_time`` (s) and ``u_max`` (m/s^2, the set drawn from).
-    """
-    from fxc_env.config import config_of
-
-    c = config_of(config, "env")
-    settings: dict[str, Any] = {
-        "scenario": c.scenario,
-        "schedule": c.schedule.name,
-        "action_mode": c.action_mode,
-        "obs_mode": c.obs_mode,
-        "limit_feature": bool(c.layout.limit_feature),
-        "agent_model": c.agent_model,
-        "dim": int(c.dim),
-        "obs_slots": int(c.layout.slots),
-        "obs_size": int(c.layout.size),
-        "action_size": int(c.action_size),
-        "action_bound": float(c.action_bound),
-        "n_agents": int(c.n_agents),
-        "n_intervals": int(c.n_intervals),
-        "settling_time": float(c.settling_time),
-        "u_max": None if c.u_max_choices is None else [float(u) for u in c.u_max_choices],
-    }
-    if c.model is not None:
-        settings["model_A"] = np.asarray(c.model.A, dtype=float).tolist()
-        settings["model_B"] = np.asarray(c.model.B, dtype=float).tolist()
-    return settings
-
-
-def settings_from_env_kwargs(env: Mapping[str, Any]) -> dict[str, Any] | None:
-    """:func:`training_settings` of ``make_config(**env)`` (a torch policy's ``env`` record); None if it fails."""
-    from fxc_env.config import make_config
-
-    try:
-        return training_settings(make_config(**dict(env)))
-    except (ArgumentError, TypeError):
-        return None
-
-
-def setting_differences(
-    trained: Mapping[str, Any] | None, config: Any, skip: tuple[str, ...] = ()
-) -> list[tuple[str, Any, Any]]:
-    """``(setting, trained value, this environment's value)`` for each checked setting that differs."""
-    if not trained:
-        return []
-    here = training_settings(config)
-    found = []
-    for key in CHECKED_SETTINGS:
-        if key in skip or key not in trained:
-            continue
-        if trained[key] != here[key]:
-            found.append((key, trained[key], here[key]))
-        elif key == "agent_model" and "model_A" in trained:
-            for matrix in ("model_A", "model_B"):
-                if not np.array_equal(np.asarray(trained[matrix]), np.asarray(here.get(matrix))):
-                    found.append((matrix, trained[matrix], here.get(matrix)))
-    return found
-
-
-def describe_differences(differences: list[tuple[str, Any, Any]]) -> str:
-    """``"schedule: trained with 'uniform', this environment has 'paper'; ..."``."""
-    return "; ".join(
-        f"{SETTING_LABELS.get(key, key)}: trained with {trained!r}, this environment has {here!r}"
-        for key, trained, here in differences
-    )
-
-
-def check_settings(trained: Mapping[str, Any] | None, config: Any, source: Any, skip: tuple[str, ...] = ()) -> None:
-    """Refuse (:class:`ArgumentError` naming ``policy``, the setting and both values) an environment
-    whose checked settings (:data:`CHECKED_SETTINGS`) differ from those ``trained`` records.
-
-    ``trained`` None or empty (a file that records no training environment) checks nothing.
-    """
-    differences = setting_differences(trained, config, skip)
-    if differences:
-        keywords = sorted({SETTING_KEYWORDS.get(key, "agent_model") for key, _, _ in differences})
-        raise ArgumentError(
-            f"policy: the model at {source} was trained for other settings: {describe_differences(differences)} "
-            f"(make the environment match: {', '.join(keywords)}; or use a policy trained for these settings)"
-        )
 
 
 # --------------------------------------------------------------------------------- reading a zip
@@ -304,7 +193,7 @@ def read_sb3_zip(path: str | Path) -> SavedModel:
     except (zipfile.BadZipFile, OSError, EOFError, ValueError, UnicodeDecodeError) as exc:
         if isinstance(exc, ArgumentError):
             raise
-        raise ArgumentError(f"policy: {path} is a damaged SB3 model ({_summary(exc)})") from exc
+        raise ArgumentError(f"policy: {path} is a damaged SB3 model ({summary(exc)})") from exc
     if not isinstance(data, dict):
         raise ArgumentError(f"policy: {path} is not a saved SB3 model (its data is not a JSON object)")
     try:
@@ -313,7 +202,7 @@ def read_sb3_zip(path: str | Path) -> SavedModel:
         Exception
     ) as exc:  # torch's UnpicklingError for anything but plain tensors, RuntimeError/EOFError when damaged
         raise ArgumentError(
-            f"policy: {path}: policy.pth is not a plain state dict of tensors ({_summary(exc)}); "
+            f"policy: {path}: policy.pth is not a plain state dict of tensors ({summary(exc)}); "
             f"nothing in it was run. {TRUST_HINT}"
         ) from exc
     if not isinstance(weights, Mapping) or not all(isinstance(v, torch.Tensor) for v in weights.values()):
@@ -324,10 +213,10 @@ def read_sb3_zip(path: str | Path) -> SavedModel:
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         if isinstance(exc, ArgumentError):
             raise
-        raise ArgumentError(f"policy: {path}: its model description is malformed ({_summary(exc)})") from exc
+        raise ArgumentError(f"policy: {path}: its model description is malformed ({summary(exc)})") from exc
 
 
-def _summary(exc: BaseException) -> str:
+def summary(exc: BaseException) -> str:
     lines = str(exc).strip().splitlines()
     text = f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
     return text if len(text) <= 160 else text[:157] + "..."
@@ -345,7 +234,7 @@ def _readable_space(path: Path, data: Mapping[str, Any], name: str) -> dict[str,
             for key in ("low", "high")
         }
     except (KeyError, TypeError, ValueError) as exc:
-        raise ArgumentError(f"policy: {path}: cannot read the {name} from its plain fields ({_summary(exc)})") from exc
+        raise ArgumentError(f"policy: {path}: cannot read the {name} from its plain fields ({summary(exc)})") from exc
     size = int(np.prod(shape))
     if any(len(v) != size for v in bounds.values()):
         raise ArgumentError(f"policy: {path}: the {name}'s bounds do not have {size} entries")
@@ -371,66 +260,64 @@ def _class_name(path: Path, data: Mapping[str, Any]) -> str:
     )
 
 
+def _recorded_spec(path: Path, metadata: Any) -> dict[str, Any]:
+    """What to rebuild, from the file's :data:`METADATA_MEMBER` record."""
+    if not isinstance(metadata, Mapping) or metadata.get("format") != METADATA_FORMAT:
+        raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} is not a {METADATA_FORMAT!r} record")
+    spec = {key: metadata.get(key) for key in ("algorithm", "policy_class", "net_arch", "activation")}
+    spec.update(
+        observation=metadata.get("observation"),
+        action=metadata.get("action"),
+        normalization=metadata.get("normalization"),
+        env=metadata.get("env"),
+        domain=metadata.get("domain"),
+        metadata=dict(metadata),
+    )
+    for key in ("observation", "action"):
+        if not isinstance(spec[key], Mapping) or not {"shape", "low", "high"} <= set(spec[key]):
+            raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} has no {key} shape and bounds")
+    extractor = metadata.get("features_extractor", "FlattenExtractor")
+    if extractor != "FlattenExtractor":
+        raise ArgumentError(f"policy: {path}: features extractor {extractor!r} is not rebuilt; {TRUST_HINT}")
+    return spec
+
+
+def _plain_spec(path: Path, data: Mapping[str, Any], weights: Mapping[str, Any]) -> dict[str, Any]:
+    """What to rebuild, from SB3's plain-JSON ``data`` (refused where it holds a pickle)."""
+    algorithm = "SAC" if any(k.startswith("actor.mu.") for k in weights) else "PPO"
+    kwargs = data.get("policy_kwargs", {})
+    if not isinstance(kwargs, Mapping) or ":serialized:" in kwargs:
+        raise ArgumentError(
+            f"policy: {path}: its policy_kwargs are recorded only as a pickle (a class such as activation_fn "
+            f"or a features extractor), and the file has no {METADATA_MEMBER}; re-save it with "
+            f"fxc_env.policies.policy_files.save_model, or {TRUST_HINT}"
+        )
+    plain_options = {"net_arch", "log_std_init", "ortho_init", "squash_output", "use_expln", "n_critics", "use_sde"}
+    plain_options |= {"clip_mean", "share_features_extractor", "normalize_images"}
+    unknown = sorted(set(kwargs) - plain_options)
+    unknown += [key for key in ("squash_output", "use_sde") if kwargs.get(key)]
+    if data.get("use_sde"):
+        unknown.append("use_sde")
+    if unknown:
+        raise ArgumentError(f"policy: {path}: policy options {unknown} are not rebuilt; {TRUST_HINT}")
+    default_arch = [256, 256] if algorithm == "SAC" else [64, 64]
+    return {
+        "algorithm": algorithm,
+        "policy_class": _class_name(path, data),
+        "net_arch": kwargs.get("net_arch", default_arch),
+        "activation": "relu" if algorithm == "SAC" else "tanh",
+        "observation": _readable_space(path, data, "observation_space"),
+        "action": _readable_space(path, data, "action_space"),
+        "normalization": None,
+        "env": None,
+        "domain": None,
+        "metadata": None,
+    }
+
+
 def _architecture(path: Path, data: Mapping[str, Any], metadata: Any, weights: Mapping[str, Any]) -> dict[str, Any]:
     """What to rebuild: from :data:`METADATA_MEMBER` when the file has it, else from ``data``'s plain JSON."""
-    if metadata is not None:
-        if not isinstance(metadata, Mapping) or metadata.get("format") != METADATA_FORMAT:
-            raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} is not a {METADATA_FORMAT!r} record")
-        spec = {key: metadata.get(key) for key in ("algorithm", "policy_class", "net_arch", "activation")}
-        spec.update(
-            observation=metadata.get("observation"),
-            action=metadata.get("action"),
-            normalization=metadata.get("normalization"),
-            env=metadata.get("env"),
-            domain=metadata.get("domain"),
-            metadata=dict(metadata),
-        )
-        for key in ("observation", "action"):
-            if not isinstance(spec[key], Mapping) or not {"shape", "low", "high"} <= set(spec[key]):
-                raise ArgumentError(f"policy: {path}: {METADATA_MEMBER} has no {key} shape and bounds")
-        extractor = metadata.get("features_extractor", "FlattenExtractor")
-        if extractor != "FlattenExtractor":
-            raise ArgumentError(f"policy: {path}: features extractor {extractor!r} is not rebuilt; {TRUST_HINT}")
-    else:
-        algorithm = "SAC" if any(k.startswith("actor.mu.") for k in weights) else "PPO"
-        kwargs = data.get("policy_kwargs", {})
-        if not isinstance(kwargs, Mapping) or ":serialized:" in kwargs:
-            raise ArgumentError(
-                f"policy: {path}: its policy_kwargs are recorded only as a pickle (a class such as activation_fn "
-                f"or a features extractor), and the file has no {METADATA_MEMBER}; re-save it with "
-                f"fxc_env.policies.policy_files.save_model, or {TRUST_HINT}"
-            )
-        plain_options = {
-            "net_arch",
-            "log_std_init",
-            "ortho_init",
-            "squash_output",
-            "use_expln",
-            "n_critics",
-            "use_sde",
-            "clip_mean",
-            "share_features_extractor",
-            "normalize_images",
-        }
-        unknown = sorted(set(kwargs) - plain_options)
-        unknown += [key for key in ("squash_output", "use_sde") if kwargs.get(key)]
-        if data.get("use_sde"):
-            unknown.append("use_sde")
-        if unknown:
-            raise ArgumentError(f"policy: {path}: policy options {unknown} are not rebuilt; {TRUST_HINT}")
-        default_arch = [256, 256] if algorithm == "SAC" else [64, 64]
-        spec = {
-            "algorithm": algorithm,
-            "policy_class": _class_name(path, data),
-            "net_arch": kwargs.get("net_arch", default_arch),
-            "activation": "relu" if algorithm == "SAC" else "tanh",
-            "observation": _readable_space(path, data, "observation_space"),
-            "action": _readable_space(path, data, "action_space"),
-            "normalization": None,
-            "env": None,
-            "domain": None,
-            "metadata": None,
-        }
+    spec = _recorded_spec(path, metadata) if metadata is not None else _plain_spec(path, data, weights)
     if spec["algorithm"] not in KNOWN_POLICIES or spec["policy_class"] not in KNOWN_POLICIES[spec["algorithm"]]:
         raise ArgumentError(
             f"policy: {path}: {spec['algorithm']} with {spec['policy_class']} is not a network this loader rebuilds "
@@ -455,46 +342,33 @@ def _actor_widths(net_arch: Any, key: str) -> list[int]:
     return [int(w) for w in net_arch]
 
 
+#: SB3's actor parameters -> :class:`~fxc_env.policies.networks.MeanActor`'s (PPO's and SAC's).
+_ACTOR_PREFIXES = {
+    "ActorCriticPolicy": {"mlp_extractor.policy_net.": "latent.", "action_net.": "mean."},
+    "SACPolicy": {"actor.latent_pi.": "latent.", "actor.mu.": "mean."},
+}
+
+
+def _renamed(weights: Mapping[str, Any], prefixes: Mapping[str, str]) -> dict[str, Any]:
+    """The entries of ``weights`` under a prefix of ``prefixes``, under its new prefix."""
+    return {new + k[len(old) :]: v for old, new in prefixes.items() for k, v in weights.items() if k.startswith(old)}
+
+
 def _build(path: Path, spec: dict[str, Any], weights: Mapping[str, Any]) -> Any:
     """The actor network of ``spec`` with ``weights`` loaded (strictly: every actor key, no other)."""
     from torch import nn
 
-    activation = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}[spec["activation"]]
+    from fxc_env.policies.networks import GainActor, MeanActor, mlp
+
     obs_size = int(np.prod(spec["observation"]["shape"]))
     action_size = int(np.prod(spec["action"]["shape"]))
-
-    def mlp(widths: list[int]) -> nn.Sequential:
-        layers: list[nn.Module] = []
-        width = obs_size
-        for size in widths:
-            layers += [nn.Linear(width, size), activation()]
-            width = size
-        return nn.Sequential(*layers)
-
-    mean_actor, gain_actor = _actor_classes()
     cls = spec["policy_class"]
-    if cls == "ActorCriticPolicy":
+    if cls in ("ActorCriticPolicy", "SACPolicy"):
         widths = _actor_widths(spec["net_arch"], "pi")
-        module: nn.Module = mean_actor(mlp(widths), nn.Linear(widths[-1] if widths else obs_size, action_size))
-        state = {
-            **{
-                k.replace("mlp_extractor.policy_net.", "latent.", 1): v
-                for k, v in weights.items()
-                if k.startswith("mlp_extractor.policy_net.")
-            },
-            **{k.replace("action_net.", "mean.", 1): v for k, v in weights.items() if k.startswith("action_net.")},
-        }
-    elif cls == "SACPolicy":
-        widths = _actor_widths(spec["net_arch"], "pi")
-        module = mean_actor(mlp(widths), nn.Linear(widths[-1] if widths else obs_size, action_size))
-        state = {
-            **{
-                k.replace("actor.latent_pi.", "latent.", 1): v
-                for k, v in weights.items()
-                if k.startswith("actor.latent_pi.")
-            },
-            **{k.replace("actor.mu.", "mean.", 1): v for k, v in weights.items() if k.startswith("actor.mu.")},
-        }
+        module: nn.Module = MeanActor(
+            mlp(obs_size, None, widths, spec["activation"]), nn.Linear(widths[-1] if widths else obs_size, action_size)
+        )
+        state = _renamed(weights, _ACTOR_PREFIXES[cls])
     else:  # the gain-scheduled networks of fxc_env.policies.gain_network
         from fxc_env.policies.gain_network import GainScheduledExtractor, GatedGainExtractor
 
@@ -505,151 +379,86 @@ def _build(path: Path, spec: dict[str, Any], weights: Mapping[str, Any]) -> Any:
             extractor = extractor_class(obs_size, hidden)
         except ValueError as exc:
             raise ArgumentError(f"policy: {path}: {exc}") from exc
-        module = gain_actor(extractor)
-        state = {
-            k.replace("mlp_extractor.", "extractor.", 1): v
-            for k, v in weights.items()
-            if k.startswith("mlp_extractor.")
-        }
+        module = GainActor(extractor)
+        state = _renamed(weights, {"mlp_extractor.": "extractor."})
     try:
         module.load_state_dict(state, strict=True)
     except RuntimeError as exc:
         raise ArgumentError(
             f"policy: {path}: the weights in policy.pth do not fit {spec['algorithm']} {cls} with net_arch "
-            f"{spec['net_arch']} ({_summary(exc)})"
+            f"{spec['net_arch']} ({summary(exc)})"
         ) from exc
     return module.eval().requires_grad_(False)
 
 
-@functools.cache
-def _actor_classes() -> tuple[type, type]:
-    """The two actor modules (defined on first use: torch is imported only when a policy loads)."""
-    from torch import nn
-
-    class MeanActor(nn.Module):
-        """SB3's actor mean: ``mean(latent(obs))`` (PPO's ``action_net(policy_net)``, SAC's ``mu(latent_pi)``)."""
-
-        def __init__(self, latent: nn.Module, mean: nn.Module) -> None:
-            super().__init__()
-            self.latent, self.mean = latent, mean
-
-        def forward(self, obs):
-            return self.mean(self.latent(obs))
-
-    class GainActor(nn.Module):
-        """The gain networks' action mean: the extractor's ``forward_actor`` (their ``action_net`` is the identity)."""
-
-        def __init__(self, extractor: nn.Module) -> None:
-            super().__init__()
-            self.extractor = extractor
-
-        def forward(self, obs):
-            return self.extractor.forward_actor(obs)
-
-    return MeanActor, GainActor
+#: What loading a damaged or foreign SB3 ``.zip`` raises: zipfile's and zlib's errors for a damaged
+#: archive (SB3 wraps some in ``ValueError``), ``KeyError``/``AssertionError`` ("No data found") for
+#: an archive without SB3's members, JSON and pickle errors for damaged members, ``EOFError`` and
+#: torch's ``RuntimeError`` for truncated weights, ``TypeError``/``ValueError`` for the wrong algorithm.
+MODEL_LOAD_ERRORS = (
+    zipfile.BadZipFile,
+    zlib.error,
+    EOFError,
+    KeyError,
+    AssertionError,
+    pickle.UnpicklingError,
+    ValueError,
+    TypeError,
+    RuntimeError,
+    OSError,
+)
 
 
-# ---------------------------------------------------------------------------------------- writing
-def policy_metadata(model: Any, env: Any = None) -> dict[str, Any]:
-    """The :data:`METADATA_MEMBER` record of an SB3 ``model`` in memory (see the module).
+def read_normalization(path: str | Path, obs_size: int, *, trusted: bool = False) -> dict[str, Any]:
+    """VecNormalize's observation statistics from ``path``: ``{"mean", "var", "epsilon", "clip_obs"}``.
 
-    ``env``: the training environment (an fxc_env environment or EnvConfig); by default
-    the one under ``model.get_env()`` (its VecNormalize statistics are recorded too).
+    A ``.json`` or ``.npz`` (``allow_pickle=False``) holds plain arrays; anything else is taken
+    for VecNormalize's pickle, read only with ``trusted=True`` (unpickling runs the file's code).
     """
-    from stable_baselines3.common.vec_env import VecNormalize
-    from torch import nn
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"vecnormalize: no statistics file at {path}")
+    try:
+        if path.suffix == ".json":
+            record = dict(json.loads(path.read_text()))
+        elif path.suffix == ".npz":
+            with np.load(path, allow_pickle=False) as arrays:
+                record = {key: arrays[key] for key in arrays.files}
+        elif trusted:
+            with open(path, "rb") as handle:
+                normalizer = pickle.load(handle)
+            record = {
+                "mean": normalizer.obs_rms.mean,
+                "var": normalizer.obs_rms.var,
+                "epsilon": normalizer.epsilon,
+                "clip_obs": normalizer.clip_obs,
+            }
+        else:
+            raise ArgumentError(
+                f"vecnormalize: {path} is a pickle (VecNormalize.save), and unpickling runs code from the file; "
+                f"nothing in it was run. Give the statistics as .json or .npz (mean, var, epsilon, clip_obs), or "
+                f"{TRUST_HINT}"
+            )
+    except (KeyError, TypeError, ValueError, OSError) as exc:
+        if isinstance(exc, ArgumentError):
+            raise
+        raise ArgumentError(f"vecnormalize: cannot read statistics from {path} ({summary(exc)})") from exc
+    return normalization_stats(record, obs_size, path)
 
-    policy = model.policy
-    names = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu", nn.LeakyReLU: "leaky_relu"}
-    activation_fn = getattr(policy, "activation_fn", None)
-    policy_class = type(policy).__name__
-    hidden = getattr(policy, "_hidden", None)  # the gain networks keep their widths here
-    net_arch = list(hidden) if hidden is not None else getattr(policy, "net_arch", None)
-    normalization = None
-    vec = model.get_env()
-    if isinstance(vec, VecNormalize) and vec.norm_obs:
-        normalization = {
-            "mean": np.asarray(vec.obs_rms.mean, dtype=float).tolist(),
-            "var": np.asarray(vec.obs_rms.var, dtype=float).tolist(),
-            "epsilon": float(vec.epsilon),
-            "clip_obs": float(vec.clip_obs),
+
+def normalization_stats(record: Any, obs_size: int, source: Any) -> dict[str, Any]:
+    """VecNormalize's statistics as float64 arrays ``mean``, ``var`` ``(obs_size,)`` and floats ``epsilon``, ``clip_obs``."""
+    try:
+        stats = {
+            "mean": np.asarray(record["mean"], dtype=np.float64),
+            "var": np.asarray(record["var"], dtype=np.float64),
+            "epsilon": float(record.get("epsilon", 1e-8)),
+            "clip_obs": float(record.get("clip_obs", 10.0)),
         }
-    source = env if env is not None else _innermost(vec)
-    settings = domain = None
-    if source is not None:
-        from fxc_env.policies.domain import training_domain
-
-        try:
-            settings, domain = training_settings(source), training_domain(source)
-        except ArgumentError:
-            settings = domain = None
-    return {
-        "format": METADATA_FORMAT,
-        "algorithm": type(model).__name__,
-        "policy_class": policy_class,
-        "net_arch": net_arch,
-        "activation": names.get(activation_fn, getattr(activation_fn, "__name__", None)),
-        "features_extractor": _extractor_name(policy),
-        "observation": _space_record(model.observation_space),
-        "action": _space_record(model.action_space),
-        "normalization": normalization,
-        "num_timesteps": int(model.num_timesteps),
-        "env": settings,
-        "domain": domain,
-    }
-
-
-def _extractor_name(policy: Any) -> str | None:
-    """The class name of the actor's features extractor (the policy's own, or SAC's actor's)."""
-    for owner in (policy, getattr(policy, "actor", None)):
-        extractor = getattr(owner, "features_extractor", None)
-        if extractor is not None:
-            return type(extractor).__name__
-    return None
-
-
-def _innermost(vec: Any) -> Any:
-    """The environment under SB3's VecEnv wrappers (``venv`` chains), or None."""
-    while vec is not None and hasattr(vec, "venv"):
-        vec = vec.venv
-    return vec
-
-
-def _space_record(space: Any) -> dict[str, Any]:
-    return {
-        "shape": [int(n) for n in space.shape],
-        "low": np.asarray(space.low, dtype=float).ravel().tolist(),
-        "high": np.asarray(space.high, dtype=float).ravel().tolist(),
-    }
-
-
-def add_metadata(path: str | Path, record: Mapping[str, Any]) -> Path:
-    """Write ``record`` as :data:`METADATA_MEMBER` into the ``.zip`` at ``path``; the other members' bytes are kept."""
-    path = Path(path)
-    text = json.dumps(dict(record), indent=1, allow_nan=True)
-    with zipfile.ZipFile(path) as archive:
-        has_member = METADATA_MEMBER in archive.namelist()
-    if not has_member:
-        with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as archive:
-            archive.writestr(METADATA_MEMBER, text)
-        return path
-    temporary = path.with_name(path.name + ".tmp")
-    with zipfile.ZipFile(path) as source, zipfile.ZipFile(temporary, "w") as target:
-        for info in source.infolist():
-            if info.filename != METADATA_MEMBER:
-                target.writestr(info, source.read(info))
-        target.writestr(METADATA_MEMBER, text, compress_type=zipfile.ZIP_DEFLATED)
-    temporary.replace(path)
-    return path
-
-
-def save_model(model: Any, path: str | Path, env: Any = None) -> Path:
-    """SB3's ``model.save(path)``, plus :data:`METADATA_MEMBER` (so the file loads without unpickling).
-
-    Returns the path of the ``.zip`` (SB3 adds the suffix when it is missing).
-    """
-    path = Path(path)
-    model.save(path)
-    if path.suffix != ".zip":
-        path = path.with_name(path.name + ".zip")
-    return add_metadata(path, policy_metadata(model, env))
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ArgumentError(f"vecnormalize: cannot read statistics from {source} ({summary(exc)})") from exc
+    if stats["mean"].shape != (obs_size,) or stats["var"].shape != (obs_size,):
+        raise ArgumentError(
+            f"vecnormalize: {source} holds statistics of shape {stats['mean'].shape}; the model takes ({obs_size},)"
+        )
+    return stats

@@ -38,17 +38,13 @@ import torch
 from torch import nn
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.engine.graph_tensors import graph_tensors
+from fxc_env.policies.networks import ACTIVATIONS, mlp
 
 #: ``--policy-arch`` choices.
 ARCHS = ("mlp", "gru", "gnn")
 #: What a ``gru`` actor's GRU reads (:class:`RecurrentActor`).
 GRU_INPUTS = ("observation", "schedule")
-
-
-def _mlp(inputs: int, outputs: int, hidden: tuple[int, ...], activation: str, out_gain: float) -> nn.Sequential:
-    from fxc_env.policies.torch_policy import mlp
-
-    return mlp(inputs, outputs, hidden, activation, out_gain)
 
 
 class GainHead(nn.Module):
@@ -65,7 +61,7 @@ class GainHead(nn.Module):
     ) -> None:
         super().__init__()
         self.inputs, self.action_size, self.affine = inputs, action_size, affine
-        self.net = _mlp(features, action_size * (inputs + int(affine)), hidden, activation, 0.01)
+        self.net = mlp(features, action_size * (inputs + int(affine)), hidden, activation, 0.01)
 
     def forward(self, features: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
         out = self.net(features).unflatten(-1, (self.action_size, self.inputs + int(self.affine)))
@@ -174,8 +170,6 @@ class MessagePassingActor(nn.Module):
         rounds: int,
     ) -> None:
         super().__init__()
-        from fxc_env.policies.torch_policy import ACTIVATIONS
-
         self.obs_size, self.embed_size, self.rounds = obs_size, embed_size, rounds
         self.embed = nn.Linear(obs_size, embed_size)
         self.own = nn.ModuleList(nn.Linear(embed_size, embed_size) for _ in range(rounds))
@@ -222,19 +216,20 @@ def interval_graph(engine: Any, observations: Any = None, width: int | None = No
     :func:`fxc_env.engine.graph_tensors.graph_tensors` (links lost to ``link_dropout`` left out);
     ``width`` pads ``E`` (:func:`~fxc_env.engine.graph_tensors.edge_capacity` keeps it fixed).
     """
-    from fxc_env.engine.graph_tensors import graph_tensors
-
     tensors = graph_tensors(engine, observations, width)
     return torch.as_tensor(tensors.edge_index), torch.as_tensor(tensors.edge_mask)
 
 
-def build_actor(record: dict[str, Any], obs_size: int, action_size: int) -> nn.Module:
-    """The actor a policy record's ``arch`` describes (``mlp``, ``gru``, ``gnn``); raise naming ``arch`` otherwise."""
+def build_actor(record: dict[str, Any], obs_size: int, action_size: int, out_gain: float = 1.0) -> nn.Module:
+    """The actor a policy record's ``arch`` describes (``mlp``, ``gru``, ``gnn``); raise naming ``arch`` otherwise.
+
+    ``out_gain``: the ``mlp``'s orthogonal gain of its output layer (a new actor's; a loaded one's weights replace it).
+    """
     arch = str(record.get("arch", "mlp"))
     hidden = tuple(int(w) for w in record["hidden"])
     activation = str(record["activation"])
     if arch == "mlp":
-        return _mlp(obs_size, action_size, hidden, activation, 1.0)
+        return mlp(obs_size, action_size, hidden, activation, out_gain)
     if arch == "gru":
         return RecurrentActor(
             obs_size,

@@ -15,39 +15,24 @@ this module is what evaluation needs.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-from torch import nn
 
+from fxc_env.config import make_config
+from fxc_env.config.layout import ObservationLayout
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.domain import training_domain
+from fxc_env.policies.fit import check_fit, check_width, settings_from_env_kwargs
+from fxc_env.policies.networks import ACTIVATIONS, mlp  # noqa: F401  (their public path before networks.py)
+from fxc_env.policies.torch_memory import build_actor
 
 #: The ``format`` of a policy record, and of a checkpoint (which holds one under ``"policy"``).
 POLICY_FORMAT = "fxc_env.torch_ppo.policy/1"
 CHECKPOINT_FORMAT = "fxc_env.torch_ppo.checkpoint/1"
-#: Activations a network may use.
-ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
-
-
-def mlp(inputs: int, outputs: int, hidden: tuple[int, ...], activation: str, out_gain: float) -> nn.Sequential:
-    """``Linear`` + activation layers, orthogonally initialised (SB3's gains: sqrt 2, then ``out_gain``)."""
-    layers: list[nn.Module] = []
-    width = inputs
-    for size in hidden:
-        layer = nn.Linear(width, size)
-        nn.init.orthogonal_(layer.weight, math.sqrt(2.0))
-        nn.init.zeros_(layer.bias)
-        layers += [layer, ACTIVATIONS[activation]()]
-        width = size
-    last = nn.Linear(width, outputs)
-    nn.init.orthogonal_(last.weight, out_gain)
-    nn.init.zeros_(last.bias)
-    layers.append(last)
-    return nn.Sequential(*layers)
 
 
 class TorchPolicy:
@@ -70,8 +55,6 @@ class TorchPolicy:
         self.action_bound = float(record["action_bound"])
         self.env: dict[str, Any] = dict(record.get("env", {}))
         self.timesteps = int(record.get("timesteps", 0))
-        from fxc_env.policies.torch_memory import build_actor
-
         #: ``mlp`` (absent in older files), ``gru`` or ``gnn`` (:mod:`fxc_env.policies.torch_memory`).
         self.arch = str(record.get("arch", "mlp"))
         self.module = build_actor(record, self.obs_size, self.action_size)
@@ -85,8 +68,6 @@ class TorchPolicy:
     def training_settings(self) -> dict[str, Any] | None:
         """The settings of the environment ``env`` describes (None when it records none or does not build)."""
         if self._settings is None and self.env:
-            from fxc_env.policies.policy_files import settings_from_env_kwargs
-
             self._settings = settings_from_env_kwargs(self.env)
         return self._settings
 
@@ -94,9 +75,6 @@ class TorchPolicy:
     def training_domain(self) -> dict[str, Any] | None:
         """Where it was trained (:mod:`fxc_env.policies.domain`): the record's ``domain``, else the one ``env`` makes."""
         if self._domain is None and self.env:
-            from fxc_env.config import make_config
-            from fxc_env.policies.domain import training_domain
-
             try:
                 self._domain = training_domain(make_config(**self.env))
             except (ArgumentError, TypeError):
@@ -177,8 +155,6 @@ def flat_observation(observation: Any) -> np.ndarray:
             f"observations: a dict observation needs 'neighbours', 'mask' and 'clock' (obs_format='dict'); "
             f"missing {missing}"
         )
-    from fxc_env.config.layout import ObservationLayout
-
     layout = ObservationLayout(1, 1, limit_feature="input_limit" in observation)
     return layout.flat(observation)
 
@@ -220,8 +196,6 @@ def load_torch_policy(path: str | Path, env: Any = None, *, allow_out_of_domain:
     except (RuntimeError, TypeError, ValueError) as exc:  # missing, extra or misshapen weights; a wrong value
         raise ArgumentError(f"policy: {str(path)!r} does not load as a torch policy: {one_line(exc)}") from exc
     if env is not None:
-        from fxc_env.policies.learned import check_fit, check_width
-
         check_width(policy, env, path)  # a fixed-width network: another obs_slots is refused by name
         check_fit(policy, env, "policy", allow_out_of_domain=allow_out_of_domain)
     return policy

@@ -1,9 +1,5 @@
-"""``fxc speed``'s command: its options, which tables run, and the report (``python -m fxc_env.speed`` too).
-
-The tables live one topic a module (:mod:`~fxc_env.speed.parallel`, :mod:`~fxc_env.speed.vecenv`,
-:mod:`~fxc_env.speed.torchrl`, :mod:`~fxc_env.speed.training`, :mod:`~fxc_env.speed.scaling`,
-:mod:`~fxc_env.speed.models`, :mod:`~fxc_env.speed.cuda`); this module picks them from the
-options, prints them in order, and closes with every goal line of the run.
+"""``fxc speed``'s command (``python -m fxc_env.speed`` too): its options, which tables of :mod:`fxc_env.speed`
+run, in order, and the closing report of every goal line of the run.
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from fxc_env.config import make_config
 from fxc_env.speed.steppers import engine_stepper
 from fxc_env.speed.timing import BLOCK_SECONDS, alternate, calibrated_count, importable, met, timed_rate
 from fxc_env.speed.vecenv import vmas_stepper
@@ -87,8 +88,6 @@ def device_engine_rate(config: Any, n_episodes: int, device: Any, rounds: int, s
 
 
 def _episode_config(n_agents: int) -> Any:
-    from fxc_env.config import make_config
-
     if n_agents == 6:
         return make_config(scenario="paper_fig1")
     return make_config(topology="random", n_agents=n_agents, mean_in_degree=4.0, dim=1)
@@ -198,8 +197,6 @@ def cuda_compare_table(
     A contender that is not importable here, or fails to start (out of memory, no GPU
     backend), is named in a note under the table instead of a row.
     """
-    from fxc_env.config import make_config
-
     agents = n_envs * 6
     timed: dict[str, Callable[[], float]] = {}
     notes: list[str] = []
@@ -220,27 +217,7 @@ def cuda_compare_table(
             raise
         notes.append(f"fxc_env engine: out of memory at {agents:,} agents")
     if contenders:
-        if importable("vmas"):
-            try:
-                step = vmas_stepper("simple_spread", agents, device=str(device))[0]
-                add(f"VMAS simple_spread (torch on {device}, float32, random actions)", step, 1, synchronizer(device))
-            except Exception as error:  # an optional contender that fails to start is reported, not fatal
-                notes.append(f"VMAS simple_spread: skipped ({type(error).__name__}: {error})".splitlines()[0])
-        else:
-            notes.append("VMAS: not importable here (pip install vmas)")
-        if importable("jaxmarl") and importable("jax"):
-            try:
-                call, sync = jaxmarl_stepper(n_envs, steps_per_call=JAX_STEPS_PER_CALL)
-                add(
-                    "JaxMARL MPE_simple_spread_v3 (jit + vmap + scan, float32, random actions)",
-                    call,
-                    JAX_STEPS_PER_CALL,
-                    sync,
-                )
-            except Exception as error:  # as above: jax without CUDA, clashing CUDA libraries, out of memory, ...
-                notes.append(f"JaxMARL MPE_simple_spread_v3: skipped ({type(error).__name__}: {error})".splitlines()[0])
-        else:
-            notes.append("JaxMARL: not importable here (pip install jaxmarl, jax with CUDA)")
+        _add_contenders(add, notes, device, agents, n_envs)
     rates = alternate(timed, rounds) if timed else {}
     ours = rates.get(OURS_ON_GPU)
     lines = [
@@ -251,6 +228,31 @@ def cuda_compare_table(
         ratio = f"{ours / rate:.1f}x" if ours is not None else ""
         lines.append(f"| {name} | {n_envs:,} | {agents:,} | {rate:,.0f} | {ratio} |")
     return lines + (["", *notes] if notes else [])
+
+
+def _add_contenders(add: Callable[..., None], notes: list[str], device: Any, agents: int, n_envs: int) -> None:
+    """VMAS and JaxMARL ``simple_spread`` through ``add`` where they start; a note naming why otherwise."""
+    if importable("vmas"):
+        try:
+            step = vmas_stepper("simple_spread", agents, device=str(device))[0]
+            add(f"VMAS simple_spread (torch on {device}, float32, random actions)", step, 1, synchronizer(device))
+        except Exception as error:  # an optional contender that fails to start is reported, not fatal
+            notes.append(f"VMAS simple_spread: skipped ({type(error).__name__}: {error})".splitlines()[0])
+    else:
+        notes.append("VMAS: not importable here (pip install vmas)")
+    if importable("jaxmarl") and importable("jax"):
+        try:
+            call, sync = jaxmarl_stepper(n_envs, steps_per_call=JAX_STEPS_PER_CALL)
+            add(
+                "JaxMARL MPE_simple_spread_v3 (jit + vmap + scan, float32, random actions)",
+                call,
+                JAX_STEPS_PER_CALL,
+                sync,
+            )
+        except Exception as error:  # as above: jax without CUDA, clashing CUDA libraries, out of memory, ...
+            notes.append(f"JaxMARL MPE_simple_spread_v3: skipped ({type(error).__name__}: {error})".splitlines()[0])
+    else:
+        notes.append("JaxMARL: not importable here (pip install jaxmarl, jax with CUDA)")
 
 
 def cuda_tables(

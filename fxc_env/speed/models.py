@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from fxc_env.core.linear import model_matrices
 from fxc_env.speed.scaling import scaling_row
 from fxc_env.speed.timing import met
 
@@ -21,8 +22,6 @@ def models_table(n_agents: int | None = None, steps: int | None = None) -> list[
     path (matrix exponentials and the scaled Gramian, :mod:`fxc_env.core.linear`), whose ratio
     is the goal line.
     """
-    from fxc_env.core.linear import model_matrices
-
     n_agents = MODELS_N if n_agents is None else n_agents
     steps = MODELS_STEPS if steps is None else steps
     models = [

@@ -14,6 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.config import make_config
+from fxc_env.engine import ConsensusEngine
+from fxc_env.policies.reference import ReferencePolicy
 from fxc_env.speed.timing import met
 
 #: The first N of the scaling table; ``--largest`` is at least this.
@@ -38,10 +41,6 @@ def scaling_row(n_agents: int, steps: int, dim: int = 1, **model: Any) -> tuple[
 
     ``model``: ``agent_model`` and its parameters (default: the double integrator's closed forms).
     """
-    from fxc_env.config import make_config
-    from fxc_env.engine import ConsensusEngine
-    from fxc_env.policies.reference import ReferencePolicy
-
     tracemalloc.start()
     config = make_config(
         topology="random", n_agents=n_agents, mean_in_degree=4.0, n_intervals=steps + 1, dim=dim, **model

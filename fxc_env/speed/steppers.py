@@ -7,6 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.engine import ConsensusEngine
+from fxc_env.policies.reference import ReferencePolicy
+
 
 def engine_stepper(config: Any, n_episodes: int, device: Any = None, seed: int = 0) -> tuple[Callable[[], None], Any]:
     """One interval of B episodes: ``engine.observations`` -> ``ReferencePolicy.act`` -> ``engine.step``.
@@ -15,9 +18,6 @@ def engine_stepper(config: Any, n_episodes: int, device: Any = None, seed: int =
     else a torch device. Episodes restart together (``draw_batch`` + ``reset``) at ``T_s``.
     Returns the step and the engine (for :meth:`~fxc_env.engine.ConsensusEngine.raise_if_invalid`).
     """
-    from fxc_env.engine import ConsensusEngine
-    from fxc_env.policies.reference import ReferencePolicy
-
     engine = ConsensusEngine(config, n_episodes, device=device)
     engine.seed(seed)
     policy = ReferencePolicy(config)

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
+from typing import Any
 
+from fxc_env.config import make_config
 from fxc_env.speed.steppers import engine_stepper
 from fxc_env.speed.timing import BLOCK_SECONDS, alternate, calibrated_count, met, timed_rate
 
@@ -26,6 +28,19 @@ TORCHRL_WRAPPER_GOAL = 1000.0
 TORCHRL_NUMPY_GOAL = 0.5
 
 
+def _stepper(env: Any, policy: Any) -> Callable[[], None]:
+    """``env.step`` of ``policy``'s actions and ``step_mdp``; ``env.reset()`` once the episodes are done."""
+    from torchrl.envs.utils import step_mdp
+
+    state = {"td": env.reset()}
+
+    def step() -> None:
+        td = step_mdp(env.step(policy(state["td"])))
+        state["td"] = env.reset() if bool(td["done"].any()) else td
+
+    return step
+
+
 def torchrl_wrapper_stepper(seed: int = 0) -> Callable[[], None]:
     """One env-step of ``paper_fig1`` in TorchRL's ``PettingZooWrapper`` (:func:`fxc_env.envs.interop.torchrl_wrapper`).
 
@@ -33,9 +48,7 @@ def torchrl_wrapper_stepper(seed: int = 0) -> Callable[[], None]:
     ``env.step`` and ``step_mdp``; ``env.reset()`` when the episode is done.
     """
     from tensordict.nn import TensorDictModule
-    from torchrl.envs.utils import step_mdp
 
-    from fxc_env.config import make_config
     from fxc_env.envs.interop import torchrl_wrapper
     from fxc_env.policies.torchrl_reference import ReferenceModule
 
@@ -48,13 +61,7 @@ def torchrl_wrapper_stepper(seed: int = 0) -> Callable[[], None]:
         in_keys=[("agents", "observation")],
         out_keys=[("agents", "action")],
     )
-    state = {"td": env.reset()}
-
-    def step() -> None:
-        td = step_mdp(env.step(policy(state["td"])))
-        state["td"] = env.reset() if bool(td["done"].any()) else td
-
-    return step
+    return _stepper(env, policy)
 
 
 def torchrl_batched_stepper(n_episodes: int, seed: int = 0, device: str = "cpu") -> Callable[[], None]:
@@ -63,20 +70,12 @@ def torchrl_batched_stepper(n_episodes: int, seed: int = 0, device: str = "cpu")
     What a TorchRL user writes: ``reference_policy(env)``, ``env.step``, ``step_mdp``, and
     ``env.reset()`` once the episodes are done.
     """
-    from torchrl.envs.utils import step_mdp
-
     from fxc_env.envs.torch_env import ConsensusTorchEnv
     from fxc_env.policies.torchrl_reference import reference_policy
 
     env = ConsensusTorchEnv(batch_size=n_episodes, device=device, seed=seed, scenario="paper_fig1")
     policy = reference_policy(env)
-    state = {"td": env.reset()}
-
-    def step() -> None:
-        td = step_mdp(env.step(policy(state["td"])))
-        state["td"] = env.reset() if bool(td["done"].any()) else td
-
-    return step
+    return _stepper(env, policy)
 
 
 #: The TorchRL table's rows: (key, label) per contender at each size.
@@ -97,8 +96,6 @@ def torchrl_rates(
     ``("wrapper", 6)`` is the PettingZoo wrapper; each size in ``sizes`` (B x N, rounded up
     to whole ``paper_fig1`` episodes) has the keys of :data:`TORCHRL_ROWS`.
     """
-    from fxc_env.config import make_config
-
     config = make_config(scenario="paper_fig1")
     n = config.n_agents
     steppers: dict[tuple[str, int], tuple[Callable[[], None], int]] = {("wrapper", n): (torchrl_wrapper_stepper(), n)}

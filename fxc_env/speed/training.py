@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import time
+from typing import Any
 
 from fxc_env.speed.timing import importable, met
 
@@ -44,39 +45,21 @@ def training_rate(backend: str, timesteps: int, threads: int) -> tuple[float, fl
     return timesteps / seconds, seconds
 
 
-def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 2, minibatch: int = 2048) -> float:
-    """Agent-steps/s of PPO written with TorchRL's own pieces on :class:`~fxc_env.envs.torch_env.ConsensusTorchEnv`.
-
-    ``Collector`` + ``ClipPPOLoss`` (GAE, a replay buffer of one rollout, TanhNormal actor)
-    with the torch back end's settings on paper_fig1 (B = ``episodes``, one whole episode a
-    rollout, ``epochs`` passes in minibatches of ``minibatch`` agent-steps, 64 x 64 tanh
-    networks): the alternative ``--backend torch`` was measured against. The first
-    rollout (warm-up) is not timed.
-    """
+def _torchrl_ppo(size: int, actions: int, bound: float) -> tuple[Any, Any]:
+    """TorchRL's TanhNormal actor and ``ClipPPOLoss`` (GAE, gamma 1, lambda 0.95) with 64 x 64 tanh networks."""
     import torch
     from tensordict.nn import TensorDictModule
     from torch import nn
-    from torchrl.collectors import Collector
-    from torchrl.data import LazyTensorStorage, ReplayBuffer
-    from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
     from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
     from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
-    from fxc_env.envs.torch_env import GROUP, ConsensusTorchEnv
-
-    env = ConsensusTorchEnv(
-        batch_size=episodes, seed=0, obs_dtype="float32", scenario="paper_fig1", obs_slots=4, initial_state="random"
-    )
-    size, actions, bound = env.config.layout.size, env.config.action_size, env.config.action_bound
-    steps = env.config.n_intervals
-
-    def mlp(inputs: int, outputs: int) -> nn.Module:
-        return nn.Sequential(nn.Linear(inputs, 64), nn.Tanh(), nn.Linear(64, 64), nn.Tanh(), nn.Linear(64, outputs))
+    from fxc_env.envs.torch_env import GROUP
+    from fxc_env.policies.networks import mlp
 
     class Gaussian(nn.Module):
         def __init__(self) -> None:
             super().__init__()
-            self.mean = mlp(size, actions)
+            self.mean = mlp(size, actions, (64, 64))
             self.log_std = nn.Parameter(torch.full((actions,), -2.0))
 
         def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -93,16 +76,7 @@ def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 
         return_log_prob=True,
         log_prob_key=(GROUP, "sample_log_prob"),
     )
-    critic = ValueOperator(mlp(size, 1), in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "state_value")])
-    frames = episodes * steps
-    collector = Collector(
-        env,
-        actor,
-        frames_per_batch=frames,
-        total_frames=frames * (rollouts + 1),
-        device="cpu",
-        auto_register_policy_transforms=False,
-    )
+    critic = ValueOperator(mlp(size, 1, (64, 64)), in_keys=[(GROUP, "observation")], out_keys=[(GROUP, "state_value")])
     loss = ClipPPOLoss(actor_network=actor, critic_network=critic, clip_epsilon=0.2, entropy_coeff=0.0)
     loss.set_keys(
         reward=(GROUP, "reward"),
@@ -113,6 +87,39 @@ def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 
         terminated=(GROUP, "terminated"),
     )
     loss.make_value_estimator(ValueEstimators.GAE, gamma=1.0, lmbda=0.95)
+    return actor, loss
+
+
+def torchrl_collector_rate(rollouts: int = 3, episodes: int = 64, epochs: int = 2, minibatch: int = 2048) -> float:
+    """Agent-steps/s of PPO written with TorchRL's own pieces on :class:`~fxc_env.envs.torch_env.ConsensusTorchEnv`.
+
+    ``Collector`` + ``ClipPPOLoss`` (GAE, a replay buffer of one rollout, TanhNormal actor)
+    with the torch back end's settings on paper_fig1 (B = ``episodes``, one whole episode a
+    rollout, ``epochs`` passes in minibatches of ``minibatch`` agent-steps, 64 x 64 tanh
+    networks): the alternative ``--backend torch`` was measured against. The first
+    rollout (warm-up) is not timed.
+    """
+    import torch
+    from torch import nn
+    from torchrl.collectors import Collector
+    from torchrl.data import LazyTensorStorage, ReplayBuffer
+    from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
+
+    from fxc_env.envs.torch_env import GROUP, ConsensusTorchEnv
+
+    env = ConsensusTorchEnv(
+        batch_size=episodes, seed=0, obs_dtype="float32", scenario="paper_fig1", obs_slots=4, initial_state="random"
+    )
+    actor, loss = _torchrl_ppo(env.config.layout.size, env.config.action_size, env.config.action_bound)
+    frames = episodes * env.config.n_intervals
+    collector = Collector(
+        env,
+        actor,
+        frames_per_batch=frames,
+        total_frames=frames * (rollouts + 1),
+        device="cpu",
+        auto_register_policy_transforms=False,
+    )
     optimiser = torch.optim.Adam(loss.parameters(), lr=3e-4, eps=1e-5)
     per_minibatch = max(1, minibatch // env.n_agents)
     buffer = ReplayBuffer(
