@@ -10,7 +10,7 @@ figures' markers and :func:`fxc_env.baselines.load_policy` pick it up.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from fxc_env.baselines.bounded_steer import BoundedSteerPolicy
@@ -54,7 +54,7 @@ class Law:
     action_mode: str
     obs_mode: str
     also_on: tuple[str, ...] = ()
-    opt_ins: tuple[OptIn, ...] = field(default=())
+    opt_ins: tuple[OptIn, ...] = ()
     leaderboard: bool = False
 
     @property

@@ -174,7 +174,7 @@ def learned_contender(
     try:
         policy = load_learned_policy(path, trusted=trusted, allow_out_of_domain=allow_out_of_domain)
     except (FileNotFoundError, ArgumentError) as exc:
-        raise ArgumentError(_renamed(str(exc), name)) from exc
+        raise ArgumentError(f"{name}: {str(exc).removeprefix('policy: ')}") from exc  # the loader names 'policy'
     obs_size = policy.obs_size
     slots, remainder = divmod(obs_size - CLOCK_SIZE, 3)  # remainder 1: the input-limit feature
     if remainder == 2 or slots < 1:
@@ -186,11 +186,6 @@ def learned_contender(
     return Contender(
         f"learned:{label}", str(path), True, schedule, action_mode, obs_mode, slots, trusted, allow_out_of_domain
     )
-
-
-def _renamed(message: str, name: str) -> str:
-    """``message`` (``"policy: ..."`` from :mod:`fxc_env.policies.learned`) naming ``name`` instead."""
-    return f"{name}: {message.removeprefix('policy: ')}"
 
 
 def model_path(spec: str) -> Path:

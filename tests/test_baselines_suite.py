@@ -7,6 +7,7 @@ import pytest
 
 from fxc_env import ReferencePolicy, make_config
 from fxc_env.baselines.finite_time import FiniteTimePolicy
+from fxc_env.baselines.registry import LAWS
 from fxc_env.baselines.suite import (
     BUILTIN_SETTINGS,
     builtin_contenders,
@@ -44,16 +45,8 @@ def test_contender_settings_reach_the_environment():
         assert (config.schedule.name, config.action_mode, config.obs_mode) == BUILTIN_SETTINGS[contender.name][1:]
         assert config.n_intervals == 50
     sampled = {c.name for c in builtin_contenders() if c.sampled}
-    assert sampled == {
-        "reference",
-        "linear_sampled",
-        "saturation_aware",
-        "minimum_time",
-        "leader_follower",
-        "signalling",
-        "graph_agnostic",
-        "bounded_steer",
-    }  # the budget sweep
+    assert sampled == {name for name, law in LAWS.items() if law.sampled}  # the budget sweep
+    assert {"linear", "finite_time", "prescribed_time"}.isdisjoint(sampled)  # continuous laws run once, at fine K
 
 
 def test_load_policy_by_name():

@@ -9,7 +9,7 @@ import signal
 import pytest
 
 from fxc_env.core.validation import ArgumentError
-from fxc_env.training import TrainArgs
+from fxc_env.training import TrainArgs, registry
 from fxc_env.training.run_dir import CHECKPOINT_NAMES, RunDir, versions, write_training_curve
 
 COLUMNS = ("time/iterations", "time/total_timesteps", "rollout/ep_rew_mean", "train/loss")
@@ -36,7 +36,7 @@ def test_a_run_directory_is_named_by_its_arguments(tmp_path):
     assert old.backend == "torch" and old.checkpoint_path(2400) == tmp_path / "checkpoints" / "model_2400_steps.pt"
     assert RunDir(tmp_path, "sb3").checkpoint_path(4800).name == "model_4800_steps.zip"
     assert RunDir(tmp_path, "rllib").checkpoint_path(19200).name == "rllib_19200_steps"
-    assert set(CHECKPOINT_NAMES) == {"sb3", "torch", "diff", "rllib"}
+    assert set(CHECKPOINT_NAMES) == set(registry.BACKENDS)  # every registered back end names its checkpoints
 
 
 @pytest.mark.parametrize("backend", ["sb3", "torch"])

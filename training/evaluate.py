@@ -28,6 +28,7 @@ from fxc_env.config.scenarios import scenario_preset
 from fxc_env.config.tasks import TASKS, NamedTask, get_task
 from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
+from fxc_env.training import seed_evaluation
 from fxc_env.utils.cli_checks import budgets as parse_budgets
 from fxc_env.utils.cli_checks import output_directory
 
@@ -179,8 +180,6 @@ def evaluate_command(args: argparse.Namespace) -> int:
     contenders = builtin_contenders(None if args.baselines else ["reference"])
     runs: list[Any] = []
     if args.runs is not None:
-        from fxc_env.training import seed_evaluation
-
         runs = [seed_evaluation.resolve_run(entry) for entry in seed_evaluation.expand_runs(args.runs)]
         label = args.label or seed_evaluation.default_label(runs)
         own = seed_evaluation.seed_contenders(

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from fxc_env.core.validation import ArgumentError
 from fxc_env.training.args import TrainArgs, check_train_args, default_run_dir
+from fxc_env.training.backends import train
 from fxc_env.training.run_dir import RunDir
 
 #: Most seeds one ``--seeds`` may name (each is a whole training run).
@@ -114,8 +115,6 @@ def train_seeds(args: TrainArgs, *, flags: bool = False) -> list[Path]:
     All seeds are checked first (:func:`plan_seed_runs`). Ctrl-C during one seed saves its
     checkpoint (as a single run does) and stops the sweep: ``KeyboardInterrupt`` propagates.
     """
-    from fxc_env.training.backends import train
-
     planned = plan_seed_runs(args, flags=flags)
     directories = []
     for i, seed_run in enumerate(planned, start=1):

@@ -27,7 +27,7 @@ from fxc_env.policies.fit import training_settings
 from fxc_env.policies.learned import SHIPPED, pretrained_path
 from fxc_env.policies.networks import mlp
 from fxc_env.policies.torch_memory import build_actor
-from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, one_line
+from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, is_torch_policy, load_torch_policy, one_line
 from fxc_env.training.args import TrainArgs
 from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
 from fxc_env.training.settings import PPOSettings
@@ -217,8 +217,6 @@ def init_actor(trainer: Any, source: str) -> Path:
     (``arch``, widths, activation, memory settings) or another observation layout
     (:data:`LAYOUT_SETTINGS`) than the run's.
     """
-    from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
-
     path = pretrained_path(source) if source in SHIPPED and not Path(source).exists() else Path(source)
     if not is_torch_policy(path):
         raise ArgumentError(

@@ -138,9 +138,14 @@ class LearnedPolicy:
         self.model = load_model(model, trusted=trusted) if isinstance(model, str | Path) else model
         self.obs_size = int(np.prod(self.model.observation_space.shape))
         self.action_size = int(np.prod(self.model.action_space.shape))
-        self.training_settings = _recorded_settings(self.model)
+        recorded = hasattr(self.model, "training")  # a SavedModel's record, else the in-memory model's env
+        self.training_settings = self.model.training if recorded else _recorded(self.model, training_settings)
         self._stats = getattr(self.model, "normalization", None)
-        self.training_domain = _recorded_domain(self.model, self.training_settings)
+        self.training_domain = (
+            getattr(self.model, "domain", None)
+            or _recorded(self.model, training_domain)
+            or domain_from_settings(self.training_settings)
+        )
         if self.source is not None and trusted:  # SB3's loader: the plain record still says how it was trained
             record = read_metadata(self.source) or {}
             self.training_settings = self.training_settings or record.get("env")
@@ -165,29 +170,15 @@ class LearnedPolicy:
         return np.asarray(actions, dtype=np.float64).reshape((*lead, self.action_size))
 
 
-def _training_env(model: Any) -> Any:
-    """The environment an in-memory SB3 model trained on (under its VecEnv wrappers), or None (a SavedModel's: none)."""
-    get_env = None if hasattr(model, "training") else getattr(model, "get_env", None)
-    return innermost(get_env()) if callable(get_env) else None
-
-
 def _recorded(model: Any, read: Any) -> Any:
-    """``read`` (:func:`training_settings`, :func:`training_domain`) of ``model``'s training environment, or None."""
-    vec = _training_env(model)
+    """``read`` (:func:`training_settings`, :func:`training_domain`) of the environment an in-memory SB3 model
+    trained on (under its VecEnv wrappers), or None (a SavedModel has none: it records them)."""
+    get_env = None if hasattr(model, "training") else getattr(model, "get_env", None)
+    vec = innermost(get_env()) if callable(get_env) else None
     try:
         return None if vec is None else read(vec)
     except (ArgumentError, AttributeError):
         return None
-
-
-def _recorded_settings(model: Any) -> dict[str, Any] | None:
-    """The training settings a model records: a SavedModel's ``fxc_policy.json``, or an in-memory model's env."""
-    return model.training if hasattr(model, "training") else _recorded(model, training_settings)
-
-
-def _recorded_domain(model: Any, settings: Any) -> dict[str, Any] | None:
-    """The training domain a model records (a SavedModel's), an in-memory model's env's, or the part its settings give."""
-    return getattr(model, "domain", None) or _recorded(model, training_domain) or domain_from_settings(settings)
 
 
 def load_learned_policy(
