@@ -1,7 +1,8 @@
 """``fxc leaderboard``: BenchMARL's algorithms beside the analytic laws and the shipped policies on the named tasks.
 
 For every task of :data:`fxc_env.config.tasks.TASKS` (or those named), every algorithm trains
-for the same frame budget on each training seed (BenchMARL's MLP; ``mappo_gnn`` its GNN), and
+for the same frame budget on each training seed (BenchMARL's MLP; ``mappo_gnn`` its GNN,
+``mappo_gru`` its GRU, whose hidden state the scoring loop carries from step to step), and
 every contender is scored on the task's frozen evaluation seeds at its K by ``D(T_s)/D(0)``:
 the laws (reference, minimum_time, leader_follower, graph_agnostic, signalling) and the shipped
 learned policies through ``fxc evaluate --task``'s suite, the trained actors on the same
@@ -49,6 +50,7 @@ ALGORITHMS = {
     "masac": ("MasacConfig", "mlp"),
     "maddpg": ("MaddpgConfig", "mlp"),
     "mappo_gnn": ("MappoConfig", "gnn"),
+    "mappo_gru": ("MappoConfig", "gru"),
 }
 #: The analytic laws beside them (fxc_env.baselines).
 LAWS = ("reference", "minimum_time", "leader_follower", "graph_agnostic", "signalling")
@@ -61,7 +63,7 @@ def add_leaderboard_parser(commands: argparse._SubParsersAction) -> argparse.Arg
     parser = commands.add_parser(
         "leaderboard",
         help="BenchMARL's algorithms beside the analytic laws and shipped policies on the named tasks",
-        description="Train BenchMARL's MAPPO, IPPO, MASAC, MADDPG (MLP) and MAPPO with a GNN on the named tasks "
+        description="Train BenchMARL's MAPPO, IPPO, MASAC, MADDPG (MLP) and MAPPO with a GNN and a GRU on the named tasks "
         "(same frame budget, several training seeds), score them with the laws and shipped policies on each "
         "task's evaluation seeds by D(T_s)/D(0), and write table.md, marl_eval.json and performance_profile.png. "
         "Finished runs are kept under --out: a rerun resumes.",
@@ -183,28 +185,77 @@ def score_actor(task: NamedTask, act: Any) -> dict[str, list[float]]:
 
 def train_and_score(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path) -> dict[str, Any]:
     """One BenchMARL run of ``algorithm`` on ``task`` for ``frames`` frames, scored by :func:`score_actor`."""
+    experiment, actor = build_experiment(task, algorithm, seed, frames, folder)
+    experiment.run()
+    hidden = (actor.n_layers, actor.hidden_size) if actor.is_rnn else None
+    return {"task": task.full_id, "algorithm": algorithm, "seed": seed, "frames": int(experiment.total_frames),
+            **score_actor(task, policy_actor(experiment.policy, hidden))}  # fmt: skip
+
+
+def policy_actor(policy: Any, hidden: tuple[int, int] | None = None) -> Any:
+    """A trained BenchMARL policy as ``act(obs)`` for :func:`score_actor`, deterministic.
+
+    A recurrent actor (BenchMARL's GRU: its ``in_keys`` hold ``is_init`` and the hidden state
+    ``("agents", "_hidden_gru_0")``) carries its hidden state from one step to the next, from zeros
+    with ``is_init`` true at the first step, as BenchMARL's collector does; every episode of the
+    batch starts at the same step, so one flag serves them all.
+    """
     import torch
     from tensordict import TensorDict
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    policy, total = _train(task, algorithm, seed, frames, folder)
+    hidden_keys = [key for key in policy.in_keys if hidden and isinstance(key, tuple) and key[-1].startswith("_hidden")]
+    carried: dict[Any, Any] = {}
 
     def act(obs: np.ndarray) -> np.ndarray:
         b, n = obs.shape[:2]
         observation = torch.as_tensor(obs, dtype=torch.float32)
         td = TensorDict({"agents": TensorDict({"observation": observation}, batch_size=(b, n))}, batch_size=(b,))
+        if hidden_keys:
+            td.set("is_init", torch.full((b, 1), not carried, dtype=torch.bool))
+            for key in hidden_keys:
+                td.set(key, carried.get(key, torch.zeros((b, n, *hidden))))
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-            return policy(td).get(("agents", "action")).double().numpy()
+            out = policy(td)
+        for key in hidden_keys:
+            carried[key] = out.get(("next", *key))
+        return out.get(("agents", "action")).double().numpy()
 
-    return {"task": task.full_id, "algorithm": algorithm, "seed": seed, "frames": total, **score_actor(task, act)}
+    return act
 
 
-def _train(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path) -> tuple[Any, int]:
+def build_experiment(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path) -> tuple[Any, Any]:
+    """BenchMARL's ``Experiment`` of ``algorithm`` on ``task`` (not yet run) and its actor's model config."""
     from benchmarl import algorithms as benchmarl_algorithms
-    from benchmarl.experiment import Experiment, ExperimentConfig
-    from benchmarl.models import GnnConfig, MlpConfig
+    from benchmarl.experiment import Experiment
+    from benchmarl.models import GnnConfig, GruConfig, MlpConfig
 
     from fxc_env.envs.benchmarl_task import FxcTask
+
+    algorithm_config, model = ALGORITHMS[algorithm]
+    if model == "gnn":
+        import torch_geometric
+
+        actor = GnnConfig(topology="full", self_loops=False, gnn_class=torch_geometric.nn.conv.GATv2Conv, gnn_kwargs={})
+    elif model == "gru":
+        actor = GruConfig.get_from_yaml()  # BenchMARL's GRU (128 hidden units, one layer) and its MLP head
+    else:
+        actor = MlpConfig.get_from_yaml()
+    member = FxcTask[task.id.replace("-", "_").upper()]
+    experiment = Experiment(
+        task=member.get_from_yaml(),
+        algorithm_config=getattr(benchmarl_algorithms, algorithm_config).get_from_yaml(),
+        model_config=actor,
+        critic_model_config=MlpConfig.get_from_yaml(),
+        seed=seed,
+        config=_experiment_config(task, frames, folder),
+    )
+    return experiment, actor
+
+
+def _experiment_config(task: NamedTask, frames: int, folder: Path) -> Any:
+    """BenchMARL's default experiment config on the CPU for ``frames`` frames: batches no larger than the budget."""
+    from benchmarl.experiment import ExperimentConfig
 
     config = ExperimentConfig.get_from_yaml()
     config.sampling_device = config.train_device = config.buffer_device = "cpu"
@@ -223,24 +274,7 @@ def _train(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path
     config.loggers = []
     folder.mkdir(parents=True, exist_ok=True)
     config.save_folder = str(folder)
-    algorithm_config, model = ALGORITHMS[algorithm]
-    if model == "gnn":
-        import torch_geometric
-
-        actor = GnnConfig(topology="full", self_loops=False, gnn_class=torch_geometric.nn.conv.GATv2Conv, gnn_kwargs={})
-    else:
-        actor = MlpConfig.get_from_yaml()
-    member = FxcTask[task.id.replace("-", "_").upper()]
-    experiment = Experiment(
-        task=member.get_from_yaml(),
-        algorithm_config=getattr(benchmarl_algorithms, algorithm_config).get_from_yaml(),
-        model_config=actor,
-        critic_model_config=MlpConfig.get_from_yaml(),
-        seed=seed,
-        config=config,
-    )
-    experiment.run()
-    return experiment.policy, int(experiment.total_frames)
+    return config
 
 
 # ------------------------------------------------------------------------------- the table

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from fxc_env.cli.main import main
 from fxc_env.config.tasks import TASKS
+from fxc_env.training.leaderboard import build_experiment, policy_actor
 
 FRAMES = 400  # two environments x one episode of K = 200 steps: one BenchMARL batch
 ARGV = ["leaderboard", "--frames", str(FRAMES), "--seeds", "1", "--tasks", "rings20-v1", "--algorithms", "mappo"]
@@ -59,3 +61,24 @@ def test_a_rerun_with_another_budget_is_refused(board, capsys):
     assert f"--frames: {board / 'rings20-v1' / 'mappo' / 'seed0.json'} was trained for {FRAMES} frames" in (
         capsys.readouterr().err
     )
+
+
+def test_mappo_grus_actor_is_scored_with_its_hidden_state_carried_from_step_to_step(tmp_path):
+    """BenchMARL's GRU actor sees the history: the same observation at the second step acts otherwise, and a
+    fresh scoring loop starts again from the zero hidden state (``is_init``), as BenchMARL's collector does."""
+    experiment, actor = build_experiment(TASKS["rings20-v1"], "mappo_gru", 0, FRAMES, tmp_path)
+    hidden = (actor.n_layers, actor.hidden_size)
+    size = experiment.observation_spec["agents", "observation"].shape[-1]
+    obs = np.random.default_rng(0).normal(size=(3, 20, size))
+    act = policy_actor(experiment.policy, hidden)
+    first, second = act(obs), act(obs)
+    assert first.shape == (3, 20, 2)
+    assert not np.allclose(first, second)
+    np.testing.assert_array_equal(policy_actor(experiment.policy, hidden)(obs), first)
+
+
+def test_an_mlp_actor_is_scored_without_state(tmp_path):
+    experiment, _ = build_experiment(TASKS["rings20-v1"], "mappo", 0, FRAMES, tmp_path)
+    obs = np.random.default_rng(0).normal(size=(3, 20, experiment.observation_spec["agents", "observation"].shape[-1]))
+    act = policy_actor(experiment.policy)
+    np.testing.assert_array_equal(act(obs), act(obs))
