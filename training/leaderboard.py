@@ -9,7 +9,9 @@ learned policies through ``fxc evaluate --task``'s suite, the trained actors on 
 episodes (each seed draws the same initial state and graph). The table gives the median and
 the IQM of log10 over training seeds x episodes with stratified bootstrap intervals
 (:mod:`fxc_env.core.statistics`), beside ``marl_eval.json`` and a performance profile
-(``performance_profile.png``: the fraction of episodes with ``log10 D(T_s)/D(0) <= tau``).
+(``performance_profile.png``: the fraction of episodes with ``log10 D(T_s)/D(0) <= tau``) and
+``versions.json`` (Python, torch, torchrl, BenchMARL, ..., and fxc_env's git commit, ``-dirty`` when
+the checkout has uncommitted changes).
 
 Every finished piece is a file under ``--out`` (``<task>/laws.json``,
 ``<task>/<algorithm>/seed<k>.json``); a rerun skips them, so an interrupted leaderboard
@@ -24,6 +26,7 @@ import importlib
 import json
 import math
 import os
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -65,7 +68,7 @@ def add_leaderboard_parser(commands: argparse._SubParsersAction) -> argparse.Arg
         help="BenchMARL's algorithms beside the analytic laws and shipped policies on the named tasks",
         description="Train BenchMARL's MAPPO, IPPO, MASAC, MADDPG (MLP) and MAPPO with a GNN and a GRU on the named tasks "
         "(same frame budget, several training seeds), score them with the laws and shipped policies on each "
-        "task's evaluation seeds by D(T_s)/D(0), and write table.md, marl_eval.json and performance_profile.png. "
+        "task's evaluation seeds by D(T_s)/D(0), and write table.md, marl_eval.json, performance_profile.png and versions.json. "
         "Finished runs are kept under --out: a rerun resumes.",
     )
     parser.add_argument("--frames", type=int, default=1_000_000, help="frames per training run (1000000)")
@@ -281,7 +284,7 @@ def _experiment_config(task: NamedTask, frames: int, folder: Path) -> Any:
 def write_leaderboard(
     out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int, reps: int
 ) -> tuple[str, list[Path]]:
-    """``table.md``, ``marl_eval.json`` and ``performance_profile.png`` from the files under ``out``."""
+    """``table.md``, ``marl_eval.json``, ``performance_profile.png`` and ``versions.json`` from the files under ``out``."""
     scores: dict[str, dict[str, np.ndarray]] = {}  # contender -> task -> (R, S) errors
     energies: dict[str, dict[str, np.ndarray]] = {}
     notes: dict[str, dict[str, str]] = {}
@@ -323,11 +326,37 @@ def write_leaderboard(
         + (f"\nCommand: `{command}`" if command else "")
     )
     table = intro + "\n\n" + "\n".join(lines) + "\n"
-    files = [out / "table.md", out / "marl_eval.json", out / "performance_profile.png"]
+    files = [out / "table.md", out / "marl_eval.json", out / "performance_profile.png", out / "versions.json"]
     files[0].write_text(table)
     _write_json(files[1], _marl_eval(scores, energies))
     _profile(scores, files[2])
+    _write_json(files[3], versions())
     return table, files
+
+
+def versions() -> dict[str, str]:
+    """What made the table: Python, the libraries that train and score, and fxc_env's git commit where it has one
+    (``git describe --dirty``: a ``-dirty`` suffix when tracked files differ from it)."""
+    from importlib import metadata
+
+    found = {"python": sys.version.split()[0]}
+    for name in ("fxc_env", "numpy", "torch", "torchrl", "tensordict", "benchmarl", "torch_geometric"):
+        try:
+            found[name] = metadata.version(name.replace("_", "-") if name == "fxc_env" else name)
+        except metadata.PackageNotFoundError:
+            found[name] = "not installed"
+    try:
+        root = Path(__file__).resolve().parents[1]
+        commit = subprocess.run(
+            ["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=40"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        found["fxc_env_commit"] = commit.stdout.strip() if commit.returncode == 0 else "not a git checkout"
+    except (OSError, subprocess.TimeoutExpired):
+        found["fxc_env_commit"] = "git not found"
+    return found
 
 
 def _number(value: float) -> str:

@@ -29,6 +29,8 @@ def test_the_table_ranks_mappo_beside_the_laws_and_the_shipped_policies(board):
     assert {"mappo", "reference", "minimum_time", "leader_follower", "graph_agnostic", "signalling"} <= rows
     assert {"learned:generalist", "learned:rings", "learned:rings_gru"} <= rows
     assert (board / "performance_profile.png").stat().st_size > 0
+    versions = json.loads((board / "versions.json").read_text())  # what a shipped table must say it ran on
+    assert {"python", "torch", "torchrl", "benchmarl", "fxc_env", "fxc_env_commit"} <= set(versions)
 
 
 @pytest.mark.slow
