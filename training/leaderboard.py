@@ -285,23 +285,7 @@ def write_leaderboard(
     out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int, reps: int
 ) -> tuple[str, list[Path]]:
     """``table.md``, ``marl_eval.json``, ``performance_profile.png`` and ``versions.json`` from the files under ``out``."""
-    scores: dict[str, dict[str, np.ndarray]] = {}  # contender -> task -> (R, S) errors
-    energies: dict[str, dict[str, np.ndarray]] = {}
-    notes: dict[str, dict[str, str]] = {}
-    names = list(algorithms)
-    for task in tasks:
-        laws = json.loads((out / task.id / "laws.json").read_text())
-        names += [name for name in laws["contenders"] if name not in names]
-        for name, record in laws["scores"].items():
-            if "note" in record:
-                notes.setdefault(name, {})[task.id] = record["note"]
-            else:
-                scores.setdefault(name, {})[task.id] = np.array([record["deadline_error"]])
-                energies.setdefault(name, {})[task.id] = np.array([record["energy"]])
-        for algorithm in algorithms:
-            runs = [json.loads((out / task.id / algorithm / f"seed{k}.json").read_text()) for k in range(seeds)]
-            scores.setdefault(algorithm, {})[task.id] = np.array([run["deadline_error"] for run in runs])
-            energies.setdefault(algorithm, {})[task.id] = np.array([run["energy"] for run in runs])
+    names, scores, energies = _collect(out, tasks, algorithms, seeds)
     header = ["contender"] + [f"{task.id}: median D(T_s)/D(0) [95% CI] / IQM log10 [95% CI]" for task in tasks]
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     for name in names:
@@ -325,13 +309,61 @@ def write_leaderboard(
         f"(95% stratified bootstrap, {reps} replicates; log10 floored at {LOG_FLOOR:g})."
         + (f"\nCommand: `{command}`" if command else "")
     )
-    table = intro + "\n\n" + "\n".join(lines) + "\n"
+    headline = headline_lines(tasks, algorithms, scores)
+    table = intro + "\n\n" + "\n".join(lines) + "\n" + ("\n" + "\n".join(headline) + "\n" if headline else "")
     files = [out / "table.md", out / "marl_eval.json", out / "performance_profile.png", out / "versions.json"]
     files[0].write_text(table)
     _write_json(files[1], _marl_eval(scores, energies))
     _profile(scores, files[2])
     _write_json(files[3], versions())
     return table, files
+
+
+def _collect(
+    out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int
+) -> tuple[list[str], dict[str, dict[str, np.ndarray]], dict[str, dict[str, np.ndarray]]]:
+    """The contenders in table order, and per contender and task the (runs, episodes) errors and energies."""
+    scores: dict[str, dict[str, np.ndarray]] = {}
+    energies: dict[str, dict[str, np.ndarray]] = {}
+    names = list(algorithms)
+    for task in tasks:
+        laws = json.loads((out / task.id / "laws.json").read_text())
+        names += [name for name in laws["contenders"] if name not in names]
+        for name, record in laws["scores"].items():
+            if "note" not in record:  # a refused contender: its reason stays in laws.json
+                scores.setdefault(name, {})[task.id] = np.array([record["deadline_error"]])
+                energies.setdefault(name, {})[task.id] = np.array([record["energy"]])
+        for algorithm in algorithms:
+            runs = [json.loads((out / task.id / algorithm / f"seed{k}.json").read_text()) for k in range(seeds)]
+            scores.setdefault(algorithm, {})[task.id] = np.array([run["deadline_error"] for run in runs])
+            energies.setdefault(algorithm, {})[task.id] = np.array([run["energy"] for run in runs])
+    return names, scores, energies
+
+
+def headline_lines(
+    tasks: list[NamedTask], algorithms: list[str], scores: dict[str, dict[str, np.ndarray]]
+) -> list[str]:
+    """Per task, the best BenchMARL algorithm (lowest median D(T_s)/D(0)) against the paper's law (``reference``),
+    in decades of the median (log10, floored at :data:`LOG_FLOOR`): where learning loses, and by how much."""
+    if not algorithms:
+        return []
+    lines = ["Headline (median D(T_s)/D(0) over training seeds x evaluation episodes):"]
+    for task in tasks:
+        medians = {name: float(np.median(scores[name][task.id])) for name in algorithms}
+        best = min(medians, key=medians.__getitem__)
+        reference = scores.get("reference", {}).get(task.id)
+        if reference is None:
+            lines.append(
+                f"- {task.id}: best algorithm {best} {_number(medians[best])}; the reference law is refused here"
+            )
+            continue
+        gap = float(statistics.decades(medians[best], LOG_FLOOR) - statistics.decades(np.median(reference), LOG_FLOOR))
+        verdict = (
+            f"learning loses by {gap:.1f} decades" if gap > 0 else f"learning matches or beats it by {-gap:.1f} decades"
+        )
+        lines.append(f"- {task.id}: best algorithm {best} {_number(medians[best])} vs the paper's law (reference) "
+                     f"{_number(float(np.median(reference)))}: {verdict}")  # fmt: skip
+    return lines
 
 
 def versions() -> dict[str, str]:

@@ -9,7 +9,7 @@ import pytest
 
 from fxc_env.cli.main import main
 from fxc_env.config.tasks import TASKS
-from fxc_env.training.leaderboard import build_experiment, policy_actor
+from fxc_env.training.leaderboard import build_experiment, headline_lines, policy_actor
 
 FRAMES = 400  # two environments x one episode of K = 200 steps: one BenchMARL batch
 ARGV = ["leaderboard", "--frames", str(FRAMES), "--seeds", "1", "--tasks", "rings20-v1", "--algorithms", "mappo"]
@@ -31,6 +31,7 @@ def test_the_table_ranks_mappo_beside_the_laws_and_the_shipped_policies(board):
     assert (board / "performance_profile.png").stat().st_size > 0
     versions = json.loads((board / "versions.json").read_text())  # what a shipped table must say it ran on
     assert {"python", "torch", "torchrl", "benchmarl", "fxc_env", "fxc_env_commit"} <= set(versions)
+    assert "- rings20-v1: best algorithm mappo " in table and "the paper's law (reference)" in table
 
 
 @pytest.mark.slow
@@ -84,3 +85,18 @@ def test_an_mlp_actor_is_scored_without_state(tmp_path):
     obs = np.random.default_rng(0).normal(size=(3, 20, experiment.observation_spec["agents", "observation"].shape[-1]))
     act = policy_actor(experiment.policy)
     np.testing.assert_array_equal(act(obs), act(obs))
+
+
+def test_the_headline_says_by_how_many_decades_the_best_algorithm_loses_to_the_papers_law():
+    tasks = [TASKS["rings20-v1"], TASKS["saturated-v1"]]
+    scores = {
+        "mappo": {"rings20-v1": np.array([[1e-3, 1e-3]]), "saturated-v1": np.array([[1e-14]])},
+        "ippo": {"rings20-v1": np.array([[1e-2, np.inf]]), "saturated-v1": np.array([[1.0]])},
+        "reference": {"rings20-v1": np.array([[1e-9, 1e-9]]), "saturated-v1": np.array([[1e-6]])},
+    }
+    lines = headline_lines(tasks, ["mappo", "ippo"], scores)
+    assert lines[1] == (
+        "- rings20-v1: best algorithm mappo 0.001 vs the paper's law (reference) 1e-09: learning loses by 6.0 decades"
+    )
+    assert lines[2].endswith("learning matches or beats it by 6.0 decades")  # 1e-14 counts as the 1e-12 floor
+    assert headline_lines(tasks, [], scores) == []  # --algorithms none: no headline
