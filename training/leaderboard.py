@@ -361,8 +361,10 @@ def headline_lines(
         verdict = (
             f"learning loses by {gap:.1f} decades" if gap > 0 else f"learning matches or beats it by {-gap:.1f} decades"
         )
+        overall = {name: float(np.median(by_task[task.id])) for name, by_task in scores.items() if task.id in by_task}
+        top = min(overall, key=overall.__getitem__)
         lines.append(f"- {task.id}: best algorithm {best} {_number(medians[best])} vs the paper's law (reference) "
-                     f"{_number(float(np.median(reference)))}: {verdict}")  # fmt: skip
+                     f"{_number(float(np.median(reference)))}: {verdict} (best of all: {top} {_number(overall[top])})")  # fmt: skip
     return lines
 
 
