@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fxc_env.cli.main import main
+from fxc_env.cli.main import build_parser, main
 from fxc_env.config.tasks import TASKS
-from fxc_env.training.leaderboard import build_experiment, headline_lines, policy_actor
+from fxc_env.training.leaderboard import ALGORITHMS, build_experiment, headline_lines, policy_actor
 
 FRAMES = 400  # two environments x one episode of K = 200 steps: one BenchMARL batch
 ARGV = ["leaderboard", "--frames", str(FRAMES), "--seeds", "1", "--tasks", "rings20-v1", "--algorithms", "mappo"]
@@ -101,3 +102,27 @@ def test_the_headline_says_by_how_many_decades_the_best_algorithm_loses_to_the_p
     )
     assert "learning matches or beats it by 6.0 decades (best of all: mappo 1e-14)" in lines[2]  # floored at 1e-12
     assert headline_lines(tasks, [], scores) == []  # --algorithms none: no headline
+
+
+SHIPPED = Path(__file__).resolve().parents[2] / "fxc_env" / "assets" / "leaderboard"
+
+
+def test_the_shipped_table_is_what_fxc_leaderboards_defaults_reproduce():
+    """``fxc leaderboard`` with its defaults is the shipped table's command: every task, algorithm and seed."""
+    table = (SHIPPED / "table.md").read_text()
+    assert "Command: `fxc leaderboard --frames 1000 --seeds 3 --out out/leaderboard`" in table
+    defaults = build_parser().parse_args(["leaderboard"])
+    assert (defaults.frames, defaults.seeds, defaults.tasks, defaults.algorithms) == (
+        1000,
+        3,
+        list(TASKS),
+        list(ALGORITHMS),
+    )
+    runs = json.loads((SHIPPED / "marl_eval.json").read_text())["fxc_env"]
+    assert set(runs) == set(TASKS)
+    for task in TASKS:
+        for algorithm in ALGORITHMS:
+            seeds = runs[task][algorithm]
+            assert sorted(seeds) == ["seed_0", "seed_1", "seed_2"]
+            assert len(seeds["seed_0"]["absolute_metrics"]["deadline_error"]) == len(TASKS[task].eval_seeds)
+    assert set(json.loads((SHIPPED / "versions.json").read_text())) >= {"python", "torch", "torchrl", "benchmarl"}
