@@ -1,14 +1,17 @@
 """``fxc leaderboard``: BenchMARL's algorithms beside the analytic laws and the shipped policies on the named tasks.
 
 For every task of :data:`fxc_env.config.tasks.TASKS` (or those named), every algorithm trains
-for the same frame budget on each training seed (BenchMARL's MLP; ``mappo_gnn`` its GNN), and
+for the same frame budget on each training seed (BenchMARL's MLP; ``mappo_gnn`` its GNN,
+``mappo_gru`` its GRU, whose hidden state the scoring loop carries from step to step), and
 every contender is scored on the task's frozen evaluation seeds at its K by ``D(T_s)/D(0)``:
 the laws (reference, minimum_time, leader_follower, graph_agnostic, signalling) and the shipped
 learned policies through ``fxc evaluate --task``'s suite, the trained actors on the same
 episodes (each seed draws the same initial state and graph). The table gives the median and
 the IQM of log10 over training seeds x episodes with stratified bootstrap intervals
 (:mod:`fxc_env.core.statistics`), beside ``marl_eval.json`` and a performance profile
-(``performance_profile.png``: the fraction of episodes with ``log10 D(T_s)/D(0) <= tau``).
+(``performance_profile.png``: the fraction of episodes with ``log10 D(T_s)/D(0) <= tau``) and
+``versions.json`` (Python, torch, torchrl, BenchMARL, ..., and fxc_env's git commit, ``-dirty`` when
+the checkout has uncommitted changes).
 
 Every finished piece is a file under ``--out`` (``<task>/laws.json``,
 ``<task>/<algorithm>/seed<k>.json``); a rerun skips them, so an interrupted leaderboard
@@ -23,6 +26,7 @@ import importlib
 import json
 import math
 import os
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -50,7 +54,10 @@ ALGORITHMS = {
     "masac": ("MasacConfig", "mlp"),
     "maddpg": ("MaddpgConfig", "mlp"),
     "mappo_gnn": ("MappoConfig", "gnn"),
+    "mappo_gru": ("MappoConfig", "gru"),
 }
+#: The frame budget per run of the shipped table (fxc_env/assets/leaderboard/): the whole table took 13 CPU-minutes.
+SHIPPED_FRAMES = 1000
 #: The analytic laws beside them (fxc_env.baselines).
 LAWS = tuple(name for name, law in registry.LAWS.items() if law.leaderboard)
 #: Every shipped learned policy (``pretrained`` is the generalist under another name).
@@ -62,12 +69,18 @@ def add_leaderboard_parser(commands: argparse._SubParsersAction) -> argparse.Arg
     parser = commands.add_parser(
         "leaderboard",
         help="BenchMARL's algorithms beside the analytic laws and shipped policies on the named tasks",
-        description="Train BenchMARL's MAPPO, IPPO, MASAC, MADDPG (MLP) and MAPPO with a GNN on the named tasks "
+        description="Train BenchMARL's MAPPO, IPPO, MASAC, MADDPG (MLP) and MAPPO with a GNN and a GRU on the named tasks "
         "(same frame budget, several training seeds), score them with the laws and shipped policies on each "
-        "task's evaluation seeds by D(T_s)/D(0), and write table.md, marl_eval.json and performance_profile.png. "
+        "task's evaluation seeds by D(T_s)/D(0), and write table.md, marl_eval.json, performance_profile.png and versions.json. "
         "Finished runs are kept under --out: a rerun resumes.",
     )
-    parser.add_argument("--frames", type=int, default=1_000_000, help="frames per training run (1000000)")
+    parser.add_argument(
+        "--frames",
+        type=int,
+        default=SHIPPED_FRAMES,
+        help=f"frames per training run ({SHIPPED_FRAMES}: the shipped table, about 13 CPU-minutes in all; "
+        "training time grows linearly with it)",
+    )
     parser.add_argument("--seeds", type=int, default=3, help="training seeds per algorithm (3: seeds 0, 1, 2)")
     parser.add_argument("--tasks", nargs="+", default=list(TASKS), help=f"named tasks (all: {' '.join(TASKS)})")
     parser.add_argument(
@@ -184,28 +197,77 @@ def score_actor(task: NamedTask, act: Any) -> dict[str, list[float]]:
 
 def train_and_score(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path) -> dict[str, Any]:
     """One BenchMARL run of ``algorithm`` on ``task`` for ``frames`` frames, scored by :func:`score_actor`."""
+    experiment, actor = build_experiment(task, algorithm, seed, frames, folder)
+    experiment.run()
+    hidden = (actor.n_layers, actor.hidden_size) if actor.is_rnn else None
+    return {"task": task.full_id, "algorithm": algorithm, "seed": seed, "frames": int(experiment.total_frames),
+            **score_actor(task, policy_actor(experiment.policy, hidden))}  # fmt: skip
+
+
+def policy_actor(policy: Any, hidden: tuple[int, int] | None = None) -> Any:
+    """A trained BenchMARL policy as ``act(obs)`` for :func:`score_actor`, deterministic.
+
+    A recurrent actor (BenchMARL's GRU: its ``in_keys`` hold ``is_init`` and the hidden state
+    ``("agents", "_hidden_gru_0")``) carries its hidden state from one step to the next, from zeros
+    with ``is_init`` true at the first step, as BenchMARL's collector does; every episode of the
+    batch starts at the same step, so one flag serves them all.
+    """
     import torch
     from tensordict import TensorDict
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    policy, total = _train(task, algorithm, seed, frames, folder)
+    hidden_keys = [key for key in policy.in_keys if hidden and isinstance(key, tuple) and key[-1].startswith("_hidden")]
+    carried: dict[Any, Any] = {}
 
     def act(obs: np.ndarray) -> np.ndarray:
         b, n = obs.shape[:2]
         observation = torch.as_tensor(obs, dtype=torch.float32)
         td = TensorDict({"agents": TensorDict({"observation": observation}, batch_size=(b, n))}, batch_size=(b,))
+        if hidden_keys:
+            td.set("is_init", torch.full((b, 1), not carried, dtype=torch.bool))
+            for key in hidden_keys:
+                td.set(key, carried.get(key, torch.zeros((b, n, *hidden))))
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-            return policy(td).get(("agents", "action")).double().numpy()
+            out = policy(td)
+        for key in hidden_keys:
+            carried[key] = out.get(("next", *key))
+        return out.get(("agents", "action")).double().numpy()
 
-    return {"task": task.full_id, "algorithm": algorithm, "seed": seed, "frames": total, **score_actor(task, act)}
+    return act
 
 
-def _train(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path) -> tuple[Any, int]:
+def build_experiment(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path) -> tuple[Any, Any]:
+    """BenchMARL's ``Experiment`` of ``algorithm`` on ``task`` (not yet run) and its actor's model config."""
     from benchmarl import algorithms as benchmarl_algorithms
-    from benchmarl.experiment import Experiment, ExperimentConfig
-    from benchmarl.models import GnnConfig, MlpConfig
+    from benchmarl.experiment import Experiment
+    from benchmarl.models import GnnConfig, GruConfig, MlpConfig
 
     from fxc_env.envs.benchmarl_task import FxcTask
+
+    algorithm_config, model = ALGORITHMS[algorithm]
+    if model == "gnn":
+        import torch_geometric
+
+        actor = GnnConfig(topology="full", self_loops=False, gnn_class=torch_geometric.nn.conv.GATv2Conv, gnn_kwargs={})
+    elif model == "gru":
+        actor = GruConfig.get_from_yaml()  # BenchMARL's GRU (128 hidden units, one layer) and its MLP head
+    else:
+        actor = MlpConfig.get_from_yaml()
+    member = FxcTask[task.id.replace("-", "_").upper()]
+    experiment = Experiment(
+        task=member.get_from_yaml(),
+        algorithm_config=getattr(benchmarl_algorithms, algorithm_config).get_from_yaml(),
+        model_config=actor,
+        critic_model_config=MlpConfig.get_from_yaml(),
+        seed=seed,
+        config=_experiment_config(task, frames, folder),
+    )
+    return experiment, actor
+
+
+def _experiment_config(task: NamedTask, frames: int, folder: Path) -> Any:
+    """BenchMARL's default experiment config on the CPU for ``frames`` frames: batches no larger than the budget."""
+    from benchmarl.experiment import ExperimentConfig
 
     config = ExperimentConfig.get_from_yaml()
     config.sampling_device = config.train_device = config.buffer_device = "cpu"
@@ -224,48 +286,15 @@ def _train(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path
     config.loggers = []
     folder.mkdir(parents=True, exist_ok=True)
     config.save_folder = str(folder)
-    algorithm_config, model = ALGORITHMS[algorithm]
-    if model == "gnn":
-        import torch_geometric
-
-        actor = GnnConfig(topology="full", self_loops=False, gnn_class=torch_geometric.nn.conv.GATv2Conv, gnn_kwargs={})
-    else:
-        actor = MlpConfig.get_from_yaml()
-    member = FxcTask[task.id.replace("-", "_").upper()]
-    experiment = Experiment(
-        task=member.get_from_yaml(),
-        algorithm_config=getattr(benchmarl_algorithms, algorithm_config).get_from_yaml(),
-        model_config=actor,
-        critic_model_config=MlpConfig.get_from_yaml(),
-        seed=seed,
-        config=config,
-    )
-    experiment.run()
-    return experiment.policy, int(experiment.total_frames)
+    return config
 
 
 # ------------------------------------------------------------------------------- the table
 def write_leaderboard(
     out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int, reps: int
 ) -> tuple[str, list[Path]]:
-    """``table.md``, ``marl_eval.json`` and ``performance_profile.png`` from the files under ``out``."""
-    scores: dict[str, dict[str, np.ndarray]] = {}  # contender -> task -> (R, S) errors
-    energies: dict[str, dict[str, np.ndarray]] = {}
-    notes: dict[str, dict[str, str]] = {}
-    names = list(algorithms)
-    for task in tasks:
-        laws = json.loads((out / task.id / "laws.json").read_text())
-        names += [name for name in laws["contenders"] if name not in names]
-        for name, record in laws["scores"].items():
-            if "note" in record:
-                notes.setdefault(name, {})[task.id] = record["note"]
-            else:
-                scores.setdefault(name, {})[task.id] = np.array([record["deadline_error"]])
-                energies.setdefault(name, {})[task.id] = np.array([record["energy"]])
-        for algorithm in algorithms:
-            runs = [json.loads((out / task.id / algorithm / f"seed{k}.json").read_text()) for k in range(seeds)]
-            scores.setdefault(algorithm, {})[task.id] = np.array([run["deadline_error"] for run in runs])
-            energies.setdefault(algorithm, {})[task.id] = np.array([run["energy"] for run in runs])
+    """``table.md``, ``marl_eval.json``, ``performance_profile.png`` and ``versions.json`` from the files under ``out``."""
+    names, scores, energies = _collect(out, tasks, algorithms, seeds)
     header = ["contender"] + [f"{task.id}: median D(T_s)/D(0) [95% CI] / IQM log10 [95% CI]" for task in tasks]
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     for name in names:
@@ -289,12 +318,88 @@ def write_leaderboard(
         f"(95% stratified bootstrap, {reps} replicates; log10 floored at {LOG_FLOOR:g})."
         + (f"\nCommand: `{command}`" if command else "")
     )
-    table = intro + "\n\n" + "\n".join(lines) + "\n"
-    files = [out / "table.md", out / "marl_eval.json", out / "performance_profile.png"]
+    headline = headline_lines(tasks, algorithms, scores)
+    table = intro + "\n\n" + "\n".join(lines) + "\n" + ("\n" + "\n".join(headline) + "\n" if headline else "")
+    files = [out / "table.md", out / "marl_eval.json", out / "performance_profile.png", out / "versions.json"]
     files[0].write_text(table)
     _write_json(files[1], _marl_eval(scores, energies))
     _profile(scores, files[2])
+    _write_json(files[3], versions())
     return table, files
+
+
+def _collect(
+    out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int
+) -> tuple[list[str], dict[str, dict[str, np.ndarray]], dict[str, dict[str, np.ndarray]]]:
+    """The contenders in table order, and per contender and task the (runs, episodes) errors and energies."""
+    scores: dict[str, dict[str, np.ndarray]] = {}
+    energies: dict[str, dict[str, np.ndarray]] = {}
+    names = list(algorithms)
+    for task in tasks:
+        laws = json.loads((out / task.id / "laws.json").read_text())
+        names += [name for name in laws["contenders"] if name not in names]
+        for name, record in laws["scores"].items():
+            if "note" not in record:  # a refused contender: its reason stays in laws.json
+                scores.setdefault(name, {})[task.id] = np.array([record["deadline_error"]])
+                energies.setdefault(name, {})[task.id] = np.array([record["energy"]])
+        for algorithm in algorithms:
+            runs = [json.loads((out / task.id / algorithm / f"seed{k}.json").read_text()) for k in range(seeds)]
+            scores.setdefault(algorithm, {})[task.id] = np.array([run["deadline_error"] for run in runs])
+            energies.setdefault(algorithm, {})[task.id] = np.array([run["energy"] for run in runs])
+    return names, scores, energies
+
+
+def headline_lines(
+    tasks: list[NamedTask], algorithms: list[str], scores: dict[str, dict[str, np.ndarray]]
+) -> list[str]:
+    """Per task, the best BenchMARL algorithm (lowest median D(T_s)/D(0)) against the paper's law (``reference``),
+    in decades of the median (log10, floored at :data:`LOG_FLOOR`): where learning loses, and by how much."""
+    if not algorithms:
+        return []
+    lines = ["Headline (median D(T_s)/D(0) over training seeds x evaluation episodes):"]
+    for task in tasks:
+        medians = {name: float(np.median(scores[name][task.id])) for name in algorithms}
+        best = min(medians, key=medians.__getitem__)
+        reference = scores.get("reference", {}).get(task.id)
+        if reference is None:
+            lines.append(
+                f"- {task.id}: best algorithm {best} {_number(medians[best])}; the reference law is refused here"
+            )
+            continue
+        gap = float(statistics.decades(medians[best], LOG_FLOOR) - statistics.decades(np.median(reference), LOG_FLOOR))
+        verdict = (
+            f"learning loses by {gap:.1f} decades" if gap > 0 else f"learning matches or beats it by {-gap:.1f} decades"
+        )
+        overall = {name: float(np.median(by_task[task.id])) for name, by_task in scores.items() if task.id in by_task}
+        top = min(overall, key=overall.__getitem__)
+        lines.append(f"- {task.id}: best algorithm {best} {_number(medians[best])} vs the paper's law (reference) "
+                     f"{_number(float(np.median(reference)))}: {verdict} (best of all: {top} {_number(overall[top])})")  # fmt: skip
+    return lines
+
+
+def versions() -> dict[str, str]:
+    """What made the table: Python, the libraries that train and score, and fxc_env's git commit where it has one
+    (``git describe --dirty``: a ``-dirty`` suffix when tracked files differ from it)."""
+    from importlib import metadata
+
+    found = {"python": sys.version.split()[0]}
+    for name in ("fxc_env", "numpy", "torch", "torchrl", "tensordict", "benchmarl", "torch_geometric"):
+        try:
+            found[name] = metadata.version(name.replace("_", "-") if name == "fxc_env" else name)
+        except metadata.PackageNotFoundError:
+            found[name] = "not installed"
+    try:
+        root = Path(__file__).resolve().parents[1]
+        commit = subprocess.run(
+            ["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=40"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        found["fxc_env_commit"] = commit.stdout.strip() if commit.returncode == 0 else "not a git checkout"
+    except (OSError, subprocess.TimeoutExpired):
+        found["fxc_env_commit"] = "git not found"
+    return found
 
 
 def _number(value: float) -> str:

@@ -25,11 +25,13 @@ configs) the scale-free global state as BenchMARL's ``"state"`` for centralised 
     config = ExperimentConfig.get_from_yaml()  # README "BenchMARL" shrinks it to a quick run
     Experiment(task, MappoConfig.get_from_yaml(), actor, seed=0, config=config, critic_model_config=critic).run()
 
-BenchMARL's command line runs them through ``python -m fxc_env.envs.benchmarl_run algorithm=mappo
-task=fxc/rings20-v1`` (BenchMARL's own ``hydra_experiment`` after :func:`register`, which puts them,
-as BenchMARL's docs ask of an external task, in ``benchmarl.environments.task_config_registry`` and
-Hydra's ``task`` group; plain ``python -m benchmarl.run`` would need a Hydra plugin, a second top-level
-import name this package does not install), and ``benchmarl.benchmark.Benchmark(tasks=[FxcTask.RINGS20_V1.get_from_yaml(), ...])``.
+BenchMARL's own routes take them unmodified: ``python -m benchmarl.run algorithm=mappo
+task=fxc/rings20-v1`` (Hydra finds the tasks through the plugin ``hydra_plugins.fxc_env`` that
+the package installs in Hydra's plugin namespace; it calls :func:`register`, which puts them, as
+BenchMARL's docs ask of an external task, in ``benchmarl.environments.task_config_registry`` and
+Hydra's ``task`` group) and ``benchmarl.benchmark.Benchmark(tasks=[FxcTask.RINGS20_V1.get_from_yaml(), ...])``.
+``python -m fxc_env.envs.benchmarl_run`` takes the same arguments and registers the tasks itself
+(from a source checkout that is on ``sys.path`` but not installed, Hydra sees no plugin).
 
 A task's config is a dict of :class:`~fxc_env.envs.torch_env.ConsensusTorchEnv` keyword
 arguments; BenchMARL owns ``batch_size``, ``seed`` and ``device`` (its experiment config sets
@@ -232,8 +234,9 @@ def register() -> None:
     BenchMARL's docs ask an external task for two things: an entry ``"fxc/<task>"`` in
     ``benchmarl.environments.task_config_registry``, and its config in Hydra's ``task`` group
     (here Hydra's config store, from :meth:`FxcTask.default_config`, instead of files in
-    BenchMARL's ``conf/task``). ``python -m fxc_env.envs.benchmarl_run`` calls this before
-    BenchMARL's ``hydra_experiment``; call it yourself before your own
+    BenchMARL's ``conf/task``). The Hydra plugin ``hydra_plugins.fxc_env`` calls this when
+    BenchMARL's command line builds its search path, ``python -m fxc_env.envs.benchmarl_run``
+    before BenchMARL's ``hydra_experiment``; call it yourself before your own
     ``hydra.main`` or ``load_task_config_from_hydra``.
     """
     from benchmarl.environments import task_config_registry

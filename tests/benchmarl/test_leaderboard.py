@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import numpy as np
 import pytest
 
-from fxc_env.cli.main import main
+from fxc_env.cli.main import build_parser, main
 from fxc_env.config.tasks import TASKS
+from fxc_env.training.leaderboard import ALGORITHMS, build_experiment, headline_lines, policy_actor
 
 FRAMES = 400  # two environments x one episode of K = 200 steps: one BenchMARL batch
 ARGV = ["leaderboard", "--frames", str(FRAMES), "--seeds", "1", "--tasks", "rings20-v1", "--algorithms", "mappo"]
@@ -27,6 +30,9 @@ def test_the_table_ranks_mappo_beside_the_laws_and_the_shipped_policies(board):
     assert {"mappo", "reference", "minimum_time", "leader_follower", "graph_agnostic", "signalling"} <= rows
     assert {"learned:generalist", "learned:rings", "learned:rings_gru"} <= rows
     assert (board / "performance_profile.png").stat().st_size > 0
+    versions = json.loads((board / "versions.json").read_text())  # what a shipped table must say it ran on
+    assert {"python", "torch", "torchrl", "benchmarl", "fxc_env", "fxc_env_commit"} <= set(versions)
+    assert "- rings20-v1: best algorithm mappo " in table and "the paper's law (reference)" in table
 
 
 @pytest.mark.slow
@@ -59,3 +65,64 @@ def test_a_rerun_with_another_budget_is_refused(board, capsys):
     assert f"--frames: {board / 'rings20-v1' / 'mappo' / 'seed0.json'} was trained for {FRAMES} frames" in (
         capsys.readouterr().err
     )
+
+
+def test_mappo_grus_actor_is_scored_with_its_hidden_state_carried_from_step_to_step(tmp_path):
+    """BenchMARL's GRU actor sees the history: the same observation at the second step acts otherwise, and a
+    fresh scoring loop starts again from the zero hidden state (``is_init``), as BenchMARL's collector does."""
+    experiment, actor = build_experiment(TASKS["rings20-v1"], "mappo_gru", 0, FRAMES, tmp_path)
+    hidden = (actor.n_layers, actor.hidden_size)
+    size = experiment.observation_spec["agents", "observation"].shape[-1]
+    obs = np.random.default_rng(0).normal(size=(3, 20, size))
+    act = policy_actor(experiment.policy, hidden)
+    first, second = act(obs), act(obs)
+    assert first.shape == (3, 20, 2)
+    assert not np.allclose(first, second)
+    np.testing.assert_array_equal(policy_actor(experiment.policy, hidden)(obs), first)
+
+
+def test_an_mlp_actor_is_scored_without_state(tmp_path):
+    experiment, _ = build_experiment(TASKS["rings20-v1"], "mappo", 0, FRAMES, tmp_path)
+    obs = np.random.default_rng(0).normal(size=(3, 20, experiment.observation_spec["agents", "observation"].shape[-1]))
+    act = policy_actor(experiment.policy)
+    np.testing.assert_array_equal(act(obs), act(obs))
+
+
+def test_the_headline_says_by_how_many_decades_the_best_algorithm_loses_to_the_papers_law():
+    tasks = [TASKS["rings20-v1"], TASKS["saturated-v1"]]
+    scores = {
+        "mappo": {"rings20-v1": np.array([[1e-3, 1e-3]]), "saturated-v1": np.array([[1e-14]])},
+        "ippo": {"rings20-v1": np.array([[1e-2, np.inf]]), "saturated-v1": np.array([[1.0]])},
+        "reference": {"rings20-v1": np.array([[1e-9, 1e-9]]), "saturated-v1": np.array([[1e-6]])},
+    }
+    lines = headline_lines(tasks, ["mappo", "ippo"], scores)
+    assert lines[1] == (
+        "- rings20-v1: best algorithm mappo 0.001 vs the paper's law (reference) 1e-09: learning loses by 6.0 decades "
+        "(best of all: reference 1e-09)"
+    )
+    assert "learning matches or beats it by 6.0 decades (best of all: mappo 1e-14)" in lines[2]  # floored at 1e-12
+    assert headline_lines(tasks, [], scores) == []  # --algorithms none: no headline
+
+
+SHIPPED = Path(__file__).resolve().parents[2] / "fxc_env" / "assets" / "leaderboard"
+
+
+def test_the_shipped_table_is_what_fxc_leaderboards_defaults_reproduce():
+    """``fxc leaderboard`` with its defaults is the shipped table's command: every task, algorithm and seed."""
+    table = (SHIPPED / "table.md").read_text()
+    assert "Command: `fxc leaderboard --frames 1000 --seeds 3 --out out/leaderboard`" in table
+    defaults = build_parser().parse_args(["leaderboard"])
+    assert (defaults.frames, defaults.seeds, defaults.tasks, defaults.algorithms) == (
+        1000,
+        3,
+        list(TASKS),
+        list(ALGORITHMS),
+    )
+    runs = json.loads((SHIPPED / "marl_eval.json").read_text())["fxc_env"]
+    assert set(runs) == set(TASKS)
+    for task in TASKS:
+        for algorithm in ALGORITHMS:
+            seeds = runs[task][algorithm]
+            assert sorted(seeds) == ["seed_0", "seed_1", "seed_2"]
+            assert len(seeds["seed_0"]["absolute_metrics"]["deadline_error"]) == len(TASKS[task].eval_seeds)
+    assert set(json.loads((SHIPPED / "versions.json").read_text())) >= {"python", "torch", "torchrl", "benchmarl"}
