@@ -20,7 +20,7 @@ from fxc_env.core.validation import ArgumentTypeError  # noqa: E402
 from fxc_env.envs.torch_env import ConsensusTorchEnv  # noqa: E402
 from fxc_env.policies.torchrl_reference import ReferenceModule  # noqa: E402
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+README = Path(__file__).resolve().parents[2] / "README.md"
 #: Two consecutive episodes of one environment, each from its own seed.
 EPISODE_SEEDS = (3, 4)
 #: A general (A, B) agent: a damped oscillator per axis (x' = v, v' = -x - 0.3 v + u).
