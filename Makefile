@@ -22,9 +22,9 @@ DOCS_STAMP := $(VENV)/.installed-docs
 # Each environment runs exactly the tests it has the dependencies for: .venv everything but
 # tests/rllib/ and tests/benchmarl/ (TorchRL included); .venv-rllib tests/rllib/ and, on its gymnasium 1.2.2, the
 # environment's own tests.
-RLLIB_TESTS := tests/rllib tests/test_fxc_consensus_v0.py tests/test_consensus_env.py tests/test_vec_env.py
+RLLIB_TESTS := tests/rllib tests/envs/test_fxc_consensus_v0.py tests/envs/test_parallel_env.py tests/envs/test_vec_env.py
 # .venv-benchmarl: tests/benchmarl/ and, on its torchrl 0.11, the TorchRL env's own tests.
-BENCHMARL_TESTS := tests/benchmarl tests/test_torchrl_env.py tests/test_interop.py
+BENCHMARL_TESTS := tests/benchmarl tests/envs/test_torch_env.py tests/envs/test_interop.py
 # `make check` runs its tests as these two shares, side by side (see check below).
 CHECK_SHARDS := check-shard-1 check-shard-2
 

@@ -14,7 +14,7 @@ environment card. From this table come
 
 Front ends take them as ``**kwargs: Unpack[EnvKwargs]`` (type checkers and IDEs see each one) and
 :func:`env_signature` writes their signature out for ``help()`` and ``inspect``;
-``tests/test_arguments.py`` checks both against this table (names, order, defaults, annotations).
+``tests/config/test_arguments.py`` checks both against this table (names, order, defaults, annotations).
 """
 
 from __future__ import annotations

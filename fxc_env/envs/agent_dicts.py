@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig
+from fxc_env.core import validation
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw
@@ -55,6 +56,12 @@ def normalized_state(engine: ConsensusEngine) -> np.ndarray:
     (README, "Using the environment"); the rows lie in [-1, 1] by construction.
     """
     return np.asarray(engine.normalized_state(), dtype=engine.config.observation_dtype)
+
+
+def initial_state_options(engine: ConsensusEngine, options: Any) -> tuple[Any, Any]:
+    """``reset``'s options checked (:func:`~fxc_env.core.validation.reset_options`): ``(x0, v0)``, None where not given."""
+    options = validation.reset_options("options", options)
+    return tuple(engine.validate_state(f"options[{k!r}]", options[k]) if k in options else None for k in ("x0", "v0"))
 
 
 def add_graph_info(infos: dict[str, dict[str, Any]], engine: ConsensusEngine, flat: np.ndarray) -> None:

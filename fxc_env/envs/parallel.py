@@ -29,6 +29,7 @@ from fxc_env.envs.agent_dicts import (
     add_graph_info,
     episode_draw_info,
     episode_metrics_rows,
+    initial_state_options,
     normalized_state,
     observation_dicts,
 )
@@ -323,9 +324,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
         # Every argument is checked before anything changes.
         seed = validation.optional_seed("seed", seed)
-        options = validation.reset_options("options", options)
-        x0 = self.engine.validate_state("options['x0']", options["x0"]) if "x0" in options else None
-        v0 = self.engine.validate_state("options['v0']", options["v0"]) if "v0" in options else None
+        x0, v0 = initial_state_options(self.engine, options)
         if seed is not None or self._rng is None:
             self._rng = np.random.default_rng(seed)
         draw = self.engine.draw_episode(self._rng)  # the family's topology and u_max when drawn, x0, v0

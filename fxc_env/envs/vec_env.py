@@ -34,7 +34,7 @@ from fxc_env.core import validation
 from fxc_env.core.families import edge_lists
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 from fxc_env.engine import ConsensusEngine, EpisodeDraw, StepOutcome, with_initial_state
-from fxc_env.envs.agent_dicts import episode_draw_info, episode_metrics_rows, normalized_state
+from fxc_env.envs.agent_dicts import episode_draw_info, episode_metrics_rows, initial_state_options, normalized_state
 from fxc_env.envs.episode_view import EpisodeView
 from fxc_env.envs.parallel import ConsensusParallelEnv
 from fxc_env.envs.rendering import GRID_EPISODES, blank_frame
@@ -192,7 +192,7 @@ class ConsensusVecEnv(VecEnv):
         chosen = [options] if options is None or isinstance(options, dict) else options[:: self.n_agents]
         for entry in chosen:
             if entry:
-                self._initial_state_options(entry)
+                initial_state_options(self.engine, entry)
         super().set_options(options)
 
     def reset(self) -> np.ndarray:
@@ -202,7 +202,7 @@ class ConsensusVecEnv(VecEnv):
         """
         n = self.n_agents
         try:
-            overrides = {b: self._initial_state_options(o) for b, o in enumerate(self._options[::n]) if o}
+            overrides = {b: initial_state_options(self.engine, o) for b, o in enumerate(self._options[::n]) if o}
         except ArgumentError:
             self._reset_options()  # bad options are used (refused) once, so later resets work
             raise
@@ -218,13 +218,6 @@ class ConsensusVecEnv(VecEnv):
         rng = None if seeds[0] is None else np.random.default_rng((seeds[0], 1))
         self._start(draws, rng)
         return self._observe()
-
-    def _initial_state_options(self, options: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
-        options = validation.reset_options("options", options)
-        validate = self.engine.validate_state
-        x0 = validate("options['x0']", options["x0"]) if "x0" in options else None
-        v0 = validate("options['v0']", options["v0"]) if "v0" in options else None
-        return x0, v0
 
     def _draw_episodes(self, seeds: Sequence[int | None] | None = None) -> list[EpisodeDraw]:
         """Each episode's draw (initial state, topology, input limit) from its own generator,

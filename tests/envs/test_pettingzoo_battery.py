@@ -50,7 +50,7 @@ CONFIGURATIONS = {
 }
 BATTERY = ("parallel_api", "api", "seed", "parallel_seed", "max_cycles", "render", "state")
 #: matplotlib frames of both render modes (2-3 s each at load 4.5, 7-9 s at load 8 on the 2 shared
-#: cores): `make test` runs them all, `make check` the default configuration's (tests/test_rendering.py
+#: cores): `make test` runs them all, `make check` the default configuration's (tests/envs/test_rendering.py
 #: covers the frames).
 SLOW = {(name, "render") for name in CONFIGURATIONS if name != "default"}
 
