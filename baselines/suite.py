@@ -26,6 +26,7 @@ from fxc_env.config import EnvConfig, make_config
 from fxc_env.config.layout import CLOCK_SIZE
 from fxc_env.core.families import AnyFamily, TopologyFamily
 from fxc_env.core.graphs import Topology
+from fxc_env.core.models import MODEL_PARAMETERS
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.learned import SHIPPED, SHIPPED_SCHEDULES, architecture_of, load_learned_policy, pretrained_path
 
@@ -92,7 +93,12 @@ class BenchmarkCase:
             kwargs.update(
                 topology_period=self.period, mean_in_degree=self.mean_in_degree, topology_seed=self.topology_seed
             )
-        return {**kwargs, **dict(self.conditions)}
+        conditions = dict(self.conditions)
+        model = conditions.get("agent_model")
+        parameter = MODEL_PARAMETERS.get(model)
+        if parameter in conditions:  # a model's parameter travels inside its spec
+            conditions["agent_model"] = {"name": model, parameter: conditions.pop(parameter)}
+        return {**kwargs, **conditions}
 
 
 def _text(value: Any) -> str:

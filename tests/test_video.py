@@ -46,7 +46,15 @@ def gif_frames(path):
         ("paper_fig1", {}),
         ("paper_fig1", {"u_max": 3.0}),
         ("formation_hexagon", {"n_intervals": 30}),
-        (None, {"agent_model": "integrator_chain", "order": 3, "n_agents": 4, "topology": "ring", "n_intervals": 12}),
+        (
+            None,
+            {
+                "agent_model": {"name": "integrator_chain", "order": 3},
+                "n_agents": 4,
+                "topology": "ring",
+                "n_intervals": 12,
+            },
+        ),
     ],
 )
 def test_states_at_any_time_are_the_closed_form_curves(scenario, settings):

@@ -26,6 +26,7 @@ from fxc_env.config import make_config
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.config.scenarios import scenario_preset
 from fxc_env.config.tasks import TASKS, NamedTask, get_task
+from fxc_env.core.models import FLAT_PARAMETERS
 from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.training import seed_evaluation
@@ -158,7 +159,9 @@ def custom_case(env_kwargs: dict[str, Any]) -> tuple[BenchmarkCase, float]:
     if config.agent_model != "double_integrator":
         # The agent model and its parameter, as the models suite carries them (README, "Agent models").
         conditions.append(("agent_model", config.agent_model))
-        conditions += [(name, given[name]) for name in ("order", "damping", "frequency") if given.get(name) is not None]
+        spec = env_kwargs.get("agent_model")
+        given = {**given, **spec} if isinstance(spec, dict) else given  # the spec's parameter, or a flat alias
+        conditions += [(name, given[name]) for name in FLAT_PARAMETERS if given.get(name) is not None]
     topology = config.family if config.family is not None else config.topology
     case = BenchmarkCase(topology, config.n_agents, conditions=tuple(conditions), dim=config.dim)
     return case, config.settling_time

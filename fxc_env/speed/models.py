@@ -28,8 +28,8 @@ def models_table(n_agents: int | None = None, steps: int | None = None) -> list[
         ("double_integrator (closed forms)", {}),
         ("double_integrator as (A, B) (general path)", {"agent_model": model_matrices("double_integrator")}),
         ("single_integrator", {"agent_model": "single_integrator"}),
-        ("integrator_chain, order 3", {"agent_model": "integrator_chain", "order": 3}),
-        ("integrator_chain, order 4", {"agent_model": "integrator_chain", "order": 4}),
+        ("integrator_chain, order 3", {"agent_model": {"name": "integrator_chain", "order": 3}}),
+        ("integrator_chain, order 4", {"agent_model": {"name": "integrator_chain", "order": 4}}),
         ("damped", {"agent_model": "damped"}),
         ("oscillator", {"agent_model": "oscillator"}),
     ]
