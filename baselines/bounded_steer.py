@@ -1,6 +1,6 @@
 """Exact consensus under an input limit: gather every prediction by small motions, then the least-peak steer.
 
-Law (README, "How far from optimal", input limits):
+Law (docs: optimality.md, "How far from optimal", input limits):
 
 1. **Gathering.** Per axis, agent i's free-motion prediction ``p_i = (x_i + T_s v_i, v_i)`` as the complex
    register ``q_i = p_{i,x} + i T_s p_{i,v}`` (:mod:`fxc_env.baselines.signalling`). At ``t_0`` it reads
@@ -21,7 +21,7 @@ Law (README, "How far from optimal", input limits):
    breaks the landing.
 
 Measured (directed ring N = 20, K = 200 uniform, T_s = 20 s, seeds 0-19, medians of D(T_s)/D(0) and energy /
-E*; the gathering ends at 1.8 s; README, "How far from optimal"): u_max = 0.3 6.2e-10 at 2.12 (exact on 13 of
+E*; the gathering ends at 1.8 s; docs: optimality.md, "How far from optimal"): u_max = 0.3 6.2e-10 at 2.12 (exact on 13 of
 20 seeds, the others' least peak above 0.3; the input floor from t = 0 is 0.23); u_max = 0.5 4.9e-10 (20 of
 20); u_max = 0.25 0.22 (2 of 20); no limit 5.0e-10 at 2.12.
 

@@ -1,7 +1,7 @@
 """Exact consensus without knowing the graph: a virtual iteration carried by motion, a recurrence, one steer.
 
 Law (after Yuan, Stan, Shi, Barahona & Gonçalves, "Decentralised minimum-time consensus",
-Automatica 49(5), 2013, carried by the motions of :mod:`fxc_env.baselines.signalling`; README,
+Automatica 49(5), 2013, carried by the motions of :mod:`fxc_env.baselines.signalling`; docs: optimality.md,
 "Exact consensus without knowing the graph"):
 
 1. **A virtual iteration carried by motion.** Per axis, agent i holds the complex register
@@ -50,7 +50,7 @@ Measured (K = 200, T_s = 20 s, uniform schedule, 20 seeds, medians of the relati
 of energy / E*, :func:`fxc_env.baselines.graph_agnostic_goals.goal_table`): directed ring N = 20 2.9e-10 at
 1.95, N = 30 4.5e-10 at 2.79; random strongly connected N = 20 2.2e-9 at 1.35, N = 40 1.6e-10 at 1.26 (4.02
 with one steer from t_L = 6 s and no pre-steer); at ``max_agents = 2N`` the window doubles (ring N = 20:
-8.6e-10 at 4.14; random N = 40: 2.6e-10 at 1.29). README, "Exact consensus without knowing the graph".
+8.6e-10 at 4.14; random N = 40: 2.6e-10 at 1.29). docs: optimality.md, "Exact consensus without knowing the graph".
 
 - Source: Yuan et al. 2013 (the recurrence and the final-value formula), carried by this project's
   signalling through small motions.

@@ -1,4 +1,4 @@
-"""The graph-agnostic law's goal table (README, "Exact consensus without knowing the graph").
+"""The graph-agnostic law's goal table (docs: optimality.md, "Exact consensus without knowing the graph").
 
 ``python -c "from fxc_env.baselines.graph_agnostic_goals import goal_table; print(goal_table())"`` prints it:
 uniform K = 200, T_s = 20 s, raw plans, medians over 20 seeded initial states, ``max_agents = N`` and ``2N``.
@@ -48,7 +48,7 @@ def goal_row(settings: dict[str, Any], max_factor: int, seeds: range) -> tuple[f
 
 
 def goal_table(n_seeds: int = 20) -> str:
-    """The README's goal table: K = 200, T_s = 20 s, raw plans, medians over ``n_seeds`` seeded initial states."""
+    """The goal table (docs: optimality.md, "Exact consensus without knowing the graph"): K = 200, T_s = 20 s, raw plans, medians over ``n_seeds`` seeded initial states."""
     common = {"n_intervals": 200, "settling_time": 20.0, "action_mode": "plan", "obs_mode": "raw"}
     uniform = {**common, "scenario": None, "schedule": "uniform"}
     random_20, seed_20 = strongly_connected_random(20, 2.0)

@@ -1,6 +1,6 @@
 """A time-optimal law for a known graph: follow the centre, exact after exactly the radius.
 
-Law (README, "How far from optimal"). The designer picks offline, from the graph, a **centre** r: an
+Law (docs: optimality.md, "How far from optimal"). The designer picks offline, from the graph, a **centre** r: an
 agent whose initial state reaches every agent soonest, in :func:`fxc_env.core.optimality.radius_bound`
 intervals (the graph's radius, the fewest intervals in which *any* law can be exact). The centre
 coasts. Every other agent i, on each interval k, lands on the coasted state of its parent ``p_k(i)``:
@@ -31,7 +31,7 @@ graph. An agent with no in-neighbour in ``G_k`` coasts.
 The law knows which agent it acts for (the tree is per agent), so it is called with every agent's
 observation at once, ``(..., N, obs_size)`` in agent order, as the benchmark and ``simulate`` do. Its
 price is energy: it ignores E*'s mean and drags every agent to the centre's coasted state over short
-intervals (README figures).
+intervals (docs: optimality.md, "How far from optimal").
 """
 
 from __future__ import annotations

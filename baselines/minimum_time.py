@@ -1,6 +1,6 @@
 """A dead-beat law for a known fixed digraph: exact consensus in one interval per root of the minimal polynomial.
 
-Law (derived for this project; README, "How far from optimal"). Agent i reads its aggregated
+Law (derived for this project; docs: optimality.md, "How far from optimal"). Agent i reads its aggregated
 relative row ``r_i = (1/(d_i+1)) sum_{j in N_i} (z_j - z_i)``, ``z = (x, v)``, at ``t_k`` and plans
 
     z_i(t_{k+1}) = P_k z_i(t_k) + G_k r_i(t_k),    P_k = [[1, T_k], [0, 1]]  (coasting),
@@ -47,7 +47,7 @@ refusal because a short budget is a benchmark setting, not a misuse.
   linearly with the noise, 2.2e-6 at sigma = 1e-6 on the ring of 20), ``link_dropout``,
   ``switching='random'`` and agent models other than the double integrator.
 
-Its price is energy: the early factors of a slow graph move agents far (README figures).
+Its price is energy: the early factors of a slow graph move agents far (docs: optimality.md, "How far from optimal").
 """
 
 from __future__ import annotations
@@ -341,7 +341,7 @@ class MinimumTimePolicy:
             double-integrator agents (any schedule, ``dim``, modes, formation offsets).
         allow_noise: run under ``obs_noise`` too (off by default: the design assumes exact rows).
             The law is linear, so the noise passes through its gains and the deadline error grows
-            linearly with sigma (README, "How far from optimal", measured on the ring of 20).
+            linearly with sigma (docs: optimality.md, "How far from optimal", measured on the ring of 20).
 
     Raises:
         ArgumentError naming ``topology``, ``u_max``, ``obs_noise``, ``link_dropout``,

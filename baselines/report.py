@@ -173,7 +173,7 @@ def headline_table(results: list[JobResult], suite: Suite, contenders: list[Cont
     return _table(header, rows)
 
 
-#: The last column of the per-case tables: the case's intervals bounds (README, "How far from optimal").
+#: The last column of the per-case tables: the case's intervals bounds (docs: optimality.md, "How far from optimal").
 BOUNDS_TITLE = "intervals bound: radius (any law) / all roots"
 
 

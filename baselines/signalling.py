@@ -1,6 +1,6 @@
 """A law on the energy-accuracy frontier: agree on the target by small motions, then steer once.
 
-Law (derived for this project; README, "How far from optimal"). The least energy of any exact
+Law (derived for this project; docs: optimality.md, "How far from optimal"). The least energy of any exact
 consensus at ``T_s`` is ``E*`` (:func:`fxc_env.core.optimality.energy_bound`), reached when every
 agent steers once, with the minimum-energy input (paper Remark 1), to the *unweighted* mean ``p̄`` of
 the free-motion predictions ``p_i = (x_i + T_s v_i, v_i)``. Each agent only needs its own offset
@@ -121,7 +121,7 @@ class SignallingPolicy:
             signals are small and its steer is the minimum-energy one, so wherever every input stays
             within the limit the clip never acts and the law is as exact as without it; where the
             steer needs more (a late steer on the paper's schedule, a limit near the input floor)
-            the clip breaks the landing (README, "How far from optimal", for measured figures).
+            the clip breaks the landing (docs: optimality.md, "How far from optimal", for measured figures).
 
     Raises:
         ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``, ``agent_model``,

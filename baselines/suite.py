@@ -296,7 +296,7 @@ def realism_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     )
 
 
-#: The agent models of the ``models`` suite (README, "Agent models"), as ``make_config`` conditions.
+#: The agent models of the ``models`` suite (docs: agent-models.md, "Agent models and formations"), as ``make_config`` conditions.
 MODEL_CONDITIONS = (
     (("agent_model", "single_integrator"),),
     (("agent_model", "double_integrator"),),
@@ -366,7 +366,7 @@ def generalisation_suite(n_seeds: int = 20, budgets: tuple[int, ...] = (200,)) -
     )
 
 
-#: Noise levels and input limits of the optimality suite's floor cases (ring N = 20; README, "How far from optimal").
+#: Noise levels and input limits of the optimality suite's floor cases (ring N = 20; docs: optimality.md, "How far from optimal").
 FLOOR_NOISE = (1e-6, 1e-4, 1e-3)
 FLOOR_LIMITS = (0.3, 0.5, 1.0, 10.0)
 
@@ -392,7 +392,7 @@ def optimality_cases(sizes: tuple[int, ...] = (20, 100)) -> tuple[BenchmarkCase,
 
 
 def optimality_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
-    """How far from optimal (README, "How far from optimal"): :func:`optimality_cases` at K = 200, T_s = 20 s.
+    """How far from optimal (docs: optimality.md, "How far from optimal"): :func:`optimality_cases` at K = 200, T_s = 20 s.
 
     Every job reports its episodes' bounds (``E*``, the radius and the all-roots bounds) beside the deadline
     error, the energy ratio and the intervals used; run it with :func:`optimality_contenders`.

@@ -3,7 +3,7 @@
 Each old path in :data:`MOVED` imports as a small module that re-exports its new module's names (the
 same objects) and raises a :class:`DeprecationWarning` naming the new path, pointed at the line that
 imports it. :data:`RENAMED` lists attributes renamed in the move; the old name keeps working, with a
-warning naming the new one. Everything here goes away in the next release (README, "Moved modules").
+warning naming the new one. Everything here goes away in the next release (docs: architecture.md, "Moved modules").
 
 One finder on :data:`sys.meta_path`, appended after the ordinary ones, answers only the paths in
 :data:`MOVED`; no file stands at an old path, so the layer folders keep their import contract.

@@ -18,7 +18,7 @@ PAPER_SETTLING_TIME = 20.0
 PAPER_XI = np.array([1 / 4, 1 / 8, 1 / 8, 1 / 4, 1 / 8, 1 / 8])
 PAPER_X_STAR = -1.875
 PAPER_V_STAR = -0.125
-#: The assumed Fig. 1 (the README's reconstruction: the paper's image is lost): 1-based pairs (j, i), "i receives from j".
+#: The assumed Fig. 1 (docs: scenarios/paper_fig1.md's reconstruction: the paper's image is lost): 1-based pairs (j, i), "i receives from j".
 PAPER_GRAPHS_ONE_BASED = [[(1, 2), (4, 5)], [(2, 3), (5, 6)], [(3, 4), (6, 1)]]
 PAPER_GRAPHS = [[(j - 1, i - 1) for j, i in graph] for graph in PAPER_GRAPHS_ONE_BASED]
 

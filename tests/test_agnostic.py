@@ -1,9 +1,9 @@
 """The shipped ``agnostic`` policy: one gain schedule for every graph, learned without being told the graph.
 
-Goals (README, "Not told the graph"): at K = 200, T_s = 20 s on the paper's schedule, at least ten
+Goals (docs: results.md, "What learning reached"): at K = 200, T_s = 20 s on the paper's schedule, at least ten
 times below the paper's controller on directed rings of sizes it was never trained on (N in
 12..40); its inputs are the agent's own rows, mask and clock only (no N, no graph, no spectrum).
-Measured (README): ten times below at the held-out N = 15 and 19, below the reference at every
+Measured (docs: results.md, "What learning reached"): ten times below at the held-out N = 15 and 19, below the reference at every
 held-out size, 1.8 times at N = 39 (the goal is not met there).
 """
 

@@ -113,8 +113,8 @@ def test_a_value_that_is_not_an_integer_is_a_one_line_error_naming_the_flag(tmp_
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--backend", "jax"], "--backend: expected one of ('sb3', 'rllib', 'torch', 'diff'), got 'jax'"),
-        (["--algo", "dqn"], "--algo: expected one of ('ppo', 'sac', 'apg'), got 'dqn'"),
+        (["--backend", "jax"], f"--backend: expected one of {tuple(registry.BACKENDS)}, got 'jax'"),
+        (["--algo", "dqn"], f"--algo: expected one of {registry.algorithms()}, got 'dqn'"),
         (["--backend", "torch", "--critic", "global"], "--critic: expected one of ('local', 'central'), got 'global'"),
         (
             ["--backend", "torch", "--device", "tpu"],

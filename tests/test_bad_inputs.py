@@ -1,4 +1,4 @@
-"""Bad input gets a clear error and loses nothing (README, "Bad input").
+"""Bad input gets a clear error and loses nothing (docs: bad-input.md, "Bad input and saved policies").
 
 One table of distinct bad inputs across every front end: the constructor, ``reset`` and
 ``step`` of the parallel env, the AEC form, the SB3 VecEnv, ``simulate`` and the command

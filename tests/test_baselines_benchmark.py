@@ -41,7 +41,7 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     assert "intervals bound: radius (any law) / all roots |" in printed and row.endswith("| 5 / 7 |")
     assert (tmp_path / "table.md").read_text().strip() in printed
 
-    # Every policy ran every quick case with the settings and notes the README's benchmark table lists.
+    # Every policy ran every quick case with the settings and notes the benchmark table of docs: benchmark.md lists.
     suite = quick_suite()
     assert len(rows) == len(make_jobs(suite, builtin_contenders()))
     refusing = ("minimum_time", "signalling", "graph_agnostic", "bounded_steer")

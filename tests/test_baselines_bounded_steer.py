@@ -65,7 +65,7 @@ def test_the_least_peak_steer_lands_exactly_with_a_bang_bang_input():
 
 @pytest.mark.slow
 def test_the_goal_under_u_max_0_3_on_the_ring_of_20():
-    # README, "How far from optimal": ring N = 20, K = 200 uniform, u_max = 0.3 (input floor 0.21-0.26): median
+    # docs: optimality.md, "How far from optimal": ring N = 20, K = 200 uniform, u_max = 0.3 (input floor 0.21-0.26): median
     # D(T_s)/D(0) <= 1e-6 (the best law before it: 0.108). Seeds 0, 2, 4 need a peak within 0.3, seeds 1 and 3 more.
     _, _, metrics = episodes(seeds=range(5), topology="ring", n_agents=20, n_intervals=200, u_max=0.3)
     errors = metrics["relative_deadline_error"]

@@ -207,7 +207,7 @@ def test_the_benchmark_and_evaluate_run_it():
     ids=["ring-20", "ring-30", "random-20", "random-40"],
 )
 def test_the_goals_at_k_200(case, n_agents, error, energy):
-    # README, "Exact consensus without knowing the graph": uniform K = 200, T_s = 20, max_agents = N; the random
+    # docs: optimality.md, "Exact consensus without knowing the graph": uniform K = 200, T_s = 20, max_agents = N; the random
     # digraphs at mean in-degree 2 (N = 20) and 3 (N = 40). N = 40 needs the pre-steer (one steer from t_L = 6 s
     # alone costs 4.0 x E*).
     topology = "ring" if case == "ring" else strongly_connected_random(n_agents, n_agents / 20 + 1)[0]

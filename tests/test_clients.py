@@ -83,7 +83,7 @@ def tianshou_ippo(monkeypatch, **settings):
     collector's action batch has none (``AttributeError: 'dict' object has no attribute
     'obs_next'`` on the first step, whatever the environment). The one-line fix is theirs (guard
     ``if hasattr(tmp_batch.obs_next, "obs")`` with ``"obs_next" in tmp_batch.get_keys()``); here the
-    same effect by handing ``forward`` an empty ``obs_next`` (README, "Other clients").
+    same effect by handing ``forward`` an empty ``obs_next`` (docs: environment.md, "The environment").
     """
     import tianshou as ts  # installed by make test (the [tianshou] extra)
     from tianshou.algorithm import PPO

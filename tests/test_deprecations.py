@@ -1,6 +1,6 @@
 """The previous release's module paths still import, for one release, with a warning naming the new path.
 
-The layers became folders (README, "Moved modules"): every module at the package's top level moved into
+The layers became folders (docs: architecture.md, "Moved modules"): every module at the package's top level moved into
 one, and ``fxc_env.training.train`` became ``sb3_train``. A user's ``import fxc_env.learned`` keeps working
 and says where the module is now; the public names users import sit on ``fxc_env`` itself.
 """

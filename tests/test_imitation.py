@@ -1,4 +1,4 @@
-"""fxc_env.training.imitation: the warm start the shipped policies were trained from (README, "An imitation warm start")."""
+"""fxc_env.training.imitation: the warm start the shipped policies were trained from (docs: training.md, "An imitation warm start")."""
 
 from __future__ import annotations
 

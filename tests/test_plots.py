@@ -1,4 +1,4 @@
-"""Figures of a whole run written as PNG (README, "Quick start")."""
+"""Figures of a whole run written as PNG (docs: getting-started.md, "Getting started")."""
 
 from __future__ import annotations
 

@@ -70,7 +70,7 @@ def test_a_gain_network_in_a_ring_of_20_with_any_slots_plays_the_four_slot_episo
         actions, metrics = episode(policy, env)
         np.testing.assert_array_equal(actions, expected_actions)
         assert metrics == expected
-    # README, "Training learned policies": the generalist leaves 0.29 of D(0) on rings of 20 (median), the
+    # docs: training.md, "Training learned policies": the generalist leaves 0.29 of D(0) on rings of 20 (median), the
     # reference 0.034; saturated was trained on rings of 6 under the limit and gathers these too.
     assert expected["relative_deadline_error"] < 1.0
 

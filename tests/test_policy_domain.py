@@ -1,4 +1,4 @@
-"""Every policy knows where it was trained (fxc_env.policies.domain; README, "Training learned policies").
+"""Every policy knows where it was trained (fxc_env.policies.domain; docs: training.md, "Training learned policies").
 
 Each shipped file records its training domain as plain data; loading it into an environment
 outside that domain is refused naming every difference, unless ``allow_out_of_domain=True``,

@@ -1,6 +1,6 @@
 """Saved policies load without running code from them, and refuse environments they were not trained for.
 
-README, "Training learned policies": an SB3 ``.zip`` is read from its plain JSON and its
+docs: training.md, "Training learned policies": an SB3 ``.zip`` is read from its plain JSON and its
 ``weights_only`` tensors; pickled formats (RLlib checkpoints, VecNormalize's ``.pkl``) need
 ``trusted=True``; a policy that records its training settings refuses an environment whose
 schedule, modes, input-limit feature, agent model, dim or observation slots differ.

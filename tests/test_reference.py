@@ -135,7 +135,7 @@ def test_normalized_reference_actions_are_order_one():
         actions = {agent: policy(obs[agent]) for agent in env.agents}
         largest = max(largest, max(np.max(np.abs(a)) for a in actions.values()))
         obs, *_ = env.step(actions)
-    # Disagreement falls by ~12 orders of magnitude, yet the actions stay O(1) (the README's scale-free units).
+    # Disagreement falls by ~12 orders of magnitude, yet the actions stay O(1) (the scale-free units of docs: environment.md, "Observation").
     assert 0.1 < largest <= 2.0
 
 

@@ -1,6 +1,6 @@
 """The shipped ``rings`` policy: its goal on directed rings of 20, its file, and what it refuses.
 
-Goal (README, "Training learned policies"): on directed rings of N = 20 at K = 200, T_s = 20 s, its
+Goal (docs: training.md, "Training learned policies"): on directed rings of N = 20 at K = 200, T_s = 20 s, its
 median deadline error ``D(T_s)/D(0)`` is at most 3.4e-4 and at least 100 times below the paper's
 controller's (eq. 11) on the same seeded episodes, through the same jobs as ``fxc evaluate``.
 """
@@ -41,7 +41,7 @@ def test_the_rings_policy_is_a_hundred_times_below_the_reference_on_directed_rin
     case = BenchmarkCase(TopologyFamily("ring"), 20)
     ours = np.median(deadline_errors(learned_contender("rings"), case))
     reference = np.median(deadline_errors(builtin_contenders(["reference"])[0], case))
-    assert reference > 0.01  # the slow ring the goal is about (README: about 0.034)
+    assert reference > 0.01  # the slow ring the goal is about (docs: results.md: about 0.034)
     assert ours <= 3.4e-4
     assert ours * 100 <= reference
 

@@ -1,6 +1,6 @@
 """The shipped ``rings_scratch`` policy: a gain schedule learned from scratch, without a teacher.
 
-Goal (README, "What learning reached"): on directed rings of N = 20 at K = 200, T_s = 20 s on the
+Goal (docs: results.md, "What learning reached"): on directed rings of N = 20 at K = 200, T_s = 20 s on the
 paper's schedule, its median deadline error ``D(T_s)/D(0)`` over 20 held-out seeds is at most 3.4e-4
 (100 times below the paper's controller's 0.034), learned only by minimising simulated deadline
 errors through the exact interval map, from a random start.
@@ -37,7 +37,7 @@ def deadline_errors(contender, seeds=SEEDS) -> np.ndarray:
 def test_the_rings_scratch_policy_is_ten_times_below_the_reference_on_held_out_seeds():
     ours = np.median(deadline_errors(learned_contender("rings_scratch")))
     reference = np.median(deadline_errors(builtin_contenders(["reference"])[0]))
-    assert reference > 0.01  # the slow ring (README: about 0.034)
+    assert reference > 0.01  # the slow ring (docs: results.md: about 0.034)
     assert ours * 10 <= reference
 
 

@@ -1,4 +1,4 @@
-"""The shipped policies meet their goals on a small seeded evaluation (README, "Training learned policies").
+"""The shipped policies meet their goals on a small seeded evaluation (docs: training.md, "Training learned policies").
 
 The same jobs as ``fxc evaluate`` (:func:`fxc_env.baselines.jobs.run_job`), with fewer seeds.
 Deadline errors are compared as ``log10(max(error, 1e-12))``: below 1e-12 counts as met.

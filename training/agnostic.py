@@ -27,7 +27,7 @@ Run (the shipped file is ``--seed 0``)::
 ``--init paper`` (the paper's factors, perturbed) and ``--init chebyshev`` (:func:`chebyshev_factors`)
 are controls: measured on the training batch, the first stalled at a loss of 0.03 (seed 1; random
 factors end at -3.05 with seed 0, between 0.80 and -4.00 with seeds 1-4) and the second,
-small on every ring, is 10 or more decades worse than the reference under switching (README,
+small on every ring, is 10 or more decades worse than the reference under switching (docs: results.md,
 "What learning reached"). ``--quick`` trains for seconds (a few cases, one L-BFGS step), for tests; ``--evaluate PATH`` only
 measures a saved table: the held-out ring sizes, against the reference, on held-out seeds 0 ..
 (training episodes are drawn from seed ``3000 + seed``).

@@ -1,6 +1,6 @@
 """``fxc train --backend diff``: analytic policy gradients through the engine's closed-form intervals.
 
-Every interval of the engine is a closed-form map, affine in the plan (README, "Differentiable
+Every interval of the engine is a closed-form map, affine in the plan (docs: differentiable.md, "Differentiable
 simulation"), so the episode's outcome is a differentiable function of the policy's weights: the
 loop plays B episodes of N agents (:class:`fxc_env.engine.ConsensusEngine`, float64 on
 ``--device``) with the deterministic policy (the actor's mean, clipped to ``±action_bound``, as

@@ -61,7 +61,7 @@ TASK_FIXES = ("--suite", "--seeds", "--budgets")
 
 def scored_settings(task: NamedTask) -> dict[str, Any]:
     """The settings of a task's scored episodes: its scenario's preset spelled out, without a fixed initial
-    state (each evaluation seed draws its own, for every contender alike; README "Named tasks")."""
+    state (each evaluation seed draws its own, for every contender alike; docs: tasks/index.md, "Named tasks")."""
     kwargs = task.kwargs()
     kwargs = {**scenario_preset(kwargs.pop("scenario", None)), **kwargs}
     kwargs.pop("initial_state", None)
@@ -157,7 +157,7 @@ def custom_case(env_kwargs: dict[str, Any]) -> tuple[BenchmarkCase, float]:
             "carried into its cases, so a formation is refused rather than scored as plain consensus"
         )
     if config.agent_model != "double_integrator":
-        # The agent model and its parameter, as the models suite carries them (README, "Agent models").
+        # The agent model and its parameter, as the models suite carries them (docs: agent-models.md, "Agent models and formations").
         conditions.append(("agent_model", config.agent_model))
         spec = env_kwargs.get("agent_model")
         given = {**given, **spec} if isinstance(spec, dict) else given  # the spec's parameter, or a flat alias
@@ -243,7 +243,7 @@ def _evaluation_suite(
         flag = "--" + next(iter(custom)).replace("_", "-")
         raise ArgumentError(f"{flag}: --task {task.id} fixes the environment's settings; leave the flag out")
     if custom:
-        make_config(**custom)  # every flag together, through the Python API's checks (README, "Bad input")
+        make_config(**custom)  # every flag together, through the Python API's checks (docs: bad-input.md)
     # The learned policy's own settings (the reference keeps its schedule and modes).
     learned = {k: custom.pop(k) for k in ("action_mode", "obs_mode", "schedule") if k in custom}
     if learned and args.policy == "reference":

@@ -3,7 +3,7 @@
 The task is :mod:`fxc_env.training.rings`'s (directed rings relabelled per episode, initial scales over
 two decades, K = 200 intervals of the paper's schedule, eq. 27, T_s = 20 s, plans in normalized units,
 one observation slot), with ``action_bound = 20``: the teacher's plans reach 14.2 at k = 1, beyond
-the default box of 2 (README, "Using the environment").
+the default box of 2 (docs: environment.md, "The environment").
 
 **Teacher.** The minimum-time law (:mod:`fxc_env.baselines.minimum_time`), designed per episode from
 the drawn ring: it knows the graph's spectrum. **Student.** The ``gru`` actor of the torch back end
@@ -11,7 +11,7 @@ the drawn ring: it knows the graph's spectrum. **Student.** The ``gru`` actor of
 here): a GRU reads, at each sampling instant, the non-measurement part of the agent's observation,
 ``[mask, t_k/T_s, T_{k+1}/T_s, k/K]``, and the plan is linear in the measured row,
 ``mu_k = A(h_k) [(x_j - x_i)/s_i, T_{k+1} (v_j - v_i)/s_i]`` (the in-neighbour's relative row in the
-agent's local scale, README "Using the environment"). The student is **not told** N or the
+agent's local scale, docs: environment.md, "The environment"). The student is **not told** N or the
 spectrum: neither is in its observation. Trained on rings of one size it learns that size's
 schedule from the clock and its memory (as the ``rings`` table does); ``--sizes`` trains it on
 several ring sizes at once. ``--gru-input observation`` lets the GRU read the rows too (then the

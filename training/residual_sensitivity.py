@@ -3,7 +3,7 @@
 Directed rings of 20 (a new labelling per episode), K = 200 on the paper's schedule, T_s = 20 s,
 ``action_mode="residual"``: every agent adds ``sigma * N(0, 1)`` to its correction's ``alpha_x``, its
 ``alpha_v`` or both, on every interval or on the last / all but the last ``n``. Prints the median
-over 20 seeded episodes (README, "PPO from scratch around the reference")::
+over 20 seeded episodes (docs: results.md, "PPO from scratch around the reference")::
 
     .venv/bin/python -m fxc_env.training.residual_sensitivity
 

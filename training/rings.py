@@ -3,7 +3,7 @@
 The task: directed rings of N = 20 agents with a new random labelling every episode, initial states
 across two decades of scale (positions U(-a, a), a drawn log-uniformly in [0.5, 50] m; velocities
 likewise in [0.2, 20] m/s), K = 200 intervals of the paper's schedule (eq. 27), T_s = 20 s, plans in
-normalized units. There the paper's controller (eq. 11) leaves ``D(T_s)/D(0)`` about 0.034 (README,
+normalized units. There the paper's controller (eq. 11) leaves ``D(T_s)/D(0)`` about 0.034 (docs: optimality.md,
 "How far from optimal"): a ring mixes slowly and one gain for every interval cannot do better.
 
 The network is :class:`fxc_env.policies.interval_gains.IntervalGainPolicy`: each agent plans
@@ -150,7 +150,7 @@ def episode_log_errors(config: EnvConfig, gains: Any, x0: np.ndarray, v0: np.nda
     """``log D(T_s)/D(0)`` ``(B,)`` of the plan ``z_i(t_{k+1}) = P_k z_i + G_k r_i``, exactly (torch float64).
 
     ``r = -Ŵ z`` for ``Ŵ = (D + I)^{-1} L`` ``(N, N)``; ``x0, v0`` ``(B, N)``. ``D = spread(x) +
-    T_s spread(v)`` (README, "Metrics"). Differentiable in ``gains`` (normalized units, ``(K, 2, 2)``).
+    T_s spread(v)`` (docs: environment.md, "The environment"). Differentiable in ``gains`` (normalized units, ``(K, 2, 2)``).
     """
     import torch
 

@@ -10,7 +10,7 @@ seeded episodes through the exact closed-form interval map of the plan
 (:func:`log_errors`: ``z_i(t_{k+1}) = P_k z_i + G_k r_i``, the
 minimum-energy input of Remark 1 realising it exactly), with L-BFGS, from a random start.
 
-**The parameterisation by factors.** A free ``(K, 2, 2)`` table stalls at a few 1e-3 (README,
+**The parameterisation by factors.** A free ``(K, 2, 2)`` table stalls at a few 1e-3 (docs: results.md,
 "What learning reached"): the product of K non-commuting 2 x 2 maps has many poor local minima. Here
 the intervals go in pairs ``(2m, 2m + 1)`` and each pair holds one learned number ``q_m = a_m + i b_m``:
 in physical units ``G_{2m} = R_m P_{2m}`` and ``G_{2m+1} = P_{2m+1} R_m^T`` with
@@ -23,11 +23,11 @@ coasting. The loss never reads the spectrum; it sees only simulated deadline err
 (the paper's, or zero) is a saddle of the loss in ``b`` (the loss is even in each ``b_m``), so the
 start is random: ``q_m ~ N(0, 1)`` per component, from the training seed.
 
-Run (the shipped file; about a minute on one core, the README gives the wall time)::
+Run (the shipped file; about a minute on one core, docs: results.md gives the wall time)::
 
     .venv/bin/python -m fxc_env.training.rings_scratch --out fxc_env/pretrained/rings_scratch.npz
 
-``--free`` is the control experiment: the same start, loss and optimiser over the free table (README,
+``--free`` is the control experiment: the same start, loss and optimiser over the free table (docs: results.md,
 "What learning reached", for what it reaches). ``--quick`` trains for seconds (8 episodes, one L-BFGS step), for tests; ``--evaluate PATH`` only
 measures a saved table on held-out seeds (evaluation seeds 0 .., training episodes are drawn from
 seed ``2000 + seed``).

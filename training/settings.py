@@ -46,7 +46,7 @@ class PPOSettings:
     """Initial log standard deviation of the exploration noise (state independent, learned)."""
     actor_out_gain: float = 0.01
     """Orthogonal gain of the ``mlp`` actor's output layer; 0 starts it at exactly zero (with
-    ``action_mode: residual`` the untrained policy is then the reference; README, "PPO from scratch")."""
+    ``action_mode: residual`` the untrained policy is then the reference; docs: results.md, "PPO from scratch")."""
     normalize_advantage: bool = True
     gru_size: int = 64
     """``--policy-arch gru``: the width of the GRU's hidden state."""

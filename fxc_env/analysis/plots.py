@@ -41,7 +41,7 @@ def _component_note(trajectory: Trajectory) -> str:
 
 
 def topology_figure(trajectory: Trajectory, path: Path) -> Path:
-    """The graphs of the switching period and their union (the assumed Fig. 1 of the README)."""
+    """The graphs of the switching period and their union (the assumed Fig. 1 of docs: scenarios/paper_fig1.md)."""
     topology = trajectory.topology
     m = topology.period
     panels = m + 1 if m > 1 else 1

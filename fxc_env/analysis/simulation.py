@@ -34,7 +34,7 @@ class Trajectory:
         dense_x, dense_v, dense_u: ``(P, N, dim)`` exact state and applied input there
             (``dense_u`` at ``T_s`` repeats the last interval's end value).
         disagreement: ``(K + 1,)`` ``D(t_k)`` (of the formation error with offsets); ``dense_disagreement`` ``(P,)``.
-        metrics: the episode's figures (README, "Metrics").
+        metrics: the episode's figures (docs: environment.md, "The environment").
         config: the settings the episode ran with.
         topology: the episode's graphs (the config's, or its family's draw).
         u_max: the episode's input limit (m/s^2; drawn when the config gives a set), or None.

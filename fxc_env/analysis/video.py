@@ -10,7 +10,7 @@ millisecond in the last ones), so frames are **uniform in time**: ``F = round(fp
 frames at ``t_f = T_s f / (F - 1)``, ``f = 0 .. F - 1``, the first at ``t = 0`` and the last at
 ``T_s``; the trails join the states at the frame times and at every sampling instant, so the
 fast motion of the late, short intervals is in the curves even when no frame falls inside them.
-Each frame shows the graph of the interval its time lies in (README, "Video").
+Each frame shows the graph of the interval its time lies in (docs: video.md, "Video").
 """
 
 from __future__ import annotations

@@ -100,7 +100,7 @@ def _table(header: tuple[str, str, str], rows: list[tuple[str, Any, Any]]) -> No
 
 
 def _print_simulation(trajectory: Any, scenario: str | None, xi: Any) -> None:
-    """The settings, the metrics against the prediction and how far from optimal (README) the reference was."""
+    """The settings, the metrics against the prediction and how far from optimal (docs: optimality.md) the reference was."""
     c, m, topology = trajectory.config, trajectory.metrics, trajectory.topology
     print(f"fxc simulate: {scenario or 'custom'} — {topology.describe()}")
     if topology.note:

@@ -1,4 +1,4 @@
-"""The environment's arguments, declared once (README, "Using the environment").
+"""The environment's arguments, declared once (docs: environment.md, "The environment").
 
 :func:`fxc_env.make_config` and every front end over it (the PettingZoo parallel and AEC
 environments, the SB3 ``ConsensusVecEnv``, the TorchRL ``ConsensusTorchEnv``) take the same
@@ -362,10 +362,10 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
     _env(
         "agent_model",
         None,
-        help="the agents' dynamics per axis (default double_integrator; README, 'Agent models')",
+        help="the agents' dynamics per axis (default double_integrator; docs: agent-models.md)",
         card='the agents\' model per axis: a name, ``"single_integrator"``, ``"integrator_chain"``, ``"damped"``, '
         '``"oscillator"``, a dict with its parameter (``{"name": "damped", "damping": 0.5}``: ``order`` 1-4, '
-        '``damping`` c in 1/s, ``frequency`` ω in rad/s), or a controllable pair ``(A, B)`` (README, "Agent models")',
+        '``damping`` c in 1/s, ``frequency`` ω in rad/s), or a controllable pair ``(A, B)`` (docs: agent-models.md, "Agent models and formations")',
         fallback="double_integrator",
         from_scenario=True,
         card_type="name, dict or ``(A, B)``",
@@ -375,7 +375,7 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         "formation_offsets",
         None,
         help="formation offsets h_i: positions (N, dim) or full states (N, dim, n)",
-        card='agents agree on ``z_i - e^{A t} h_i``: position offsets hold a formation (README, "Formations")',
+        card='agents agree on ``z_i - e^{A t} h_i``: position offsets hold a formation (docs: agent-models.md, "Formations")',
         from_scenario=True,
         card_type="``(N, dim)`` or ``(N, dim, n)`` array",
     ),
@@ -401,7 +401,7 @@ MAX_CYCLES = Argument(
     minimum=1,
 )
 FRONT_END_ARGUMENTS: tuple[Argument, ...] = (RENDER_MODE, MAX_CYCLES)
-#: The graph as edge tensors for graph neural networks (README, "Graph tensors"): taken by the
+#: The graph as edge tensors for graph neural networks (docs: graph-tensors.md, "Graph tensors"): taken by the
 #: TorchRL environment (root keys) and the PettingZoo parallel env (per-step infos) only.
 GRAPH_TENSORS = Argument(
     "graph_tensors",
@@ -409,7 +409,7 @@ GRAPH_TENSORS = Argument(
     False,
     help="add the current graph as edge_index / edge_mask / n_edges / edge_attr",
     card="the current interval's graph as PyG-style edge tensors, ``edge_index`` (source j, target i) and "
-    '``edge_attr`` (the observation\'s rows ``z_j - z_i``) (README, "Graph tensors")',
+    '``edge_attr`` (the observation\'s rows ``z_j - z_i``) (docs: graph-tensors.md, "Graph tensors")',
     kind="boolean",
 )
 

@@ -98,8 +98,8 @@ class EnvConfig:
     def row_scales(self) -> np.ndarray:
         """Per sampling instant, what each state component is multiplied by to read in position units: ``(K + 1, n)``.
 
-        The double integrator: ``[1, T_{k+1}]`` (``x`` and ``T v``, the README's normalized
-        units). A general model: ``D_0 / D_l`` with the time-scaled frame ``D = h^levels``
+        The double integrator: ``[1, T_{k+1}]`` (``x`` and ``T v``, the normalized units of
+        docs: environment.md, "Observation"). A general model: ``D_0 / D_l`` with the time-scaled frame ``D = h^levels``
         (:mod:`fxc_env.core.linear`), e.g. ``[1, T, T^2]`` for a chain of order 3. The
         instant ``K`` repeats the last interval's row.
         """

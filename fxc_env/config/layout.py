@@ -1,4 +1,4 @@
-"""Where things sit in one agent's flat observation vector (README, "Observation").
+"""Where things sit in one agent's flat observation vector (docs: environment.md, "Observation").
 
 The environment writes observations in this layout and every policy reads them through it,
 so both agree by construction.

@@ -2,7 +2,7 @@
 
 ``parallel_env(scenario="paper_fig1")`` is the paper's example (Section 5): six agents, its
 initial state, ``T_s = 20`` s and the **assumed** Fig. 1 switching set (the figure is lost;
-the README gives our reconstruction). Keyword arguments given next to ``scenario`` override it.
+docs: scenarios/paper_fig1.md gives our reconstruction). Keyword arguments given next to ``scenario`` override it.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ A task is what a results table cites: ``fxc/rings20-v1`` is the directed ring of
 agents with ``T_s = 20`` s, K = 200 sampling intervals and evaluation seeds 1000 .. 1019,
 whatever the defaults of the library become. Its settings never change; a change of
 settings is a new version (``-v2``), and the old one stays. The same names work in every
-front end (README "Named tasks")::
+front end (docs: tasks/index.md, "Named tasks")::
 
     pettingzoo.make("parallel", "fxc/rings20-v1")              # the PettingZoo registry
     fxc_env.parallel_env(**task_kwargs("fxc/rings20-v1"))      # the same environment

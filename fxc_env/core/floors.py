@@ -1,6 +1,6 @@
 """Floors under measurement noise and input limits: what no controller, centralised or not, can beat.
 
-Two settings of the environment change what is reachable at ``T_s`` (README, "How far from
+Two settings of the environment change what is reachable at ``T_s`` (docs: optimality.md, "How far from
 optimal"); each has a floor that holds for every law:
 
 - **Noise** (:func:`noise_floor`). With ``obs_noise = sigma`` every received row

@@ -288,7 +288,7 @@ def check_horizon(model: LinearModel, settling_time: float) -> None:
     """Refuse a model whose free motion outgrows float64 within the horizon ``T_s`` (seconds).
 
     Consensus does not stabilise the agents: for ``t >= T_s`` they follow ``e^{A t}`` of the
-    weighted initial state (README, "Agent models and formations"), so an unstable ``A`` grows
+    weighted initial state (docs: agent-models.md, "Agent models and formations"), so an unstable ``A`` grows
     like ``e^{growth_rate t}`` whatever the controller does. Up to :data:`MAX_HORIZON_GROWTH`
     (``growth_rate * T_s``) every state and energy of an episode stays finite.
 

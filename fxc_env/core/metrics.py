@@ -1,4 +1,4 @@
-"""Disagreement measures and per-episode metrics (the env card's Rewards; README, "Baselines and the deadline benchmark").
+"""Disagreement measures and per-episode metrics (the env card's Rewards; docs: benchmark.md, "Baselines and the deadline benchmark").
 
 ``e_x = max_ij ||x_i - x_j||_2`` (the diameter of the agents' positions), ``e_v`` likewise,
 and the disagreement ``D = e_x + T_s e_v`` (metres), which weighs a velocity mismatch by
@@ -427,7 +427,7 @@ class EpisodeMetrics:
     the input limit ``u_max`` (mean over components; 0 without a limit).
     For ``dim > 1`` the predicted and achieved values are the first component.
 
-    How far from optimal (README, "How far from optimal"): ``energy_bound`` is ``E*``, the least
+    How far from optimal (docs: optimality.md, "How far from optimal"): ``energy_bound`` is ``E*``, the least
     energy any controller needs for exact consensus at ``T_s`` from this initial state (for
     formations, of reaching the formation), and ``energy_ratio`` is ``energy / E*`` (NaN where
     ``E* = 0``). ``settled_interval`` is the number of intervals after which ``D(t_k) / D(0)`` stayed

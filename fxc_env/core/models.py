@@ -1,4 +1,4 @@
-"""The named agent models and the ``agent_model`` spec (README, "Agent models and formations").
+"""The named agent models and the ``agent_model`` spec (docs: agent-models.md, "Agent models and formations").
 
 Every agent obeys, per space axis, ``z' = A z + B u``. :func:`model_matrices` gives ``(A, B)``
 of a named model; :func:`model_spec` reads the environment's ``agent_model`` argument: a

@@ -1,6 +1,6 @@
 """How far from optimal: the minimum-energy bound, the intervals bounds and the settled interval.
 
-The energy and radius bounds hold for *every* controller of the consensus task (README, "How far
+The energy and radius bounds hold for *every* controller of the consensus task (docs: optimality.md, "How far
 from optimal"), centralised or not; the all-roots bound for laws whose value depends on every root:
 
 - **Energy** (:func:`energy_bound`, :func:`linear_energy_bound`). Agent i, steered from
@@ -105,7 +105,7 @@ def energy_bound(x0: Any, v0: Any, settling_time: Any) -> np.ndarray:
 
 
 def linear_energy_bound(model: LinearModel, z0: Any, settling_time: Any, offsets: Any = None) -> np.ndarray:
-    """``E*`` for general linear agents ``z' = A z + B u`` per axis (README, "Agent models").
+    """``E*`` for general linear agents ``z' = A z + B u`` per axis (docs: agent-models.md, "Agent models and formations").
 
     ``p_i = e^{A T_s} z_i(0)``, ``E* = sum_i (p_i - p̄)^T G(T_s)^{-1} (p_i - p̄)`` summed over axes,
     solved in the time- and state-scaled frame of :class:`~fxc_env.core.linear.IntervalMaps`

@@ -171,7 +171,7 @@ def stratified_bootstrap(
 def decades(relative_error: object, floor: float = 1e-12) -> np.ndarray:
     """``log10(max(D(T_s)/D(0), floor))``: a deadline error in decades, floored at ``floor``.
 
-    The benchmark's log column (README, "Learned policies"): errors below ``floor`` (1e-12, the
+    The benchmark's log column (docs: benchmark.md, "Baselines and the deadline benchmark"): errors below ``floor`` (1e-12, the
     float64 floor of the paper's example) all count as reached; ``inf`` (diverged) stays ``inf``.
     """
     error = np.asarray(relative_error, dtype=np.float64)

@@ -8,7 +8,7 @@ exception is a bug and shows its traceback.
 
 Float64 ranges. The limits below keep every quantity of one step finite in float64 for any
 state the limits admit; they are derived from the largest term the exact step forms, the
-interval energy ``12 e_x^2 / T^3`` (README, "Exact dynamics"): with positions and velocities
+interval energy ``12 e_x^2 / T^3`` (docs: environment.md, "Exact dynamics"): with positions and velocities
 up to :data:`STATE_LIMIT` = 1e100 (so ``e_x <= 2e100``) and intervals no shorter than
 :data:`MIN_INTERVAL` = 1e-30 s, it is at most ``12 * 4e200 * 1e90 ~ 5e291``, which leaves
 a factor 1e16 below float64's 1.8e308 for growth within an episode and sums over agents.
@@ -133,7 +133,7 @@ def choice(name: str, value: Any, options: Sequence[str]) -> str:
     return value
 
 
-#: The keys ``reset(options=...)`` reads: a fixed initial state for the episode (README, "Using the environment").
+#: The keys ``reset(options=...)`` reads: a fixed initial state for the episode (docs: environment.md, "The environment").
 RESET_OPTION_KEYS = ("x0", "v0")
 #: PettingZoo's API tests (``api_test``, ``parallel_api_test``) call ``reset(options={"options": 1})``
 #: only to see that reset takes options: that exact probe is accepted and reads nothing.

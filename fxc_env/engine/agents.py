@@ -4,7 +4,7 @@
   the action names, integrated by the closed forms of :mod:`fxc_env.core.dynamics`;
 - :class:`LimitedDoubleIntegratorAgents`: the same input clipped to ``±u_max`` (one limit per
   episode), integrated piece by piece in closed form;
-- :class:`LinearAgents`: a general ``z' = A z + B u`` per axis (README, "Agent models and formations"): the
+- :class:`LinearAgents`: a general ``z' = A z + B u`` per axis (docs: agent-models.md, "Agent models and formations"): the
   action is a plan ``Delta`` and the input the minimum-energy one (:mod:`fxc_env.core.linear`).
 
 Every part maps ``(state, actions)`` at ``t_k`` to an :class:`Interval` (the state at
@@ -221,7 +221,7 @@ class LimitedDoubleIntegratorAgents(DoubleIntegratorAgents):
 
 
 class LinearAgents:
-    """General linear agents ``z' = A z + B u`` per axis, steered by plans (README, "Agent models and formations").
+    """General linear agents ``z' = A z + B u`` per axis, steered by plans (docs: agent-models.md, "Agent models and formations").
 
     Args:
         config: the environment's settings (its model and interval maps).
@@ -339,7 +339,7 @@ class _DeviceMaps:
 
 
 class Formation:
-    """Formation offsets ``h`` ``(N, n, dim)`` (README, "Agent models and formations"): the engine plays ``zeta = z - e^{A t} h``.
+    """Formation offsets ``h`` ``(N, n, dim)`` (docs: agent-models.md, "Agent models and formations"): the engine plays ``zeta = z - e^{A t} h``.
 
     The offsets' trajectory ``e^{A t} h`` is a free motion (no input), so ``zeta`` obeys the
     same dynamics under the same inputs, and consensus of ``zeta`` is the formation. Without

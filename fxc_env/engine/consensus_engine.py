@@ -443,7 +443,7 @@ class ConsensusEngine:
 
     # ---------------------------------------------------------------- metrics
     def batch_metrics(self) -> dict[str, np.ndarray]:
-        """The metrics (README, "Baselines and the deadline benchmark") of every episode so far, one ``(B,)`` numpy array per :class:`EpisodeMetrics` field.
+        """The metrics (docs: benchmark.md, "Baselines and the deadline benchmark") of every episode so far, one ``(B,)`` numpy array per :class:`EpisodeMetrics` field.
 
         Final values are those at each episode's current instant. On torch this reads the
         state off the device (call it at the end of an episode, not on the stepping path).

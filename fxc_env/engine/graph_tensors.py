@@ -1,4 +1,4 @@
-"""The coming interval's graph of every episode as edge tensors, for graph neural networks (README, "Graph tensors").
+"""The coming interval's graph of every episode as edge tensors, for graph neural networks (docs: graph-tensors.md, "Graph tensors").
 
 Agent i of episode b measures, on the interval after ``t_k``, every in-neighbour j of that
 episode's current graph ``G_{sigma(k)}`` (paper Section 2; ``sigma(k) = k mod m`` for periodic

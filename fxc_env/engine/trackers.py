@@ -5,7 +5,7 @@ the disagreement ``D(t_k) = e_x + T_s e_v`` (paper eq. 7's figure of merit) at t
 and now, the reward's floor and logarithm, the energy and peak input per agent, the last
 instant above each settling threshold, and the time spent saturated. :meth:`EpisodeTrackers.update`
 folds one :class:`~fxc_env.engine.agents.Interval` in; :meth:`EpisodeTrackers.batch_metrics`
-turns them into the README's metrics ("Baselines and the deadline benchmark"), the
+turns them into the metrics (docs: benchmark.md, "Baselines and the deadline benchmark"), the
 predicted consensus value by :func:`fxc_env.core.linear.final_value` (Theorems 1-2).
 
 To add a metric: override or extend :meth:`EpisodeTrackers.extra_metrics` (it sees the

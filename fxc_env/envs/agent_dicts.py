@@ -53,7 +53,7 @@ def normalized_state(engine: ConsensusEngine) -> np.ndarray:
     :meth:`fxc_env.engine.ConsensusEngine.normalized_state`: per agent the row
     ``[x_i - mean_j x_j, T_s (v_i - mean_j v_j)] / max(D, tiny)`` (agent major), then the clock
     ``t_k / T_s, T_{k+1} / T_s, k / K``, with ``D = e_x + T_s e_v`` the current disagreement
-    (README, "Using the environment"); the rows lie in [-1, 1] by construction.
+    (docs: environment.md, "The environment"); the rows lie in [-1, 1] by construction.
     """
     return np.asarray(engine.normalized_state(), dtype=engine.config.observation_dtype)
 
@@ -65,7 +65,7 @@ def initial_state_options(engine: ConsensusEngine, options: Any) -> tuple[Any, A
 
 
 def add_graph_info(infos: dict[str, dict[str, Any]], engine: ConsensusEngine, flat: np.ndarray) -> None:
-    """The current graph's padded tensors of episode 0 in every info (README, "Graph tensors")."""
+    """The current graph's padded tensors of episode 0 in every info (docs: graph-tensors.md, "Graph tensors")."""
     tensors = graph_tensors(engine, flat[None], edge_capacity(engine.config))
     graph = {key: np.ascontiguousarray(value[0]) for key, value in zip(GRAPH_TENSOR_KEYS, tensors, strict=True)}
     graph["n_edges"] = int(tensors.n_edges[0])

@@ -1,4 +1,4 @@
-"""BenchMARL's command line with fxc_env's tasks registered (README "BenchMARL").
+"""BenchMARL's command line with fxc_env's tasks registered (docs: tutorials/benchmarl.md, "Tutorial: BenchMARL").
 
     python -m fxc_env.envs.benchmarl_run algorithm=mappo task=fxc/rings20-v1
 

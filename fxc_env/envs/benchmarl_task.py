@@ -7,7 +7,7 @@
 factory of the batched TorchRL environment :class:`fxc_env.envs.torch_env.ConsensusTorchEnv`
 (``batch_size`` = BenchMARL's number of environments, so no ``SerialEnv`` in between), one
 agent group ``"agents"``, continuous actions only (the plan ``(a_x, a_v)`` of each agent, or
-its input in ``action_mode="accel"``; README "Using the environment"), episodes of K sampling
+its input in ``action_mode="accel"``; docs: environment.md, "The environment"), episodes of K sampling
 intervals (``max_cycles`` when shorter), and with ``global_state="normalized"`` (the default
 configs) the scale-free global state as BenchMARL's ``"state"`` for centralised critics
 (MAPPO, MASAC)::
@@ -22,7 +22,7 @@ configs) the scale-free global state as BenchMARL's ``"state"`` for centralised 
     task.config["n_intervals"] = 20  # any ConsensusTorchEnv argument
     actor = GnnConfig(topology="full", self_loops=False, gnn_class=torch_geometric.nn.conv.GATv2Conv, gnn_kwargs={})
     critic = MlpConfig.get_from_yaml()
-    config = ExperimentConfig.get_from_yaml()  # README "BenchMARL" shrinks it to a quick run
+    config = ExperimentConfig.get_from_yaml()  # docs: tutorials/benchmarl.md, "Tutorial: BenchMARL" shrinks it to a quick run
     Experiment(task, MappoConfig.get_from_yaml(), actor, seed=0, config=config, critic_model_config=critic).run()
 
 BenchMARL's own routes take them unmodified: ``python -m benchmarl.run algorithm=mappo
@@ -41,8 +41,8 @@ by every environment BenchMARL builds (after edits of ``task.config``).
 BenchMARL's networks are float32: the shipped configs set ``obs_dtype: float32`` (the engine
 still computes in float64, the paper's accuracy).
 
-Needs ``pip install "fxc-env[benchmarl]"`` (BenchMARL 1.5 with torchrl 0.11; README
-"BenchMARL"); ``import fxc_env`` never imports this module.
+Needs ``pip install "fxc-env[benchmarl]"`` (BenchMARL 1.5 with torchrl 0.11; docs: tutorials/benchmarl.md,
+"Tutorial: BenchMARL"); ``import fxc_env`` never imports this module.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ try:
     from benchmarl.environments.common import Task, TaskClass
 except ModuleNotFoundError as error:
     raise ModuleNotFoundError(
-        'fxc_env.envs.benchmarl_task needs BenchMARL: pip install "fxc-env[benchmarl]" (README "BenchMARL")',
+        'fxc_env.envs.benchmarl_task needs BenchMARL: pip install "fxc-env[benchmarl]" (docs: tutorials/benchmarl.md, "Tutorial: BenchMARL")',
         name=error.name,
     ) from error
 import torch
@@ -138,7 +138,7 @@ class FxcTaskClass(TaskClass):
     def has_render(self, env: EnvBase) -> bool:
         """False: BenchMARL's default ``render: True`` would write its evaluation videos through
         torchvision, which has no CPU build for the torch on which this extra is tested; frames
-        come from ``ConsensusTorchEnv.render`` and ``fxc simulate --video`` (README "Video")."""
+        come from ``ConsensusTorchEnv.render`` and ``fxc simulate --video`` (docs: video.md, "Video")."""
         return False
 
     def max_steps(self, env: EnvBase) -> int:

@@ -13,7 +13,7 @@ PettingZoo-side contract that other consumers read; only the tensor world needs 
 RLlib's PettingZoo wrapper lives with the RLlib trainer (``fxc_env.training.rllib_train``).
 For TorchRL at speed use the native batched environment instead,
 :class:`fxc_env.envs.torch_env.ConsensusTorchEnv` (thousands of times this wrapper's rate:
-README, "Performance").
+docs: performance.md, "Performance").
 """
 
 from __future__ import annotations

@@ -50,9 +50,9 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     exactly at ``T_s``) and commit to an input that is affine in time until ``t_{k+1}``. Between
     instants the motion is integrated exactly (cubic x, quadratic v): no ODE solver, no
     time step. The graph switches periodically by sample index (``G_{k mod m}``).
-    ``fxc_env.ReferencePolicy`` is the paper's controller, eq. (11); the README ("Using the
+    ``fxc_env.ReferencePolicy`` is the paper's controller, eq. (11); docs: environment.md ("The
     environment") walks through an episode. The shipped learned policies load into a plain
-    environment, whatever its ``obs_slots`` or N (README, "Training learned policies")::
+    environment, whatever its ``obs_slots`` or N (docs: training.md, "Training learned policies")::
 
         from fxc_env.policies.learned import load_learned_policy
 
@@ -82,7 +82,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     ``s / T_s``, not the plan's ``s / T``: D weighs velocities by ``T_s``, so one unit of either
     part moves D by about ``s`` on every interval of the schedule (with ``s / T``, up to
     ``(pi k)^2 / 6 = 6.6e4`` times more on the paper schedule's last one at K = 200; measured
-    in the README, "PPO from scratch around the reference"). Raw corrections are in metres and m/s.
+    in the docs: results.md, "PPO from scratch around the reference"). Raw corrections are in metres and m/s.
     ``s = s_i`` is the agent's local scale below and ``T`` the coming interval. Actions outside the Box are applied as given (never clipped); the
     bounds hold the reference in normalised mode for every state. Raw bounds are nominal:
     they hold it from the documented initial ranges on the built-in topologies up to
@@ -164,7 +164,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     end also ``episode``: the episode's metrics (the fields of
     ``fxc_env.core.metrics.EpisodeMetrics``: deadline error ``D(T_s)/D(0)``, spreads,
     settling times ``t_eps``, energy, peak input, Theorem 2's predicted and the achieved
-    final values; README, "Quick start"). Numbers only, each agent its own dict:
+    final values; docs: getting-started.md, "Getting started"). Numbers only, each agent its own dict:
     ``inf`` for a threshold never reached; a metric that does not apply to the episode
     (``predicted_*`` and the intervals bounds ``radius_bound``, ``all_roots_bound`` with random
     switching, the bounds above 2000 agents, ``energy_ratio`` where ``E* = 0``) is left out of the dict rather
@@ -175,7 +175,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     replay buffers such as Tianshou's need); only ``episode`` joins at the end. Variable-length
     data stays out: the episode's graphs are ``env.episode_edges()``.
 
-    **Graph tensors** (``graph_tensors=True``, for graph neural networks; README, "Graph
+    **Graph tensors** (``graph_tensors=True``, for graph neural networks; docs: graph-tensors.md, "Graph
     tensors"): every info at reset and after every step also holds the coming interval's graph
     in PyTorch Geometric's convention, padded to a fixed ``E`` (``edge_capacity``) with the
     edge ``N -> N``: ``edge_index`` ``(2, E)`` int64 (source j, target i), ``edge_mask`` ``(E,)``,
@@ -221,7 +221,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
 
     {arguments table}
 
-    The realism options (``u_max`` to ``switching``; README, "Realism options") are off by
+    The realism options (``u_max`` to ``switching``; docs: realism.md, "Realism options") are off by
     default and draw from the env's generator. Every bad argument raises
     :class:`~fxc_env.core.validation.ArgumentError` (a ``ValueError``; a ``TypeError`` too
     for a wrong type) naming it, and leaves a live env unchanged.
@@ -232,7 +232,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     backend: under a headless one such as Agg matplotlib warns and nothing is shown). A frame
     draws the trails through the sampling instants so far (position against time in 1-D, the
     plane of the first two axes otherwise), the current interval's graph as arrows ``j -> i``,
-    the clock and ``D(t_k)/D(0)`` (README, "Video"). Call it after ``reset`` and after each step,
+    the clock and ``D(t_k)/D(0)`` (docs: video.md, "Video"). Call it after ``reset`` and after each step,
     as Gymnasium's ``RecordVideo`` does, at ``metadata["render_fps"]``; nothing is recorded
     while ``render_mode`` is None. Before the first ``reset`` there is no episode: it raises
     ``RuntimeError`` (as PettingZoo's and Gymnasium's order enforcing do). With

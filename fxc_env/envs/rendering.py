@@ -7,8 +7,8 @@ drawn, copied or recorded on the stepping path when ``render_mode`` is None.
 
 A frame shows the agents with the directed edges of the graph they use in the current interval
 (an arrow ``j -> i``: agent i receives from agent j), their trails, the clock ``t`` with the
-interval index k and the graph ``G_g``, and the relative disagreement ``D(t)/D(0)`` (README,
-"Metrics"). In one dimension it plots position against time, the curves growing from left to
+interval index k and the graph ``G_g``, and the relative disagreement ``D(t)/D(0)`` (docs: environment.md,
+"The environment"). In one dimension it plots position against time, the curves growing from left to
 right, with the current graph drawn on a circle beside it; in two or more dimensions it shows
 the plane of the first two axes. ``human`` mode shows the same frames in a pyplot window, which
 needs an interactive matplotlib backend: on a headless one (Agg, no display) matplotlib warns

@@ -161,7 +161,7 @@ class ConsensusTorchEnv(EnvBase):
     actions that require a gradient, the observations, the rewards and
     ``episode_metrics(as_tensors=True)`` are in their autograd graph, exact (no surrogate, no
     smoothing), on any device, in both dtypes, stepped by hand or by ``env.rollout``. The
-    contract, tested against central finite differences (README, "Differentiable simulation"):
+    contract, tested against central finite differences (docs: differentiable.md, "Differentiable simulation"):
 
     * Nothing on the path from the actions to the observations, rewards and those metrics is
       detached, written in place or read off the device; the input limit ``u_max``'s clip,
@@ -177,11 +177,11 @@ class ConsensusTorchEnv(EnvBase):
 
     Without a gradient (actions that do not require one, as from TorchRL's collectors) torch
     records nothing, so there is no switch to turn it off: keeping the graph possible costs
-    no speed (measured with ``fxc speed``, README).
+    no speed (measured with ``fxc speed``; docs: performance.md, "Performance").
 
     ## Rendering
     :meth:`render` returns the first ``min(B, 16)`` episodes' frames tiled, ``(H, W, 3)`` uint8
-    (README, "Video"). There is no render mode: each call reads the episodes off the device and
+    (docs: video.md, "Video"). There is no render mode: each call reads the episodes off the device and
     adds them to their trails, so call it after every reset and step (TorchRL's
     ``PixelRenderTransform`` does); the step path does nothing for frames.
 
@@ -219,7 +219,7 @@ class ConsensusTorchEnv(EnvBase):
             )
         self.max_cycles = _OWN_ARGUMENTS["max_cycles"].check(max_cycles)
         self.check_values = bool(check_values)
-        #: Whether every reset and step adds the current graph's edge tensors (README, "Graph tensors").
+        #: Whether every reset and step adds the current graph's edge tensors (docs: graph-tensors.md, "Graph tensors").
         self.graph_tensors = GRAPH_TENSORS.check(graph_tensors)
         engine = ConsensusEngine(self.config, size, device=device, dtype=dtype)
         if engine.device.type == "meta":
@@ -434,7 +434,7 @@ class ConsensusTorchEnv(EnvBase):
         self.engine.cut_graph()
 
     def render(self) -> np.ndarray:
-        """The first ``min(B, 16)`` episodes at their current instants, tiled: ``(H, W, 3)`` uint8 (README, "Video").
+        """The first ``min(B, 16)`` episodes at their current instants, tiled: ``(H, W, 3)`` uint8 (docs: video.md, "Video").
 
         Each call reads them off the device and adds them to their trails
         (:class:`~fxc_env.envs.episode_view.SnapshotView`), so calling it after every reset and step,

@@ -111,7 +111,7 @@ class ConsensusVecEnv(VecEnv):
     is checked. :meth:`state` is the global state of every episode (``global_state`` as
     in :class:`ConsensusParallelEnv`). ``render_mode="rgb_array"`` or ``"human"`` records the
     first ``min(n_envs, 16)`` episodes: :meth:`render` tiles their frames into one picture,
-    :meth:`get_images` gives each sub-environment its episode's frame (README, "Video").
+    :meth:`get_images` gives each sub-environment its episode's frame (docs: video.md, "Video").
 
     ## Arguments
     ``n_envs`` is positional, every other argument keyword-only; the environment's arguments
@@ -369,7 +369,7 @@ class ConsensusVecEnv(VecEnv):
     def render(self, mode: str | None = None) -> np.ndarray | None:
         """The first ``min(n_envs, 16)`` episodes so far, tiled: ``(H, W, 3)`` uint8 (``rgb_array``), None (``human``).
 
-        One frame per episode (README, "Video"), laid out as Stable-Baselines3's ``tile_images``
+        One frame per episode (docs: video.md, "Video"), laid out as Stable-Baselines3's ``tile_images``
         lays out :meth:`get_images` (``ceil(sqrt(n))`` rows), but per episode, not per agent.
         """
         if mode is not None and mode != self.render_mode:

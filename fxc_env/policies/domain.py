@@ -2,7 +2,7 @@
 
 A learned policy acts well only where it was trained: the graphs it met, their size N, their
 switching, the schedule and budget K, the input limits and the measurement imperfections of its
-training environment. Far outside it may still run, silently and badly (README, "Training
+training environment. Far outside it may still run, silently and badly (docs: training.md, "Training
 learned policies"). Every policy file therefore records its **training domain**
 (:func:`training_domain`, computed from the training :class:`~fxc_env.config.EnvConfig`; the
 training back ends call only this function), and every loader refuses, naming each difference, an

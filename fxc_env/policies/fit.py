@@ -25,7 +25,7 @@ from fxc_env.config.layout import CLOCK_SIZE, ObservationLayout
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import check_domain
 
-#: The settings of the training environment a loaded policy must meet (README, "Training learned
+#: The settings of the training environment a loaded policy must meet (docs: training.md, "Training learned
 #: policies"): the meaning of its inputs and outputs (action and observation modes, whether the
 #: observation carries the input-limit (``u_max``) feature, the agent model), the dimension and the
 #: observation slots (:func:`fxc_env.policies.learned.load_learned_policy` adapts the last two where
@@ -233,7 +233,7 @@ def check_width(policy: Any, env: Any, source: Any) -> None:
 class SlotAdaptedPolicy:
     """A policy trained on ``W`` neighbour slots acting on an environment's observations of ``S`` slots.
 
-    The observation (README, "Observation"; :class:`fxc_env.config.layout.ObservationLayout`) is
+    The observation (docs: environment.md, "Observation"; :class:`fxc_env.config.layout.ObservationLayout`) is
     rebuilt in the trained layout, row by row, and the policy (with any VecNormalize statistics
     it records, which are per slot of the trained layout) acts on that:
 

@@ -1,6 +1,6 @@
 """A learned gain schedule: one 2 x 2 gain per sampling interval on the agent's aggregated relative row.
 
-:class:`IntervalGainPolicy` is the network of the shipped ``rings`` policy (README, "Training
+:class:`IntervalGainPolicy` is the network of the shipped ``rings`` policy (docs: training.md, "Training
 learned policies"). Agent i reads its in-neighbour rows through the observation layout
 (:class:`fxc_env.config.layout.ObservationLayout`; masked rows are ignored), forms the aggregated
 relative row

@@ -8,7 +8,7 @@ has the calling convention of :class:`fxc_env.ReferencePolicy` (observations ``(
 actions ``(..., 2 dim)`` out, deterministic) and must fit the environment it is given
 (:mod:`~fxc_env.policies.fit`: sizes, the settings it was trained for, its training domain);
 :mod:`~fxc_env.policies.fit` also lets it act on another number of neighbour slots or per axis.
-**Loading runs no code from the file** unless ``trusted=True`` (README, "Training learned policies").
+**Loading runs no code from the file** unless ``trusted=True`` (docs: training.md, "Training learned policies").
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ from fxc_env.policies.policy_files import (
 )
 from fxc_env.policies.saving import innermost
 
-#: The policies that ship with the package, by name (README, "Training learned policies"):
+#: The policies that ship with the package, by name (docs: training.md, "Training learned policies"):
 #: ``generalist`` (one policy for every graph family), ``saturated`` (inputs bounded by a
 #: visible limit) and ``paper_fig1`` (the first release's, trained on the paper's graphs only).
 #: ``pretrained`` means the generalist.

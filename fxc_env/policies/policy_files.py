@@ -10,7 +10,7 @@ networks it knows (:data:`KNOWN_POLICIES`) and loads the weights with
 ``torch.load(..., weights_only=True)``. What only a pickle would tell (the activation when
 ``policy_kwargs`` names a class, VecNormalize statistics, the training environment) is written
 as plain JSON beside the weights by :func:`save_model`: the member :data:`METADATA_MEMBER`
-(README, "Training learned policies"):
+(docs: training.md, "Training learned policies"):
 
     format         METADATA_FORMAT
     algorithm      "PPO" or "SAC"

@@ -1,7 +1,7 @@
 """The paper's controller, eq. (11), as a policy on the local observation.
 
 Agent i plans, over the coming interval of length T, to reach the average over itself and
-its in-neighbours of their *coasted* states (paper Remark 1; README, "Exact dynamics"):
+its in-neighbours of their *coasted* states (paper Remark 1; docs: environment.md, "Exact dynamics"):
 
     a_v = mean_{j in {i} u N_i} (v_j - v_i)
     a_x = mean_{j in {i} u N_i} ((x_j - x_i) + T (v_j - v_i))
@@ -100,7 +100,7 @@ class ReferencePolicy:
         return xp.concat(input_from_plan(plan[..., :dim], plan[..., dim:], interval), axis=-1)
 
     def _general_plan(self, sums: np.ndarray, obs: np.ndarray) -> np.ndarray:
-        """A general agent's plan ``Delta_i = e^{A T} e_i`` with ``e_i`` the mean relative state (README, "Agent models").
+        """A general agent's plan ``Delta_i = e^{A T} e_i`` with ``e_i`` the mean relative state (docs: agent-models.md, "Agent models and formations").
 
         ``e_i = (1 / (d_i + 1)) sum_j (z_j - z_i)`` per component, read off the rows; the
         interval ``k`` comes from the clock (``k / K``), so the free motion is exact per agent.

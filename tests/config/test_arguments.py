@@ -1,4 +1,4 @@
-"""The arguments' table (README, "Using the environment"): every signature, card, check and flag agrees with it."""
+"""The arguments' table (docs: environment.md, "The environment"): every signature, card, check and flag agrees with it."""
 
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ FRONT_ENDS = {
     "ConsensusTorchEnv": (ConsensusTorchEnv, TORCH_ARGUMENTS, ()),
 }
 
-#: The environment flags of ``fxc simulate`` and ``fxc evaluate`` (scripts and the README use them).
+#: The environment flags of ``fxc simulate`` and ``fxc evaluate`` (scripts and the docs use them).
 DOCUMENTED_FLAGS = {
     "--scenario",
     "--topology",

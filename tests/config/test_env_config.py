@@ -1,4 +1,4 @@
-"""Settings (README, "Using the environment"): defaults, scenarios, overrides, layout and validation."""
+"""Settings (docs: environment.md, "The environment"): defaults, scenarios, overrides, layout and validation."""
 
 from __future__ import annotations
 

@@ -249,7 +249,7 @@ def test_a_key_the_family_does_not_use_is_refused_naming_the_keys_it_does(spec, 
 
 
 def test_a_mixture_member_may_be_a_bare_family_name():
-    # README: {"mixture": [(family, weight), ...]} read as if ("random", 2.0) were allowed (issue 24).
+    # docs: environment.md: {"mixture": [(family, weight), ...]} read as if ("random", 2.0) were allowed (issue 24).
     bare = make_family({"mixture": [("random", 2.0), ("ring", 1.0)], "name": "bare"})
     spelled = make_family({"mixture": [({"family": "random"}, 2.0), ({"family": "ring"}, 1.0)], "name": "bare"})
     assert bare == spelled

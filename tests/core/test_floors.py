@@ -1,4 +1,4 @@
-"""Floors under measurement noise and input limits: what no controller can beat (README, "How far from optimal")."""
+"""Floors under measurement noise and input limits: what no controller can beat (docs: optimality.md, "How far from optimal")."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Topologies: generators, neighbour arrays, W, xi and validation (the paper's Section 2; README, "Using the environment")."""
+"""Topologies: generators, neighbour arrays, W, xi and validation (the paper's Section 2; docs: environment.md, "The environment")."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Disagreement measures and the per-episode record (README, "Using the environment" and the deadline benchmark)."""
+"""Disagreement measures and the per-episode record (docs: environment.md, "The environment" and the deadline benchmark)."""
 
 from __future__ import annotations
 

@@ -73,7 +73,7 @@ def test_95_percent_intervals_cover_a_normal_samples_centre_when_seeds_differ():
 
 
 def test_with_three_seeds_the_intervals_cover_less_than_95_percent():
-    # README, "Results over training seeds": three seeds give a bootstrap of few distinct
+    # docs: results.md, "Results over training seeds": three seeds give a bootstrap of few distinct
     # seed draws, so the nominal 95 % interval covers about 80 % in the same model.
     assert 0.65 <= _coverage(3, 20, 200, seed_spread=1.0) <= 0.9
 

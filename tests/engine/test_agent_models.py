@@ -130,7 +130,7 @@ def test_the_generalised_final_value_on_held_out_random_digraphs(kwargs, period)
 
 @pytest.mark.slow
 def test_deadline_errors_of_every_model_at_K_200_and_400():
-    # Every named model on paper_fig1 reaches round-off level by T_s (README's table).
+    # Every named model on paper_fig1 reaches round-off level by T_s (docs: agent-models.md's table).
     for kwargs in MODELS:
         for K, bound in ((200, 1e-11), (400, 1e-15)):
             config = make_config("paper_fig1", n_intervals=K, **kwargs)

@@ -1,4 +1,4 @@
-"""The graph as edge tensors (README, "Graph tensors"): edges, features, padding, switching, backends."""
+"""The graph as edge tensors (docs: graph-tensors.md, "Graph tensors"): edges, features, padding, switching, backends."""
 
 from __future__ import annotations
 
@@ -376,7 +376,7 @@ def test_parallel_env_refuses_a_non_bool_graph_tensors_by_name():
 def test_the_readme_s_summing_convolution_equals_the_one_over_the_true_edges():
     from fxc_env import ConsensusTorchEnv
 
-    # README, "Graph tensors": GraphConv(aggr="add") in plain torch, over N + 1 node rows per episode.
+    # docs: graph-tensors.md, "Graph tensors": GraphConv(aggr="add") in plain torch, over N + 1 node rows per episode.
     env = ConsensusTorchEnv(scenario="generalist", batch_size=8, graph_tensors=True, seed=0)
     td = env.reset()
     x = td["agents", "observation"]  # [B, N, obs_size]: the node features

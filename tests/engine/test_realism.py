@@ -1,4 +1,4 @@
-"""Realism options of the engine (README, "Realism options"): saturation, noise, dropout, random switching, long horizons."""
+"""Realism options of the engine (docs: realism.md, "Realism options"): saturation, noise, dropout, random switching, long horizons."""
 
 from __future__ import annotations
 

@@ -131,7 +131,7 @@ def test_the_torch_reference_reaches_the_papers_deadline_error():
     while not engine.done:
         engine.step(policy.act(engine.observations()))
     metrics = engine.batch_metrics()
-    assert np.all(metrics["relative_deadline_error"] < 3e-12)  # README: 2.9e-12 at K = 200
+    assert np.all(metrics["relative_deadline_error"] < 3e-12)  # docs: agent-models.md: 2.9e-12 at K = 200
     np.testing.assert_allclose(metrics["achieved_final_position"], metrics["predicted_final_position"], rtol=1e-9)
 
 

@@ -323,7 +323,7 @@ def test_the_card_has_a_row_for_every_argument_and_cites_no_internal_documents()
     assert "| parameter | type | default | meaning |" in card
     for text in (card, inspect.getdoc(fxc_env.raw_env)):
         assert "SPEC" not in text and "issue" not in text.lower() and "training/README" not in text
-    assert "eq. (11)" in card and "README" in card
+    assert "eq. (11)" in card and "docs: " in card  # cites the docs site, where the README's sections went
     assert "| ``obs_dtype`` |" in inspect.getdoc(fxc_env.raw_env)  # help(raw_env) shows the card too
 
 

@@ -3,8 +3,8 @@
 Every test of ``pettingzoo.test`` (``parallel_api_test``, ``api_test``, ``seed_test``,
 ``parallel_seed_test``, ``max_cycles_test``, ``render_test``, ``state_test``) on the default
 environment, random switching, a topology family (``scenario="generalist"``), an input limit,
-link dropout, measurement noise (README, "Realism options") and graph tensors in the infos, on
-the default topology and on a family (README, "Graph tensors"). The episodes are short
+link dropout, measurement noise (docs: realism.md, "Realism options") and graph tensors in the infos, on
+the default topology and on a family (docs: graph-tensors.md, "Graph tensors"). The episodes are short
 (K = 10 intervals, six agents) so that each test runs whole episodes to their deadline: the
 seed tests compare two identically seeded runs step for step (noise, dropout, switching and
 the family's draws all come from the episode's seed), and ``max_cycles_test`` checks that

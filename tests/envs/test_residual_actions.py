@@ -2,7 +2,7 @@
 
 The zero action replays the reference's episode (the PettingZoo env, the VecEnv and the
 TorchRL env share the engine), a nonzero one adds exactly to the plan, and whatever emits
-whole plans or inputs refuses the mode by name (README, "PPO from scratch").
+whole plans or inputs refuses the mode by name (docs: results.md, "PPO from scratch").
 """
 
 from __future__ import annotations

@@ -41,7 +41,7 @@ def test_the_reference_rollout_reaches_the_papers_deadline_error_and_terminates_
     assert rollout["next", "terminated"][:, -1].all() and not rollout["next", "terminated"][:, :-1].any()
     assert not rollout["next", "truncated"].any()
     error = env.episode_metrics()["relative_deadline_error"]
-    assert np.all(error < 3e-12)  # README: 2.9e-12 at K = 200
+    assert np.all(error < 3e-12)  # docs: agent-models.md: 2.9e-12 at K = 200
     # The rewards telescope to the log-reduction of the disagreement, the same for every agent.
     returns = rollout["next", GROUP, "reward"].sum(dim=1)[..., 0]
     assert torch.allclose(returns, returns[:, :1].expand_as(returns))

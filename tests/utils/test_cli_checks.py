@@ -1,7 +1,7 @@
 """Every refusal of the command-line value checks (``fxc_env.utils.cli_checks``).
 
 Each check must name the flag it was given, say what it expected and write nothing: a
-subcommand checks all of its values before it creates a directory (README, "Bad input").
+subcommand checks all of its values before it creates a directory (docs: bad-input.md, "Bad input and saved policies").
 """
 
 from __future__ import annotations
