@@ -49,11 +49,12 @@ from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
-from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains
+from fxc_env.policies.interval_gains import load_interval_gains
 from fxc_env.policies.policy_files import training_settings
 from fxc_env.policies.reference import ReferencePolicy
+from fxc_env.policies.regime_gains import RegimeGainPolicy
 from fxc_env.training.rings import TASK, comparison, physical_map, run_episodes, task_config
-from fxc_env.training.rings_scratch import factor_table
+from fxc_env.training.rings_scratch import factor_table, minimise
 
 #: Training episodes are drawn from ``np.random.default_rng(TRAINING_SEED + seed)``; evaluation's from seeds 0 ...
 TRAINING_SEED = 3_000
@@ -79,6 +80,8 @@ QUICK_CASES = (
 RING_MARGIN = 1.3
 OTHER_MARGIN = 0.5
 FLOOR = 1e-12
+#: Rings below this error leave the mean log error's pull to the larger rings.
+RING_TARGET = 0.0
 PENALTY = 10.0
 FULL = {"steps": 20}
 QUICK = {"steps": 1}
@@ -90,6 +93,9 @@ DESIGN_PAIRS = 60
 DESIGN_GAP = 2 * np.pi / 44
 #: Fresh L-BFGS histories allowed when a step finds nothing.
 RESTARTS = 2
+#: Intervals of the probe (fxc_env.policies.regime_gains): every agent coasts and checks that its rows coast too.
+#: At least the longest switching period trained on (4), and even (the factors come in pairs of intervals).
+PROBES = 4
 #: Neighbour slots of the training environments (every draw's in-degree fits; the table reads any number).
 SLOTS = 4
 #: Threads the training uses (the tensors are small: a second thread only waits on a shared machine).
@@ -109,6 +115,17 @@ def _w_hat(topology: Any, g: int) -> np.ndarray:
     return laplacian / (np.asarray(topology.in_degree[g], dtype=np.float64)[:, None] + 1.0)
 
 
+def probe_keeps_fixed(topology: Any) -> np.ndarray:
+    """``(N,)``: whether each agent's probe sees no change and it plays the fixed table (see the module).
+
+    The probe (:mod:`fxc_env.policies.regime_gains`) compares the rows of consecutive instants while
+    every agent coasts: they coast too exactly when the agent's in-neighbour set, its row of ``Ŵ``, is
+    the same on the graphs of intervals ``0 .. PROBES``.
+    """
+    rows = np.stack([_w_hat(topology, c % topology.period) for c in range(PROBES + 1)])
+    return np.all(rows[1:] == rows[:1], axis=(0, 2))
+
+
 #: Every period 1..4 divides it: an episode's graphs, repeated to this length, are indexed by ``k % CYCLE``.
 CYCLE = 12
 
@@ -118,11 +135,12 @@ def draw_cases(cases: Sequence[tuple[dict[str, Any], int, int]], seed: int) -> d
 
     ``x0, v0`` ``(B, N_max)``, ``mask`` ``(B, N_max)`` (1 on real agents), ``w`` ``(B, CYCLE, N_max,
     N_max)`` (interval k's ``Ŵ`` at ``k % CYCLE``, zero on padding), ``ring`` ``(B,)`` (a fixed directed
-    ring) and ``labels``.
+    ring), ``fixed`` ``(B, N_max)`` (1 where the agent's probe sees no change: it plays the fixed table)
+    and ``labels``.
     """
     rng = np.random.default_rng(TRAINING_SEED + seed)
     n_max = max(n for _, n, _ in cases)
-    x0, v0, mask, w, ring, labels = [], [], [], [], [], []
+    x0, v0, mask, w, ring, fixed, labels = [], [], [], [], [], [], []
     for family, n, episodes in cases:
         engine = ConsensusEngine(case_config(family, n), n_episodes=1)
         for _ in range(episodes):
@@ -133,6 +151,7 @@ def draw_cases(cases: Sequence[tuple[dict[str, Any], int, int]], seed: int) -> d
             mask.append(np.pad(np.ones(n), pad))
             w.append(np.stack([np.pad(_w_hat(d.topology, c % d.topology.period), [pad, pad]) for c in range(CYCLE)]))
             ring.append(family == {"kind": "ring"})
+            fixed.append(np.pad(probe_keeps_fixed(d.topology), pad))
         labels.append([f"{family} N={n}", episodes])
     return {
         "x0": np.stack(x0),
@@ -140,23 +159,26 @@ def draw_cases(cases: Sequence[tuple[dict[str, Any], int, int]], seed: int) -> d
         "mask": np.stack(mask),
         "w": np.stack(w),
         "ring": np.array(ring),
+        "fixed": np.stack(fixed).astype(np.float64),
         "labels": labels,
     }
 
 
-def log_errors(config: EnvConfig, gains: Any, batch: dict[str, Any]) -> Any:
-    """``log D(T_s)/D(0)`` ``(B,)`` of the table through the exact interval map, interval k on its own graph.
+def log_errors(config: EnvConfig, tables: tuple[Any, Any], batch: dict[str, Any]) -> Any:
+    """``log D(T_s)/D(0)`` ``(B,)`` of the two tables through the exact interval map, interval k on its own graph.
 
     :func:`fxc_env.training.rings_scratch.log_errors` with ``Ŵ`` per episode and per interval
-    (``z_i(t_{k+1}) = P_k z_i + G_k r_i``, ``r = -Ŵ_k z``), padded agents masked out, the state
-    rescaled after every interval.
+    (``z_i(t_{k+1}) = P_k z_i + G_k r_i``, ``r = -Ŵ_k z``), agent i playing ``tables[0]`` (fixed graph)
+    or ``tables[1]`` (switching) as its probe decides (``batch["fixed"]``), padded agents masked
+    out, the state rescaled after every interval.
     """
     import torch
 
-    g = physical_map(config, gains)
+    g_fixed, g_switching = (physical_map(config, table) for table in tables)
     tau = torch.as_tensor(np.array(config.schedule.intervals, dtype=np.float64))
     w = torch.as_tensor(batch["w"])
     mask = torch.as_tensor(batch["mask"])[..., None]  # (B, N, 1)
+    fixed = torch.as_tensor(batch["fixed"])[..., None]
     count = mask.sum(dim=-2, keepdim=True)
     z = torch.stack([torch.as_tensor(batch["x0"]), torch.as_tensor(batch["v0"])], dim=-1)
     weights = torch.tensor([1.0, config.settling_time], dtype=torch.float64)
@@ -171,7 +193,8 @@ def log_errors(config: EnvConfig, gains: Any, batch: dict[str, Any]) -> Any:
     log_sizes = torch.zeros(len(z), dtype=torch.float64)
     for k in range(len(tau)):
         coast = torch.stack([z[..., 0] + tau[k] * z[..., 1], z[..., 1]], dim=-1)
-        z = coast - torch.einsum("bnm,bmc,dc->bnd", w[:, k % CYCLE], z, g[k])
+        wz = torch.einsum("bnm,bmc->bnc", w[:, k % CYCLE], z)
+        z = coast - fixed * (wz @ g_fixed[k].T) - (1.0 - fixed) * (wz @ g_switching[k].T)
         z = (z - (z * mask).sum(dim=-2, keepdim=True) / count) * mask
         size = z.abs().amax(dim=(-2, -1)).clamp_min(1e-300).detach()
         z = z / size[:, None, None]
@@ -179,17 +202,18 @@ def log_errors(config: EnvConfig, gains: Any, batch: dict[str, Any]) -> Any:
     return torch.log(spread(z) + 1e-300) + log_sizes
 
 
-def loss_terms(config: EnvConfig, gains: Any, batch: dict[str, Any]) -> tuple[Any, Any, Any]:
+def loss_terms(config: EnvConfig, tables: tuple[Any, Any], batch: dict[str, Any]) -> tuple[Any, Any, Any]:
     """The rings' mean log error, the penalty (see the module) and each episode's excess over its bound (decades)."""
     import torch
 
     floor = np.log10(FLOOR)
-    log10 = torch.clamp_min(log_errors(config, gains, batch) / np.log(10.0), floor)
+    log10 = torch.clamp_min(log_errors(config, tables, batch) / np.log(10.0), floor)
     ring = torch.as_tensor(batch["ring"])
     bound = torch.as_tensor(np.maximum(batch["reference_log10"], floor))
     bound = torch.where(ring, bound - RING_MARGIN, bound + OTHER_MARGIN)
     excess = log10 - bound
-    return log10[ring].mean() * np.log(10.0), (torch.relu(excess) ** 2).mean(), excess
+    rings = torch.clamp_min(log10[ring], np.log10(RING_TARGET))  # a ring below the target pulls no more
+    return rings.mean() * np.log(10.0), (torch.relu(excess) ** 2).mean(), excess
 
 
 def chebyshev_factors(pairs: int, design: int = DESIGN_PAIRS, gap: float = DESIGN_GAP) -> np.ndarray:
@@ -220,7 +244,7 @@ def chebyshev_factors(pairs: int, design: int = DESIGN_PAIRS, gap: float = DESIG
 
 def train(
     steps: int = FULL["steps"], seed: int = 0, quick: bool = False, init: str = "random", progress: bool = False
-) -> tuple[IntervalGainPolicy, dict]:
+) -> tuple[RegimeGainPolicy, dict]:
     """The ``agnostic`` policy and a record of how it was made (see the module)."""
     import torch
 
@@ -236,9 +260,22 @@ def train(
         torch.set_num_threads(threads)
 
 
+def _start(M: int, seed: int, init: str) -> Any:
+    """The factors ``(2, M, 2)`` to start from: the fixed table's (``init``), the switching table's the paper's."""
+    import torch
+
+    start = np.random.default_rng(seed).normal(size=(M, 2))
+    if init == "paper":  # the paper's controller (every q = 1), perturbed off the saddle in Im q
+        start = np.array([1.0, 0.0]) + NOISE * start
+    elif init == "chebyshev":
+        start = chebyshev_factors(M) + 1e-3 * start
+    paper = np.tile([1.0, 0.0], (M, 1))
+    return torch.tensor(np.stack([start, paper]), dtype=torch.float64, requires_grad=True)
+
+
 def _train(
     steps: int, seed: int, spec: Sequence[tuple[dict[str, Any], int, int]], init: str, progress: bool
-) -> tuple[IntervalGainPolicy, dict]:
+) -> tuple[RegimeGainPolicy, dict]:
     import torch
 
     config = case_config({"kind": "ring"}, 20)
@@ -247,55 +284,40 @@ def _train(
     M = (config.n_intervals + 1) // 2
     paper = factor_table(config, torch.tensor([[1.0, 0.0]] * M, dtype=torch.float64))
     with torch.no_grad():
-        # the reference's error on each training episode: the penalty's yardstick
-        cases["reference_log10"] = (log_errors(config, paper, cases) / np.log(10.0)).numpy()
-    start = np.random.default_rng(seed).normal(size=(M, 2))
-    if init == "paper":  # the paper's controller (every q = 1), perturbed off the saddle in Im q
-        start = np.array([1.0, 0.0]) + NOISE * start
-    elif init == "chebyshev":
-        start = chebyshev_factors(M) + 1e-3 * start
-    q = torch.tensor(start, dtype=torch.float64, requires_grad=True)
+        # the reference's error on each training episode (every interval its own): the penalty's yardstick
+        cases["reference_log10"] = (log_errors(config, (paper, paper), cases) / np.log(10.0)).numpy()
+    q = _start(M, seed, init)
+    keep = torch.ones(M, 1, dtype=torch.float64)
+    keep[: PROBES // 2] = 0.0  # the probe's intervals coast in both tables
 
-    def lbfgs() -> Any:
-        return torch.optim.LBFGS([q], lr=1.0, max_iter=20, history_size=20, line_search_fn="strong_wolfe")
-
-    optimiser = lbfgs()
-    restarts = 0
+    def tables() -> tuple[Any, Any]:
+        return factor_table(config, q[0] * keep), factor_table(config, q[1] * keep)
 
     def loss() -> Any:
-        mean_log, penalty, _ = loss_terms(config, factor_table(config, q), cases)
+        mean_log, penalty, _ = loss_terms(config, tables(), cases)
         return mean_log + PENALTY * penalty
 
-    def closure() -> Any:
-        optimiser.zero_grad()
-        value = loss()
-        value.backward()
-        return value
-
-    curve = [float(loss().detach())]
-    for _ in range(steps):
-        optimiser.step(closure)
-        curve.append(float(loss().detach()))
+    def show(step: int, value: float) -> None:
         if progress:
-            print(f"step {len(curve) - 1}: loss {curve[-1]:.4f} ({time.perf_counter() - began:.0f} s)", flush=True)
-        if not np.isfinite(curve[-1]):
-            break
-        if curve[-1] >= curve[-2] - 1e-6:  # the line search found nothing: a fresh curvature history, twice
-            if restarts == RESTARTS:
-                break
-            restarts += 1
-            optimiser = lbfgs()
+            print(f"step {step}: loss {value:.4f} ({time.perf_counter() - began:.0f} s)", flush=True)
+
+    curve, restarts = minimise(q, loss, steps, restarts=RESTARTS, progress=show)
     if not np.isfinite(curve[-1]):
         raise RuntimeError(f"agnostic: the loss became {curve[-1]} (seed {seed}); try another --seed")
     with torch.no_grad():
-        gains = factor_table(config, q)
-        mean_log, penalty, excess = loss_terms(config, gains, cases)
+        fixed, switching = tables()
+        mean_log, penalty, excess = loss_terms(config, (fixed, switching), cases)
     record = {
-        "method": "L-BFGS through the exact interval map over a distribution of graphs, factor parameterisation",
+        "method": "L-BFGS through the exact interval map over a distribution of graphs, factor parameterisation, "
+        "two tables chosen per agent by its own probe",
         "teacher": None,
-        "init": "random normal factors" if init == "random" else f"paper's factors + {NOISE} x normal",
+        "init": {"random": "random normal factors", "paper": f"paper's factors + {NOISE} x normal"}.get(
+            init, "Chebyshev design (chebyshev_factors) + 1e-3 x normal"
+        )
+        + " (fixed table); the paper's factors (switching table)",
         "lbfgs_restarts": restarts,
         "parameterisation": "factors",
+        "probes": PROBES,
         "cases": cases["labels"],
         "held_out_rings": list(HELD_OUT_RINGS),
         "lbfgs_steps": len(curve) - 1,
@@ -305,27 +327,40 @@ def _train(
         "training_worst_excess_decades": round(float(excess.max()), 3),
         "wall_s": round(time.perf_counter() - began, 2),
     }
-    configs = [case_config(family, n) for family, n, _ in spec]
-    header = {
+    header = _header(config, spec, q.detach().numpy(), record)
+    return RegimeGainPolicy(fixed.numpy().copy(), switching.numpy().copy(), header), record
+
+
+def _header(config: EnvConfig, spec: Sequence[Any], factors: np.ndarray, record: dict) -> dict[str, Any]:
+    """The file's header: training settings, domain (every case's environment), probe, factors, record."""
+    return {
         "name": "agnostic",
         "env": training_settings(config),
         "topology": {"family": "any", "relabel": True},
         "position_range": list(TASK["position_range"]),
         "velocity_range": list(TASK["velocity_range"]),
-        "domain": training_domain(*configs),
-        "factors": q.detach().numpy().tolist(),
+        "domain": training_domain(*(case_config(family, n) for family, n, _ in spec)),
+        "probes": PROBES,
+        "factors": {"fixed": factors[0].tolist(), "switching": factors[1].tolist()},
         "training": record,
     }
-    return IntervalGainPolicy(gains.numpy().copy(), header), record
 
 
-def evaluate_rings(policy: IntervalGainPolicy, sizes: Sequence[int], seeds: Sequence[int]) -> list[dict[str, float]]:
-    """Median ``D(T_s)/D(0)`` of ``policy`` and of the reference on the same seeded directed rings of each size."""
+def evaluate_rings(policy: RegimeGainPolicy, sizes: Sequence[int], seeds: Sequence[int]) -> list[dict[str, float]]:
+    """Median ``D(T_s)/D(0)`` of ``policy`` and of the reference on the same seeded directed rings of each size.
+
+    The policy keeps a memory per agent, so it acts on every episode's agents at once.
+    """
     rows = []
     for n in sizes:
         config = task_config(n)  # one neighbour slot: the table reads any number
         policy.read_slots(config.layout.slots)
-        ours = run_episodes(config, lambda _config: policy, seeds)["deadline_error"]
+        policy.reset()
+        engine = ConsensusEngine(config, n_episodes=len(seeds))
+        engine.reset_from_draws([engine.draw_episode(np.random.default_rng(seed)) for seed in seeds])
+        while not engine.done:
+            engine.step(np.asarray(policy(np.asarray(engine.observations())), dtype=np.float64))
+        ours = np.asarray(engine.batch_metrics()["relative_deadline_error"])
         reference = run_episodes(config, ReferencePolicy, seeds)["deadline_error"]
         rows.append(comparison(n, ours, reference))
     return rows
