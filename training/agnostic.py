@@ -69,7 +69,7 @@ RANDOM = {"mean_in_degree": (1.5, 3.0)}
 #: The training distribution: (family keywords, N, episodes).
 CASES: tuple[tuple[dict[str, Any], int, int], ...] = (
     *(({"kind": "ring"}, n, 2) for n in TRAINED_RINGS),
-    *(({"kind": "random", **RANDOM}, n, 12) for n in (12, 20, 40)),
+    *(({"kind": "random", **RANDOM}, n, 6) for n in (12, 20, 40)),
     *(({"kind": "path"}, n, 1) for n in (12, 20, 40)),
     *(({"kind": "star"}, n, 1) for n in (12, 20, 40)),
     ({"kind": "ring", "period": (2, 4)}, 20, 6),
