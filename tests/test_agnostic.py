@@ -1,10 +1,9 @@
-"""The shipped ``agnostic`` policy: one gain schedule for every graph, learned without being told the graph.
+"""The shipped ``agnostic`` policy: two gain schedules and its own probe, learned without being told the graph.
 
 Goals (README, "Not told the graph"): at K = 200, T_s = 20 s on the paper's schedule, at least ten
 times below the paper's controller on directed rings of sizes it was never trained on (N in
-12..40); its inputs are the agent's own rows, mask and clock only (no N, no graph, no spectrum).
-Measured (README): ten times below at the held-out N = 15 and 19, below the reference at every
-held-out size, 1.8 times at N = 39 (the goal is not met there).
+12..40), within a decade of it under switching; its inputs are the agent's own rows, mask, clock and
+its memory of them only (no N, no graph, no spectrum).
 """
 
 from __future__ import annotations
@@ -24,7 +23,7 @@ from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.envs.parallel import ConsensusParallelEnv
 from fxc_env.policies.interval_gains import read_interval_gains
 from fxc_env.policies.learned import load_learned_policy, pretrained_path
-from fxc_env.policies.regime_gains import RegimeGainPolicy
+from fxc_env.policies.regime_gains import REGIME_FORMAT, RegimeGainPolicy
 from fxc_env.training.agnostic import HELD_OUT_RINGS, PROBES, TRAINED_RINGS, case_config, main, probe_keeps_fixed
 from fxc_env.training.rings import TASK
 
@@ -46,12 +45,23 @@ def test_the_agnostic_policy_is_ten_times_below_the_reference_on_a_ring_size_it_
 
 @pytest.mark.slow
 @pytest.mark.parametrize("n_agents", HELD_OUT_RINGS)
-def test_the_agnostic_policy_beats_the_reference_on_every_held_out_ring_size_over_20_seeds(n_agents):
-    """Tenfold at N = 15 and 19 (the goal); below the reference at every held-out size (the goal is unmet above 19)."""
+def test_the_agnostic_policy_is_ten_times_below_the_reference_on_every_held_out_ring_size_over_20_seeds(n_agents):
     seeds = tuple(range(20))
     ours = np.median(deadline_errors(learned_contender("agnostic"), n_agents, seeds))
     reference = np.median(deadline_errors(builtin_contenders(["reference"])[0], n_agents, seeds))
-    assert ours * (10 if n_agents < 20 else 1.5) <= reference
+    assert ours * 10 <= reference
+
+
+@pytest.mark.slow
+def test_under_period_4_switching_the_agnostic_policy_is_within_a_decade_of_the_reference():
+    seeds = tuple(range(20))
+    case = BenchmarkCase(TopologyFamily("ring", period=(4, 4)), 20)
+    errors = []
+    for contender in (learned_contender("agnostic"), builtin_contenders(["reference"])[0]):
+        result = run_job(Job(contender, case, 200, seeds, 20.0, False))
+        assert result.error is None, result.error
+        errors.append(np.median(result.metrics["relative_deadline_error"]))
+    assert errors[1] > 1e-2 and errors[0] <= 10 * errors[1]
 
 
 def _episode_observations(env_kwargs, seed, instants):
@@ -125,8 +135,9 @@ def test_the_agnostic_file_records_a_training_without_teacher_over_graph_familie
     path = pretrained_path("agnostic")
     assert path.suffix == ".npz" and path.stat().st_size < 2**16
     with np.load(path, allow_pickle=False) as arrays:
-        gains, header = arrays["gains"], json.loads(str(arrays["header"]))
-    assert gains.shape == (200, 2, 2) and header["name"] == "agnostic"
+        gains, switching, header = arrays["gains"], arrays["switching_gains"], json.loads(str(arrays["header"]))
+    assert gains.shape == switching.shape == (200, 2, 2) and header["name"] == "agnostic"
+    assert header["probes"] == PROBES and not gains[:PROBES].any() and not switching[:PROBES].any()
     assert header["training"]["teacher"] is None
     assert header["training"]["command"].startswith("python -m fxc_env.training.agnostic")
     domain = header["domain"]
@@ -134,6 +145,20 @@ def test_the_agnostic_file_records_a_training_without_teacher_over_graph_familie
     assert {g["family"] for g in domain["graphs"]} == {"ring", "random", "path", "star"}
     config = make_config(None, **{**TASK, "topology": TopologyFamily("ring"), "n_agents": 33})
     assert isinstance(load_learned_policy("agnostic", config), RegimeGainPolicy)
+
+
+def test_a_damaged_two_table_file_is_refused_by_name(tmp_path):
+    policy = read_interval_gains(pretrained_path("agnostic"))
+    path = tmp_path / "one_table.npz"
+    np.savez(path, gains=policy.gains, header=np.array(json.dumps({**policy.header, "format": REGIME_FORMAT})))
+    with pytest.raises(ArgumentError, match=r"^policy: .*one_table.npz is a .* file without switching_gains"):
+        read_interval_gains(path)
+    moving = policy.switching_gains.copy()
+    moving[0] = 1.0
+    with pytest.raises(ArgumentError, match=r"^gains: both tables must be zero on the first probes = 4"):
+        RegimeGainPolicy(policy.gains, moving, policy.header)
+    with pytest.raises(ArgumentError, match=r"^probes: expected an integer in \[1, K\), got 0"):
+        RegimeGainPolicy(policy.gains, policy.switching_gains, {**policy.header, "probes": 0})
 
 
 def test_the_agnostic_policy_refuses_a_ring_outside_its_sizes_by_name():
