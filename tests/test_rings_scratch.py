@@ -23,7 +23,7 @@ from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import IntervalGainPolicy, read_interval_gains
 from fxc_env.policies.learned import load_learned_policy, pretrained_path
 from fxc_env.training.rings import PAPER_GAIN, TASK, episode_log_errors, physical_map, task_config
-from fxc_env.training.rings_scratch import factor_table, log_errors, main, training_episodes
+from fxc_env.training.rings_scratch import factor_table, log_errors, main, minimise, training_episodes
 
 SEEDS = tuple(range(3))
 
@@ -129,3 +129,20 @@ def test_bad_training_settings_are_refused_by_name(keyword, value):
 
     with pytest.raises(ArgumentError, match=f"^{keyword}"):
         train(**{keyword: value})
+
+
+def test_one_lbfgs_loop_trains_both_gain_schedules_and_stops_after_its_fresh_histories():
+    """``minimise`` is the loop of ``rings_scratch`` and ``agnostic``: a step that lowers nothing ends it,
+    after ``restarts`` fresh curvature histories; ``stop`` ends it at once."""
+    import torch
+
+    from fxc_env.training import agnostic
+
+    assert agnostic.minimise is minimise
+    x = torch.tensor([3.0, -2.0], dtype=torch.float64, requires_grad=True)
+    curve, used = minimise(x, lambda: ((x - 1.0) ** 2).sum() + 1.0, steps=10, restarts=2)
+    assert curve[0] == 14.0 and curve[-1] == pytest.approx(1.0, abs=1e-12)
+    assert used == 2 and len(curve) <= 10 and curve[-1] >= curve[-2]
+    x = torch.tensor([3.0, -2.0], dtype=torch.float64, requires_grad=True)
+    curve, used = minimise(x, lambda: ((x - 1.0) ** 2).sum() + 1.0, steps=10, stop=lambda value: value < 2.0)
+    assert len(curve) == 2 and used == 0

@@ -39,7 +39,7 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -119,6 +119,50 @@ def log_errors(config: Any, gains: Any, x0: np.ndarray, v0: np.ndarray, w_hat: n
     return torch.log(spread(z) + 1e-300) + log_sizes
 
 
+def minimise(
+    parameter: Any,
+    loss: Callable[[], Any],
+    steps: int,
+    restarts: int = 0,
+    stop: Callable[[float], bool] | None = None,
+    progress: Callable[[int, float], None] | None = None,
+) -> tuple[list[float], int]:
+    """L-BFGS on ``loss()`` over the tensor ``parameter``: the loop of every gain-schedule trainer here.
+
+    Each of at most ``steps`` steps runs 20 L-BFGS iterations (history 20, strong-Wolfe line search);
+    the loop ends on a non-finite loss, when ``stop(loss)`` holds, or when a step does not lower the
+    loss, after ``restarts`` fresh curvature histories (a stale history can stall a line search that a
+    fresh one gets past). ``progress(step, loss)`` is called after every step. Returns the loss before
+    and after each step, and the restarts used.
+    """
+    import torch
+
+    def fresh() -> Any:
+        return torch.optim.LBFGS([parameter], lr=1.0, max_iter=20, history_size=20, line_search_fn="strong_wolfe")
+
+    optimiser = fresh()
+
+    def closure() -> Any:
+        optimiser.zero_grad()
+        value = loss()
+        value.backward()
+        return value
+
+    curve, used = [float(loss().detach())], 0
+    for _ in range(steps):
+        optimiser.step(closure)
+        curve.append(float(loss().detach()))
+        if progress is not None:
+            progress(len(curve) - 1, curve[-1])
+        if not np.isfinite(curve[-1]) or (stop is not None and stop(curve[-1])):
+            break
+        if curve[-1] >= curve[-2]:
+            if used == restarts:
+                break
+            used, optimiser = used + 1, fresh()
+    return curve, used
+
+
 def training_episodes(config: Any, episodes: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``x0, v0`` ``(episodes, N)`` of seeded episodes of the task and ``Ŵ`` of one drawn ring (the labels change no D)."""
     engine = ConsensusEngine(config, n_episodes=1)
@@ -160,7 +204,6 @@ def _train(episodes: int, steps: int, seed: int, free: bool) -> tuple[IntervalGa
     q = torch.tensor(start, dtype=torch.float64, requires_grad=True)
     if free:
         q = factor_table(config, q).detach().requires_grad_(True)
-    optimiser = torch.optim.LBFGS([q], lr=1.0, max_iter=20, history_size=20, line_search_fn="strong_wolfe")
 
     def table() -> Any:
         return q if free else factor_table(config, q)
@@ -168,18 +211,7 @@ def _train(episodes: int, steps: int, seed: int, free: bool) -> tuple[IntervalGa
     def loss() -> Any:
         return log_errors(config, table(), x0, v0, w_hat).mean()
 
-    def closure() -> Any:
-        optimiser.zero_grad()
-        value = loss()
-        value.backward()
-        return value
-
-    curve = [float(loss().detach())]
-    for _ in range(steps):
-        optimiser.step(closure)
-        curve.append(float(loss().detach()))
-        if not np.isfinite(curve[-1]) or np.exp(curve[-1]) < FLOOR or curve[-1] >= curve[-2]:
-            break
+    curve, _ = minimise(q, loss, steps, stop=lambda value: np.exp(value) < FLOOR)
     if not np.isfinite(curve[-1]):
         raise RuntimeError(f"rings_scratch: the loss became {curve[-1]} (seed {seed}); try another --seed")
     record = {

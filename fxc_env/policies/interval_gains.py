@@ -40,6 +40,8 @@ from fxc_env.core.validation import ArgumentError
 
 #: The ``format`` entry of a gain-schedule file's header.
 FORMAT = "fxc_env.interval_gains/1"
+#: The ``format`` of a two-regime schedule (:mod:`fxc_env.policies.regime_gains`), read here too.
+REGIME_FORMAT = "fxc_env.regime_gains/1"
 #: Settings of the environment a gain schedule must meet exactly (what its inputs and outputs mean),
 #: with the keyword that sets each; where it was trained (N, K, T_s, schedule, graphs) is its domain.
 MATCHED_SETTINGS = {
@@ -63,6 +65,9 @@ class IntervalGainPolicy:
         gains, header, source; ``obs_size`` and ``action_size`` of the training environment;
         ``training_settings`` (the header's ``env``), as the other learned policies.
     """
+
+    #: The settings :meth:`check` matches exactly (:data:`MATCHED_SETTINGS`).
+    matched_settings = MATCHED_SETTINGS
 
     def __init__(self, gains: np.ndarray, header: Mapping[str, Any], source: str | Path | None = None) -> None:
         gains = np.asarray(gains, dtype=np.float64)
@@ -108,16 +113,21 @@ class IntervalGainPolicy:
         domain.pop("partial", None)
         return domain
 
-    def read_slots(self, slots: int) -> None:
+    def read_slots(self, slots: int, dim: int | None = None) -> None:
         """Read observations with ``slots`` neighbour slots (any ``obs_slots``: ``r_i`` sums the real rows only).
 
         The aggregated row, and so the plan, is the same whatever the padding: masked rows enter
-        the sum as exact zeros, and adding a zero rounds nothing.
+        the sum as exact zeros, and adding a zero rounds nothing. ``dim`` (only where ``dim`` is not a
+        matched setting) reads another dimension, every axis planned alike.
         """
         from fxc_env.config.layout import ObservationLayout
 
-        self.layout = ObservationLayout(int(slots), self.layout.dim, self.layout.limit_feature)
+        if dim is not None and "dim" in self.matched_settings and dim != self.layout.dim:
+            raise ArgumentError(f"dim: this gain schedule reads dim={self.layout.dim} only, got {dim}")
+        dim = self.layout.dim if dim is None else int(dim)
+        self.layout = ObservationLayout(int(slots), dim, self.layout.limit_feature)
         self.obs_size = self.layout.size
+        self.action_size = 2 * dim
 
     def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
         """Plans ``(..., 2 dim)`` (``alpha_x`` then ``alpha_v``) for observations ``(..., obs_size)`` (flat or dict)."""
@@ -141,7 +151,7 @@ class IntervalGainPolicy:
     def check(self, env: Any, allow_out_of_domain: bool = False) -> None:
         """Refuse an environment this table was not trained for, naming the setting and both values.
 
-        Checks every setting of :data:`MATCHED_SETTINGS` (what the table's inputs and outputs
+        Checks every setting of :attr:`matched_settings` (what the table's inputs and outputs
         mean), then its training domain (:func:`fxc_env.policies.domain.check_domain`: N, K, T_s,
         schedule, ideal agents without ``obs_noise`` or ``link_dropout``, no switching, and the
         graph: a family must be the trained one, a fixed graph a directed ring in any labelling,
@@ -156,7 +166,7 @@ class IntervalGainPolicy:
         config = config_of(env, "IntervalGainPolicy")
         here = training_settings(config)
         name = self.header.get("name", "this gain schedule")
-        for key, keyword in MATCHED_SETTINGS.items():
+        for key, keyword in self.matched_settings.items():
             trained, got = self.training_settings.get(key), here.get(key)
             if trained != got:
                 raise ArgumentError(
@@ -185,8 +195,14 @@ def read_interval_gains(path: str | Path) -> IntervalGainPolicy:
         with np.load(path, allow_pickle=False) as arrays:
             gains = np.array(arrays["gains"], dtype=np.float64)
             header = json.loads(str(arrays["header"]))
+            switching = arrays["switching_gains"] if "switching_gains" in arrays.files else None
+            switching = None if switching is None else np.array(switching, dtype=np.float64)
     except (KeyError, ValueError, OSError) as exc:
         raise ArgumentError(f"policy: {path} is not a gain-schedule file ({type(exc).__name__}: {exc})") from exc
+    if isinstance(header, dict) and header.get("format") == REGIME_FORMAT:
+        from fxc_env.policies.regime_gains import read_regime_gains
+
+        return read_regime_gains(path, gains, switching, header)
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ArgumentError(f"policy: {path} is not a {FORMAT!r} file")
     return IntervalGainPolicy(gains, header, source=path)
@@ -209,7 +225,7 @@ def load_interval_gains(
         config = config_of(env, "policy")
         if check:
             policy.check(config, allow_out_of_domain)
-        policy.read_slots(config.layout.slots)
+        policy.read_slots(config.layout.slots, None if "dim" in policy.matched_settings else config.dim)
         if (config.layout.size, config.action_size) != (policy.obs_size, policy.action_size):
             raise ArgumentError(
                 f"policy: the table takes observations of size {policy.obs_size}; this environment has "
