@@ -113,7 +113,9 @@ def test_environment_flags_carry_the_agent_model_into_the_case_and_refuse_format
     from fxc_env import make_config
     from fxc_env.training.evaluate import custom_case
 
-    case, settling_time = custom_case({"scenario": "paper_fig1", "agent_model": {"name": "oscillator", "frequency": 1000.0}})
+    case, settling_time = custom_case(
+        {"scenario": "paper_fig1", "agent_model": {"name": "oscillator", "frequency": 1000.0}}
+    )
     assert ("agent_model", "oscillator") in case.conditions and ("frequency", 1000.0) in case.conditions
     config = make_config(**case.config_kwargs(), n_intervals=200, settling_time=settling_time)
     assert config.agent_model == "oscillator" and config.model.A[1, 0] == -1e6  # omega^2 = 1e6

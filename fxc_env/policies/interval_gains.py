@@ -30,7 +30,7 @@ method, wall time, figures).
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +42,9 @@ from fxc_env.core.validation import ArgumentError
 FORMAT = "fxc_env.interval_gains/1"
 #: The ``format`` of a two-regime schedule (:mod:`fxc_env.policies.regime_gains`), read here too.
 REGIME_FORMAT = "fxc_env.regime_gains/1"
+#: Readers of the other gain-schedule formats by ``format``: ``reader(path, gains, switching_gains, header)``.
+#: A module that defines a format registers it here on import (:mod:`fxc_env.policies` imports them all).
+FORMAT_READERS: dict[str, Callable[..., Any]] = {}
 #: Settings of the environment a gain schedule must meet exactly (what its inputs and outputs mean),
 #: with the keyword that sets each; where it was trained (N, K, T_s, schedule, graphs) is its domain.
 MATCHED_SETTINGS = {
@@ -199,10 +202,9 @@ def read_interval_gains(path: str | Path) -> IntervalGainPolicy:
             switching = None if switching is None else np.array(switching, dtype=np.float64)
     except (KeyError, ValueError, OSError) as exc:
         raise ArgumentError(f"policy: {path} is not a gain-schedule file ({type(exc).__name__}: {exc})") from exc
-    if isinstance(header, dict) and header.get("format") == REGIME_FORMAT:
-        from fxc_env.policies.regime_gains import read_regime_gains
-
-        return read_regime_gains(path, gains, switching, header)
+    reader = FORMAT_READERS.get(header.get("format")) if isinstance(header, dict) else None
+    if reader is not None:
+        return reader(path, gains, switching, header)
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ArgumentError(f"policy: {path} is not a {FORMAT!r} file")
     return IntervalGainPolicy(gains, header, source=path)

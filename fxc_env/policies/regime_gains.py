@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.core.validation import ArgumentError
-from fxc_env.policies.interval_gains import MATCHED_SETTINGS, REGIME_FORMAT, IntervalGainPolicy
+from fxc_env.policies.interval_gains import FORMAT_READERS, MATCHED_SETTINGS, REGIME_FORMAT, IntervalGainPolicy
 
 __all__ = ["REGIME_FORMAT", "TOLERANCE", "RegimeGainPolicy", "read_regime_gains"]
 #: Rows that differ from the coasted rows by more than this (relative to their largest entry) have changed.
@@ -177,3 +177,6 @@ def read_regime_gains(
     if switching is None:
         raise ArgumentError(f"policy: {path} is a {REGIME_FORMAT!r} file without switching_gains")
     return RegimeGainPolicy(gains, switching, header, source=path)
+
+
+FORMAT_READERS[REGIME_FORMAT] = read_regime_gains
