@@ -26,7 +26,7 @@ from fxc_env.config import make_config
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.config.scenarios import scenario_preset
 from fxc_env.config.tasks import TASKS, NamedTask, get_task
-from fxc_env.core.models import FLAT_PARAMETERS
+from fxc_env.core.models import MODEL_PARAMETERS
 from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.training import seed_evaluation
@@ -161,7 +161,7 @@ def custom_case(env_kwargs: dict[str, Any]) -> tuple[BenchmarkCase, float]:
         conditions.append(("agent_model", config.agent_model))
         spec = env_kwargs.get("agent_model")
         given = {**given, **spec} if isinstance(spec, dict) else given  # the spec's parameter, or a flat alias
-        conditions += [(name, given[name]) for name in FLAT_PARAMETERS if given.get(name) is not None]
+        conditions += [(name, given[name]) for name in MODEL_PARAMETERS.values() if given.get(name) is not None]
     topology = config.family if config.family is not None else config.topology
     case = BenchmarkCase(topology, config.n_agents, conditions=tuple(conditions), dim=config.dim)
     return case, config.settling_time

@@ -28,7 +28,7 @@ DEFAULT_FREQUENCY = 1.0
 #: The parameter each named model takes (a key of its spec beside ``"name"``); the others take none.
 MODEL_PARAMETERS = {"integrator_chain": "order", "damped": "damping", "oscillator": "frequency"}
 #: The previous release's flat arguments (deprecated): each one model's parameter.
-FLAT_PARAMETERS = tuple(MODEL_PARAMETERS.values())
+FLAT_PARAMETERS = ("order", "damping", "frequency")
 
 
 def model_matrices(
