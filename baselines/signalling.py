@@ -44,7 +44,7 @@ energy for accuracy: the reading error of a register is the rounding of a measur
 (about ``1e-16 |z| / ε``), the signalling energy grows like ``ε²``. It is refused outside
 ``1e-12 <= ε <= 1`` (:data:`AMPLITUDE_RANGE`): below, rounding takes the reads' digits for no energy
 saved; above, the error grows again like ε while the energy keeps growing like ε². The measured
-figures are on the docs' optimality page (``tests/test_baselines_signalling.py`` runs both ends).
+figures are on the docs' optimality page (``tests/baselines/test_signalling.py`` runs both ends).
 
 - Source: this project (information is cheap, motion is not: signalling through motion in the
   spirit of implicit communication, on the minimum-time law of :mod:`fxc_env.baselines.minimum_time`).

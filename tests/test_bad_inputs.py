@@ -322,7 +322,7 @@ def test_vecenv_refuses_and_keeps_the_state(label, call, name):
 def test_the_table_covers_every_front_end_with_sixty_distinct_inputs_or_more():
     rows = len(CONSTRUCTOR_CASES) + len(STEP_CASES) + len(RESET_CASES) + len(SIMULATE_CASES)
     rows += len(AEC_CASES) + len(VECENV_CASES)
-    assert rows >= 60  # and tests/test_cli.py holds the command line's table
+    assert rows >= 60  # and tests/cli/test_cli.py holds the command line's table
 
 
 # ------------------------------------------------------------------ numpy engine

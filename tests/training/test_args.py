@@ -68,7 +68,7 @@ def test_a_command_line_reaches_every_field_with_its_type(parser):
         "algo": "sac",
         "timesteps": 1234,
         "seed": 7,
-        "seeds": "0-2,5",  # parsed as text; fxc train refuses it beside --seed (tests/test_train_seeds.py)
+        "seeds": "0-2,5",  # parsed as text; fxc train refuses it beside --seed (tests/training/test_train_seeds.py)
         "run_dir": "runs/x",
         "checkpoint_every": 99,
         "resume": True,

@@ -1,6 +1,6 @@
 """fxc_env.policies.learned: a saved SB3 model as a policy, and the shipped pretrained policy's result.
 
-Loading without unpickling and the training-settings checks: tests/test_policy_files.py.
+Loading without unpickling and the training-settings checks: tests/policies/test_policy_files.py.
 """
 
 from __future__ import annotations
