@@ -74,28 +74,12 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
 
     A plan ``(a_x, a_v)`` is the terminal change relative to coasting
     (``x(t_{k+1}) = x + T v + a_x``, ``v(t_{k+1}) = v + a_v``), realised by the minimum-energy
-    affine input. In ``accel`` mode the input is the straight line between the two ends
-    (equal ends: zero-order hold). In ``residual`` mode the action is a correction added to the
-    paper's plan (eq. 11), computed from the same rows, mask and scale the agent observes: the
-    zero action is the reference (``ReferencePolicy`` then emits zeros; double integrators only;
-    the Box bounds the correction). Normalized, the velocity correction is in units of
-    ``s / T_s``, not the plan's ``s / T``: D weighs velocities by ``T_s``, so one unit of either
-    part moves D by about ``s`` on every interval of the schedule (with ``s / T``, up to
-    ``(pi k)^2 / 6 = 6.6e4`` times more on the paper schedule's last one at K = 200; measured
-    in the docs: results.md, "PPO from scratch around the reference"). Raw corrections are in metres and m/s.
-    ``s = s_i`` is the agent's local scale below and ``T`` the coming interval. Actions outside the Box are applied as given (never clipped); the
-    bounds hold the reference in normalised mode for every state. Raw bounds are nominal:
-    they hold it from the documented initial ranges on the built-in topologies up to
-    N = 100 (``action_bound`` overrides them). Any real dtype is accepted.
-
-    Exploring policies: uniform random actions over the whole normalised box can multiply the
-    disagreement by up to about ``1 + 2 b`` per interval, and the paper schedule's energies grow
-    like ``T^-3`` as the intervals shrink, so over long episodes they overflow float64 and the step
-    is refused (``actions``: the state is unchanged and ``reset`` starts afresh). Measured on
-    ``paper_fig1`` at K = 2000 with seeded box-uniform actions: refused near step 630 with
-    ``b = 2``, near 1,900 with ``b = 0.5``; ``action_bound=0.25`` finishes. Explore with a smaller
-    ``action_bound``, the uniform schedule, or a policy that starts near the reference (as the
-    shipped gain networks do).
+    affine input; ``accel`` is the straight line between the two ends; ``residual`` is a
+    correction to the paper's plan (docs: results.md, "What learning reached", on its units).
+    ``s = s_i`` is the agent's local scale below and ``T`` the coming interval. Actions outside
+    the Box are applied as given (never clipped); the bounds hold the reference in normalised
+    mode (``action_bound`` overrides them). A step whose energies would overflow float64 is
+    refused (``actions``; docs: environment.md, "The environment", on exploring policies).
 
     ## Observation Space
     Flat ``Box`` of size ``d_max * 2 dim + d_max + 3`` (``+ 1`` with ``u_max``) per agent,
@@ -109,31 +93,12 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     | limit | 1, with ``u_max`` | how far the input limit binds on the coming interval, in [-1, 1] (``fxc_env.engine.limit_feature``) |
 
     ``d_max`` is the largest in-degree over the topology set, or ``obs_slots`` when that is
-    larger (room for other topologies, so one policy fits several). In ``normalized`` mode (default)
-    rows are ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i`` with the local scale
-    ``s_i = max_j max(|x_j - x_i|, T |v_j - v_i|)`` (components), so they lie in [-1, 1]; an
-    agent with ``s_i = 0`` sees zeros and coasts whatever it does. ``obs_mode="raw"``
-    gives physical units. ``obs_format="dict"`` gives ``{"neighbours": (d_max, 2 dim),
-    "mask": (d_max,), "clock": (3,)}`` (and ``"input_limit": (1,)``) instead. No absolute position, no global information.
-    The engine always computes in float64; ``obs_dtype="float32"`` casts at the output. With raw
-    float32 observations no entry becomes ``inf``: states start within ``±1e37`` and a step that
-    would take two agents further apart than float32's range (3.4e38) is refused naming ``actions``
-    (state unchanged).
-
-    The limit entry is ``l / (1 + |l|)`` with ``l = log10(u_max T^2 / s_i)``: ``u_max T^2 / s_i``
-    compares the limit with the input a plan at the agent's scale needs (eq. 11 starts an
-    interval at about ``6 e / T^2``, at most ``10 s_i / T^2``), decades spread evenly (0 where
-    they are equal, ±0.5 a decade either way), bounded without a hard clip, 1 when
-    ``s_i = 0``; scaling the state and ``u_max`` together leaves it unchanged.
-
-    A topology *family* (``topology={"family": ...}`` or a mixture, see
-    ``fxc_env.core.families``) draws a new graph set at every reset from the episode's seed:
-    rings, paths and stars with random agent labels, complete graphs, random digraphs with a
-    mean in-degree drawn from a range; a switching period ``m`` drawn from a range deals the
-    union's edges to ``m`` graphs, so only the union need span (Theorem 2). Every draw spans
-    jointly by construction. ``env.episode_edges()`` gives the episode's graphs (lists of ``[j, i]``
-    pairs; ``topology=env.episode_edges()`` replays the episode on a fixed topology); a ``u_max``
-    drawn from a set is in every info (``u_max``).
+    larger. In ``normalized`` mode (default) rows are ``(x_j - x_i) / s_i`` and
+    ``T (v_j - v_i) / s_i`` with the local scale ``s_i = max_j max(|x_j - x_i|, T |v_j - v_i|)``
+    (components), so they lie in [-1, 1]; ``obs_mode="raw"`` gives physical units;
+    ``obs_format="dict"`` gives the parts as keys. No absolute position, no global information.
+    Topology families draw a new graph set at every reset (``env.episode_edges()`` gives it).
+    Docs: environment.md, "The environment" (the limit entry, families, float32 output).
 
     ## Rewards
     Team reward, the same for every agent: ``log(D(t_k) + f) - log(D(t_{k+1}) + f)`` with the
@@ -144,13 +109,10 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     ## Starting State
     ``reset(seed, options={"x0": ..., "v0": ...})`` with arrays ``(N, dim)`` (or ``(N,)`` when
     ``dim = 1``); otherwise the scenario's initial state (``initial_state="random"`` drops
-    it); otherwise positions
-    ``U(-position_range, position_range)`` (5 m) and velocities ``U(-velocity_range,
-    velocity_range)`` (2 m/s) per component from the env's generator. Other option keys
-    are ignored, as in Gymnasium. ``seed`` is None or an integer in ``[0, 2**128)``.
-    The generator is made at the first ``reset`` (from ``seed``, else from fresh entropy)
-    and continues through unseeded resets, as in Gymnasium: copies of an env that was never
-    reset draw independent episodes.
+    it); otherwise positions ``U(-position_range, position_range)`` (5 m) and velocities
+    ``U(-velocity_range, velocity_range)`` (2 m/s) per component from the env's generator.
+    ``seed`` is None or an integer in ``[0, 2**128)``. The generator is made at the first
+    ``reset`` and continues through unseeded resets, as in Gymnasium.
 
     ## Episode End
     Termination for every agent at ``t_K = T_s`` (after K steps; the clock is observed, so
@@ -161,58 +123,23 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     Per agent, at reset and after every step: ``t`` (seconds), ``interval`` (intervals done),
     ``energy`` (``integral |u_i|^2 dt`` on the last interval), ``peak_u`` (largest ``|u_i|``
     component on it), ``saturated_fraction`` (share of it at the limit ``u_max``); at the
-    end also ``episode``: the episode's metrics (the fields of
-    ``fxc_env.core.metrics.EpisodeMetrics``: deadline error ``D(T_s)/D(0)``, spreads,
-    settling times ``t_eps``, energy, peak input, Theorem 2's predicted and the achieved
-    final values; docs: getting-started.md, "Getting started"). Numbers only, each agent its own dict:
-    ``inf`` for a threshold never reached; a metric that does not apply to the episode
-    (``predicted_*`` and the intervals bounds ``radius_bound``, ``all_roots_bound`` with random
-    switching, the bounds above 2000 agents, ``energy_ratio`` where ``E* = 0``) is left out of the dict rather
-    than ``nan``, so no info value is ever NaN and two identically seeded runs give equal
-    infos.
-
-    Every key of the reset infos is in every step's infos with the same type and shape (what
-    replay buffers such as Tianshou's need); only ``episode`` joins at the end. Variable-length
-    data stays out: the episode's graphs are ``env.episode_edges()``.
-
-    **Graph tensors** (``graph_tensors=True``, for graph neural networks; docs: graph-tensors.md, "Graph
-    tensors"): every info at reset and after every step also holds the coming interval's graph
-    in PyTorch Geometric's convention, padded to a fixed ``E`` (``edge_capacity``) with the
-    edge ``N -> N``: ``edge_index`` ``(2, E)`` int64 (source j, target i), ``edge_mask`` ``(E,)``,
-    ``n_edges`` (an int) and ``edge_attr`` ``(E, n dim)`` (each edge's observation row), the same
-    arrays in every agent's dict (:mod:`fxc_env.engine.graph_tensors` says how padding keeps a
-    summing message pass exact). They are infos, not observations: the graph is global while an
-    observation is one agent's local measurement, and the observation spaces stay fixed Boxes.
+    end also ``episode``: the fields of ``fxc_env.core.metrics.EpisodeMetrics``. Numbers only
+    (``inf`` for never; a metric that does not apply is left out, never NaN), and every reset
+    key is in every step's infos with the same type and shape. ``graph_tensors=True`` adds the
+    coming interval's graph (docs: graph-tensors.md, "Graph tensors").
 
     ## State
     ``state()`` with ``global_state="raw"`` (default): ``(N, 2 dim)`` float64 rows
     ``[x_i, v_i]`` (absolute, unbounded). With ``global_state="normalized"`` (for centralised
     critics): the flat vector ``(N * 2 dim + 3,)`` in ``obs_dtype`` of rows
-    ``[x_i - mean x, T_s (v_i - mean v)] / max(D, tiny)`` (agent major) and the clock. Each
-    row entry is at most ``D`` in magnitude, so the rows lie in [-1, 1] by construction
-    (clipped there only against rounding; all zero once ``D = 0``), and the clock in [0, 1]:
-    scale-free and invariant to a common shift of positions or velocities, like the
-    normalized observations. ``state_space`` matches either form.
+    ``[x_i - mean x, T_s (v_i - mean v)] / max(D, tiny)`` (agent major, in [-1, 1]) and the
+    clock. ``state_space`` matches either form.
 
     ## Agent Models and Formations
-    ``agent_model`` gives every agent, on each axis, ``z' = A z + B u`` with ``z`` in R^n (the
-    double integrator's ``z = (x, v)`` is the default and keeps its closed forms). Rows are
-    then ``z_j - z_i`` (``n dim`` numbers, component-major), and a ``plan`` action is ``Delta``,
-    the terminal change relative to free motion (``n dim`` numbers), applied as the
-    minimum-energy input ``u(s) = B^T e^{A^T (T - s)} G(T)^{-1} Delta`` (Gramian ``G``; matrix
-    exponentials, no ODE solver). Normalized units read component l in position units,
-    ``r_l |z_j - z_i|_l`` with ``r = (1, T, T^2, ...)`` for integrator chains (in general
-    ``D_0 / D_l`` of the time-scaled frame ``D = h^levels``, ``h = min(T, 1 / rho(A))``);
-    ``s_i`` is their largest value and ``Delta_l = s_i alpha_l / r_l``, so the task stays
-    scale-free. The reference plans ``Delta_i = e^{A T} e_i`` with ``e_i`` the mean of
-    ``z_j - z_i`` over itself and its in-neighbours (eq. 11 for the double integrator); the
-    interval map is ``Z+ = (W_k kron e^{A T_k}) Z``, so Theorems 1-2 carry over: under their
-    spanning conditions every agent reaches ``z*(T_s) = e^{A T_s} sum_j xi_j z_j(0)`` and
-    follows ``z*(t) = e^{A t} sum_j xi_j z_j(0)`` afterwards. The disagreement is
-    ``D = sum_l T_s^l e_{z_l}``. With ``formation_offsets`` ``h_i`` agents agree on
-    ``z_i - e^{A t} h_i`` instead: observations, rewards and metrics are of that formation
-    error, ``state()`` and frames of the absolute states. ``accel`` actions and ``u_max`` are
-    the double integrator's.
+    ``agent_model`` gives every agent, on each axis, ``z' = A z + B u`` (the double integrator
+    is the default and keeps its closed forms); rows are then ``z_j - z_i`` and a ``plan``
+    action is the change relative to free motion. ``formation_offsets`` make agents agree on
+    ``z_i - e^{A t} h_i``. Docs: agent-models.md, "Agent models and formations".
 
     ## Arguments
     Every argument is keyword-only except ``scenario``; defaults in brackets come from the
@@ -228,14 +155,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
 
     ## Rendering
     ``render()`` returns the frame of the episode so far (``rgb_array``: ``(360, 640, 3)``
-    uint8; ``human``: shown in a pyplot window, None, which needs an interactive matplotlib
-    backend: under a headless one such as Agg matplotlib warns and nothing is shown). A frame
-    draws the trails through the sampling instants so far (position against time in 1-D, the
-    plane of the first two axes otherwise), the current interval's graph as arrows ``j -> i``,
-    the clock and ``D(t_k)/D(0)`` (docs: video.md, "Video"). Call it after ``reset`` and after each step,
-    as Gymnasium's ``RecordVideo`` does, at ``metadata["render_fps"]``; nothing is recorded
-    while ``render_mode`` is None. Before the first ``reset`` there is no episode: it raises
-    ``RuntimeError`` (as PettingZoo's and Gymnasium's order enforcing do). With
+    uint8; ``human``: shown in a pyplot window, None), at ``metadata["render_fps"]`` (docs:
+    video.md, "Video"). Before the first ``reset`` it raises ``RuntimeError``; with
     ``render_mode=None`` it warns and returns None.
 
     ## Copies

@@ -675,7 +675,7 @@ def test_seed_tests_pass_and_no_info_is_nan(switching):
 
 
 def test_random_box_actions_over_a_long_episode_are_refused_before_they_overflow_and_a_smaller_box_finishes():
-    """The card's "Exploring policies": at K = 2000 box-uniform actions with b = 2 overflow (refused,
+    """The docs' "Exploring policies" (environment.md): at K = 2000 box-uniform actions with b = 2 overflow (refused,
     state unchanged, reset works); with ``action_bound=0.25`` the episode reaches T_s."""
 
     def play(**kwargs):
