@@ -1,33 +1,10 @@
 """Floors under measurement noise and input limits: what no controller, centralised or not, can beat.
 
-Two settings of the environment change what is reachable at ``T_s`` (docs: optimality.md, "How far from
-optimal"); each has a floor that holds for every law:
-
-- **Noise** (:func:`noise_floor`). With ``obs_noise = sigma`` every received row
-  ``[x_j - x_i, v_j - v_i]`` carries independent Gaussian noise of standard deviation ``sigma``
-  in each component (m and m/s), drawn anew at every sampling instant. Pool every row the whole
-  team receives at ``t_0 .. t_{K-1}`` (the last instant at which an input can still act): each is
-  ``Phi_k (z_j(0) - z_i(0)) + n``, ``Phi_k = [[1, t_k], [0, 1]]``, plus the known effect of the
-  inputs, so the best estimate of the initial disagreement is the least-squares one, with covariance
-  ``sigma^2 J^+``, ``J = sum_k L_k (x) Phi_k^T Phi_k`` (``L_k = B_k B_k^T`` from the incidence
-  matrix of the graph of interval k: an edge measured in both directions counts twice). A
-  controller that steers every agent to the estimated consensus leaves exactly the estimation
-  error, propagated to ``T_s``; none can leave less on average. The floor is the expected
-  disagreement ``E[D(T_s)]`` of that Gaussian error (``D = e_x + T_s e_v``), linear in ``sigma``.
-  ``E[D]`` (a mean of diameters) has no closed form: it is the mean over :data:`NOISE_DRAWS`
-  draws of a fixed generator (relative sampling error about 0.3%), the same number on every call.
-  Link dropout only removes rows, so the floor without it bounds runs with it too.
-- **Input limit** (:func:`input_floor`). With ``|u_i| <= U`` per component, agent i can move its
-  free-motion prediction ``p_i = (x_i + T v_i, v_i)`` by ``(d, w) = (int (T - t) u dt, int u dt)``
-  in ``U R``, where ``R`` (``U = 1``) is bounded by the bang-bang inputs: ``+1`` until ``tau``
-  then ``-1`` gives ``w = 2 tau - T``, ``d = 2 T tau - tau^2 - T^2 / 2`` (the largest d for that w),
-  and its mirror. Exact consensus needs one ``(x*, v*)`` with ``(x* - p_i, v* - v_i)`` in ``U R``
-  for every i: a linear programme in ``(x*, v*, U)`` once ``R`` is a polygon. The tangents to
-  ``R``'s boundary at ``tau = j T / m`` enclose it (the programme's U is a lower bound: the floor
-  reported); the chords between those points lie inside it and are reached by bang-bang inputs
-  switching at ``j T / m`` (an upper bound, reached). Both are returned by
-  :func:`input_floor_bounds`; with :data:`INPUT_FACETS` facets they agree to about 1e-6.
-
+Two settings of the environment change what is reachable at ``T_s``: measurement noise
+(:func:`noise_floor`, linear in ``sigma``, the mean over :data:`NOISE_DRAWS` fixed draws) and an
+input limit (:func:`input_floor`, :func:`input_floor_bounds`, a linear programme over
+:data:`INPUT_FACETS` facets); each floor holds for every law (docs: optimality.md, "The floors,
+derived").
 Pure numpy/scipy: no environment, no torch.
 """
 

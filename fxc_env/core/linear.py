@@ -6,36 +6,12 @@ integrator of :mod:`fxc_env.core.dynamics` is ``A = [[0, 1], [0, 0]]``, ``B = [[
 By convention ``z[0]`` is the position (metres) and the other components are the model's
 further states (velocity, acceleration, ...); time is in seconds, ``A`` in 1/s.
 
-On a sampling interval of length T an agent plans the change of its state relative to free
-motion, ``Delta`` (n numbers per axis): it wants ``z(T) = F(T) z(0) + Delta`` with the
-free motion ``F(T) = e^{A T}``. The input of least energy ``int_0^T |u|^2 ds`` that does so is
-
-    ``u(s) = B^T e^{A^T (T - s)} lambda``, ``lambda = G(T)^{-1} Delta``, ``0 <= s < T``,
-
-with the controllability Gramian ``G(T) = int_0^T e^{A s} B B^T e^{A^T s} ds``. Inside the
-interval ``z(s) = e^{A s} z(0) + G(s) e^{A^T (T - s)} lambda``, and the energy is
-``lambda^T G(T) lambda = Delta^T G(T)^{-1} Delta``. ``F`` and ``G`` come from one block
-exponential (Van Loan): ``expm([[A, B B^T], [0, -A^T]] T) = [[F, G F^{-T}], [0, F^{-T}]]``.
-
-The scaled frame. ``G(T)`` is badly conditioned for short intervals (condition ~ T^{-2(n-1)}
-for an integrator chain of order n), so nothing here forms or inverts ``G(T)`` itself. Each
-interval is worked in normalised time ``sigma = s / T`` in [0, 1] and scaled state
-``w = D^{-1} z``, ``D = diag(h^{l_0}, ..., h^{l_{n-1}})``:
-
-- ``l_i`` is the *structural level* of state i: 0 for the states the input drives directly
-  (``B[i] != 0``), ``l + 1`` for the states driven by a level-l state (``A[i, j] != 0``),
-  found breadth-first (for a chain of order n: position n - 1, ..., highest derivative 0).
-- ``h = min(T, 1 / rho)`` with ``rho`` the spectral radius of A (``h = T`` when ``rho = 0``,
-  e.g. integrator chains): the interval itself, capped at the model's own time scale.
-
-In that frame ``e^{A T sigma} = D e^{Ahat sigma} D^{-1}`` with ``Ahat = T D^{-1} A D``, whose
-entries ``T A_ij h^{l_j - l_i}`` are O(1) (every nonzero ``A_ij`` has ``l_i <= l_j + 1``), the
-input matrix stays ``B`` (its rows have level 0) and ``G(T) = T D W D`` with the unit-time
-Gramian ``W = int_0^1 e^{Ahat r} B B^T e^{Ahat^T r} dr``, computed by Van Loan's block
-exponential of O(1) entries. For an integrator chain ``Ahat`` does not depend on T at all.
-``W`` is finally balanced by its diagonal, ``S = diag(W)^{-1/2}``, ``W_b = S W S`` (unit
-diagonal), and factorised once per interval, ``W_b = L L^T`` (Cholesky).
-
+On an interval of length T an agent plans ``Delta``, the change of its state relative to free
+motion ``F(T) = e^{A T}``, realised by the minimum-energy input
+``u(s) = B^T e^{A^T (T - s)} G(T)^{-1} Delta`` (controllability Gramian ``G``). Nothing here
+forms or inverts the badly conditioned ``G(T)``: each interval is worked in normalised time and a
+scaled state, ``w = D^{-1} z`` with ``D = h^levels``, ``h = min(T, 1 / rho(A))`` (docs:
+agent-models.md, "The scaled frame", derives it).
 Solving a plan over an interval in that frame: :mod:`fxc_env.core.interval_maps`.
 
 Layout: a per-axis state is the last axis ``(..., n)`` of an array whose leading dimensions

@@ -53,41 +53,11 @@ def spread(z: np.ndarray) -> np.ndarray:
     """Diameter ``max_ij ||z_i - z_j||_2`` over the agent axis (-2); shape ``(...)``.
 
     ``dim = 1``: ``max - min``, O(N). ``dim > 1``: the value is the all-pairs comparison's,
-    bit for bit. Its arithmetic: coordinates centred on the centroid (the mean over agents,
-    summed in agent order, as ``z.mean(axis=-2)`` does on C-ordered arrays, float64), the
-    squared distance of a pair ``sum_d fl(a_d - b_d)^2`` (components added in order), and
-    the square root of the largest. Every pair value below is computed exactly so.
-
-    * Up to :data:`PAIRWISE_AGENTS` agents, or :data:`PAIRWISE_PAIRS` pairs in the whole
-      batch (about 180 agents in one episode; the measured crossovers), or ``dim > 3``:
-      every pair, vectorised over the batch, in blocks; O(N^2 dim) per episode.
-    * ``dim = 2, 3`` above that: only pairs that could beat a value already attained, so the
-      maximum is the same (exact; no tolerance on the result). Per episode:
-
-      1. A farthest-point sweep from the point farthest from the centroid gives a pair
-         whose value ``M`` is attained (O(N)).
-      2. Ball filter: for any centre ``o`` with every point within ``R`` of it, both ends
-         of a pair longer than ``sqrt(M)`` lie beyond ``sqrt(M) - R`` of ``o`` (triangle
-         inequality). Every such test carries a relative margin of 1e-9, far above the
-         ~1e-15 rounding of a computed distance: no point that could end a better pair goes.
-         Around the centroid it leaves a handful of points for boxes and Gaussian-like
-         swarms (initial states, contracting clouds); those get all their pairs.
-      3. More than :data:`PAIRWISE_CANDIDATES` left (round clouds, or a cloud offset from its
-         rounded centroid near consensus): up to :data:`_SWEEPS` more sweeps and the best
-         pair among the points extreme along :data:`_DIRECTIONS` fixed directions raise
-         ``M``; a second ball filter around the pair's middle, over all points; duplicates
-         go (a repeated point adds no value); then all pairs, or a branch and bound over
-         pairs of boxes of a median-split k-d tree (a pair of boxes goes only when the
-         largest distance between them, with the margin, cannot beat the best value). If
-         ``M = 0`` every point is at distance 0 from the first: all coincide, the value is 0.
-
-      Cost: O(N) passes, plus O(S log S) for S points left after the filters. The tree's
-      pairs stay few unless most points are near-diameter ends: S points evenly on a circle
-      or sphere (every point on the hull) take about S^1.5 pair values; 1e5 such points take
-      about 0.4 s on a circle and 2 s on a sphere (the all-pairs comparison: minutes).
-      No convex hull code is involved: collinear, coplanar and identical points need no
-      special case, and the candidates never depend on a hull code's tolerances.
-
+    bit for bit (coordinates centred on the centroid, components added in order): every pair
+    up to :data:`PAIRWISE_AGENTS` agents or :data:`PAIRWISE_PAIRS` pairs, or ``dim > 3``;
+    above that, in 2-D and 3-D, only the pairs that could beat a value already attained
+    (farthest-point sweeps, ball filters with a 1e-9 margin, a k-d tree's branch and bound:
+    exact, no tolerance; docs: performance.md, "The exact diameter").
     Non-finite entries make that episode NaN, as the all-pairs arithmetic does (a point
     with an infinite coordinate is NaN away from itself). Where squared distances would
     underflow or overflow (centred coordinates below about 1e-135 or above 1e150), the

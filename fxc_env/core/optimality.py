@@ -1,33 +1,10 @@
 """How far from optimal: the minimum-energy bound, the intervals bounds and the settled interval.
 
-The energy and radius bounds hold for *every* controller of the consensus task (docs: optimality.md, "How far
-from optimal"), centralised or not; the all-roots bound for laws whose value depends on every root:
-
-- **Energy** (:func:`energy_bound`, :func:`linear_energy_bound`). Agent i, steered from
-  ``z_i(0)`` to a common ``z*`` in time ``T_s``, needs at least
-  ``(z* - e^{A T_s} z_i(0))^T G(T_s)^{-1} (z* - e^{A T_s} z_i(0))`` (the minimum-energy input,
-  paper Remark 1; ``G`` the controllability Gramian). The sum over agents is smallest for ``z*`` the
-  mean of the free-motion predictions ``p_i = e^{A T_s} z_i(0)``, so every controller that
-  reaches exact consensus at ``T_s`` spends at least
-  ``E* = sum_i (p_i - p̄)^T G(T_s)^{-1} (p_i - p̄)``, summed over the ``dim`` axes. For the double
-  integrator ``p_i = (x_i + T_s v_i, v_i)`` and ``G(T)^{-1} = [[12/T^3, -6/T^2], [-6/T^2, 4/T]]``:
-  per agent ``12 d^2/T^3 - 12 d w/T^2 + 4 w^2/T`` with ``d = x* - x_i - v_i T``, ``w = v* - v_i``.
-- **Sampling instants** (:func:`radius_bound`). Information moves one hop per interval (an
-  agent measures its in-neighbours at ``t_k`` only) and every law sees relative measurements only,
-  so ``z_i(t_K)`` depends on the initial states within K time-respecting hops upstream of i, and is
-  unchanged by a common coasting shift of all agents. Exact consensus for every initial state then
-  needs one agent whose information reaches every agent within K intervals (if the agents' upstream
-  sets had no common member, the common value would depend on no initial state at all): **no law**
-  is exact in fewer intervals than the graph's (time-respecting) radius. The leader-follower law
-  (:class:`fxc_env.baselines.LeaderFollowerPolicy`) attains it on fixed graphs.
-- **All roots** (:func:`all_roots_bound`): a law whose consensus value depends on *every* root's
-  initial state (the paper's, with ``xi`` positive on the roots, Theorems 1-2; the E*-optimal mean)
-  cannot be exact before the longest time-respecting distance from a root to an agent. It is at
-  least the radius and bounds only such laws.
-
-:func:`settled_interval` reads, from a run's relative disagreements ``D(t_k)/D(0)``, the interval
-after which the error stayed below a tolerance: the intervals a law actually used.
-
+The energy and radius bounds hold for *every* controller of the consensus task, centralised or not;
+the all-roots bound for laws whose value depends on every root (paper Remark 1, Theorems 1-2; the
+derivations: docs: optimality.md, "The bounds, derived"). :func:`settled_interval` reads, from a
+run's relative disagreements ``D(t_k)/D(0)``, the interval after which the error stayed below a
+tolerance.
 Pure numpy/scipy: no environment, no torch.
 """
 

@@ -1,29 +1,9 @@
 """Aggregates over training seeds, with stratified bootstrap confidence intervals (numpy, batched).
 
-A policy trained with several seeds and scored on the same seeded initial states gives a score
-matrix ``X`` of shape ``(R, S)``: R training seeds (runs) by S initial states (episodes). The
-aggregates pool every run and episode, as rliable's aggregate IQM pools runs and tasks
-(Agarwal et al., *Deep reinforcement learning at the edge of the statistical precipice*,
-NeurIPS 2021):
-
-* :func:`median` — the median of the R·S scores;
-* :func:`iqm` — the interquartile mean: the mean of the scores left after dropping
-  ``floor(n / 4)`` of the ``n = R·S`` sorted scores at each end (``scipy.stats.trim_mean(x,
-  0.25)``, rliable's ``aggregate_iqm``). It is robust like the median and uses half the data.
-
-**The bootstrap** (:func:`stratified_bootstrap`). One replicate draws R training seeds with
-replacement and, within each drawn seed, S initial states with replacement:
-``X*[i, j] = X[r_i, s_ij]`` with ``r_i ~ U{0..R-1}`` and ``s_ij ~ U{0..S-1}``, all independent.
-This is rliable's ``StratifiedBootstrap`` with ``task_bootstrap=True`` read with the levels named
-for this task: rliable resamples runs within each task (the stratum) and the tasks themselves;
-here the strata are the training seeds, resampled, and the initial states are resampled within
-each. Both sources of spread are kept: a policy whose seeds disagree gets a wide interval even
-when each seed is consistent over its initial states (resampling initial states alone would
-miss that). The interval is the percentile interval of the replicate statistics (rliable's
-default ``method="percentile"``), with the generator seeded, so the same scores give the same
-interval. With no spread between seeds the two-level resampling counts the within-seed spread
-twice, and the interval is conservative (about ``sqrt(2)`` wide for the mean of i.i.d. scores).
-
+A score matrix ``X`` of shape ``(R, S)``: R training seeds (runs) by S initial states (episodes).
+:func:`median`, :func:`iqm` (rliable's ``aggregate_iqm``) and :func:`stratified_bootstrap`
+(seeds, then initial states within each, resampled; percentile interval; Agarwal et al., NeurIPS
+2021) pool every run and episode (docs: results.md, "The aggregates and the bootstrap").
 Every function is batched over leading dimensions and takes scores as float64 arrays; ``inf``
 (a run that diverged) sorts as the largest score, NaN is refused.
 """

@@ -9,29 +9,12 @@ space axis last: ``state[:, :, 0]`` positions ``x``, ``state[:, :, 1]`` velociti
 observations ``(B, N, obs_size)``; actions ``(B, N, 2 dim)``.
 
 One step integrates the affine input on ``[t_k, t_{k+1})`` in closed form
-(:mod:`fxc_env.core.dynamics`), clipped to ``±u_max`` when that is set. Measurement noise,
-link dropout and random switching draw from :attr:`ConsensusEngine.rng` (a numpy
-``Generator``, or a ``torch.Generator`` on the device), which the front ends seed; each
-sampling instant's measurements are drawn once and cached.
-
-The engine wires named parts, each choosing its branch once, at construction:
-
-========================  ==========================================================================
-part                      module
-========================  ==========================================================================
-array backend             :mod:`~fxc_env.engine.backend` (numpy refuses a bad step at once; torch flags it)
-clock                     :mod:`~fxc_env.engine.clock` (lock step, or per episode after a partial reset)
-graph table               :mod:`~fxc_env.engine.graph_table` (every episode's in-neighbour slots)
-episode draws             :mod:`~fxc_env.engine.draws` (initial states, topologies, limits)
-agent dynamics            :mod:`~fxc_env.engine.agents` (closed-form double integrator or general ``(A, B)``)
-measurements              :mod:`~fxc_env.engine.observations` (rows, local scale, flat observations)
-episode trackers          :mod:`~fxc_env.engine.trackers` (rewards, totals, the episode metrics)
-========================  ==========================================================================
-
-**Where a bad value is reported.** On numpy a step whose result would not be finite (or, with raw
-float32 observations, whose rows would be) is refused at once, state unchanged; on torch it sets a
-per-episode flag on the device, read off the hot path by :meth:`ConsensusEngine.raise_if_invalid`
-(the TorchRL card, "When a bad value is reported").
+(:mod:`fxc_env.core.dynamics`), clipped to ``±u_max`` when that is set; noise, dropout and
+random switching draw from :attr:`ConsensusEngine.rng`. The engine wires named parts (backend,
+clock, graph table, draws, agents, observations, trackers), each choosing its branch once, at
+construction (docs: architecture.md, "Layers"). On numpy a step whose result would not be finite
+is refused at once, state unchanged; on torch it sets a per-episode flag, read off the hot path by
+:meth:`ConsensusEngine.raise_if_invalid`.
 """
 
 from __future__ import annotations

@@ -18,24 +18,11 @@ name            shape, dtype      meaning
 ==============  ================  ================================================================
 
 ``E`` is the largest edge count of any graph in the engine's graph table, or a given ``width``
-(:func:`edge_capacity`: the same at every reset, for fixed specs). Edges come
-first in each episode, sorted by target then source (the topology's order,
-:attr:`fxc_env.core.graphs.Topology.edges`); padding follows. With ``link_dropout`` an edge lost
-at ``t_k`` (its observation mask is 0) is not listed: the tensors hold what the agents receive.
-
-**Padding** is the edge ``N -> N`` (``N``: the index one past the last agent) with
-zero features. It can never pass for an edge between agents: a message pass over a node table of
-``N + 1`` rows sends padding's messages into the extra row ``N``, which the consumer drops, so a
-summing aggregation (PyG ``GraphConv(aggr="add")``, a scatter-add) over the padded tensors equals
-the one over the true edges without ``edge_mask``; over a table of ``N`` rows the index is out of
-range and the gather or scatter raises instead of adding to agent 0.
-
-**Edge features.** ``edge_attr[b, e]`` is the row of slot ``r`` of agent i's flat observation
-(:class:`fxc_env.config.layout.ObservationLayout`), read out of the observation itself, so it
-is exactly what the agent sees: ``F = n dim`` numbers, component major, ``[x_j - x_i (dim),
-v_j - v_i (dim)]`` for the double integrator; in ``obs_mode="normalized"`` ``(x_j - x_i) / s_i``
-and ``T (v_j - v_i) / s_i`` (the target's local scale ``s_i``, in [-1, 1]), in ``"raw"``
-metres and m/s; measurement noise included. Its dtype is the observation's.
+(:func:`edge_capacity`). Edges come first in each episode, sorted by target then source;
+padding, the edge ``N -> N`` with zero features, follows, so a summing message pass over ``N + 1``
+node rows needs no mask; an edge lost to ``link_dropout`` is not listed. ``edge_attr`` is read
+out of the observation itself (``F = n dim``, normalized or raw as ``obs_mode`` says; docs:
+graph-tensors.md, "Graph tensors").
 """
 
 from __future__ import annotations

@@ -2,47 +2,17 @@
 
 :class:`FxcTask` is a BenchMARL task enum (one member per scenario of
 :data:`fxc_env.config.scenarios.SCENARIOS`, ``fxc/<scenario>``, and one per named task of
-:data:`fxc_env.config.tasks.TASKS`, ``fxc/<task>-v<k>``, e.g. ``FxcTask.RINGS20_V1`` is
-``fxc/rings20-v1``) and :class:`FxcTaskClass` the task it builds: a
-factory of the batched TorchRL environment :class:`fxc_env.envs.torch_env.ConsensusTorchEnv`
-(``batch_size`` = BenchMARL's number of environments, so no ``SerialEnv`` in between), one
-agent group ``"agents"``, continuous actions only (the plan ``(a_x, a_v)`` of each agent, or
-its input in ``action_mode="accel"``; docs: environment.md, "The environment"), episodes of K sampling
-intervals (``max_cycles`` when shorter), and with ``global_state="normalized"`` (the default
-configs) the scale-free global state as BenchMARL's ``"state"`` for centralised critics
-(MAPPO, MASAC)::
+:data:`fxc_env.config.tasks.TASKS`, ``fxc/<task>-v<k>``) and :class:`FxcTaskClass` the task it
+builds: a factory of :class:`fxc_env.envs.torch_env.ConsensusTorchEnv` (``batch_size`` =
+BenchMARL's number of environments), one agent group ``"agents"``, continuous actions only.
+A task's config is a dict of ``ConsensusTorchEnv`` keyword arguments, checked when the task is
+made; BenchMARL owns ``batch_size``, ``seed`` and ``device`` and a config naming one is refused.
+:func:`register` puts the tasks in BenchMARL's registry and Hydra's ``task`` group (the plugin
+``hydra_plugins.fxc_env`` calls it). Use, the plugin and an experiment: docs:
+tutorials/benchmarl.md, "Tutorial: BenchMARL".
 
-    import torch_geometric
-    from benchmarl.algorithms import MappoConfig
-    from benchmarl.experiment import Experiment, ExperimentConfig
-    from benchmarl.models import GnnConfig, MlpConfig
-    from fxc_env.envs.benchmarl_task import FxcTask
-
-    task = FxcTask.PAPER_FIG1.get_from_yaml()  # the shipped fxc_env/envs/benchmarl_tasks/paper_fig1.yaml
-    task.config["n_intervals"] = 20  # any ConsensusTorchEnv argument
-    actor = GnnConfig(topology="full", self_loops=False, gnn_class=torch_geometric.nn.conv.GATv2Conv, gnn_kwargs={})
-    critic = MlpConfig.get_from_yaml()
-    config = ExperimentConfig.get_from_yaml()  # docs: tutorials/benchmarl.md, "Tutorial: BenchMARL" shrinks it to a quick run
-    Experiment(task, MappoConfig.get_from_yaml(), actor, seed=0, config=config, critic_model_config=critic).run()
-
-BenchMARL's own routes take them unmodified: ``python -m benchmarl.run algorithm=mappo
-task=fxc/rings20-v1`` (Hydra finds the tasks through the plugin ``hydra_plugins.fxc_env`` that
-the package installs in Hydra's plugin namespace; it calls :func:`register`, which puts them, as
-BenchMARL's docs ask of an external task, in ``benchmarl.environments.task_config_registry`` and
-Hydra's ``task`` group) and ``benchmarl.benchmark.Benchmark(tasks=[FxcTask.RINGS20_V1.get_from_yaml(), ...])``.
-``python -m fxc_env.envs.benchmarl_run`` takes the same arguments and registers the tasks itself
-(from a source checkout that is on ``sys.path`` but not installed, Hydra sees no plugin).
-
-A task's config is a dict of :class:`~fxc_env.envs.torch_env.ConsensusTorchEnv` keyword
-arguments; BenchMARL owns ``batch_size``, ``seed`` and ``device`` (its experiment config sets
-them) and a config naming one is refused. The config is checked when the task is made, by
-building a one-episode environment (the environment's own checks and messages), and again
-by every environment BenchMARL builds (after edits of ``task.config``).
-BenchMARL's networks are float32: the shipped configs set ``obs_dtype: float32`` (the engine
-still computes in float64, the paper's accuracy).
-
-Needs ``pip install "fxc-env[benchmarl]"`` (BenchMARL 1.5 with torchrl 0.11; docs: tutorials/benchmarl.md,
-"Tutorial: BenchMARL"); ``import fxc_env`` never imports this module.
+Needs ``pip install "fxc-env[benchmarl]"`` (BenchMARL 1.5 with torchrl 0.11); ``import fxc_env``
+never imports this module.
 """
 
 from __future__ import annotations

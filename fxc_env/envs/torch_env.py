@@ -141,10 +141,9 @@ class ConsensusTorchEnv(EnvBase):
     | ``"edge_attr"`` | ``[B, E, n dim]`` | with ``graph_tensors=True``: each edge's observation row ``z_j - z_i`` as agent i observes it, in ``obs_dtype`` |
 
     ## Graph tensors
-    ``graph_tensors=True`` adds the coming interval's graph as the parallel env's card describes
-    (PyTorch Geometric's convention, padding the edge ``N -> N``; :mod:`fxc_env.engine.graph_tensors`),
-    per episode as in the table above, each episode on its own clock after a partial reset.
-    One episode's PyG graph: ``td["edge_index"][b, :, :td["n_edges"][b]]``.
+    ``graph_tensors=True`` adds the coming interval's graph per episode as in the table above
+    (docs: graph-tensors.md, "Graph tensors"). One episode's PyG graph:
+    ``td["edge_index"][b, :, :td["n_edges"][b]]``.
 
     ## When a bad value is reported
     Shapes are checked at once (they are known on the host). Values are not read on the
@@ -157,27 +156,11 @@ class ConsensusTorchEnv(EnvBase):
     front ends) such a step is refused at once.
 
     ## Differentiable simulation
-    Every interval is played in closed form by differentiable tensor operations, so with
-    actions that require a gradient, the observations, the rewards and
-    ``episode_metrics(as_tensors=True)`` are in their autograd graph, exact (no surrogate, no
-    smoothing), on any device, in both dtypes, stepped by hand or by ``env.rollout``. The
-    contract, tested against central finite differences (docs: differentiable.md, "Differentiable simulation"):
-
-    * Nothing on the path from the actions to the observations, rewards and those metrics is
-      detached, written in place or read off the device; the input limit ``u_max``'s clip,
-      the local scale's maximum and ``|.|`` are piecewise smooth (their kinks have one-sided
-      gradients), random switching, noise and dropout are draws, not functions of the actions.
-    * A full reset (``reset()``, or a ``"_reset"`` mask of every episode) starts new tensors:
-      nothing of the previous episodes' graph is kept, so each episode backpropagates on its own.
-    * A partial reset gives the restarted episodes values that do not depend on their past
-      (gradient exactly 0); the others keep their graph. :meth:`cut_graph` cuts every
-      episode's history at the current instant (truncated windows).
-    * General ``(A, B)`` agents step on the device by products with their interval maps'
-      factors (built once on the host), so they are differentiable too.
-
-    Without a gradient (actions that do not require one, as from TorchRL's collectors) torch
-    records nothing, so there is no switch to turn it off: keeping the graph possible costs
-    no speed (measured with ``fxc speed``; docs: performance.md, "Performance").
+    With actions that require a gradient, the observations, the rewards and
+    ``episode_metrics(as_tensors=True)`` are in their autograd graph, exact; a full reset starts
+    new tensors, a partial reset cuts the restarted episodes' past, and :meth:`cut_graph` cuts
+    every episode's history at the current instant (docs: differentiable.md, "Differentiable
+    simulation").
 
     ## Rendering
     :meth:`render` returns the first ``min(B, 16)`` episodes' frames tiled, ``(H, W, 3)`` uint8

@@ -1,41 +1,10 @@
 """The training domain of a saved policy, and the check that an environment lies inside it.
 
-A learned policy acts well only where it was trained: the graphs it met, their size N, their
-switching, the schedule and budget K, the input limits and the measurement imperfections of its
-training environment. Far outside it may still run, silently and badly (docs: training.md, "Training
-learned policies"). Every policy file therefore records its **training domain**
-(:func:`training_domain`, computed from the training :class:`~fxc_env.config.EnvConfig`; the
-training back ends call only this function), and every loader refuses, naming each difference, an
-environment outside it unless the user passes ``allow_out_of_domain=True`` (``fxc evaluate`` and
-``fxc benchmark``: ``--allow-out-of-domain``), in which case an :class:`OutOfDomainWarning` names
-every difference (:func:`check_domain`).
-
-The record (plain JSON, :data:`DOMAIN_FORMAT`)::
-
-    graphs         the graphs trained on: family entries {"family": kind, "period": [lo, hi]
-                   (, "mean_in_degree": [lo, hi] for random)} (a family's draws, any labelling), or
-                   {"topology": name, "edges": [[[j, i], ...], ...]} (one fixed graph or switching set)
-    n_agents       [lo, hi]
-    switching      the switching rules met ("periodic", "random")
-    schedule       the schedule names met ("paper", "uniform", "custom")
-    n_intervals    [lo, hi]: the budget K
-    settling_time  [lo, hi] (s)
-    u_max          [lo, hi] of the input limits drawn, or null (no limit seen)
-    obs_noise      [lo, hi]
-    link_dropout   [lo, hi]
-    dim, action_mode, obs_mode, agent_model   for the record: checked as interface settings
-                   (:data:`fxc_env.policies.policy_files.CHECKED_SETTINGS`), refused or adapted there
-
-An environment is inside the domain when its N, K, T_s, limits, noise and dropout lie in the
-ranges, its schedule and switching rule were met, and each of its graphs is one the training
-graphs could be: a family entry covers a fixed graph whose union is a graph that family draws (a
-directed ring, path, star or complete graph in any labelling, or a random digraph whose in-degrees
-a mean in-degree of the trained range gives, with a switching period in the trained range) and a
-family of the same kind with ranges inside the trained ones; a fixed entry covers exactly its own
-graphs. Two differences are exact by construction and only warn: ``T_s`` for the double integrator
-with normalized observations and no input limit (time rescales away: every observation and plan
-is in units of the coming interval), and, outside this module, the gain networks' in-degree
-rescaling and a one-axis policy acting per axis (:mod:`fxc_env.policies.learned`).
+Every policy file records its training domain (:func:`training_domain`, plain JSON,
+:data:`DOMAIN_FORMAT`: graphs, N, switching, schedule, K, ``T_s``, limits, noise, dropout), and
+every loader refuses an environment outside it, naming each difference, unless the user passes
+``allow_out_of_domain=True`` (then an :class:`OutOfDomainWarning`; :func:`check_domain`). The
+record's fields and what lies inside: docs: training.md, "The training domain".
 """
 
 from __future__ import annotations

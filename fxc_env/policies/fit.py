@@ -233,30 +233,12 @@ def check_width(policy: Any, env: Any, source: Any) -> None:
 class SlotAdaptedPolicy:
     """A policy trained on ``W`` neighbour slots acting on an environment's observations of ``S`` slots.
 
-    The observation (docs: environment.md, "Observation"; :class:`fxc_env.config.layout.ObservationLayout`) is
-    rebuilt in the trained layout, row by row, and the policy (with any VecNormalize statistics
-    it records, which are per slot of the trained layout) acts on that:
-
-    * masked rows are ignored: set to zero (as the environment writes them anyway).
-    * an agent whose real rows all sit in the first ``W`` slots (always when ``S <= W``, and
-      when its in-degree is at most ``W``) gets the first ``W`` slots as they are, padded with
-      zero rows and mask 0 up to ``W``: exactly the observation an environment built with
-      ``obs_slots=W`` writes (rows are zero padded at the end, masked rows are zero), so the
-      action is the same bit for bit. This is the only case a fixed-width network (an MLP) meets:
-      :func:`load_learned_policy` refuses it for an environment whose in-degree exceeds ``W``.
-    * an agent with more than ``W`` real rows (gain-scheduled networks only, which are linear in
-      each row: ``alpha_i = sum_j G_j row_ij``) gets its ``d`` rows summed into ``W`` groups
-      of consecutive rows, each sum times ``(W + 1) / (d + 1)``, with all ``W`` mask entries 1:
-      the network acts as at in-degree ``W`` and its gains are rescaled from ``1/(W + 1)`` to
-      ``1/(d + 1)``, as the paper's controller (eq. 11, gains ``[[1, 1], [0, 1]] / (d_i + 1)``)
-      scales with the in-degree; for that controller the result is exact. It is an
-      extrapolation beyond the in-degrees the network was trained on (the loader warns, with a
-      :class:`PolicyAdaptedWarning`); VecNormalize statistics then normalise each group sum with
-      the statistics of the trained slot it is written into (no slot's statistics are borrowed
-      for another).
-    * an agent with at most ``W`` real rows of which some sit beyond slot ``W`` (link dropout
-      masks rows where they are) gets its real rows moved, in order, into the first slots.
-
+    The observation (:class:`fxc_env.config.layout.ObservationLayout`) is rebuilt in the trained
+    layout, row by row, and the policy (with any VecNormalize statistics it records) acts on
+    that: up to ``W`` real rows give exactly the ``obs_slots=W`` observation (the same action, bit
+    for bit); more than ``W`` (gain-scheduled networks only) are summed into ``W`` groups times
+    ``(W + 1) / (d + 1)``, as eq. 11's gains scale with the in-degree, and warn with a
+    :class:`PolicyAdaptedWarning` (docs: training.md, "Acting on other in-degrees").
     Args:
         policy: a policy on flat observations of the trained layout (``(..., trained.size)``).
         layout: the environment's observation layout (one axis of it for :class:`PerAxisPolicy`).

@@ -1,35 +1,10 @@
 """A gain-scheduled policy network for stable-baselines3: actions linear in the neighbour rows.
 
-A generic MLP copies the paper's controller only to about 0.1 %, and on slowly mixing graphs
-(rings) that is not enough: the velocity part of a plan is applied as ``a_v = s alpha_v / T``,
-so late in the schedule, where ``T`` is tiny, a small systematic error in ``alpha_v`` becomes
-a velocity mismatch that the deadline metric weighs by ``T_s / T``. The controllers of this
-field are linear in the measured differences with gains that depend on the situation, and
-so is this network (gain scheduling):
-
-    alpha_i = sum_j G(context_i)_j row_ij,    G_j a 2 x 2 matrix per neighbour slot j,
-
-where ``row_ij = [(x_j - x_i) / s_i, T (v_j - v_i) / s_i]`` and the context is what the
-observation holds besides the rows: the 0/1 mask, the clock and, with an input limit, the
-limit feature. The gain from a position row into the velocity plan is scaled by
-``T / T_s`` (the clock's second entry): a velocity change ``g (x_j - x_i) / T`` would grow
-without bound as the intervals shrink, while ``g (x_j - x_i) / T_s`` stays a fixed fraction
-of the disagreement, so small errors of that gain stay small (the paper's controller has
-no such term at all). A small MLP maps the context to the gains. The paper's controller (eq. 11)
-is the case ``G_j = [[1, 1], [0, 1]] / (d_i + 1)`` for every real slot, so the network can
-represent it exactly; it is equivariant to the scale of the rows (no bias), and padded slots
-(zero rows) contribute nothing. The value function is an ordinary MLP on the whole
-observation.
-
-The gains come per slot from a context that holds the whole mask, so the network is built
-for a number of slots ``W`` (the training ``obs_slots``); a saved one acts on any number of
-rows through :class:`fxc_env.policies.learned.SlotAdaptedPolicy`, which
-:func:`~fxc_env.policies.learned.load_learned_policy` wraps around it: an agent with at most
-``W`` rows meets exactly the ``W``-slot observation, one with ``d > W`` rows gets them summed
-into ``W`` groups times ``(W + 1) / (d + 1)`` (the network at in-degree ``W``, its gains
-rescaled to ``d`` as eq. 11's ``1 / (d_i + 1)``; exact for the paper's gains). One axis only (``dim = 1``); in the plane it acts per axis
-(:class:`fxc_env.policies.learned.PerAxisPolicy`).
-
+``alpha_i = sum_j G(context_i)_j row_ij`` with ``G_j`` a 2 x 2 matrix per neighbour slot j and the
+context the mask, clock and limit feature; the paper's controller (eq. 11) is
+``G_j = [[1, 1], [0, 1]] / (d_i + 1)``. One axis only (``dim = 1``); in the plane it acts per axis
+(:class:`fxc_env.policies.learned.PerAxisPolicy`). Why and how: docs: training.md, "The
+gain-scheduled network".
 Use it as ``policy: fxc_env.policies.gain_network.GainScheduledPolicy`` in the hyperparameter file.
 """
 

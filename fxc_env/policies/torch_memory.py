@@ -1,28 +1,10 @@
 """Actors with memory or messages for the torch back end (``fxc train --backend torch --policy-arch``).
 
-Three actor architectures share the policy file of :mod:`fxc_env.policies.torch_policy`:
-
-- ``mlp`` (the default): the mean action is an MLP of the agent's observation (memoryless).
-- ``gru`` (:class:`RecurrentActor`): a GRU cell reads the agent's own observations, one per
-  sampling instant, ``h_k = GRU(o_k, h_{k-1})``, and the mean is a **gain head**
-  ``mu_k = A(h_k) o_k + b(h_k)``, ``[A | b]`` an MLP of ``h_k``: linear in the current observation
-  given the memory, as every law of the project's table is linear in the rows given the clock (the
-  paper's eq. (11) in normalized units, the minimum-time law's ``G_k r_i``). The hidden state is reset
-  to zero wherever the observation's clock ``k/K`` is 0, i.e. at every episode start, also after a
-  partial reset: the reset is read off the observation, so training, the update's recomputation and
-  evaluation all reset the same way without being told where episodes begin. With
-  ``gru_input="schedule"`` the GRU reads only the mask, clock and input-limit entries and the head
-  is linear in the relative rows, ``mu_k = A(h_k) rows_k`` (no offset): a clock-scheduled gain with
-  memory, the structure of eq. (11) and of the minimum-time law (every agent with the same schedule
-  history applies the same gain, and the plan is zero at consensus).
-- ``gnn`` (:class:`MessagePassingActor`): each agent embeds its observation, ``e_i = act(W o_i)``,
-  then ``rounds`` rounds of messages along the current interval graph's edges ``j -> i``,
-  ``e_i <- act(U e_i + V sum_j e_j / (d_i + 1))`` (a scatter-add, ``torch.index_add_``), and the
-  same gain head reads ``e_i``. **A communication model beyond the paper's**: in the paper an agent
-  samples only its in-neighbours' states (relative positions and velocities); here it also
-  receives their embeddings, so after R rounds its action depends on observations up to R hops
-  upstream (states up to R + 1 hops). Opt-in only.
-
+Three actor architectures share the policy file of :mod:`fxc_env.policies.torch_policy`: ``mlp``
+(the default, memoryless), ``gru`` (:class:`RecurrentActor`, a GRU over the agent's own
+observations and a gain head) and ``gnn`` (:class:`MessagePassingActor`, ``rounds`` rounds of
+messages along the interval graph: a communication model beyond the paper's, opt-in). Docs:
+training.md, "Actors with memory or messages".
 Shapes: observations ``[..., obs_size]`` (float32), hidden states ``[..., gru_size]``, graphs as
 :mod:`fxc_env.engine.graph_tensors` gives them (``edge_index`` ``[..., 2, E]``, ``edge_mask``
 ``[..., E]``, :func:`interval_graph`).
