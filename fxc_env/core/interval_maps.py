@@ -1,29 +1,10 @@
 """The per-interval maps of a :class:`~fxc_env.core.linear.LinearModel`: steering plans in closed form.
 
-The model, its scaled frame and its notation are :mod:`fxc_env.core.linear`'s.
-
-Solving. A plan is solved in that frame:
-
-    ``deltahat = D^{-1} Delta``, ``y = L^{-1} S deltahat``, ``nu = S L^{-T} y = W^{-1} deltahat``,
-    ``lambda = D^{-1} nu / T``, ``u(T sigma) = B^T e^{Ahat^T (1 - sigma)} nu / T``,
-    ``energy = |y|^2 / T`` (never negative).
-
-``L^{-1}`` is formed once per interval by a triangular solve against the identity in the
-scaled frame (it is ``n x n`` and well conditioned, ``cond(L) = cond(W_b)^{1/2}``), and the
-scalings are folded into it, so a step for M agent-axes is two ``(M, n) @ (n, n)`` products
-(LAPACK's triangular solve on ``n x M`` right-hand sides is ~20x slower for n <= 4 and no
-more accurate at these condition numbers). ``G(T)`` and its inverse never appear.
-
-Accuracy. :attr:`IntervalMaps.scaled_condition` reports ``cond(W_b)`` per interval (about 14
-for the double integrator, 7.4e3 for a chain of order 4, whatever T). The change achieved by
-the computed input equals Delta up to ``~ cond(W_b) eps`` relative to ``max_i |Delta_i / D_i|``,
-i.e. normwise in the scaled frame. That is componentwise relative in natural units for plans
-of natural size (``|Delta_i| ~ h^{l_i}``); a plan that moves the position by O(1) within a
-tiny T forces inputs of order ``T^{-n}`` whose float64 rounding alone leaves absolute errors of
-order ``eps |Delta_0| h^{l_i - l_0}`` in component i of the achieved change (a property of the
-problem, not of the method: rounding the exact costate to float64 does the same).
-:meth:`IntervalMaps.steer` returns the plan ``F Z + Delta`` itself. A generic dense (A, B)
-has all levels 0 and gets ``D = I``: plain normalised time.
+The model, its scaled frame and its notation are :mod:`fxc_env.core.linear`'s. A plan is solved in
+that frame by two ``(M, n) @ (n, n)`` products per step; ``G(T)`` and its inverse never appear.
+:attr:`IntervalMaps.scaled_condition` reports ``cond(W_b)`` per interval (about 14 for the double
+integrator, 7.4e3 for a chain of order 4, whatever T), and the achieved change equals Delta up to
+``~ cond(W_b) eps`` in the scaled frame (docs: agent-models.md, "Solving in the scaled frame").
 """
 
 from __future__ import annotations

@@ -397,23 +397,13 @@ class EpisodeMetrics:
     the input limit ``u_max`` (mean over components; 0 without a limit).
     For ``dim > 1`` the predicted and achieved values are the first component.
 
-    How far from optimal (docs: optimality.md, "How far from optimal"): ``energy_bound`` is ``E*``, the least
-    energy any controller needs for exact consensus at ``T_s`` from this initial state (for
-    formations, of reaching the formation), and ``energy_ratio`` is ``energy / E*`` (NaN where
-    ``E* = 0``). ``settled_interval`` is the number of intervals after which ``D(t_k) / D(0)`` stayed
-    below :data:`SETTLED_TOLERANCE` (``inf`` if it is not below by now), to compare with
-    ``radius_bound``, the fewest intervals in which *any* law can be exact (the radius of the
-    episode's graph: one agent's information must reach every agent), and ``all_roots_bound``, the
-    fewest in which every agent can have heard from every root (a bound only for laws whose value
-    depends on every root, the paper's among them). Both are NaN for random switching, and above 2000
-    agents, where they are not computed. ``propagation_bound`` is a deprecated copy of
-    ``all_roots_bound``, kept for one release.
-    With measurement noise, ``noise_floor`` is the least expected ``D(T_s) / D(0)`` any controller
-    leaves (the least-squares floor, :func:`fxc_env.core.floors.noise_floor`); with an input limit,
-    ``input_floor`` is the least ``u_max`` (m/s²) for which any controller reaches exact consensus
-    (:func:`fxc_env.core.floors.input_floor`). Both are NaN when their setting is off, for agent
-    models other than the double integrator, and ``noise_floor`` also with random switching and
-    above 200 agents, where it is not computed.
+    How far from optimal (docs: optimality.md, "How far from optimal"): ``energy_bound`` is ``E*``
+    and ``energy_ratio`` is ``energy / E*`` (NaN where ``E* = 0``); ``settled_interval`` (below
+    :data:`SETTLED_TOLERANCE`) compares with ``radius_bound`` and ``all_roots_bound`` (NaN for
+    random switching and above 2000 agents; ``propagation_bound`` is its deprecated copy);
+    ``noise_floor`` (``D(T_s) / D(0)``) and ``input_floor`` (m/s²) are the floors of
+    :mod:`fxc_env.core.floors`, NaN when their setting is off, for other agent models, and
+    ``noise_floor`` also with random switching and above 200 agents.
     """
 
     final_position_spread: float

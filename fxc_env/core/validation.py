@@ -6,15 +6,10 @@ Each check returns the value in canonical form (``int``, ``float``, float64 arra
 The ``fxc`` command line prints exactly these as one-line usage errors (exit 2); any other
 exception is a bug and shows its traceback.
 
-Float64 ranges. The limits below keep every quantity of one step finite in float64 for any
-state the limits admit; they are derived from the largest term the exact step forms, the
-interval energy ``12 e_x^2 / T^3`` (docs: environment.md, "Exact dynamics"): with positions and velocities
-up to :data:`STATE_LIMIT` = 1e100 (so ``e_x <= 2e100``) and intervals no shorter than
-:data:`MIN_INTERVAL` = 1e-30 s, it is at most ``12 * 4e200 * 1e90 ~ 5e291``, which leaves
-a factor 1e16 below float64's 1.8e308 for growth within an episode and sums over agents.
-Times up to :data:`MAX_SETTLING_TIME` = 1e30 s keep ``T_s e_v`` and ``T v`` below 1e131.
-What an action can still do (a raw input of 1e300, say) is caught by the step itself,
-which refuses a non-finite result and leaves the state as it was.
+Float64 ranges. :data:`STATE_LIMIT` (1e100), :data:`MIN_INTERVAL` (1e-30 s) and
+:data:`MAX_SETTLING_TIME` (1e30 s) keep every quantity of one step finite in float64 for any
+state they admit; what an action can still do is caught by the step itself, which refuses a
+non-finite result and leaves the state as it was (docs: bad-input.md, "Float64 ranges").
 """
 
 from __future__ import annotations

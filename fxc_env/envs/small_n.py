@@ -1,20 +1,9 @@
 """The ParallelEnv's small-N path: one sampling interval of a few agents in Python floats.
 
-At N = 6 (``paper_fig1``) an interval is a few hundred floating-point operations, which the
-engine's numpy arrays spend mostly in per-call overhead (dozens of calls on arrays of six
-numbers). For few agents, :class:`SmallInterval` plays the engine's interval maps
-(:func:`fxc_env.core.dynamics.input_ends` and :func:`~fxc_env.core.dynamics.interval_increments`,
-plain arithmetic) on Python floats, and its observations operation for operation in the
-engine's order, so that every observation, input, state, energy and peak is bit for bit the
-engine's (``+ - * /`` round alike in Python and numpy).
-The two steps whose rounding numpy may do its own way are left to numpy on arrays of the
-engine's shapes: the disagreement's weighted sum ``[e_x, e_v] @ [1, T_s]`` (a fused
-multiply-add in BLAS) and the reward's logarithm. Every result is written back into the
-:class:`~fxc_env.engine.ConsensusEngine` at once (state, clock, graph, trackers), so the
-engine is up to date whenever anyone reads it; the state is read from it at every call, so
-code that sets the engine's state directly is followed (with the local scales measured at
-the instant, as the engine measures once per instant).
-
+For few agents, :class:`SmallInterval` plays the engine's interval maps
+(:func:`fxc_env.core.dynamics.input_ends`, :func:`~fxc_env.core.dynamics.interval_increments`)
+on Python floats, bit for bit the engine's, and writes every result back into the
+:class:`~fxc_env.engine.ConsensusEngine` at once (docs: performance.md, "The small-N path").
 It covers the double integrator's closed forms (paper eqs. 10-11) at ``dim = 1`` with
 periodic switching in lock step, without input limit, observation noise or link dropout,
 in either action and observation mode (:func:`applies`). An interval whose result could

@@ -198,11 +198,8 @@ def load_learned_policy(
     otherwise the same settings, acts on every axis alone (:class:`PerAxisPolicy`; it warns
     once, and says so in ``adaptation``).
 
-    **The training domain.** A policy file records where it was trained (graphs, N, switching,
-    schedule, K, T_s, limits, noise: :mod:`fxc_env.policies.domain`). An ``env`` outside it is
-    refused, naming every difference, unless ``allow_out_of_domain=True`` (``fxc evaluate`` and
-    ``fxc benchmark``: ``--allow-out-of-domain``); then an
-    :class:`~fxc_env.policies.domain.OutOfDomainWarning` names every difference.
+    An ``env`` outside the training domain the file records is refused, naming every difference,
+    unless ``allow_out_of_domain=True`` (docs: training.md, "The training domain").
 
     Raises ``FileNotFoundError`` naming ``policy`` when nothing is saved at ``path``, and
     :class:`~fxc_env.core.validation.ArgumentError` naming ``policy`` when the file is empty,

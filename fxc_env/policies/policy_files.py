@@ -7,23 +7,9 @@ runs code. :func:`read_sb3_zip` unpickles nothing: it reads the readable JSON (S
 readable fields of each pickled object next to it, e.g. ``observation_space``'s ``_shape``,
 ``low`` and ``high``, and ``policy_kwargs`` as plain JSON when it is), rebuilds one of the
 networks it knows (:data:`KNOWN_POLICIES`) and loads the weights with
-``torch.load(..., weights_only=True)``. What only a pickle would tell (the activation when
-``policy_kwargs`` names a class, VecNormalize statistics, the training environment) is written
-as plain JSON beside the weights by :func:`save_model`: the member :data:`METADATA_MEMBER`
-(docs: training.md, "Training learned policies"):
-
-    format         METADATA_FORMAT
-    algorithm      "PPO" or "SAC"
-    policy_class   "ActorCriticPolicy" (SB3's MlpPolicy for PPO), "GainScheduledPolicy",
-                   "GatedGainPolicy" (fxc_env.policies.gain_network) or "SACPolicy"
-    net_arch       SB3's net_arch (a list of widths, or {"pi": [...], "vf": [...]} / {"pi", "qf"})
-    activation     "tanh", "relu", "elu" or "leaky_relu"
-    features_extractor  "FlattenExtractor" (the only one rebuilt; absent means it)
-    observation    {"shape": [obs_size], "low": [...], "high": [...]}
-    action         {"shape": [action_size], "low": [...], "high": [...]}
-    normalization  null, or VecNormalize's {"mean", "var", "epsilon", "clip_obs"} (observations)
-    env            the training environment's settings (:func:`training_settings`)
-    domain         the training domain (:func:`fxc_env.policies.domain.training_domain`)
+``torch.load(..., weights_only=True)``. What only a pickle would tell is written as plain JSON
+beside the weights by :func:`save_model`: the member :data:`METADATA_MEMBER` (its fields: docs:
+training.md, "The metadata member").
 """
 
 from __future__ import annotations
