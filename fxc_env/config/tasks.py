@@ -1,18 +1,9 @@
 """Named, versioned tasks: the settings, evaluation seeds and budget K of a benchmark, frozen under one name.
 
 A task is what a results table cites: ``fxc/rings20-v1`` is the directed ring of N = 20
-agents with ``T_s = 20`` s, K = 200 sampling intervals and evaluation seeds 1000 .. 1019,
-whatever the defaults of the library become. Its settings never change; a change of
-settings is a new version (``-v2``), and the old one stays. The same names work in every
-front end (docs: tasks/index.md, "Named tasks")::
-
-    pettingzoo.make("parallel", "fxc/rings20-v1")              # the PettingZoo registry
-    fxc_env.parallel_env(**task_kwargs("fxc/rings20-v1"))      # the same environment
-    ConsensusTorchEnv(batch_size=64, **task_kwargs("rings20-v1"))  # TorchRL
-    python -m benchmarl.run algorithm=mappo task=fxc/rings20-v1  # BenchMARL (the [benchmarl] extra)
-    fxc evaluate --task rings20-v1 --policy reference
-
-The ``fxc/`` prefix (the environment's name in BenchMARL and PettingZoo) is optional.
+agents with ``T_s = 20`` s, K = 200 sampling intervals and evaluation seeds 1000 .. 1019.
+Its settings never change; a change of settings is a new version (``-v2``). The same names
+work in every front end, the ``fxc/`` prefix optional (docs: tasks/index.md, "Named tasks").
 """
 
 from __future__ import annotations

@@ -1,25 +1,11 @@
 """Topology families: a distribution over (switching) digraphs, drawn anew for every episode.
 
-A policy trained on one graph learns that graph. To learn consensus itself it must meet a
-new graph every episode: a :class:`TopologyFamily` draws one, a :class:`TopologyMixture`
-first picks a family by weight. Every draw is guaranteed to satisfy the paper's condition
-(Theorem 1 for a fixed graph, Theorem 2 for a period: the union of the period's graphs has a
-directed spanning tree), because each family builds a spanning union graph first and only
-then deals its edges to the ``m`` graphs of the period:
-
-| family     | union graph drawn                                                      | in-degree |
-|------------|------------------------------------------------------------------------|-----------|
-| ``ring``   | a directed cycle through the agents in a random order                  | 1         |
-| ``path``   | a directed path through the agents in a random order                   | 1         |
-| ``star``   | a random leader sends to every other agent                             | 1         |
-| ``complete`` | every agent receives from every other                                | N - 1     |
-| ``random`` | a random spanning tree plus random edges up to a mean in-degree drawn uniformly from ``mean_in_degree`` (:func:`fxc_env.core.graphs.random_topology`) | up to ceil(max mean) |
-
-The switching period ``m`` is drawn uniformly from ``period`` (both ends included); each
-edge of the union goes to one of the ``m`` graphs at random, so for ``m > 1`` usually no
-graph spans on its own and only their union does. Draws use only the generator passed in,
-so an episode's graphs are reproducible from its seed; :func:`edge_lists` turns a drawn
-topology into plain lists that ``make_topology`` accepts back (a replay as a fixed topology).
+A :class:`TopologyFamily` draws a new graph set every episode, a :class:`TopologyMixture` first
+picks a family by weight. Every draw satisfies the paper's condition (Theorem 1 for a fixed graph,
+Theorem 2 for a period) because each family builds a spanning union graph first and only then
+deals its edges to the ``m`` graphs of the period (the union graphs: docs: environment.md,
+"Topology families"). Draws use only the generator passed in; :func:`edge_lists` turns a drawn
+topology into plain lists that ``make_topology`` accepts back.
 """
 
 from __future__ import annotations

@@ -64,7 +64,7 @@ def noise_floor(topology: Topology, times: Any, sigma: Any, dim: int = 1) -> flo
         dim: the space dimension (noise is independent per axis).
 
     Returns:
-        ``E[D(T_s)]`` of the least-squares error (module docstring), in metres; divide by ``D(0)``
+        ``E[D(T_s)]`` of the least-squares error (docs: optimality.md, "The floors, derived"), in metres; divide by ``D(0)``
         for the relative floor. 0 for ``sigma = 0`` or a single agent; ``inf`` where the pooled
         rows cannot determine the disagreement (a graph without a spanning tree, or too few
         instants); NaN above :data:`NOISE_LIMIT` agents, where it is not computed.

@@ -174,7 +174,7 @@ class IntervalMaps:
         Returns ``z(s)`` of shape ``P + (..., n)`` and ``u(s)`` of shape ``P + (..., m)``, where
         ``(..., n)`` is the broadcast shape of ``Z`` and ``delta``: one batched matrix exponential
         per point, so meant for dense plots and tests. ``z(T_k) = F_k Z + delta`` up to the solve's
-        backward error (module docstring).
+        backward error (docs: agent-models.md, "Solving in the scaled frame").
         """
         k = self._index(k)
         z, d = self._pair(Z, delta)
@@ -199,7 +199,7 @@ class IntervalMaps:
     def _solve(self, k: int, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Scaled costate ``nu = W^{-1} D^{-1} delta`` and ``y = L^{-1} S D^{-1} delta``, both ``(..., n)``.
 
-        Rows times the interval's precomputed factors (module docstring, "Solving"): two
+        Rows times the interval's precomputed factors (docs: agent-models.md, "Solving in the scaled frame"): two
         ``(M, n) @ (n, n)`` products.
         """
         n = self.model.n_states

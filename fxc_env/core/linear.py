@@ -100,7 +100,7 @@ class LinearModel:
 
     Attributes:
         A: ``(n, n)`` read-only copy. B: ``(n, m)`` read-only copy.
-        levels: ``(n,)`` structural levels of the states (module docstring, "The scaled frame").
+        levels: ``(n,)`` structural levels of the states (docs: agent-models.md, "The scaled frame").
         time_scale: ``1 / rho`` in seconds with rho the spectral radius of A (``inf`` if rho = 0).
         growth_rate: the largest real part of A's eigenvalues in 1/s, or 0 for a model whose free
             motion does not grow exponentially (see :func:`check_horizon`).

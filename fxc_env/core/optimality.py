@@ -49,7 +49,7 @@ def energy_bound(x0: Any, v0: Any, settling_time: Any) -> np.ndarray:
     """``E*`` in m²/s³: the least energy ``sum_i int |u_i|^2 dt`` of any exact consensus at ``T_s``.
 
     Double-integrator agents (paper eq. 1). ``E* = sum_i (p_i - p̄)^T G(T_s)^{-1} (p_i - p̄)`` with
-    ``p_i = (x_i + T_s v_i, v_i)`` per axis (module docstring); reached by one affine input per agent
+    ``p_i = (x_i + T_s v_i, v_i)`` per axis (docs: optimality.md, "The bounds, derived"); reached by one affine input per agent
     that steers it to the mean of the free-motion predictions.
 
     Args:
@@ -194,7 +194,7 @@ def radius_bound(topology: Topology) -> int:
     ``min_r max_i dist(r -> i)`` over agents r, along the direction information flows (i receives
     from j: the edge ``j -> i``); for a switching period the time-respecting version: the fewest
     intervals K such that some agent's initial state has reached every agent by ``t_K`` through
-    ``G_0, G_1, ...`` from interval 0 (:func:`reach_intervals`). Module docstring: every law sees
+    ``G_0, G_1, ...`` from interval 0 (:func:`reach_intervals`). Every law sees
     relative measurements only, so one agent's information must reach all. A directed ring of N:
     ``N - 1``; a path: ``N - 1`` from its end; a star: 1; a binary tree: its depth.
 

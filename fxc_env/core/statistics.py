@@ -97,7 +97,7 @@ def bootstrap_replicates(
     reps: int = DEFAULT_REPS,
     seed: int = DEFAULT_BOOTSTRAP_SEED,
 ) -> np.ndarray:
-    """``(reps,)`` aggregates of two-level bootstrap resamples of the ``(R, S)`` ``scores`` (see the module).
+    """``(reps,)`` aggregates of two-level bootstrap resamples of the ``(R, S)`` ``scores`` (docs: results.md, "The aggregates and the bootstrap").
 
     Replicate b pools ``X[r_i, s_ij]`` for ``i < R``, ``j < S`` (seeds ``r_i`` drawn with
     replacement, then initial states ``s_ij`` within each) and applies ``aggregate`` along the

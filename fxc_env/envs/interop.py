@@ -1,19 +1,11 @@
 """fxc_env inside other RL libraries' PettingZoo wrappers: TorchRL.
 
-TorchRL's :class:`~torchrl.envs.libs.pettingzoo.PettingZooWrapper` stores every info entry
-as a tensor and builds its info spec from the infos of ``reset``. The environment's infos
-share the numeric keys ``t``, ``interval``, ``energy``, ``peak_u`` and ``saturated_fraction``
-at reset and at every step, but at the episode end each agent's info also carries
-``episode``, a nested dict of the episode's metrics (the environment's card, "Infos") that
-no tensor can hold. :class:`FlatEpisodeInfos` gives every info one flat schema: the step keys
-plus ``episode_<metric>`` for each metric, NaN until the step that ends the episode. It is a
-wrapper here, not an environment option, because the nested ``episode`` dict is the
-PettingZoo-side contract that other consumers read; only the tensor world needs the flat form.
-
-RLlib's PettingZoo wrapper lives with the RLlib trainer (``fxc_env.training.rllib_train``).
-For TorchRL at speed use the native batched environment instead,
-:class:`fxc_env.envs.torch_env.ConsensusTorchEnv` (thousands of times this wrapper's rate:
-docs: performance.md, "Performance").
+:class:`FlatEpisodeInfos` gives TorchRL's :class:`~torchrl.envs.libs.pettingzoo.PettingZooWrapper`,
+which stores every info entry as a tensor, one flat schema: the step keys plus
+``episode_<metric>`` for each metric of the nested ``episode`` dict, NaN until the step that ends
+the episode. RLlib's PettingZoo wrapper lives with the RLlib trainer
+(``fxc_env.training.rllib_train``). For TorchRL at speed use
+:class:`fxc_env.envs.torch_env.ConsensusTorchEnv` (docs: performance.md, "Performance").
 """
 
 from __future__ import annotations

@@ -1,18 +1,8 @@
 """Drawing: the environments' frames, the videos' frames and the directed graphs (matplotlib, headless).
 
-Frames are drawn on an Agg canvas without pyplot, so they work on machines without a display.
-A :class:`SceneRenderer` builds its figure and artists once and then only changes their data
-(line vertices, marker offsets, the visible arrows, the texts) from frame to frame; nothing is
-drawn, copied or recorded on the stepping path when ``render_mode`` is None.
-
-A frame shows the agents with the directed edges of the graph they use in the current interval
-(an arrow ``j -> i``: agent i receives from agent j), their trails, the clock ``t`` with the
-interval index k and the graph ``G_g``, and the relative disagreement ``D(t)/D(0)`` (docs: environment.md,
-"The environment"). In one dimension it plots position against time, the curves growing from left to
-right, with the current graph drawn on a circle beside it; in two or more dimensions it shows
-the plane of the first two axes. ``human`` mode shows the same frames in a pyplot window, which
-needs an interactive matplotlib backend: on a headless one (Agg, no display) matplotlib warns
-that it cannot show the figure and nothing appears.
+Frames are drawn on an Agg canvas without pyplot (no display needed). A :class:`SceneRenderer`
+builds its figure and artists once and then only changes their data; nothing is drawn on the
+stepping path when ``render_mode`` is None. What a frame shows: docs: video.md, "Video".
 """
 
 from __future__ import annotations

@@ -124,7 +124,7 @@ def _graph_entries(config: Any) -> list[dict[str, Any]]:
 def domain_differences(domain: Mapping[str, Any] | None, config: Any) -> list[tuple[str, str, str, bool]]:
     """``(field, trained, this environment, exact)`` for every way ``config`` lies outside ``domain``.
 
-    ``exact`` marks an extrapolation that is exact by construction (see the module): it warns
+    ``exact`` marks an extrapolation that is exact by construction (docs: training.md, "The training domain"): it warns
     but is not refused. A missing field (or a None domain) checks nothing.
     """
     if not domain:

@@ -51,7 +51,7 @@ class GainScheduledExtractor(nn.Module):
         lead = features.shape[:-1]
         rows = features[..., : self.rows_end].reshape(*lead, self.slots, 2, 1)
         gains = self.gains(features[..., self.rows_end :]).reshape(*lead, self.slots, 2, 2)
-        # The gain from position rows into the velocity plan is in units of T / T_s (see the module).
+        # The gain from position rows into the velocity plan is in units of T / T_s (docs: training.md, "The gain-scheduled network").
         scale = torch.ones_like(gains)
         scale[..., 1, 0] = features[..., self.rows_end + self.slots + 1, None]
         gains = gains * scale

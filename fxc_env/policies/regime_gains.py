@@ -6,25 +6,12 @@
 ``(K, 2, 2)`` tables: ``gains`` (a fixed graph) or ``switching_gains`` (the graph changes between
 intervals). Which one, the agent finds out from its own memory:
 
-**The probe.** For the first ``probes`` intervals both tables are zero: every agent coasts, so on
-a graph that does not change the relative state of every in-neighbour coasts too, and the rows it
-reads at ``t_{k+1}`` are, up to the positive local scale ``s_i``, the rows of ``t_k`` coasted:
-``(xi + eta, eta T_{k+2} / T_{k+1})`` in normalized units (``T_{k+1} / T_s`` is the clock's middle
-entry). An agent whose mask changes or whose rows are not the coasted rows (relative tolerance
-:data:`TOLERANCE`: rounding is 1e-16) has seen its in-neighbour set change: it switches to
-``switching_gains`` for the rest of the episode. With ``probes`` at least the switching period, each
-change of the period shows. An agent whose in-neighbours are the same in every graph of the period
-sees no change and keeps ``gains``: training simulates exactly this test
-(:mod:`fxc_env.training.agnostic`), so the tables are learned with it.
-
-The agent reads only its own rows, mask and clock, and its memory of them (the previous instant's
-rows, mask and interval, and its regime): no N, no graph, no spectrum. The memory is kept per
-leading index of the observations, so the policy is called with every agent's observation at once,
-``(..., N, obs_size)``, one instant after the other; an element whose clock reads ``k = 0`` starts a
-new episode there (partial resets included). A call that skips an instant, repeats one, or changes
-the leading shape mid-episode is refused by name. The table is linear in the rows, so it acts on
-every axis alike: any ``dim`` (the probe compares every axis' rows).
-
+For the first ``probes`` intervals both tables are zero and every agent coasts; an agent whose
+mask changes or whose rows are not the coasted rows (relative tolerance :data:`TOLERANCE`) has
+seen its in-neighbour set change and uses ``switching_gains`` for the rest of the episode. The
+policy is called with every agent's observation at once, ``(..., N, obs_size)``, one instant
+after the other (a call that skips or repeats an instant is refused by name); any ``dim``.
+The probe and the memory: docs: training.md, "The agnostic policy's probe".
 **File format** (``.npz``, read with ``allow_pickle=False``): ``gains`` and ``switching_gains``
 ``(K, 2, 2)`` float64, and ``header`` as a gain schedule's
 (:mod:`fxc_env.policies.interval_gains`) with ``format`` :data:`REGIME_FORMAT` and ``probes``.
@@ -155,7 +142,7 @@ def _changed(
     mask: np.ndarray,
     interval: np.ndarray,
 ) -> np.ndarray:
-    """Whether each agent's rows ``(..., slots, 2, dim)`` are not its previous rows coasted, up to scale (see the module)."""
+    """Whether each agent's rows ``(..., slots, 2, dim)`` are not its previous rows coasted, up to scale (docs: training.md, "The agnostic policy's probe")."""
     xi, eta = old_rows[..., 0, :], old_rows[..., 1, :]
     ratio = (interval / np.where(old_interval > 0, old_interval, 1.0))[..., None, None]
     coasted = np.stack([xi + eta, eta * ratio], axis=-2)
