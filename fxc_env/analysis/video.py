@@ -1,16 +1,9 @@
 """Videos of a whole run: GIF (Pillow) or MP4 (an installed ffmpeg), and a strip of frames as PNG.
 
-Frames come from the exact closed-form motion, not from the sampling instants alone: the
-state at a frame time ``t`` in ``[t_k, t_{k+1})`` is the interval's polynomial (the double
-integrator's cubic positions under the affine input of eq. 11, :func:`fxc_env.core.dynamics.state_inside`;
-its clipped form under ``u_max``; a general agent's matrix exponentials,
-:meth:`fxc_env.core.linear.IntervalMaps.state_inside`) evaluated at ``s = t - t_k``. The
-paper's intervals are very uneven (its schedule spends 12 s in the first one and fractions of a
-millisecond in the last ones), so frames are **uniform in time**: ``F = round(fps * seconds)``
-frames at ``t_f = T_s f / (F - 1)``, ``f = 0 .. F - 1``, the first at ``t = 0`` and the last at
-``T_s``; the trails join the states at the frame times and at every sampling instant, so the
-fast motion of the late, short intervals is in the curves even when no frame falls inside them.
-Each frame shows the graph of the interval its time lies in (docs: video.md, "Video").
+Frames come from the exact closed-form motion (the interval's polynomial, or its clipped or
+matrix-exponential form, at ``s = t - t_k``) and are **uniform in time**: ``F = round(fps *
+seconds)`` frames from ``t = 0`` to ``T_s``; the trails also pass through every sampling instant
+(docs: video.md, "Video").
 """
 
 from __future__ import annotations

@@ -1,20 +1,10 @@
 """The environment's arguments, declared once (docs: environment.md, "The environment").
 
-:func:`fxc_env.make_config` and every front end over it (the PettingZoo parallel and AEC
-environments, the SB3 ``ConsensusVecEnv``, the TorchRL ``ConsensusTorchEnv``) take the same
-keyword arguments. :data:`ENV_ARGUMENTS` states each one once: its name, its type (from
-:class:`EnvKwargs`), its default, the values it allows, a one-line help and its row of the
-environment card. From this table come
-
-* ``make_config``'s fallbacks (the ``[value]`` defaults a scenario may override) and its
-  checks of single values, through the helpers of :mod:`fxc_env.core.validation`
-  (:meth:`Argument.check`), so every message stays the helper's;
-* the ``fxc simulate`` / ``fxc evaluate`` environment flags (:mod:`fxc_env.config.flags`);
-* the Arguments table of every card (:func:`with_arguments_table`).
-
-Front ends take them as ``**kwargs: Unpack[EnvKwargs]`` (type checkers and IDEs see each one) and
-:func:`env_signature` writes their signature out for ``help()`` and ``inspect``;
-``tests/config/test_arguments.py`` checks both against this table (names, order, defaults, annotations).
+:func:`fxc_env.make_config` and every front end over it take the same keyword arguments.
+:data:`ENV_ARGUMENTS` states each one once (name, type from :class:`EnvKwargs`, default, allowed
+values, help, card row); ``make_config``'s fallbacks and checks, the ``fxc`` flags
+(:mod:`fxc_env.config.flags`) and every card's Arguments table (:func:`with_arguments_table`) come
+from it, and :func:`env_signature` writes the front ends' signatures out for ``help()``.
 """
 
 from __future__ import annotations

@@ -85,34 +85,14 @@ class ConsensusVecEnv(VecEnv):
     | rewards            | ``(num_envs,)``             | float32 (team reward repeated per agent) |
     | dones              | ``(num_envs,)``             | bool    |
 
-    Episodes share the clock and end together: terminated at ``T_s`` after K steps, or
-    truncated when ``max_cycles < K`` steps cut them. Then every sub-environment is done and
-    all episodes restart at once (auto-reset, as :class:`DummyVecEnv`). Infos are empty
-    dicts during an episode; at its end each carries ``terminal_observation`` (the last
-    observation before the reset), ``TimeLimit.truncated`` (True only for a ``max_cycles``
-    cut; the deadline is a termination) and ``episode_metrics`` (its episode's metrics, as
-    the parallel env's ``infos[agent]["episode"]``, each sub-environment its own copy). Per-agent energy and peak input of the last
-    step are in :attr:`last_outcome` (arrays ``(n_envs, N)``).
-
-    Seeding follows SB3: :meth:`seed` sets ``seed + i`` for sub-environment i, used at the
-    next :meth:`reset` only. Episode b reads the seed (and the :meth:`set_options` options,
-    ``x0``/``v0`` as in :meth:`ConsensusParallelEnv.reset`) of its first sub-environment
-    ``b * N``, so it draws its initial states from ``np.random.default_rng(seed + b * N)``
-    and replays exactly the episodes of a ``ConsensusParallelEnv`` reset with that seed;
-    later episodes continue that generator. Unseeded episodes use independent
-    nondeterministic generators, made at the first :meth:`reset`. :meth:`set_options`
-    checks the options it is given at once (the episode-first ones, which are read) and
-    refuses bad ones without storing anything.
-
-    All sub-environments share one environment: :meth:`get_attr`, :meth:`set_attr` and
-    :meth:`env_method` act on this object (falling back to :attr:`config` for reading), and
-    return one value per requested index. :meth:`set_attr` refuses what the config fixes
-    (``n_agents``, ``settling_time``, ... and the structure built from it); ``max_cycles``
-    is checked. :meth:`state` is the global state of every episode (``global_state`` as
-    in :class:`ConsensusParallelEnv`). ``render_mode="rgb_array"`` or ``"human"`` records the
-    first ``min(n_envs, 16)`` episodes: :meth:`render` tiles their frames into one picture,
-    :meth:`get_images` gives each sub-environment its episode's frame (docs: video.md, "Video").
-
+    Episodes share the clock and end together (terminated at ``T_s``, truncated by
+    ``max_cycles``) and restart at once (auto-reset, as :class:`DummyVecEnv`); at the end every
+    info carries ``terminal_observation``, ``TimeLimit.truncated`` and ``episode_metrics``.
+    :meth:`seed` sets ``seed + i`` for sub-environment i and episode b reads that of ``b * N``
+    (the episodes of a ``ConsensusParallelEnv`` reset with that seed). :meth:`get_attr`,
+    :meth:`set_attr` and :meth:`env_method` act on this one object (:meth:`set_attr` refuses what
+    the config fixes); :meth:`render` tiles the first ``min(n_envs, 16)`` episodes. Docs:
+    tutorials/sb3.md, "The VecEnv's contract".
     ## Arguments
     ``n_envs`` is positional, every other argument keyword-only; the environment's arguments
     are those of :class:`ConsensusParallelEnv` (``obs_format="flat"`` only). Defaults in
