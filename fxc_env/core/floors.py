@@ -5,6 +5,7 @@ Two settings of the environment change what is reachable at ``T_s``: measurement
 input limit (:func:`input_floor`, :func:`input_floor_bounds`, a linear programme over
 :data:`INPUT_FACETS` facets); each floor holds for every law (docs: optimality.md, "The floors,
 derived").
+
 Pure numpy/scipy: no environment, no torch.
 """
 

@@ -12,6 +12,7 @@ motion ``F(T) = e^{A T}``, realised by the minimum-energy input
 forms or inverts the badly conditioned ``G(T)``: each interval is worked in normalised time and a
 scaled state, ``w = D^{-1} z`` with ``D = h^levels``, ``h = min(T, 1 / rho(A))`` (docs:
 agent-models.md, "The scaled frame", derives it).
+
 Solving a plan over an interval in that frame: :mod:`fxc_env.core.interval_maps`.
 
 Layout: a per-axis state is the last axis ``(..., n)`` of an array whose leading dimensions

@@ -58,6 +58,7 @@ def spread(z: np.ndarray) -> np.ndarray:
     above that, in 2-D and 3-D, only the pairs that could beat a value already attained
     (farthest-point sweeps, ball filters with a 1e-9 margin, a k-d tree's branch and bound:
     exact, no tolerance; docs: performance.md, "The exact diameter").
+
     Non-finite entries make that episode NaN, as the all-pairs arithmetic does (a point
     with an infinite coordinate is NaN away from itself). Where squared distances would
     underflow or overflow (centred coordinates below about 1e-135 or above 1e150), the

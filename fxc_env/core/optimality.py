@@ -5,6 +5,7 @@ the all-roots bound for laws whose value depends on every root (paper Remark 1, 
 derivations: docs: optimality.md, "The bounds, derived"). :func:`settled_interval` reads, from a
 run's relative disagreements ``D(t_k)/D(0)``, the interval after which the error stayed below a
 tolerance.
+
 Pure numpy/scipy: no environment, no torch.
 """
 

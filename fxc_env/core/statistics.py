@@ -4,6 +4,7 @@ A score matrix ``X`` of shape ``(R, S)``: R training seeds (runs) by S initial s
 :func:`median`, :func:`iqm` (rliable's ``aggregate_iqm``) and :func:`stratified_bootstrap`
 (seeds, then initial states within each, resampled; percentile interval; Agarwal et al., NeurIPS
 2021) pool every run and episode (docs: results.md, "The aggregates and the bootstrap").
+
 Every function is batched over leading dimensions and takes scores as float64 arrays; ``inf``
 (a run that diverged) sorts as the largest score, NaN is refused.
 """

@@ -7,12 +7,9 @@
 - :class:`LinearAgents`: a general ``z' = A z + B u`` per axis (docs: agent-models.md, "Agent models and formations"): the
   action is a plan ``Delta`` and the input the minimum-energy one (:mod:`fxc_env.core.linear`).
 
-Every part maps ``(state, actions)`` at ``t_k`` to an :class:`Interval` (the state at
-``t_{k+1}``, the energy, peak and end values of the input) without touching the engine's
-state: on numpy the new state is written into the spare buffer ``out`` and adopted only
-once it is known to be finite (:meth:`~fxc_env.engine.backend.NumpyBackend.commit_if_finite`).
-States are ``(B, N, n, dim)``: component ``z[:, :, l]`` (position, velocity, ...) major,
-space axis last, the engine's one axis order.
+Every part maps ``(state, actions)`` at ``t_k`` to an :class:`Interval` without touching the
+engine's state (on numpy the new state goes into the spare buffer ``out``, adopted once finite).
+States are ``(B, N, n, dim)``, component major, space axis last.
 """
 
 from __future__ import annotations

@@ -3,15 +3,10 @@
 A backend owns what differs between the two: how arrays are made (dtype, device), how
 random numbers are drawn, how actions are checked, and how a bad step is reported.
 
-- :class:`NumpyBackend` refuses a bad step at once: :meth:`~NumpyBackend.commit_if_finite`
-  raises :class:`~fxc_env.core.validation.ArgumentError` before the new state is adopted, so
-  a refused step changes nothing (the interval is played into a spare buffer).
-- :class:`TorchBackend` never reads a value back to the host on the stepping path: a
-  non-finite action or result (or an episode stepped past ``T_s``) sets a per-episode flag
-  on the device, :attr:`TorchBackend.invalid`, read by :meth:`TorchBackend.raise_if_invalid`.
-
-Everything else the engine computes is written once against the Python array API
-(:mod:`fxc_env.core.arrays`, ``backend.xp``).
+:class:`NumpyBackend` refuses a bad step at once (:meth:`~NumpyBackend.commit_if_finite`, state
+unchanged); :class:`TorchBackend` never reads back to the host on the stepping path and sets a
+per-episode flag, :attr:`TorchBackend.invalid`, read by :meth:`TorchBackend.raise_if_invalid`.
+Everything else is written once against the array API (:mod:`fxc_env.core.arrays`, ``backend.xp``).
 """
 
 from __future__ import annotations

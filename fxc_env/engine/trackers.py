@@ -8,9 +8,8 @@ folds one :class:`~fxc_env.engine.agents.Interval` in; :meth:`EpisodeTrackers.ba
 turns them into the metrics (docs: benchmark.md, "Baselines and the deadline benchmark"), the
 predicted consensus value by :func:`fxc_env.core.linear.final_value` (Theorems 1-2).
 
-To add a metric: override or extend :meth:`EpisodeTrackers.extra_metrics` (it sees the
-trackers, whose :attr:`~EpisodeTrackers.z0` is every episode's initial state, and the
-engine's current state) and its columns join :meth:`~EpisodeTrackers.batch_metrics`.
+To add a metric: extend :meth:`EpisodeTrackers.extra_metrics`; its columns join
+:meth:`~EpisodeTrackers.batch_metrics`.
 """
 
 from __future__ import annotations

@@ -4,6 +4,7 @@ For few agents, :class:`SmallInterval` plays the engine's interval maps
 (:func:`fxc_env.core.dynamics.input_ends`, :func:`~fxc_env.core.dynamics.interval_increments`)
 on Python floats, bit for bit the engine's, and writes every result back into the
 :class:`~fxc_env.engine.ConsensusEngine` at once (docs: performance.md, "The small-N path").
+
 It covers the double integrator's closed forms (paper eqs. 10-11) at ``dim = 1`` with
 periodic switching in lock step, without input limit, observation noise or link dropout,
 in either action and observation mode (:func:`applies`). An interval whose result could

@@ -93,6 +93,7 @@ class ConsensusVecEnv(VecEnv):
     :meth:`set_attr` and :meth:`env_method` act on this one object (:meth:`set_attr` refuses what
     the config fixes); :meth:`render` tiles the first ``min(n_envs, 16)`` episodes. Docs:
     tutorials/sb3.md, "The VecEnv's contract".
+
     ## Arguments
     ``n_envs`` is positional, every other argument keyword-only; the environment's arguments
     are those of :class:`ConsensusParallelEnv` (``obs_format="flat"`` only). Defaults in

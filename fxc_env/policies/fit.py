@@ -239,6 +239,7 @@ class SlotAdaptedPolicy:
     for bit); more than ``W`` (gain-scheduled networks only) are summed into ``W`` groups times
     ``(W + 1) / (d + 1)``, as eq. 11's gains scale with the in-degree, and warn with a
     :class:`PolicyAdaptedWarning` (docs: training.md, "Acting on other in-degrees").
+
     Args:
         policy: a policy on flat observations of the trained layout (``(..., trained.size)``).
         layout: the environment's observation layout (one axis of it for :class:`PerAxisPolicy`).

@@ -5,6 +5,7 @@ context the mask, clock and limit feature; the paper's controller (eq. 11) is
 ``G_j = [[1, 1], [0, 1]] / (d_i + 1)``. One axis only (``dim = 1``); in the plane it acts per axis
 (:class:`fxc_env.policies.learned.PerAxisPolicy`). Why and how: docs: training.md, "The
 gain-scheduled network".
+
 Use it as ``policy: fxc_env.policies.gain_network.GainScheduledPolicy`` in the hyperparameter file.
 """
 

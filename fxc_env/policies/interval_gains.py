@@ -7,14 +7,11 @@ relative row
 
     r_i = (1 / (d_i + 1)) sum_{j in N_i} (z_j - z_i),    z = (x, v)    (normalized units: 1, T_{k+1}),
 
-and plans ``(alpha_x, alpha_v) = G_k r_i`` with ``k`` the interval index read off the clock
-(``k / K``, the observation's last clock entry) and ``G_k`` a learned ``(K, 2, 2)`` table in
-float64 (the units of the normalized observation and plan: ``alpha_x = a_x / s_i``,
-``alpha_v = T_{k+1} a_v / s_i``). The paper's controller (eq. 11) is the table
-``G_k = [[1, 1], [0, 1]]`` in these units (the coasting matrix ``P_k``, scaled); the minimum-time law (:mod:`fxc_env.baselines.minimum_time`) is another table, one factor
-per eigenvalue of ``(D + I)^{-1} L``. A table is tied to the graph's spectrum and to the schedule,
-``K`` and ``N`` it was learned on: its training domain (:mod:`fxc_env.policies.domain`), outside
-which it is refused by name unless ``allow_out_of_domain=True``.
+and plans ``(alpha_x, alpha_v) = G_k r_i`` with ``k`` read off the clock and ``G_k`` a learned
+``(K, 2, 2)`` float64 table in normalized units (``alpha_x = a_x / s_i``, ``alpha_v = T_{k+1} a_v /
+s_i``); the paper's controller (eq. 11) is ``G_k = [[1, 1], [0, 1]]``. A table is tied to the
+graph's spectrum, schedule, ``K`` and ``N``: outside its training domain it is refused by name
+unless ``allow_out_of_domain=True``.
 
 **File format** (``.npz``, read with ``allow_pickle=False``: nothing in it runs): ``gains``
 ``(K, 2, 2)`` float64 and ``header``, a JSON string: ``format`` (:data:`FORMAT`), ``name``,

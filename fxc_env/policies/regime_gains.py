@@ -12,6 +12,7 @@ seen its in-neighbour set change and uses ``switching_gains`` for the rest of th
 policy is called with every agent's observation at once, ``(..., N, obs_size)``, one instant
 after the other (a call that skips or repeats an instant is refused by name); any ``dim``.
 The probe and the memory: docs: training.md, "The agnostic policy's probe".
+
 **File format** (``.npz``, read with ``allow_pickle=False``): ``gains`` and ``switching_gains``
 ``(K, 2, 2)`` float64, and ``header`` as a gain schedule's
 (:mod:`fxc_env.policies.interval_gains`) with ``format`` :data:`REGIME_FORMAT` and ``probes``.

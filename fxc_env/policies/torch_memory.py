@@ -5,6 +5,7 @@ Three actor architectures share the policy file of :mod:`fxc_env.policies.torch_
 observations and a gain head) and ``gnn`` (:class:`MessagePassingActor`, ``rounds`` rounds of
 messages along the interval graph: a communication model beyond the paper's, opt-in). Docs:
 training.md, "Actors with memory or messages".
+
 Shapes: observations ``[..., obs_size]`` (float32), hidden states ``[..., gru_size]``, graphs as
 :mod:`fxc_env.engine.graph_tensors` gives them (``edge_index`` ``[..., 2, E]``, ``edge_mask``
 ``[..., E]``, :func:`interval_graph`).
