@@ -21,15 +21,10 @@ def episode_metrics_rows(engine: ConsensusEngine) -> list[dict[str, float | int]
     """Each episode's metrics as a plain dict of numbers, ``(B,)`` dicts.
 
     The keys are the fields of :class:`fxc_env.core.metrics.EpisodeMetrics`. Unlike
-    ``EpisodeMetrics.as_dict()`` (made for JSON), nothing is ``None``: a threshold never
-    reached stays ``inf``, and a metric that does not apply to the episode (``nan`` in
-    :meth:`ConsensusEngine.batch_metrics`: Theorem 2's ``predicted_*`` and the intervals bounds
-    (``radius_bound``, ``all_roots_bound``, ``propagation_bound``) with random switching, the bounds
-    above 2000 agents, ``energy_ratio`` where
-    ``E* = 0``) is left out. NaN never equals itself, so leaving it out keeps two identically
-    seeded runs' infos equal (PettingZoo's ``seed_test``) and replay buffers free of NaN
-    (Tianshou refuses NaN in its buffer). ``sampling_instants`` is an ``int``, every other
-    value a ``float``.
+    ``EpisodeMetrics.as_dict()`` (made for JSON), nothing is ``None``: a threshold never reached
+    stays ``inf``, and a metric that is ``nan`` in :meth:`ConsensusEngine.batch_metrics` (it does
+    not apply to the episode) is left out, so identically seeded runs give equal infos and replay
+    buffers stay free of NaN. ``sampling_instants`` is an ``int``, every other value a ``float``.
     """
     columns = engine.batch_metrics()
     names = [field.name for field in dataclasses.fields(EpisodeMetrics)]

@@ -146,14 +146,10 @@ class ConsensusTorchEnv(EnvBase):
     ``td["edge_index"][b, :, :td["n_edges"][b]]``.
 
     ## When a bad value is reported
-    Shapes are checked at once (they are known on the host). Values are not read on the
-    stepping path: a non-finite action or result, or a step past ``T_s``, sets a flag per
-    episode on the device, and with ``check_values=True`` the environment raises
+    Shapes are checked at once. A non-finite action or result, or a step past ``T_s``, sets a
+    flag per episode on the device; with ``check_values=True`` the environment raises
     :class:`fxc_env.core.validation.ArgumentError` (naming ``actions``) at the next reset or
-    episode end, once: the flags are then cleared, so the next reset starts clean episodes.
-    A ``"_reset"`` mask must be ``torch.bool`` of shape ``[B, 1]`` (or ``[B]``); any other is
-    refused (naming ``_reset``) before anything changes. On numpy (the PettingZoo and SB3
-    front ends) such a step is refused at once.
+    episode end, once. A ``"_reset"`` mask must be ``torch.bool`` of shape ``[B, 1]`` (or ``[B]``).
 
     ## Differentiable simulation
     With actions that require a gradient, the observations, the rewards and

@@ -24,8 +24,6 @@ from fxc_env.core.validation import ArgumentError
 DOMAIN_FORMAT = "fxc_env.policy_domain/1"
 #: Range fields: ``[lo, hi]`` in the record, the environment's value must lie inside.
 RANGE_FIELDS = ("n_agents", "n_intervals", "settling_time", "u_max", "obs_noise", "link_dropout")
-#: Set fields: the environment's value must be one the training met.
-SET_FIELDS = ("schedule", "switching")
 #: The keyword of :func:`fxc_env.make_config` behind each field, for messages.
 FIELD_KEYWORDS = {
     "graphs": "topology",
