@@ -2,7 +2,7 @@
 
 Layer 3 (above :mod:`fxc_env.config`): every environment front end (PettingZoo, the SB3 VecEnv,
 the TorchRL env) and the training loops drive one :class:`ConsensusEngine`, which wires named
-parts, one module each (the table in :mod:`fxc_env.engine.consensus_engine`).
+parts, one module each (docs: architecture.md, "Layers").
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ the other at the first partial reset; neither branches on the other's case.
 Both read the per-instant tables of :class:`InstantTables` (built once per engine): the
 interval lengths ``T_{k+1} = t_{k+1} - t_k`` of the schedule (paper Section 3), the clock
 features of the observation (``t_k / T_s, T_{k+1} / T_s, k / K``), and the factors that put
-a state component in position units (the environment card's Observation Space).
+a state component in position units (docs: agent-models.md, "Agent models and formations").
 """
 
 from __future__ import annotations

@@ -196,7 +196,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
         arguments = env_arguments(locals(), kwargs)
         check_render_mode(render_mode)
         check_max_cycles(max_cycles)
-        #: Whether infos carry the current graph's ``edge_index`` and ``edge_attr`` (Infos, Graph tensors).
+        #: Whether infos carry the current graph's ``edge_index`` and ``edge_attr`` (docs: graph-tensors.md, "Graph tensors").
         self.graph_tensors = GRAPH_TENSORS.check(graph_tensors)
         self.config: EnvConfig = make_config(**arguments)
         EzPickle.__init__(

@@ -397,7 +397,7 @@ class ConsensusTorchEnv(EnvBase):
         ``as_tensors=True``: only the metrics that depend on the actions (``relative_deadline_error``,
         ``energy``, ``peak_input``, the final spreads, the achieved final values, ``saturated_fraction``),
         as ``(B,)`` tensors on the device in the actions' autograd graph (no read off the device), for a
-        loss to backpropagate (card, "Differentiable simulation").
+        loss to backpropagate (docs: differentiable.md, "Differentiable simulation").
         """
         if not isinstance(as_tensors, bool | np.bool_):
             raise validation.ArgumentTypeError(f"as_tensors: expected True or False, got {as_tensors!r}")
