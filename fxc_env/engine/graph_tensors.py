@@ -3,19 +3,8 @@
 Agent i of episode b measures, on the interval after ``t_k``, every in-neighbour j of that
 episode's current graph ``G_{sigma(k)}`` (paper Section 2; ``sigma(k) = k mod m`` for periodic
 switching): one message ``j -> i`` per edge. :func:`graph_tensors` lists those edges in PyTorch
-Geometric's convention, batched first, on the engine's backend (numpy arrays, or torch tensors
-on the engine's device, no read off the device):
-
-==============  ================  ================================================================
-name            shape, dtype      meaning
-==============  ================  ================================================================
-``edge_index``  ``(B, 2, E)``     int64; row 0 the source j, row 1 the target i (i measures j),
-                                  agents numbered ``0 .. N-1`` within each episode
-``edge_mask``   ``(B, E)``        bool; True for an edge, False for padding (whose indices are ``N``)
-``n_edges``     ``(B,)``          int64; the edges of each episode: entries ``0 .. n_edges - 1``
-``edge_attr``   ``(B, E, F)``     the observation's row of that edge: ``z_j - z_i`` as agent i
-                                  observes it at ``t_k`` (``F = n dim``, see below)
-==============  ================  ================================================================
+Geometric's convention, batched first, on the engine's backend (no read off the device), as the
+fields of :class:`GraphTensors` (their shapes and dtypes).
 
 ``E`` is the largest edge count of any graph in the engine's graph table, or a given ``width``
 (:func:`edge_capacity`). Edges come first in each episode, sorted by target then source;
@@ -39,7 +28,7 @@ GRAPH_TENSOR_KEYS = ("edge_index", "edge_mask", "n_edges", "edge_attr")
 
 
 class GraphTensors(NamedTuple):
-    """Every episode's current graph as edge tensors (see the module docstring for shapes and meaning)."""
+    """Every episode's current graph as edge tensors, padded to ``E`` edges (the module says how)."""
 
     #: ``(B, 2, E)`` int64: row 0 source j, row 1 target i.
     edge_index: Any
