@@ -4,66 +4,33 @@ Law (after Yuan, Stan, Shi, Barahona & Gonçalves, "Decentralised minimum-time c
 Automatica 49(5), 2013, carried by the motions of :mod:`fxc_env.baselines.signalling`; docs: optimality.md,
 "Exact consensus without knowing the graph"):
 
-1. **A virtual iteration carried by motion.** Per axis, agent i holds the complex register
-   ``w_i = p_{i,x} + i T_s p_{i,v}`` (m) of its free-motion prediction ``p_i = (x_i + T_s v_i, v_i)``,
-   whose start it does not know absolutely; it tracks the change ``c_i(k) = w_i(k) - w_i(0)`` and
-   signals it as a deviation from coasting ``ε (Re c, Im c / T_s)``, which its in-neighbours read
-   exactly from their relative rows (the signalling law's step 1). Every agent runs
-   ``w <- W w``, ``W = D^{-1} A``: the mean of its in-neighbours' registers (its own weights only;
-   an agent with no in-neighbour keeps its value). ``w_i(k + 1)`` is known at instant k.
-2. **Its own recurrence.** Agent i's sequence ``w_i(0), w_i(1), …`` obeys the minimal polynomial of
-   ``W`` seen from i, ``q(λ) = (λ - 1) p(λ)``, degree ``≤ N`` (1 is a simple eigenvalue of ``W`` under a
-   directed spanning tree), so the differences ``Δw_i(k)`` obey ``p``; so do the ``2 dim`` real parts of
-   the register (position and velocity part of every axis: the same iteration on other initial values).
-   The agent finds the shortest recurrence shared by its channels: the smallest degree whose block Hankel
-   matrix of its own differences has a singular value below ``rank_tolerance`` times their norm; ``β``
-   spans its kernel. Then ``Σ_m β_m w_i(k + m) = p(1) w*`` for every k: the common limit
-   ``w* = ξᵀ w(0)`` (``ξ`` the left null vector of ``I - W``) is read off the latest window, where modes
-   the test may have missed have decayed most. With ``C = 2 dim`` independent channels
-   ``L = max_agents + ceil((max_agents + 1) / C) + 1`` values suffice (:func:`listening_values`; one
-   channel: Yuan et al.'s ``2 max_agents + 2``). When an agent's channels are dependent (every velocity
-   equal, or an affine function of the position: every agent with a nonconstant sequence sees it alike)
-   and its kernel is not backed by enough independent windows, it listens on to ``2 max_agents + 2``.
-3. **Pre-steering toward a settled iterate.** At instant ``k_a`` (:data:`DEFAULT_ANNOUNCE`) agent i picks an
-   aim ``a_i``: its iterate ``c_i(k_a + 1)`` weighted by how settled it looks (none when its latest changes
-   exceed :data:`RHO` of it, as on a ring, whose iterate wanders), on a ``2^-24`` m grid. The iteration holds
-   one interval while the deviation ``η (Re a, Im a / T_s)`` announces it; the grid lets every reader round to
-   the very aim chosen, so from then on the agent's deviation is the (closed-form) minimum-energy path from the
-   announcement to ``a_i`` at ``T_s`` plus the signal, and its readers subtract the path exactly. Where the
-   iterate settles fast (random digraphs) the agent is near the E*-optimal path by the time it knows the limit.
-4. **Steering once.** At instant ``L - 1`` (``t_L``; ``L - 2`` without the announcement) agent i knows
-   ``w* - w_i(0)``, the consensus point less its own prediction; over ``[t_L, T_s]`` it plays the
-   minimum-energy input to it from where it is (the signalling law's step 4). Energy without a pre-steer:
-   the least energy of one steer from ``t_L`` when ``ξ`` is uniform (a directed ring), more when it is not
-   (the target ``ξᵀ p`` is then not the mean of the predictions that ``E*`` steers to).
+1. **A virtual iteration carried by motion.** Per axis, agent i holds the register
+   ``w_i = p_{i,x} + i T_s p_{i,v}`` (m), signals its change ``c_i(k) = w_i(k) - w_i(0)`` as
+   ``ε (Re c, Im c / T_s)`` and runs ``w <- W w``, ``W = D^{-1} A`` (an agent with no in-neighbour keeps
+   its value).
+2. **Its own recurrence.** The differences ``Δw_i(k)`` obey ``p``, ``q(λ) = (λ - 1) p(λ)`` the minimal
+   polynomial of ``W`` seen from i; the agent finds the smallest degree whose block Hankel matrix of its own
+   differences (``C = 2 dim`` channels) has a singular value below ``rank_tolerance`` times their norm, ``β``
+   its kernel; then ``Σ_m β_m w_i(k + m) = p(1) w*``, ``w* = ξᵀ w(0)``, read off the latest window.
+   ``L = max_agents + ceil((max_agents + 1) / C) + 1`` values suffice (:func:`listening_values`), up to
+   ``2 max_agents + 2`` when its channels are dependent.
+3. **Pre-steering toward a settled iterate.** At instant ``k_a`` (:data:`DEFAULT_ANNOUNCE`) agent i announces
+   an aim ``a_i`` (its iterate weighted by how settled it looks, :data:`RHO`, on a ``2^-24`` m grid) and follows
+   the closed-form minimum-energy path to it, which its readers subtract exactly.
+4. **Steering once.** At instant ``L - 1`` agent i knows ``w* - w_i(0)`` and plays the minimum-energy input
+   to it over ``[t_L, T_s]``.
 
-``W = D^{-1} A`` rather than the lazy ``(D + I)^{-1} (A + I)``: both work (the recurrence is exact,
-periodicity does not matter), and on a ring ``D^{-1} A`` is a shift whose modes never decay, the
-best-conditioned case for the rank test.
-
-The agent reads only its own observation rows (its in-neighbours' relative states, their mask, the
-clock) and its memory: it is never given the graph, its spectrum or N. Its one prior is
-``max_agents``, an upper bound on N that sets the listening window; at ``max_agents = N = 20`` it
-listens 30 intervals and holds one (3.1 s of 20 at K = 200, uniform).
-
-Measured (K = 200, T_s = 20 s, uniform schedule, 20 seeds, medians of the relative deadline error and
-of energy / E*, :func:`fxc_env.baselines.graph_agnostic_goals.goal_table`): directed ring N = 20 2.9e-10 at
-1.95, N = 30 4.5e-10 at 2.79; random strongly connected N = 20 2.2e-9 at 1.35, N = 40 1.6e-10 at 1.26 (4.02
-with one steer from t_L = 6 s and no pre-steer); at ``max_agents = 2N`` the window doubles (ring N = 20:
-8.6e-10 at 4.14; random N = 40: 2.6e-10 at 1.29). docs: optimality.md, "Exact consensus without knowing the graph".
+It reads only its own observation rows and memory; its one prior is ``max_agents >= N``.
 
 - Source: Yuan et al. 2013 (the recurrence and the final-value formula), carried by this project's
   signalling through small motions.
 - Proven graph class: a fixed digraph with a directed spanning tree and at most ``max_agents`` agents,
-  ideal double-integrator agents, exact in exact arithmetic; in float64 the error is set by the
-  reading error (about ``1e-16 |z| / ε``) and the rank test. It agrees on ``ξᵀ p``, which is the
-  E*-optimal point only where ``ξ`` is uniform.
-- It refuses what it cannot honour, by name: switching topologies (no fixed recurrence), topology
-  families, ``u_max``, ``obs_noise``, ``link_dropout``, agent models other than the double
-  integrator, ``obs_mode='normalized'``, ``max_agents`` below the environment's N, K shorter than
-  ``2 max_agents + 1`` (the window when the register parts are dependent, and one interval to steer; one more
-  with the announcement, which is left out by default where K has no room for it), and ``announce_at``
-  outside the listening window.
+  ideal double-integrator agents, exact in exact arithmetic; it agrees on ``ξᵀ p``, the E*-optimal point
+  only where ``ξ`` is uniform.
+- It refuses what it cannot honour, by name: switching topologies, topology families, ``u_max``,
+  ``obs_noise``, ``link_dropout``, agent models other than the double integrator,
+  ``obs_mode='normalized'``, ``max_agents`` below the environment's N, K shorter than
+  ``2 max_agents + 1``, and ``announce_at`` outside the listening window.
 """
 
 from __future__ import annotations

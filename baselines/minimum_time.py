@@ -5,49 +5,25 @@ relative row ``r_i = (1/(d_i+1)) sum_{j in N_i} (z_j - z_i)``, ``z = (x, v)``, a
 
     z_i(t_{k+1}) = P_k z_i(t_k) + G_k r_i(t_k),    P_k = [[1, T_k], [0, 1]]  (coasting),
 
-which the minimum-energy input of paper Remark 1 realises exactly (the plan relative to coasting
-is ``(a_x, a_v) = G_k r_i``). The 2 x 2 gain ``G_k`` is the same for every agent and chosen by the
-clock from a schedule designed **offline** from the graph. With ``r = -Ŵ z``, ``Ŵ = (D + I)^{-1} L``,
-interval k acts on the mode of an eigenvalue ``mu'`` of ``Ŵ`` as ``P_k - mu' G_k``:
+realised exactly by the minimum-energy input of paper Remark 1. The 2 x 2 gain ``G_k`` is chosen by the
+clock from a schedule designed offline from the graph; interval k acts on the mode of an eigenvalue
+``mu'`` of ``Ŵ = (D + I)^{-1} L`` as ``P_k - mu' G_k``:
 
-- a real eigenvalue ``mu``: ``G_k = P_k / mu`` multiplies every mode by ``(1 - mu'/mu)``;
-- a complex pair ``mu, conj(mu)``: with ``R = [[a, -b], [b, a]]``, ``a = Re mu/|mu|^2``,
-  ``b = Im mu/|mu|^2``, two consecutive intervals ``G_k = R P_k`` and ``G_{k+1} = P_{k+1} R^T``
-  give ``P_{k+1} (I - mu' R^T)(I - mu' R) P_k = (1 - mu'/mu)(1 - mu'/conj(mu)) P_{k+1} P_k``
-  (``R + R^T = 2a I``, ``R^T R = I/|mu|^2``); here ``R`` is conjugated by ``diag(1, 1/T_{k+1})`` so
-  that its entries carry the units of a gain;
-- an eigenvalue whose largest Jordan block has size s repeats its factor s times: the minimal
-  polynomial decides, not the characteristic one (:func:`design_eigenvalues`; a path's N - 1
-  eigenvalues 1/2 form one block, so N - 1 factors; a binary tree's are 1/2 too but its blocks are
-  only as long as its depth, so depth factors: copying the parent each interval); ``mu = 0``, the
-  consensus mode, is never touched.
+- a real eigenvalue ``mu``: ``G_k = P_k / mu``;
+- a complex pair ``mu, conj(mu)``: ``G_k = R P_k``, ``G_{k+1} = P_{k+1} R^T``, ``R = [[a, -b], [b, a]]``,
+  ``a + ib = 1/mu`` (conjugated by ``diag(1, 1/T_{k+1})`` for a gain's units);
+- an eigenvalue whose largest Jordan block has size s: its factor s times (:func:`design_eigenvalues`).
 
-After these factors every disagreement mode is zero: a directed ring of N agrees after N - 1
-intervals. It is **minimum-time only where that count equals the graph's radius**
-(:func:`fxc_env.core.optimality.radius_bound`, the fewest intervals of any law): generically the
-count is N - 1, so only where N - 1 equals the radius (rings, paths), and on trees (depth = radius).
-Elsewhere it is bounded by, and on random digraphs well above, the all-roots bound, and the
-leader-follower law (:mod:`fxc_env.baselines.leader_follower`) is exact sooner. The factors run in Leja
-order (each next one kills the mode whose partial product is largest), so partial products stay
-small; afterwards the agents play the paper's plan (``G_k = P_k``, eq. 11), which holds consensus
-and damps the round-off left. The consensus value is the paper's, ``xi^T z(0)`` coasted (Theorem 1:
-every factor is a polynomial in ``Ŵ`` equal to 1 at 0). With fewer intervals K than the factors
-need, the design plays the subset with the smallest Jordan-aware modal score (:func:`budget_factors`),
-**warns** (``UserWarning`` naming ``n_intervals``) and reports the residual it leaves, computed from
-the matrix (:func:`design_residual`), as ``predicted_residual``; this project chose a warning over a
-refusal because a short budget is a benchmark setting, not a misuse.
+The factors run in Leja order; afterwards the agents play the paper's plan (``G_k = P_k``, eq. 11). With
+fewer intervals than factors it plays the subset of smallest modal score (:func:`budget_factors`), warns
+(``UserWarning`` naming ``n_intervals``) and reports :func:`design_residual` as ``predicted_residual``.
 
-- Source: this project (a deadbeat / finite-time "minimal polynomial" design in the spirit of
-  Sundaram & Hadjicostis 2007 and Kibangou 2012, on the sampled-data plan of the paper).
-- Proven graph class: a fixed digraph with a directed spanning tree, ideal agents (exact in exact
-  arithmetic after the factors; float64 round-off grows with the partial products, so large slow
-  rings lose digits).
-- It refuses what it cannot honour, by name: switching topologies and topology families (the design
-  needs the one graph), ``u_max``, ``obs_noise`` (unless ``allow_noise=True``: the error then grows
-  linearly with the noise, 2.2e-6 at sigma = 1e-6 on the ring of 20), ``link_dropout``,
-  ``switching='random'`` and agent models other than the double integrator.
-
-Its price is energy: the early factors of a slow graph move agents far (docs: optimality.md, "How far from optimal").
+- Source: this project (a deadbeat "minimal polynomial" design in the spirit of Sundaram & Hadjicostis 2007
+  and Kibangou 2012, on the sampled-data plan of the paper).
+- Proven graph class: a fixed digraph with a directed spanning tree, ideal agents (exact in exact arithmetic).
+- It refuses what it cannot honour, by name: switching topologies and topology families, ``u_max``,
+  ``obs_noise`` (unless ``allow_noise=True``), ``link_dropout``, ``switching='random'`` and agent models
+  other than the double integrator.
 """
 
 from __future__ import annotations

@@ -1,36 +1,15 @@
 """Train the shipped ``rings_scratch`` policy: a gain schedule for directed rings of 20, learned from scratch.
 
-The task is the shipped ``rings`` policy's (:mod:`fxc_env.training.rings`): directed rings of N = 20
-with a new labelling every episode, initial scales over two decades, K = 200 intervals of the
-paper's schedule (eq. 27), T_s = 20 s, plans in normalized units; the network is the same
-:class:`fxc_env.policies.interval_gains.IntervalGainPolicy` (each agent plans ``G_k r_i`` from its
-own aggregated relative row and the clock). Unlike ``rings`` nothing here is copied: no teacher, no
-demonstration, no spectrum. The table is learned by minimising the mean of ``log D(T_s)/D(0)`` over
-seeded episodes through the exact closed-form interval map of the plan
-(:func:`log_errors`: ``z_i(t_{k+1}) = P_k z_i + G_k r_i``, the
-minimum-energy input of Remark 1 realising it exactly), with L-BFGS, from a random start.
+The task and network are :mod:`fxc_env.training.rings`'s; nothing is copied (no teacher, no spectrum). L-BFGS
+minimises the mean ``log D(T_s)/D(0)`` over seeded episodes through the exact interval map (:func:`log_errors`)
+from a random start ``q_m ~ N(0, 1)`` (a real start is a saddle: the loss is even in each ``b_m``).
 
-**The parameterisation by factors.** A free ``(K, 2, 2)`` table stalls at a few 1e-3 (docs: results.md,
-"What learning reached"): the product of K non-commuting 2 x 2 maps has many poor local minima. Here
-the intervals go in pairs ``(2m, 2m + 1)`` and each pair holds one learned number ``q_m = a_m + i b_m``:
-in physical units ``G_{2m} = R_m P_{2m}`` and ``G_{2m+1} = P_{2m+1} R_m^T`` with
-``R_m = [[a_m, -b_m], [b_m, a_m]]`` and ``P_k = [[1, T_k], [0, 1]]`` (coasting). On a mode of
-eigenvalue mu of ``(D + I)^{-1} L`` the pair acts as ``P_{2m+1} (I - mu R_m^T)(I - mu R_m) P_{2m}``
-and ``(I - mu R^T)(I - mu R) = (1 - mu q)(1 - mu conj(q)) I``, so an episode multiplies every mode by
-the real polynomial ``prod_m (1 - mu q_m)(1 - mu conj(q_m))`` of degree K and coasts: learning moves
-its roots ``1 / q_m``. ``q_m = 1`` for every pair is the paper's controller (eq. 11), ``q_m = 0``
-coasting. The loss never reads the spectrum; it sees only simulated deadline errors. A real start
-(the paper's, or zero) is a saddle of the loss in ``b`` (the loss is even in each ``b_m``), so the
-start is random: ``q_m ~ N(0, 1)`` per component, from the training seed.
-
-Run (the shipped file; about a minute on one core, docs: results.md gives the wall time)::
-
-    .venv/bin/python -m fxc_env.training.rings_scratch --out fxc_env/pretrained/rings_scratch.npz
-
-``--free`` is the control experiment: the same start, loss and optimiser over the free table (docs: results.md,
-"What learning reached", for what it reaches). ``--quick`` trains for seconds (8 episodes, one L-BFGS step), for tests; ``--evaluate PATH`` only
-measures a saved table on held-out seeds (evaluation seeds 0 .., training episodes are drawn from
-seed ``2000 + seed``).
+**Factors.** Intervals go in pairs, each holding ``q_m = a_m + i b_m``: ``G_{2m} = R_m P_{2m}``,
+``G_{2m+1} = P_{2m+1} R_m^T``, ``R_m = [[a_m, -b_m], [b_m, a_m]]``, ``P_k = [[1, T_k], [0, 1]]``, so an
+episode multiplies every mode mu of ``(D + I)^{-1} L`` by ``prod_m (1 - mu q_m)(1 - mu conj(q_m))``;
+``q_m = 1`` is the paper's controller (eq. 11), ``q_m = 0`` coasting. ``--free`` learns the free table
+instead (the control). Training episodes are drawn from seed ``2000 + seed``, evaluation seeds from 0.
+Commands and results: (docs: results.md, "What learning reached").
 """
 
 from __future__ import annotations

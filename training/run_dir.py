@@ -2,40 +2,18 @@
 
     runs/<name>/config.json             the exact arguments and resolved hyperparameters (:meth:`RunDir.start`)
     runs/<name>/versions.json           Python and library versions (:func:`versions`)
-    runs/<name>/progress.csv            one row per rollout or iteration (:class:`Progress`; SB3's own
-                                        logger for sb3, :meth:`RunDir.sb3_logger`), SB3's column names;
-                                        a resumed run keeps the rows up to its checkpoint
+    runs/<name>/progress.csv            one row per rollout or iteration (:class:`Progress`; SB3's names)
     runs/<name>/events.out.tfevents.*   the same scalars for TensorBoard (sb3 and torch)
     runs/<name>/checkpoints/            one per save, named with its step count (:data:`CHECKPOINT_NAMES`)
     runs/<name>/training_curve.png      mean episode return against timesteps (:func:`write_training_curve`)
 
-A back end reads top to bottom with it: ``run = RunDir.of(args)``; ``run.resume_checkpoint(args.resume)``
-(the newest checkpoint, or None for a fresh run; ``--resume`` without one is refused);
-``run.start(record)`` for a fresh run; the loop inside ``run.progress(...)`` (one row a unit of
-work) and ``run.interruptible(unit, save)`` (Ctrl-C finishes the unit under way, saves a
-checkpoint and stops; a second Ctrl-C stops at once); ``run.finish(...)``.
+A back end: ``run = RunDir.of(args)``; ``run.resume_checkpoint(args.resume)``; ``run.start(record)``; the loop
+inside ``run.progress(...)`` and ``run.interruptible(unit, save)``; ``run.finish(...)``.
 
-**Resuming runs no code from the run directory** unless the user passes ``--trust-policy-file``
-(:data:`TRAIN_TRUST_HINT`; ``TrainArgs.trust_policy_file``), the flag ``fxc evaluate`` has. A run
-directory is only files, and anyone who could write one could have written any of them, so a
-checksum manifest kept inside it (sha256 of each file as it is written) would be rewritten
-together with the files it vouches for: it would catch a damaged file, not a crafted one. So
-instead every file a resume needs is *read* in a form that cannot run code:
-
-* ``config.json`` with ``json`` (nothing in it is imported or called: the model is rebuilt from
-  this run's hyperparameter file, not from the ``policy`` class it records);
-* an sb3 checkpoint ``.zip`` without unpickling its ``data``
-  (:func:`fxc_env.policies.policy_files.read_sb3_zip`, then the state dicts with
-  ``torch.load(..., weights_only=True)``: :func:`fxc_env.training.sb3_train.restore_checkpoint`),
-  and its VecNormalize statistics from the plain-JSON record written beside SB3's ``.pkl``;
-* a torch checkpoint ``.pt`` with ``torch.load(..., weights_only=True)``.
-
-What only unpickling can read is refused without the flag, naming it: an sb3 checkpoint of a
-network the safe reader does not rebuild (a custom policy class), VecNormalize statistics kept
-only as a ``.pkl`` (run directories written before the ``.json`` record), a torch checkpoint
-holding objects other than tensors and plain values, and every RLlib checkpoint (RLlib restores
-an algorithm by unpickling). With the flag, sb3 resumes with SB3's own loaders and torch with
-``weights_only=False``: only for run directories you made or trust.
+Resuming runs no code from the run directory unless the user passes ``--trust-policy-file``
+(:data:`TRAIN_TRUST_HINT`): ``config.json`` is read with ``json``, sb3 checkpoints without unpickling
+(:func:`fxc_env.policies.policy_files.read_sb3_zip`), torch ones with ``weights_only=True``; what only
+unpickling can read is refused without the flag, naming it (docs: training.md, "Training learned policies").
 """
 
 from __future__ import annotations
