@@ -1,25 +1,17 @@
 """Offline gain design from the graph: Laplacian spectra, the gain tests, and the ZOH map.
 
-The classical papers pick their gains from the Laplacian ``L = D - A`` of the (known)
-communication graph. This module does that once, before a run, for the designer: nothing
-here is available to an agent at run time, and nothing here is per agent. Dense linear
-algebra; meant for N up to a few hundred.
+Done once, before a run, by the designer who knows the graph (nothing here is available to an agent).
+For the linear law ``u = -g L (x + gamma v)``:
 
-For the linear law ``u = -g L (x + gamma v)`` (stacked over agents, one component):
+- **Continuous time** (Yu, Chen & Cao 2010, Theorem 1): consensus on a digraph with a directed spanning tree
+  iff ``gamma^2 > Im(mu)^2 / (Re(mu) |mu|^2)`` for every nonzero eigenvalue ``mu`` of ``g L``
+  (:func:`gain_test_bound`; decay rate :func:`continuous_decay_rate`).
+- **Sampled data with zero-order hold** at period h (Cao & Ren 2010): the one-sample map
+  ``[[I - h^2 g L / 2, h I - h^2 g gamma L / 2], [-h g L, I - h g gamma L]]`` (:func:`zoh_radius`) must have
+  spectral radius below one (over a switching period, the ordered product).
 
-- **Continuous time** (Yu, Chen & Cao 2010, Theorem 1): second-order consensus on a digraph
-  with a directed spanning tree holds iff every nonzero eigenvalue ``mu`` of ``g L`` makes
-  ``s^2 + gamma mu s + mu`` Hurwitz, i.e. ``gamma^2 > Im(mu)^2 / (Re(mu) |mu|^2)``
-  (:func:`gain_test_bound`). Its decay rate is the least ``-Re(s)`` over those roots
-  (:func:`continuous_decay_rate`).
-- **Sampled data with zero-order hold** at period h (Cao & Ren 2010): the exact one-sample map
-  of the disagreement is ``[[I - h^2 g L / 2, h I - h^2 g gamma L / 2], [-h g L, I - h g gamma L]]``
-  (:func:`zoh_radius`); consensus holds iff its spectral radius, over a switching period the
-  radius of the ordered product, is below one.
-
-Switching topologies: the exact ZOH test uses the product of the period's maps. A continuous
-law sees a graph that switches every (fine) sample, so its design uses the average Laplacian
-of the period, the graph it effectively sees (:func:`design_eigenvalues`).
+A continuous law on a switching period is designed on the period's average Laplacian
+(:func:`design_eigenvalues`).
 """
 
 from __future__ import annotations

@@ -1,37 +1,24 @@
 """A time-optimal law for a known graph: follow the centre, exact after exactly the radius.
 
-Law (docs: optimality.md, "How far from optimal"). The designer picks offline, from the graph, a **centre** r: an
-agent whose initial state reaches every agent soonest, in :func:`fxc_env.core.optimality.radius_bound`
-intervals (the graph's radius, the fewest intervals in which *any* law can be exact). The centre
-coasts. Every other agent i, on each interval k, lands on the coasted state of its parent ``p_k(i)``:
+Law (docs: optimality.md, "How far from optimal"). The designer picks offline a **centre** r attaining the
+graph's radius (:func:`fxc_env.core.optimality.radius_bound`, the fewest intervals of any exact law). The
+centre coasts; every other agent i, on each interval k, lands on the coasted state of its parent ``p_k(i)``:
 
     z_i(t_{k+1}) = P_k z_{p}(t_k),    P_k = [[1, T_k], [0, 1]]  (coasting),
 
-i.e. it plans the change ``(a_x, a_v) = P_k (z_p - z_i)`` relative to its own coasting, read from its
-own relative row of p (the minimum-energy input of paper Remark 1 realises it exactly). By induction
-an agent at time-respecting distance d from r is on the centre's coasted trajectory from ``t_d`` on,
-so every agent is after the radius: exact consensus at the centre's coasted state, after exactly
-:func:`~fxc_env.core.optimality.radius_bound` intervals, and not one sooner for a generic initial state.
+the plan ``(a_x, a_v) = P_k (z_p - z_i)`` read from its own relative row of p (paper Remark 1). The parents
+form a **time-respecting tree** from r: ``s(r) = 0``; an agent with ``s(i) > k`` follows its in-neighbour of
+``G_k`` with the smallest ``s(j)`` (ties: the smaller index) and is synchronised at ``t_{k+1}`` when
+``s(j) <= k``; a synchronised agent, or one with no in-neighbour in ``G_k``, coasts. Exact consensus at the
+centre's coasted state after exactly the radius.
 
-The parents form a **time-respecting tree** from r, one per interval: ``s(r) = 0``; an agent that is
-not yet on the centre's trajectory at ``t_k`` (``s(i) > k``) follows, on interval k, its in-neighbour of
-``G_k`` with the smallest ``s(j)`` (ties: the smaller index), and is on it at ``t_{k+1}`` when
-``s(j) <= k``; an agent already on it coasts (landing on a synchronised parent is coasting). On a fixed
-graph this is the shortest-path tree from r and every agent follows its parent on every interval until
-it is synchronised, then coasts; on a switching period ``G_0, G_1, ...`` the parents change with the
-graph. An agent with no in-neighbour in ``G_k`` coasts.
-
-- Source: this project (leader-follower consensus with an offline shortest-path tree; a dead-beat
-  copy of the parent on the paper's sampled-data plan).
+- Source: this project (leader-follower consensus with an offline shortest-path tree).
 - Proven graph class: fixed digraphs with a directed spanning tree and periodic switching whose joint
   graph spans (the time-respecting radius), ideal double-integrator agents.
-- It refuses what it cannot honour, by name: topology families (the design needs the graph),
-  ``switching='random'``, ``u_max``, ``obs_noise``, ``link_dropout`` and other agent models.
+- It refuses what it cannot honour, by name: topology families, ``switching='random'``, ``u_max``,
+  ``obs_noise``, ``link_dropout`` and other agent models.
 
-The law knows which agent it acts for (the tree is per agent), so it is called with every agent's
-observation at once, ``(..., N, obs_size)`` in agent order, as the benchmark and ``simulate`` do. Its
-price is energy: it ignores E*'s mean and drags every agent to the centre's coasted state over short
-intervals (docs: optimality.md, "How far from optimal").
+The tree is per agent, so it is called with every agent's observation at once, ``(..., N, obs_size)``.
 """
 
 from __future__ import annotations

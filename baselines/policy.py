@@ -1,19 +1,11 @@
 """What every baseline shares: reading the local observation and holding an input.
 
-A baseline is a policy in the sense of :class:`fxc_env.ReferencePolicy`: it is built from an
-environment (parallel, AEC, VecEnv) or an :class:`~fxc_env.EnvConfig`, and maps observations
-``(..., obs_size)`` to actions ``(..., 2 dim)`` in one vectorised call. It reads only
-
-- the observation: the rows ``[x_j - x_i, v_j - v_i]`` of agent i's in-neighbours at ``t_k``,
-  their 0/1 mask and the clock ``t_k / T_s``, ``T_{k+1} / T_s``, ``k / K`` (the env card's Observation Space);
-- the environment's settings (``T_s``, the modes, the layout, ``dim``).
-
-Gains that the papers choose from the graph (a Laplacian eigenvalue bound, say) are chosen
-once, offline, by the designer who knows the topology, as the paper's schedule is; they are
-the same for every agent and carry no run-time information (see :mod:`fxc_env.baselines.design`).
-
-Every baseline acts in ``accel`` mode with a zero-order hold: the input it computes at ``t_k``
-is held until ``t_{k+1}``, so the action is ``(u, u)``.
+A baseline is built from an environment (parallel, AEC, VecEnv) or an :class:`~fxc_env.EnvConfig` and maps
+observations ``(..., obs_size)`` to actions ``(..., 2 dim)`` in one vectorised call. It reads only the
+observation (its in-neighbours' rows ``[x_j - x_i, v_j - v_i]`` at ``t_k``, their mask, the clock) and the
+environment's settings; gains the papers choose from the graph are chosen once, offline
+(:mod:`fxc_env.baselines.design`). The classical laws act in ``accel`` mode with a zero-order hold: the
+action is ``(u, u)``.
 """
 
 from __future__ import annotations

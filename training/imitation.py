@@ -1,18 +1,11 @@
 """A warm start for PPO: the policy first imitates an analytic law (the paper's controller by default), then PPO improves on it.
 
-The reference (eq. 11) is a known good policy, and a network that copies it to within a
-few per cent already contracts the disagreement almost as fast: in normalized units an
-action error of relative size eps turns the per-interval contraction rho into about
-rho + eps, so over K = 200 intervals it costs about a decade, not the deadline. PPO from
-scratch needs most of its budget to get there; behaviour cloning gets there in a minute, and
-PPO then spends its budget where the reference is not optimal (energy, input limits).
-
-:func:`imitate_reference` rolls the reference out on the run's own VecEnv (with Gaussian
-noise on the executed actions, so states off the reference's path are covered, and labels
-that are always the clean reference action), regresses the policy's mean on those labels
-and its value function on the discounted returns, and sets the policy's log standard
-deviation. It is configured by the ``imitation`` entry of the hyperparameter file and runs
-once, when a run starts (never on ``--resume``); the run's ``config.json`` records it.
+A network that copies the reference (eq. 11) to within a few per cent already contracts the disagreement
+almost as fast (an action error eps turns the per-interval contraction rho into about rho + eps).
+:func:`imitate_reference` rolls the reference out on the run's own VecEnv (Gaussian noise on the executed
+actions, clean labels), regresses the policy's mean on the labels and its value function on the discounted
+returns, and sets the log standard deviation. Configured by the ``imitation`` entry of the hyperparameter
+file; runs once when a run starts (never on ``--resume``).
 """
 
 from __future__ import annotations

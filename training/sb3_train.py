@@ -1,19 +1,11 @@
 """``fxc train`` (``--backend sb3``, the default): PPO or SAC (stable-baselines3) on :class:`fxc_env.ConsensusVecEnv`.
 
-One policy is shared by every agent (parameter sharing): each agent of each parallel
-episode is one SB3 sub-environment. Read top to bottom: the environment and the model, the
-checkpoints, then :func:`train_sb3` (arguments, set-up, the loop, the final files). The run
-directory is :mod:`fxc_env.training.run_dir`'s (config.json, versions.json, progress.csv and
-TensorBoard events from SB3's logger, training_curve.png), plus:
+One policy shared by every agent: each agent of each parallel episode is one SB3 sub-environment. The run
+directory is :mod:`fxc_env.training.run_dir`'s, plus:
 
     runs/<name>/checkpoints/model_<steps>_steps.zip  policy, optimiser and step count (SB3's ``save``),
-                                                     VecNormalize statistics beside it when used: SB3's
-                                                     ``.pkl`` and the ``.json`` record ``--resume`` reads
+                                                     VecNormalize statistics beside it (``.pkl`` and ``.json``)
     runs/<name>/model.zip                            the final policy (+ vecnormalize.pkl)
-
-``--backend rllib`` trains PPO in Ray RLlib instead (:mod:`fxc_env.training.rllib_train`),
-``--backend torch`` a lean PPO loop on the batched engine (:mod:`fxc_env.training.torch_ppo`);
-:func:`fxc_env.training.backends.train` picks one.
 """
 
 from __future__ import annotations

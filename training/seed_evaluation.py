@@ -1,18 +1,9 @@
 """``fxc evaluate --runs``: one policy trained with several seeds, scored with confidence intervals.
 
-Each run (a training seed) plays the suite's seeded initial states next to the reference, as
-``fxc evaluate --policy`` does; per case the deadline errors form a ``(R, S)`` matrix (R
-training seeds by S initial states) and :mod:`fxc_env.core.statistics` gives
-
-* the **median** of ``D(T_s)/D(0)`` over all seeds and initial states, and
-* the **IQM** (interquartile mean) of ``log10(max(D(T_s)/D(0), 1e-12))``, the benchmark's log
-  column in decades,
-
-each with a 95 % stratified bootstrap interval (training seeds resampled, then initial states
-within each; a fixed bootstrap seed, so the same scores give the same interval). The reference
-is one deterministic law: its interval resamples initial states only (R = 1).
-
-The scores and the files written (``seeds.md``, ``seeds.json``, ``marl_eval.json``) are
+Each run (a training seed) plays the suite's seeded initial states next to the reference; per case the
+deadline errors form a ``(R, S)`` matrix and :mod:`fxc_env.core.statistics` gives the **median** of
+``D(T_s)/D(0)`` and the **IQM** of ``log10(max(D(T_s)/D(0), 1e-12))``, each with a 95 % stratified bootstrap
+interval (fixed bootstrap seed; the reference resamples initial states only). The scores and files are
 :mod:`fxc_env.training.seed_scores`'s.
 """
 
