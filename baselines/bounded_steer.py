@@ -19,19 +19,16 @@ Law (docs: results.md, "Beat-the-best under noise and limits"):
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 from scipy.sparse import csgraph
 
-from fxc_env.baselines.policy import describe_law
-from fxc_env.baselines.signalling import (
+from fxc_env.baselines.motion_signals import (
+    SignalPolicy,
     advance,
-    current_instant,
     deviation_of,
     initial_offset,
-    plan_action,
     predicted_register,
     read_deviation,
     refuse_unless_exact_raw_rows,
@@ -109,7 +106,7 @@ def least_peak_inputs(need_x: np.ndarray, need_v: np.ndarray, times: np.ndarray,
     return np.where(np.isfinite(best_u)[..., None], inputs, 0.0)
 
 
-class BoundedSteerPolicy:
+class BoundedSteerPolicy(SignalPolicy):
     """The gathering law with the least-peak steer, on raw rows, ``plan`` or ``accel`` actions.
 
     It has memory, so it is called with **every agent's** observation at once, ``(..., N, obs_size)`` in agent
@@ -127,6 +124,7 @@ class BoundedSteerPolicy:
     """
 
     NAME: ClassVar[str] = "bounded_steer"
+    TITLE: ClassVar[str] = "the bounded-steer law"
     LAW: ClassVar[str] = (
         "flood every relative prediction by small motions (offline schedule), agree on the mid-range point, "
         "then the least-peak (bang-bang, one switch) piecewise-constant steer to it"
@@ -160,21 +158,6 @@ class BoundedSteerPolicy:
         self._memory: dict[str, np.ndarray] | None = None
         self._next_instant = 0
 
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Actions ``(..., N, 2 dim)`` for every agent's observation ``(..., N, obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""
-        obs = np.asarray(obs, dtype=np.float64)
-        memory = None if self._memory is None else self._memory["d"].shape[:-2]
-        k, rows = current_instant(obs, self.config, "the bounded-steer law", self._next_instant, memory)
-        if k == 0:
-            self._reset(rows, obs.shape[:-1])
-        plan = self._plan(k, rows)
-        self._next_instant = k + 1
-        return plan_action(plan, self.config, self._intervals[k])
-
     def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:
         n, dim = self.config.n_agents, self.config.dim
         base = initial_offset(rows, self._times[0])  # (..., N, slots, 2, dim): z_j(0) - z_i(0)
@@ -187,7 +170,7 @@ class BoundedSteerPolicy:
         self._memory = {"base": base, "offsets": offsets, "known": known, "d": np.zeros((*lead, 2, dim))}
         self._memory["inputs"] = np.zeros((*lead, dim, self.config.n_intervals - self.steer_at))
 
-    def _plan(self, k: int, rows: np.ndarray) -> np.ndarray:
+    def _plan(self, k: int, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
         """The plan ``(..., N, 2, dim)`` of every agent at instant k; updates the memory."""
         memory = self._memory
         assert memory is not None
@@ -229,10 +212,6 @@ class BoundedSteerPolicy:
     def parameters(self) -> dict[str, float]:
         """The design: the gathering's length and the amplitude."""
         return {"gathering_intervals": float(self.steer_at), "amplitude": self.amplitude}
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def guarantee(self) -> str:
         return (

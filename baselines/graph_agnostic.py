@@ -35,17 +35,15 @@ It reads only its own observation rows and memory; its one prior is ``max_agents
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 
 from fxc_env.baselines.motion_signals import (
+    SignalPolicy,
     advance,
-    current_instant,
     deviation_of,
     initial_offset,
-    plan_action,
     predicted_register,
     read_deviation,
     refuse_unless_exact_raw_rows,
@@ -53,7 +51,6 @@ from fxc_env.baselines.motion_signals import (
     signal_plan,
     steer_plan,
 )
-from fxc_env.baselines.policy import describe_law
 from fxc_env.config import config_of
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
@@ -202,7 +199,7 @@ def recurrence_limit(
     return limits, degrees, certified
 
 
-class GraphAgnosticPolicy:
+class GraphAgnosticPolicy(SignalPolicy):
     """The graph-agnostic law on the local observation, raw rows, ``plan`` or ``accel`` actions.
 
     Like :class:`~fxc_env.baselines.SignallingPolicy` the law has memory, so it is called with **every
@@ -226,6 +223,7 @@ class GraphAgnosticPolicy:
     """
 
     NAME: ClassVar[str] = "graph_agnostic"
+    TITLE: ClassVar[str] = "the graph-agnostic law"
     LAW: ClassVar[str] = (
         "virtual iteration w <- D⁻¹A w on registers w_i = p_i, carried at amplitude ε by motions read from own rows; "
         "each agent's shortest recurrence of its own differences (block Hankel rank test over its register parts, "
@@ -290,23 +288,7 @@ class GraphAgnosticPolicy:
         self.degrees: np.ndarray | None = None
 
     # ----------------------------------------------------------------------------- acting
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Actions ``(..., N, 2 dim)`` for every agent's observation ``(..., N, obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""
-        obs = np.asarray(obs, dtype=np.float64)
-        memory = None if self._memory is None else self._memory["d"].shape[:-2]
-        k, rows = current_instant(obs, self.config, "the graph-agnostic law", self._next_instant, memory)
-        _, mask, _ = self.layout.split(obs)
-        if k == 0:
-            self._reset(obs.shape[:-1])
-        plan = self._plan(k, rows, mask)
-        self._next_instant = k + 1
-        return plan_action(plan, self.config, self._intervals[k])
-
-    def _reset(self, lead: tuple[int, ...]) -> None:
+    def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:
         dim, slots = self.config.dim, self.layout.slots
         self._memory = {
             "base": np.zeros((*lead, slots, 2, dim)),  # z_j(0) - z_i(0) per row slot
@@ -324,8 +306,9 @@ class GraphAgnosticPolicy:
         """The index n of the value ``c_j(n)`` the rows carry at instant k (one less after the held interval)."""
         return k if self.announce_at is None or k <= self.announce_at else k - 1
 
-    def _plan(self, k: int, rows: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    def _plan(self, k: int, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
         """The plan ``(a_x, a_v)`` ``(..., N, 2, dim)`` of every agent at instant k; updates the memory."""
+        _, mask, _ = self.layout.split(obs)
         memory = self._memory
         assert memory is not None
         T_s, eps, k_a = self.config.settling_time, self.amplitude, self.announce_at
@@ -409,10 +392,6 @@ class GraphAgnosticPolicy:
             "amplitude": self.amplitude,
             "rank_tolerance": self.rank_tolerance,
         }
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def guarantee(self) -> str:
         t_l = self._times[self.steer_at]

@@ -23,15 +23,14 @@ The tree is per agent, so it is called with every agent's observation at once, `
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 
 from fxc_env.baselines.minimum_time import refuse_what_a_graph_design_cannot_honour
-from fxc_env.baselines.policy import describe_law
+from fxc_env.baselines.motion_signals import plan_action
+from fxc_env.baselines.policy import LawPolicy
 from fxc_env.config import config_of
-from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.graphs import Topology
 from fxc_env.core.optimality import radius_centre, reach_intervals
 from fxc_env.core.validation import ArgumentError
@@ -65,7 +64,7 @@ def follower_slots(topology: Topology, centre: int) -> np.ndarray:
     return np.stack(rows).astype(np.int64)
 
 
-class LeaderFollowerPolicy:
+class LeaderFollowerPolicy(LawPolicy):
     """The leader-follower law on the local observation, every ``action_mode`` and ``obs_mode``.
 
     Args:
@@ -112,10 +111,6 @@ class LeaderFollowerPolicy:
         self.slots = follower_slots(topology, self.centre)
         self._intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
 
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Actions ``(..., N, 2 dim)`` for every agent's observation ``(..., N, obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Plans (``plan`` mode) or end inputs (``accel``) from every agent's flat observation ``(..., N, obs_size)``."""
         c = self.config
@@ -134,18 +129,11 @@ class LeaderFollowerPolicy:
         # Raw rows: a_x = dx + T_k dv, a_v = dv. Normalized rows dx/s, T_k dv/s and plans a_x/s, T_k a_v/s:
         # alpha_x = rho_x + rho_v, alpha_v = rho_v.
         interval = 1.0 if c.obs_mode == "normalized" else self._intervals[k][..., None]
-        plan_x, plan_v = dx + interval * dv, dv
-        if c.action_mode == "plan":
-            return np.concatenate([plan_x, plan_v], axis=-1)
-        return np.concatenate(input_from_plan(plan_x, plan_v, interval), axis=-1)
+        return plan_action(np.stack([dx + interval * dv, dv], axis=-2), c, interval)
 
     def parameters(self) -> dict[str, float]:
         """The design: the centre and the intervals after which the law is exact."""
         return {"centre": float(self.centre), "needed_intervals": float(self.needed_intervals)}
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def guarantee(self) -> str:
         if self.config.n_intervals < self.needed_intervals:

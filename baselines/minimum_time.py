@@ -29,7 +29,6 @@ fewer intervals than factors it plays the subset of smallest modal score (:func:
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -38,9 +37,9 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from fxc_env.baselines.policy import describe_law
+from fxc_env.baselines.motion_signals import plan_action
+from fxc_env.baselines.policy import LawPolicy
 from fxc_env.config import config_of
-from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.graphs import DENSE_LIMIT, Topology
 from fxc_env.core.validation import ArgumentError
 
@@ -309,7 +308,7 @@ def gain_schedule(factors: list[Factor], intervals: np.ndarray) -> tuple[np.ndar
     return gains, k
 
 
-class MinimumTimePolicy:
+class MinimumTimePolicy(LawPolicy):
     """The minimum-time law on the local observation, every ``action_mode`` and ``obs_mode``.
 
     Args:
@@ -371,10 +370,6 @@ class MinimumTimePolicy:
         self._table = scaled if config.obs_mode == "normalized" else self.gains
         self._intervals = intervals
 
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Action(s) ``(..., 2 dim)`` for observation(s) ``(..., obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Plans (``plan`` mode) or end inputs (``accel``) from flat observations ``(..., obs_size)``."""
         c = self.config
@@ -383,12 +378,8 @@ class MinimumTimePolicy:
         sums = np.sum(real * rows, axis=-3)  # (..., 2, dim): sum_j (x_j - x_i), sum_j (v_j - v_i)
         r = sums / (np.sum(mask, axis=-1)[..., None, None] + 1.0)
         k = np.clip(np.rint(clock[..., 2] * c.n_intervals).astype(np.int64), 0, c.n_intervals - 1)
-        plan = self._table[k] @ r  # (..., 2, dim): a_x, a_v (or their normalized alpha)
-        plan_x, plan_v = plan[..., 0, :], plan[..., 1, :]
-        if c.action_mode == "plan":
-            return np.concatenate([plan_x, plan_v], axis=-1)
         interval = 1.0 if c.obs_mode == "normalized" else self._intervals[k][..., None]
-        return np.concatenate(input_from_plan(plan_x, plan_v, interval), axis=-1)
+        return plan_action(self._table[k] @ r, c, interval)  # the plan (..., 2, dim): a_x, a_v (or normalized)
 
     def parameters(self) -> dict[str, float]:
         """The design: factors, the intervals they need and use, and the largest modulus of a gain."""
@@ -400,10 +391,6 @@ class MinimumTimePolicy:
             "min_abs_eigenvalue": float(magnitudes.min()),
             "predicted_residual": self.predicted_residual,
         }
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def guarantee(self) -> str:
         if self.factor_intervals < self.needed_intervals:

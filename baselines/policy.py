@@ -16,28 +16,15 @@ from typing import Any, ClassVar
 import numpy as np
 
 from fxc_env.config import config_of
+from fxc_env.config.layout import ObservationLayout
 from fxc_env.core.validation import ArgumentError
 
 
-def describe_law(policy: Any) -> dict[str, str]:
-    """A law's name, law, source, proven graph class and parameters (its ``NAME``, ``LAW``, ``SOURCE``,
-    ``GRAPH_CLASS`` and ``parameters()``), as the benchmark's tables and logs show them."""
-    params = ", ".join(f"{k} = {v:.4g}" for k, v in policy.parameters().items())
-    return {
-        "name": policy.NAME,
-        "law": policy.LAW,
-        "source": policy.SOURCE,
-        "graph_class": policy.GRAPH_CLASS,
-        "parameters": params,
-    }
+class LawPolicy:
+    """Base class of every baseline: the law's description, and a call on flat or dict observations.
 
-
-class HoldPolicy:
-    """Base class: a feedback law on the local observation, held over each interval (ZOH).
-
-    Subclasses set :attr:`LAW`, :attr:`SOURCE`, :attr:`GRAPH_CLASS` and :attr:`OBS_MODES`,
-    and implement :meth:`input` (the physical input ``u_i`` in m/s^2 from raw rows) or
-    override :meth:`act`.
+    Subclasses set :attr:`NAME`, :attr:`LAW`, :attr:`SOURCE`, :attr:`GRAPH_CLASS` and ``self.layout``, and
+    implement :meth:`act`.
     """
 
     #: Name used by the benchmark and :func:`baselines.load_policy`.
@@ -48,6 +35,39 @@ class HoldPolicy:
     SOURCE: ClassVar[str] = ""
     #: The graphs for which the source proves convergence.
     GRAPH_CLASS: ClassVar[str] = ""
+    layout: ObservationLayout
+
+    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
+        """Action(s) ``(..., 2 dim)`` for observation(s) ``(..., obs_size)`` (flat or dict)."""
+        return self.act(self.layout.flat(observation))
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def parameters(self) -> dict[str, float]:
+        """The law's parameters as used (after any offline design)."""
+        return {}
+
+    def describe(self) -> dict[str, str]:
+        """Law, source, proven graph class and parameters (``parameters()``), for tables and logs."""
+        params = ", ".join(f"{k} = {v:.4g}" for k, v in self.parameters().items())
+        return {
+            "name": self.NAME,
+            "law": self.LAW,
+            "source": self.SOURCE,
+            "graph_class": self.GRAPH_CLASS,
+            "parameters": params,
+        }
+
+
+class HoldPolicy(LawPolicy):
+    """Base class: a feedback law on the local observation, held over each interval (ZOH).
+
+    Subclasses set :attr:`LAW`, :attr:`SOURCE`, :attr:`GRAPH_CLASS` and :attr:`OBS_MODES`,
+    and implement :meth:`input` (the physical input ``u_i`` in m/s^2 from raw rows) or
+    override :meth:`act`.
+    """
+
     #: Observation modes the law can be computed in.
     OBS_MODES: ClassVar[tuple[str, ...]] = ("raw",)
 
@@ -64,10 +84,6 @@ class HoldPolicy:
                 f"obs_mode: {type(self).__name__} supports {self.OBS_MODES}, got {self.config.obs_mode!r}"
             )
 
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Action(s) ``(..., 2 dim)`` for observation(s) ``(..., obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Zero-order hold of :meth:`input`: the action ``(u, u)``, ``(..., 2 dim)``."""
         rows, mask, clock = self.layout.split(obs)
@@ -77,14 +93,6 @@ class HoldPolicy:
     def input(self, dx: np.ndarray, dv: np.ndarray, mask: np.ndarray, clock: np.ndarray) -> np.ndarray:
         """Physical input ``u_i`` ``(..., dim)`` from rows ``x_j - x_i``, ``v_j - v_i`` ``(..., d_max, dim)``."""
         raise NotImplementedError
-
-    def parameters(self) -> dict[str, float]:
-        """The law's parameters as used (after any offline design)."""
-        return {}
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def time_features(self, clock: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``t_k`` and ``T_{k+1}`` in seconds from the clock, each ``(..., 1)``."""

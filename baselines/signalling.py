@@ -38,19 +38,17 @@ again like ε.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 
 from fxc_env.baselines.motion_signals import (
+    SignalPolicy,
     advance,
     averaging_weights,
-    current_instant,
     deviation_of,
     initial_offset,
     leja_order,
-    plan_action,
     predicted_register,
     read_deviation,
     refuse_unless_exact_raw_rows,
@@ -60,7 +58,6 @@ from fxc_env.baselines.motion_signals import (
     steer_plan,
     union_graph,
 )
-from fxc_env.baselines.policy import describe_law
 from fxc_env.config import config_of
 from fxc_env.core import validation
 from fxc_env.core.optimality import root_set
@@ -74,7 +71,7 @@ DEFAULT_AMPLITUDE = 1e-6
 AMPLITUDE_RANGE = (1e-12, 1.0)
 
 
-class SignallingPolicy:
+class SignallingPolicy(SignalPolicy):
     """The signalling law on the local observation, raw rows, ``plan`` or ``accel`` actions.
 
     The law has memory (each agent's own first measurements, its register and its own plans), so
@@ -102,6 +99,7 @@ class SignallingPolicy:
     """
 
     NAME: ClassVar[str] = "signalling"
+    TITLE: ClassVar[str] = "the signalling law"
     LAW: ClassVar[str] = (
         "read neighbours' deviations from coasting as numbers; exact consensus q <- (I - Ŵ/μ) q on registers "
         "q_i = p_i (μ over the eigenvalues of Ŵ in Leja order), then on the known correction to the unweighted mean, "
@@ -169,22 +167,7 @@ class SignallingPolicy:
         self._next_instant = 0
 
     # ----------------------------------------------------------------------------- acting
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Actions ``(..., N, 2 dim)`` for every agent's observation ``(..., N, obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""
-        obs = np.asarray(obs, dtype=np.float64)
-        memory = None if self._memory is None else self._memory["c"].shape[:-1]
-        k, rows = current_instant(obs, self.config, "the signalling law", self._next_instant, memory)
-        if k == 0:
-            self._reset(obs.shape[:-1])
-        plan = self._plan(k, rows)
-        self._next_instant = k + 1
-        return plan_action(plan, self.config, self._intervals[k])
-
-    def _reset(self, lead: tuple[int, ...]) -> None:
+    def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:
         dim = self.config.dim
         self._memory = {
             "base": np.zeros((*lead, self._union_slots, 2, dim)),  # z_j(0) - z_i(0) per union neighbour
@@ -194,7 +177,7 @@ class SignallingPolicy:
             "d": np.zeros((*lead, 2, dim)),  # own deviation from coasting
         }
 
-    def _plan(self, k: int, rows: np.ndarray) -> np.ndarray:
+    def _plan(self, k: int, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
         """The plan ``(a_x, a_v)`` ``(..., N, 2, dim)`` of every agent at instant k; updates the memory."""
         memory = self._memory
         assert memory is not None
@@ -264,10 +247,6 @@ class SignallingPolicy:
             "steer_start_s": float(self._times[self.agreement_intervals - 1]),
             "min_abs_eigenvalue": float(np.min(np.abs(self.eigenvalues))) if len(self.eigenvalues) else 1.0,
         }
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def guarantee(self) -> str:
         t_c = self._times[self.agreement_intervals - 1]
