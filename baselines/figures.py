@@ -1,15 +1,6 @@
-"""The benchmark's figures, written headless as PNG (matplotlib's Agg canvas, as :mod:`fxc_env.analysis.plots`).
-
-1. ``deadline_vs_budget.png``: relative deadline error against the budget K (log-log),
-   all cases pooled and on the trace case; continuous laws are single points at
-   their fine K.
-2. ``energy_vs_error.png``: energy against deadline error, one point per policy,
-   case and K (medians over seeds).
-3. ``disagreement_vs_time.png``: median ``D(t) / D(0)`` over seeds on the trace case,
-   every policy on one axis.
-4. ``error_vs_energy_ratio.png`` (optimality suite): deadline error against energy / E*, the
-   bound E* drawn; error against measurement noise with the noise floor, and against the input
-   limit with the input floor (:func:`optimality_figure`).
+"""The benchmark's figures, written headless as PNG (matplotlib's Agg canvas, as :mod:`fxc_env.analysis.plots`):
+``deadline_vs_budget.png``, ``energy_vs_error.png``, ``disagreement_vs_time.png`` and, for the optimality suite,
+``error_vs_energy_ratio.png`` (:func:`optimality_figure`) (docs: benchmark.md, "Baselines and the deadline benchmark").
 """
 
 from __future__ import annotations

@@ -1,11 +1,8 @@
 """The benchmark's unit of work: one contender on one case at one budget K, and what it measured.
 
-:func:`run_job` runs a :class:`Job` in this process; :mod:`fxc_env.baselines.benchmark` spreads
-jobs over processes, :mod:`fxc_env.baselines.ray_jobs` over a Ray cluster, and
-:mod:`fxc_env.baselines.report` and :mod:`fxc_env.baselines.figures` read the :class:`JobResult`.
-Every job is seeded: its initial states come from the suite's seeds, and measurement
-noise, link dropout and random switching from a generator seeded by the same seeds, so a
-job gives the same numbers wherever and whenever it runs.
+:func:`run_job` runs a :class:`Job` in this process. Every job is seeded (initial states from the suite's
+seeds; noise, dropout and random switching from a generator seeded by the same seeds), so a job gives the
+same numbers wherever and whenever it runs.
 """
 
 from __future__ import annotations

@@ -1,8 +1,6 @@
-"""The benchmark's jobs as Ray tasks: ``fxc benchmark --ray [--address ADDR]``.
+"""The benchmark's jobs as Ray tasks (one CPU, one BLAS thread each): ``fxc benchmark --ray [--address ADDR]``.
 
-Each :class:`~fxc_env.baselines.jobs.Job` runs :func:`~fxc_env.baselines.jobs.run_job` as one Ray
-task (one CPU, one BLAS thread), on a local Ray or on every node of a cluster. Jobs are
-seeded, so the results, and the table built from them, are those of the single-machine run.
+Jobs are seeded, so the results are those of the single-machine run.
 """
 
 from __future__ import annotations

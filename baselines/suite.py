@@ -1,15 +1,9 @@
 """What the deadline benchmark runs: cases, contenders and the settings each contender uses.
 
-A **case** is a topology family at a size N (``paper_fig1``, ``ring``, ``path``, ``star``,
-``random`` fixed and switching; N in {6, 20, 100}); every contender meets the same seeded
-initial states on it. A **contender** is a policy together with the environment settings it
-runs with: sampled controllers (the reference, the sampled-data linear law, learned policies)
-are run at every communication budget K of the suite; continuous-measurement laws run once,
-on a fine ``uniform`` schedule with a zero-order hold (``accel`` mode), and their sample
-count is reported with their result.
-
-:func:`load_policy` turns a name or a saved model into a policy for one config; the training
-issue plugs learned policies in there.
+A **case** is a topology (family) at a size N; every contender meets the same seeded initial states on it. A
+**contender** is a policy with its environment settings: sampled controllers run at every budget K of the
+suite, continuous-measurement laws once, on a fine ``uniform`` schedule with a zero-order hold.
+:func:`load_policy` turns a name or a saved model into a policy for one config.
 """
 
 from __future__ import annotations

@@ -1,12 +1,8 @@
 """The arguments of ``fxc train``, shared by every back end, and the hyperparameter file.
 
-:class:`TrainArgs` is the one description of a training run: each field is declared once,
-with its default and its help text (:func:`arg`), and ``fxc train``'s flags are built from the
-fields (:func:`add_train_parser`: ``--n-envs`` for ``n_envs``, ``--resume/--no-resume`` for
-a bool). Each back end reads it: :mod:`fxc_env.training.sb3_train` (stable-baselines3),
-:mod:`fxc_env.training.rllib_train` (Ray RLlib) and :mod:`fxc_env.training.torch_ppo` (the
-lean torch PPO loop, ``--backend torch``). Hyperparameters live in a YAML file keyed by
-scenario, then algorithm (``hyperparams.yml`` beside this module).
+:class:`TrainArgs` describes a run: each field declared once with its default and help text (:func:`arg`);
+``fxc train``'s flags are built from the fields (:func:`add_train_parser`). Hyperparameters live in a YAML
+file keyed by scenario, then algorithm (``hyperparams.yml`` beside this module).
 """
 
 from __future__ import annotations

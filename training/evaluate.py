@@ -1,9 +1,7 @@
 """``fxc evaluate``: a learned policy next to the reference on the deadline benchmark.
 
-The suite is the paper's example plus generalisation graphs (directed
-``ring``, ``path`` and ``random`` at N = 20), 20 seeded initial states each, at the
-reference's budget K = 200; the table, CSVs and plots are the benchmark's
-(:mod:`fxc_env.baselines.benchmark`), written to ``out/evaluate`` by default.
+The suite: the paper's example plus directed ``ring``, ``path`` and ``random`` at N = 20, 20 seeded initial
+states each, at K = 200; tables and plots are the benchmark's (:mod:`fxc_env.baselines.benchmark`).
 """
 
 from __future__ import annotations
