@@ -109,9 +109,8 @@ def least_peak_inputs(need_x: np.ndarray, need_v: np.ndarray, times: np.ndarray,
 class BoundedSteerPolicy(SignalPolicy):
     """The gathering law with the least-peak steer, on raw rows, ``plan`` or ``accel`` actions.
 
-    It has memory, so it is called with **every agent's** observation at once, ``(..., N, obs_size)`` in agent
-    order, one instant after the other from ``k = 0``; agent i's action depends only on its own rows, clock and
-    memory, and the offline schedule of the known graph.
+    It has memory, so it is called as :class:`~fxc_env.baselines.motion_signals.SignalPolicy` says; agent i's
+    action depends only on its own rows, clock and memory, and the offline schedule of the known graph.
 
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed strongly connected digraph with

@@ -253,16 +253,9 @@ def _legend_entries(axes: Any) -> tuple[list, list]:
 
 
 def optimality_figure(results: list[JobResult], contenders: list[Contender], path: Path) -> Path:
-    """Three panels, medians over seeds, one marker and colour per law, the legend outside the axes.
-
-    1. Deadline error against energy / E* (ideal cases), one point per (policy, case): exact
-       consensus costs at least E* (:func:`fxc_env.core.optimality.energy_bound`), so no point with an
-       error at round-off lies left of the line at energy / E* = 1.
-    2. Error against ``obs_noise`` sigma on the directed ring of 20, with the noise floor of each
-       schedule (:func:`fxc_env.core.floors.noise_floor`): no controller lies below it on average.
-    3. Error against ``u_max`` on the directed ring of 20, with the input floor
-       (:func:`fxc_env.core.floors.input_floor`): left of it no controller is exact.
-    """
+    """Three panels, medians over seeds, one marker and colour per law, the legend outside the axes: error
+    against energy / E* (ideal cases), against ``obs_noise`` with the noise floor and against ``u_max`` with
+    the input floor (docs: optimality.md, "How far from optimal")."""
     fig = new_figure(17.0, 5.0)
     energy_ax, noise_ax, limit_ax = fig.subplots(1, 3)
     _energy_panel(energy_ax, results, contenders)

@@ -134,12 +134,8 @@ def _announce_instant(value: Any, listening: int, full_listening: int, n_interva
 def listening_values(max_agents: int, channels: int = 1) -> int:
     """``L = max_agents + ceil((max_agents + 1) / C) + 1``: the values ``w_i(0..L-1)`` recorded before the steer.
 
-    The minimal polynomial seen from an agent has degree at most N, so the differences obey a
-    recurrence ``p`` of degree ``d <= N - 1``; its Hankel matrix has ``d + 1`` columns, and C channels
-    that share the recurrence (independent initial values) give ``C (L - 1 - d)`` rows, which must exceed
-    the columns (by one) for every ``d <= max_agents - 1``. One channel: ``L = 2 max_agents + 2`` (Yuan et
-    al.); the ``2 dim`` parts of the register (position and velocity of each axis): about 1.5 max_agents in
-    one dimension.
+    C channels give a Hankel matrix of ``C (L - 1 - d)`` rows, one more than its ``d + 1`` columns for every
+    degree ``d <= max_agents - 1``; one channel: ``2 max_agents + 2`` (Yuan et al.).
     """
     return max_agents + -(-(max_agents + 1) // channels) + 1
 
@@ -202,9 +198,8 @@ def recurrence_limit(
 class GraphAgnosticPolicy(SignalPolicy):
     """The graph-agnostic law on the local observation, raw rows, ``plan`` or ``accel`` actions.
 
-    Like :class:`~fxc_env.baselines.SignallingPolicy` the law has memory, so it is called with **every
-    agent's** observation at once, ``(..., N, obs_size)`` in agent order, one instant after the other from
-    ``k = 0``; agent i's action depends only on its own observations and memory.
+    It has memory, so it is called as :class:`~fxc_env.baselines.motion_signals.SignalPolicy` says; agent i's
+    action depends only on its own observations and memory.
 
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with ideal

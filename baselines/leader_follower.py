@@ -39,9 +39,8 @@ from fxc_env.core.validation import ArgumentError
 def follower_slots(topology: Topology, centre: int) -> np.ndarray:
     """The observation row each agent follows on each interval, ``(R + 1, N)`` int; -1: coast.
 
-    Row k (``k < R``, R the centre's reach time) holds, per agent, the slot of its parent among its
-    in-neighbours of ``G_{k mod m}`` (ascending, as observed); row R, used from interval R on, is all
-    -1. See the module docstring for the time-respecting tree.
+    Row k (``k < R``, R the centre's reach time) holds, per agent, the slot of its parent in the module's
+    time-respecting tree among its in-neighbours of ``G_{k mod m}``; row R, used from interval R on, is all -1.
     """
     n, m = topology.n_agents, topology.period
     index, mask = topology.neighbour_index, topology.neighbour_mask  # (m, N, d_max)

@@ -88,13 +88,9 @@ def _block_index(block: np.ndarray, mu: complex, multiplicity: int) -> int:
 def design_eigenvalues(topology: Topology) -> np.ndarray:
     """The roots of the minimal polynomial of ``Ŵ`` but 0, each repeated by its index (largest Jordan block).
 
-    A product ``q(Ŵ) = prod (I - Ŵ/mu)`` over these is zero on every disagreement mode, and no product
-    of fewer such factors is (for a Jordan block of size s the factor must come s times: the minimal
-    polynomial decides, not the characteristic one). ``Ŵ`` is block triangular over the strongly
-    connected components in their order, so the index of ``mu`` is at most the largest sum, along a
-    chain of components linked by paths, of its index inside each component (:func:`_block_index`);
-    that sum is used. A tree's eigenvalue 1/2 comes once per level (its depth: copying the parent
-    each interval), a path's ``N - 1`` times, a ring's N - 1 distinct eigenvalues once each.
+    ``prod (I - Ŵ/mu)`` over these is zero on every disagreement mode. The index of ``mu`` is taken as the
+    largest sum, along a chain of strongly connected components, of its index inside each
+    (:func:`_block_index`), an upper bound (``Ŵ`` is block triangular over the components).
 
     Returns:
         ``(F,)`` complex, conjugate pairs both listed; ``F <= N - 1``.
@@ -161,9 +157,8 @@ def _topological_order(condensed: sp.csr_array, n_comp: int) -> list[int]:
 def leja_factors(eigenvalues: np.ndarray) -> list[Factor]:
     """One :class:`Factor` per real eigenvalue and per conjugate pair, in Leja order.
 
-    The first kills the eigenvalue of largest modulus; each next one the eigenvalue ``mu'`` where
-    the partial product ``prod_j |1 - mu'/mu_j|`` of the factors so far is largest (ties: the larger
-    modulus), the greedy ordering that keeps partial products small (Reichel 1990).
+    Each next factor kills the eigenvalue where the partial product ``prod_j |1 - mu'/mu_j|`` is largest (ties:
+    the larger modulus; Reichel 1990).
     """
     points = np.asarray(eigenvalues, dtype=complex)
     units = [complex(mu) for mu in points if mu.imag >= 0]
@@ -201,16 +196,11 @@ def _log_factor(points: np.ndarray, factor: Factor) -> np.ndarray:
 def budget_factors(eigenvalues: np.ndarray, n_intervals: int) -> tuple[list[Factor], float]:
     """The factors to play in K intervals, and the modal residual they leave as the design sees it.
 
-    ``eigenvalues`` are :func:`design_eigenvalues` (each repeated by its index). When every factor fits,
-    all of them (:func:`leja_factors`; residual 0). Otherwise the best, by a Jordan-aware modal score,
-    of: the first factors in Leja order, or the factors of the s slowest modes (smallest ``|mu|``,
-    played in Leja order) for the best s, each followed by the paper's plan (the factor of
-    ``mu = 1``) on the intervals left. The score of an eigenvalue ``mu'`` of index m is
-    ``prod |1 - mu'/mu_j|`` over the factors played at *other* eigenvalues, and zero only once its own
-    factor has been played m times (a Jordan block of size m needs m; the derivative terms left
-    before that are counted as the product itself). The paper's plan alone is the case s = 0. The
-    score only ranks the candidates: :class:`MinimumTimePolicy` reports the residual of the chosen
-    design from the matrix (:func:`design_residual`).
+    When every factor fits, all of them (:func:`leja_factors`; residual 0). Otherwise the best, by the
+    Jordan-aware modal score ``prod |1 - mu'/mu_j|`` (zero once ``mu'``'s own factor has been played its index
+    times), of: the first factors in Leja order, or the factors of the s slowest modes for the best s
+    (s = 0: the paper's plan alone), each followed by the paper's plan. The residual reported is
+    :func:`design_residual`'s.
     """
     points = np.asarray(eigenvalues, dtype=complex)
     everything = leja_factors(points)
@@ -250,11 +240,8 @@ def budget_factors(eigenvalues: np.ndarray, n_intervals: int) -> tuple[list[Fact
 def design_residual(topology: Topology, factors: list[Factor], n_intervals: int) -> float:
     """The largest gain of the design's polynomial on a disagreement, from the matrix itself.
 
-    ``q(Ŵ) = prod_f (I - Ŵ/mu_f) (I - Ŵ)^(K - used)`` (a complex pair as the real quadratic), and the
-    residual ``max ||q(Ŵ) d|| / ||d||`` over the disagreements d (``xi^T d = 0``, Theorem 1's weights):
-    the 2-norm of ``q(Ŵ) B`` for an orthonormal basis B of them. For a normal ``Ŵ`` (a ring's) it is
-    the largest ``|q(mu')|``; with Jordan blocks it counts what a modal figure misses. Computed in
-    float64 (so round-off of large partial products shows); NaN above ``DENSE_LIMIT`` agents.
+    ``max ||q(Ŵ) d|| / ||d||`` over the disagreements d (``xi^T d = 0``) for
+    ``q(Ŵ) = prod_f (I - Ŵ/mu_f) (I - Ŵ)^(K - used)``, in float64; NaN above ``DENSE_LIMIT`` agents.
     """
     n = topology.n_agents
     if n > DENSE_LIMIT:
@@ -314,9 +301,8 @@ class MinimumTimePolicy(LawPolicy):
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with ideal
             double-integrator agents (any schedule, ``dim``, modes, formation offsets).
-        allow_noise: run under ``obs_noise`` too (off by default: the design assumes exact rows).
-            The law is linear, so the noise passes through its gains and the deadline error grows
-            linearly with sigma (docs: optimality.md, "How far from optimal", measured on the ring of 20).
+        allow_noise: run under ``obs_noise`` too (off by default: the design assumes exact rows); the deadline
+            error grows linearly with sigma (docs: optimality.md, "How far from optimal").
 
     Raises:
         ArgumentError naming ``topology``, ``u_max``, ``obs_noise``, ``link_dropout``,

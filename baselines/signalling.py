@@ -74,11 +74,8 @@ AMPLITUDE_RANGE = (1e-12, 1.0)
 class SignallingPolicy(SignalPolicy):
     """The signalling law on the local observation, raw rows, ``plan`` or ``accel`` actions.
 
-    The law has memory (each agent's own first measurements, its register and its own plans), so
-    it is called with **every agent's** observation at once, ``(..., N, obs_size)`` in agent order
-    (the benchmark's and :func:`fxc_env.simulate`'s layout), one instant after the other from
-    ``k = 0`` (an observation with ``k = 0`` starts a new episode); agent i's action depends only on
-    its own observations and memory.
+    It has memory, so it is called as :class:`~fxc_env.baselines.motion_signals.SignalPolicy` says; agent i's
+    action depends only on its own observations and memory.
 
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with a
@@ -87,11 +84,8 @@ class SignallingPolicy(SignalPolicy):
         amplitude: the signalling amplitude ε (dimensionless, in :data:`AMPLITUDE_RANGE`, ``1e-12 <= ε <= 1``;
             None: :data:`DEFAULT_AMPLITUDE`). Under ``obs_noise`` the law runs only with an explicit amplitude
             (the frontier point is the user's choice).
-        allow_limit: run under ``u_max`` too (off by default: the law plans exact changes). Its
-            signals are small and its steer is the minimum-energy one, so wherever every input stays
-            within the limit the clip never acts and the law is as exact as without it; where the
-            steer needs more (a late steer on the paper's schedule, a limit near the input floor)
-            the clip breaks the landing (docs: optimality.md, "How far from optimal", for measured figures).
+        allow_limit: run under ``u_max`` too (off by default): exact wherever every input stays within the
+            limit, the clip breaks the landing elsewhere (docs: optimality.md, "How far from optimal").
 
     Raises:
         ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``, ``agent_model``,

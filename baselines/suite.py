@@ -159,16 +159,10 @@ def learned_contender(
     """A saved policy (``pretrained``, an SB3 ``.zip``, an RLlib checkpoint or run directory) as a
     sampled contender, named after its file or directory.
 
-    A fixed-width network's observation width fixes ``obs_slots`` (rows = (obs_size - 3) /
-    (2 dim + 1), dim = 1, one more entry for a policy that sees the input limit); cases with more
-    in-neighbours than that, or without an input limit for a policy that expects one, are
-    reported as not run. A gain-scheduled network reads any number of rows
-    (:class:`fxc_env.policies.learned.SlotAdaptedPolicy`): ``obs_slots`` is left to each case. In ``dim > 1`` it acts per axis (:class:`fxc_env.policies.learned.PerAxisPolicy`). The model is loaded
-    here, so a missing, empty or corrupt file raises :class:`ArgumentError` naming ``name``
-    (``--policy`` on the command line) before any job runs. ``trusted`` allows formats that
-    unpickle (RLlib checkpoints, pickled SB3 entries); without it they are refused by name.
-    ``allow_out_of_domain`` runs it on cases outside its recorded training domain (with a
-    warning); without it those cases are reported as not run, naming every difference.
+    A fixed-width network's observation width fixes ``obs_slots`` (cases it does not fit are reported as not
+    run); a gain-scheduled network reads any number of rows. The model is loaded here, so a missing, empty or
+    corrupt file raises :class:`ArgumentError` naming ``name`` before any job runs. ``trusted`` and
+    ``allow_out_of_domain`` as in :class:`Contender`.
     """
     path = model_path(spec)
     try:
@@ -443,12 +437,10 @@ def contender_config(contender: Contender, case: BenchmarkCase, n_intervals: int
 def load_policy(spec: str, config: EnvConfig, trusted: bool = False, allow_out_of_domain: bool = False) -> Policy:
     """A policy for ``config``: ``reference``, a baseline name, ``pretrained`` or a saved policy's path.
 
-    Saved policies (an SB3 PPO or SAC ``.zip``, an RLlib checkpoint or run directory) load
-    through :func:`fxc_env.policies.learned.load_learned_policy`, which checks that the model's
-    observation and action sizes fit ``config``. Raises :class:`ArgumentError` (a
-    ``ValueError``) naming ``policy`` when the spec is unknown, nothing is saved at the path,
-    the file is not a readable model, the model does not fit, or ``config`` lies outside its
-    training domain; ``trusted`` and ``allow_out_of_domain`` as in :func:`learned_contender`.
+    Saved policies load through :func:`fxc_env.policies.learned.load_learned_policy`. Raises
+    :class:`ArgumentError` naming ``policy`` when the spec is unknown, nothing is saved at the path, the file
+    is not a readable model, the model does not fit, or ``config`` lies outside its training domain;
+    ``trusted`` and ``allow_out_of_domain`` as in :class:`Contender`.
     """
     if spec in LAWS:
         return LAWS[spec].policy(config)

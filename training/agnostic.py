@@ -205,15 +205,9 @@ def loss_terms(config: EnvConfig, tables: tuple[Any, Any], batch: dict[str, Any]
 def chebyshev_factors(pairs: int, design: int = DESIGN_PAIRS, gap: float = DESIGN_GAP) -> np.ndarray:
     """Factors ``(pairs, 2)`` of a Chebyshev design on the directed-ring circle, Leja-ordered (the ``chebyshev`` start).
 
-    On the circle ``|mu - 1/2| = 1/2`` (where ``(D + I)^{-1} L`` of every directed ring has its
-    eigenvalues, ``mu = (1 - e^{i theta}) / 2``) the factor of ``q = 1 + i t`` is
-    ``(1 - mu q)(1 - mu conj q)``, and ``design`` such pairs multiply a mode by a polynomial in
-    ``v = cos^2(theta / 2)`` with value 1 at ``v = 1``; the Chebyshev polynomial on ``[0, cos^2(gap / 2)]``
-    is the smallest (``2 exp(-design * gap)`` for every ``theta >= gap``): its roots give
-    ``t = sqrt(v / (1 - v))``. The other pairs are the paper's (``q = 1``, small on ``|1 - mu| < 1``).
-    The pairs are Leja-ordered (each root as far as possible from the ones before), which keeps the
-    partial products, and so float64 round-off along an episode, small. It places roots on a region of
-    the plane, not on any graph's spectrum: training moves them.
+    On the directed rings' circle ``mu = (1 - e^{i theta}) / 2``, ``design`` pairs ``q = 1 + i t`` multiply a
+    mode by a polynomial in ``v = cos^2(theta / 2)``; the roots ``v`` of the Chebyshev polynomial on
+    ``[0, cos^2(gap / 2)]`` give ``t = sqrt(v / (1 - v))``. The other pairs are the paper's (``q = 1``).
     """
     j = np.arange(1, design + 1)
     top = np.cos(gap / 2) ** 2

@@ -160,16 +160,9 @@ def load_hyperparams(path: str | Path, scenario: str, algo: str, *, name: str = 
 def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
     """Check every argument of a run before work starts; returns the run's hyperparameters.
 
-    Raises :class:`~fxc_env.core.validation.ArgumentError` naming the argument: the field
-    name (``n_envs``), or with ``flags`` the command-line flag (``--n-envs``). Checked: the
-    back end (``torchrl`` is read as ``torch``) and algorithm, the counts and thresholds, the
-    seed, the hyperparameter file (a YAML mapping with an entry for the scenario and
-    algorithm), the environment it describes, that the run directory can be created, and that
-    the RLlib-only flags (:data:`RLLIB_ONLY`) keep their defaults on another back end, which
-    would ignore them. ``--resume`` without a checkpoint, from a damaged one, with another
-    scenario or critic than the run's ``config.json``, or to a target already reached is refused
-    by the back end (:meth:`~fxc_env.training.run_dir.RunDir.resume_checkpoint`), which knows
-    its checkpoint layout.
+    Raises :class:`~fxc_env.core.validation.ArgumentError` naming the field (``n_envs``), or with ``flags`` the
+    flag (``--n-envs``). ``--resume`` is checked by the back end
+    (:meth:`~fxc_env.training.run_dir.RunDir.resume_checkpoint`), which knows its checkpoint layout.
     """
 
     def name(field: str) -> str:

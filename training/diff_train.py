@@ -53,10 +53,8 @@ TINY = 1e-300
 def cut_graph(engine: Any) -> None:
     """Detach every tensor the engine and its parts hold, so the next loss's graph starts here.
 
-    Needed between truncated windows. Also called before each reset as a workaround of the
-    engine bug "Trying to backward through the graph a second time" (issue 26, item 1: a reset
-    writes the fresh state into the previous episode's tensor in place, keeping its graph);
-    once resets cut the graph themselves that call is redundant and can go.
+    Needed between truncated windows, and before each reset (a reset writes in place into the previous
+    episode's tensor, keeping its graph: issue 26, item 1).
     """
     seen: set[int] = set()
 

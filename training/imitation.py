@@ -46,11 +46,8 @@ def teacher_policy(name: str, config: Any) -> Any:
 class Demonstrations:
     """The teacher's demonstrations on a VecEnv of ``n_envs`` sub-environments (one per agent and episode).
 
-    ``steps`` is a whole number of episodes of K steps. Arrays are float32:
-    ``observations [steps, n_envs, obs_size]`` (what each agent saw), ``actions
-    [steps, n_envs, action_size]`` (the teacher's clean action there, the label; the executed
-    action had noise added) and ``returns [steps, n_envs]`` (the discounted return from each
-    step to its episode's end, the value target).
+    float32 ``observations [steps, n_envs, obs_size]``, ``actions [steps, n_envs, action_size]`` (the teacher's
+    clean action, the label) and ``returns [steps, n_envs]`` (discounted, the value target); ``steps`` whole episodes.
     """
 
     observations: np.ndarray
@@ -90,12 +87,9 @@ def demonstrations(
 def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int) -> dict[str, float]:
     """Behaviour-clone the teacher into ``model`` (an SB3 PPO) on ``venv``; returns the fit's figures.
 
-    ``settings`` overrides :data:`DEFAULTS`; an unknown key or teacher raises
-    :class:`~fxc_env.core.validation.ArgumentError` naming ``hyperparams`` before ``model``
-    or ``venv`` is touched. Returns ``samples`` (agent-steps demonstrated),
-    ``relative_action_rms_error`` (RMS of the mean action's error over RMS of the label, on
-    up to 100,000 of the demonstrations) and ``value_rms_error``. Deterministic for a given
-    ``seed`` on the CPU.
+    ``settings`` overrides :data:`DEFAULTS`; an unknown key or teacher raises ArgumentError naming
+    ``hyperparams`` before anything is touched. Returns ``samples``, ``relative_action_rms_error`` (on up to
+    100,000 demonstrations) and ``value_rms_error``. Deterministic for a given ``seed`` on the CPU.
     """
     import torch
 

@@ -129,10 +129,8 @@ def fit(
 def polish(actor: RecurrentActor, observations: torch.Tensor, targets: torch.Tensor, sequences: int = 256) -> float:
     """Least squares for the gain head's last layer given the features before it; the RMS residual after.
 
-    The plan is ``mu_a = sum_o rows_o (W_(a,o) . phi(h) + c_(a,o))``, linear in ``(W, c)``: over
-    ``sequences`` of the data (every step) the best ``(W, c)`` solves one float64 least-squares
-    problem per action component (as ``fxc_env.training.rings`` regresses its table), so the last
-    layer is exact for the features the GRU and the hidden layers give.
+    The plan ``mu_a = sum_o rows_o (W_(a,o) . phi(h) + c_(a,o))`` is linear in ``(W, c)``: one float64
+    least-squares problem per action component over ``sequences`` of the data.
     """
     if actor.gru_input != "schedule":
         raise ArgumentError("polish: only the schedule form's head is linear in its rows")

@@ -70,10 +70,8 @@ def factor_table(config: Any, q: Any) -> Any:
 def log_errors(config: Any, gains: Any, x0: np.ndarray, v0: np.ndarray, w_hat: np.ndarray) -> Any:
     """``log D(T_s)/D(0)`` ``(B,)`` of the table ``gains``, as :func:`fxc_env.training.rings.episode_log_errors`, in any range.
 
-    The same exact map ``z_i(t_{k+1}) = P_k z_i + G_k r_i``, with each episode's state rescaled to unit
-    size after every interval and the logarithms of the scales summed (D is homogeneous of degree one
-    in the state): a random table that grows the state by 1e400 scores a finite loss, and its
-    gradient stays finite, where the plain product overflows.
+    Each episode's state is rescaled to unit size after every interval and the logarithms of the scales
+    summed (D is homogeneous of degree one), so a table that grows the state by 1e400 scores a finite loss.
     """
     import torch
 

@@ -187,11 +187,7 @@ class ActorCritic(nn.Module):
 
 
 def adam(parameters: Iterator[nn.Parameter], learning_rate: float) -> torch.optim.Adam:
-    """SB3's Adam (``eps = 1e-5``), fused where torch has it for the device.
-
-    Fused: one kernel for every parameter; the optimiser step is about a third of the cost
-    of a minibatch of 2048 on the CPU. torch < 2.4 has no fused Adam on the CPU.
-    """
+    """SB3's Adam (``eps = 1e-5``), fused (one kernel for every parameter) where torch has it for the device."""
     parameters = list(parameters)
     try:
         return torch.optim.Adam(parameters, lr=learning_rate, eps=1e-5, fused=True)

@@ -281,12 +281,8 @@ class Trainer(TrainerFiles):
     def _update_sequences(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
         """``gru``: minibatches of whole agent sequences, the GRU rerun over the rollout's T steps.
 
-        Each of the B * N agents' T steps is one sequence; a minibatch holds
-        ``max(1, minibatch_size // T)`` of them, and the GRU is rerun from the hidden state
-        stored when the rollout began (:attr:`start_hidden`), resetting where the clock reads
-        k = 0, so the log-probabilities are those of the current weights over the same
-        memory the actions were drawn with, and the gradient flows through the whole rollout
-        (truncated back-propagation through time at rollout boundaries).
+        A minibatch holds ``max(1, minibatch_size // T)`` of the B * N agent sequences, the GRU rerun from
+        :attr:`start_hidden` (truncated back-propagation through time at rollout boundaries).
         """
         s, model, n, t = self.settings, self.model, self.n_agents, self.settings.rollout_steps
         sequences = self.n_envs * n
