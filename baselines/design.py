@@ -9,9 +9,6 @@ For the linear law ``u = -g L (x + gamma v)``:
 - **Sampled data with zero-order hold** at period h (Cao & Ren 2010): the one-sample map
   ``[[I - h^2 g L / 2, h I - h^2 g gamma L / 2], [-h g L, I - h g gamma L]]`` (:func:`zoh_radius`) must have
   spectral radius below one (over a switching period, the ordered product).
-
-A continuous law on a switching period is designed on the period's average Laplacian
-(:func:`design_eigenvalues`).
 """
 
 from __future__ import annotations
@@ -56,9 +53,8 @@ def _is_acyclic(laplacian: np.ndarray) -> bool:
 def nonzero_eigenvalues(laplacian: np.ndarray) -> np.ndarray:
     """The N-1 eigenvalues of ``L`` other than its (simple) zero, complex ``(N-1,)``.
 
-    On an acyclic graph (path, star) ``L`` is triangular in topological order, so its
-    eigenvalues are its diagonal exactly; a numerical solver would scatter the defective
-    eigenvalue 1 of a directed path over a circle of radius ``eps^(1/N)``.
+    On an acyclic graph ``L`` is triangular in topological order: its diagonal, exactly (a solver would scatter
+    a directed path's defective eigenvalue 1 over a circle of radius ``eps^(1/N)``).
     """
     if _is_acyclic(laplacian):
         diagonal = np.sort(np.diag(laplacian))
@@ -141,11 +137,8 @@ def _zoh_map(reduced_laplacian: np.ndarray, gamma: float, gain: float, h: float)
 
 
 def design_sampled_gains(topology: Topology, h: float, max_halvings: int = 12) -> tuple[float, float, float]:
-    """``(gain, gamma, radius)`` for the ZOH law at period ``h``: the gamma with the smallest exact radius.
-
-    The gain starts at 1 (the law as written) and is halved only while no gamma on the grid
-    is stable, as a designer would slow the law down for a long sampling period.
-    """
+    """``(gain, gamma, radius)`` for the ZOH law at period ``h``: the gamma with the smallest exact radius; the
+    gain starts at 1 and is halved only while no gamma on the grid is stable."""
     mats = laplacians(topology)
     fixed = nonzero_eigenvalues(mats[0]) if len(mats) == 1 else None
     gain = 1.0

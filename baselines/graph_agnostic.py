@@ -20,8 +20,6 @@ Automatica 49(5), 2013, carried by the motions of :mod:`fxc_env.baselines.signal
 4. **Steering once.** At instant ``L - 1`` agent i knows ``w* - w_i(0)`` and plays the minimum-energy input
    to it over ``[t_L, T_s]``.
 
-It reads only its own observation rows and memory; its one prior is ``max_agents >= N``.
-
 - Source: Yuan et al. 2013 (the recurrence and the final-value formula), carried by this project's
   signalling through small motions.
 - Proven graph class: a fixed digraph with a directed spanning tree and at most ``max_agents`` agents,

@@ -20,16 +20,13 @@ its offset ``p̄ - p_i`` from its sampled relative measurements alone:
 4. **Steering once.** At the last update ``t_c`` agent i plays the minimum-energy input to ``p̄`` over
    ``[t_c, T_s]``, interval by interval. Energy ``≈ E* (T_s / (T_s - t_c))³`` plus signalling.
 
-The amplitude ``ε`` (dimensionless: metres of deviation per metre of register) trades energy for accuracy
-(reading error about ``1e-16 |z| / ε``, signalling energy like ``ε²``); it is refused outside
-``1e-12 <= ε <= 1`` (:data:`AMPLITUDE_RANGE`): below, rounding takes the reads' digits; above, the error grows
-again like ε.
+The amplitude ``ε`` (dimensionless) trades energy (like ``ε²``) for accuracy (reads off by ``1e-16 |z| / ε``);
+refused outside :data:`AMPLITUDE_RANGE`, where it loses accuracy for nothing.
 
 - Source: this project (signalling through motion, on :mod:`fxc_env.baselines.minimum_time`).
 - Proven graph class: a fixed digraph with a directed spanning tree, or a periodic set whose union has one;
   ideal double-integrator agents; ``K >= m (N - 1)`` (twice that with stage 2). Exact (up to rounding / ε)
   at the roots' mean, the unweighted mean when strongly connected.
-- Settings: ``action_mode="plan"`` (or ``"accel"``), ``obs_mode="raw"``.
 - It refuses what it cannot honour, by name: a graph (or period union) without a directed spanning
   tree, topology families, ``switching='random'``, ``u_max`` (unless ``allow_limit=True``), ``obs_noise``
   (without an explicit ``amplitude``), ``link_dropout``, agent models other than the double integrator,

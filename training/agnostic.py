@@ -98,9 +98,8 @@ def _w_hat(topology: Any, g: int) -> np.ndarray:
 def probe_keeps_fixed(topology: Any) -> np.ndarray:
     """``(N,)``: whether each agent's probe sees no change and it plays the fixed table (see the module).
 
-    The probe (:mod:`fxc_env.policies.regime_gains`) compares the rows of consecutive instants while
-    every agent coasts: they coast too exactly when the agent's in-neighbour set, its row of ``Ŵ``, is
-    the same on the graphs of intervals ``0 .. PROBES``.
+    The probe (:mod:`fxc_env.policies.regime_gains`) sees no change exactly when the agent's row of ``Ŵ`` is the
+    same on the graphs of intervals ``0 .. PROBES``.
     """
     rows = np.stack([_w_hat(topology, c % topology.period) for c in range(PROBES + 1)])
     return np.all(rows[1:] == rows[:1], axis=(0, 2))
@@ -149,10 +148,8 @@ def draw_cases(cases: Sequence[tuple[dict[str, Any], int, int]], seed: int) -> d
 def log_errors(config: EnvConfig, tables: tuple[Any, Any], batch: dict[str, Any]) -> Any:
     """``log D(T_s)/D(0)`` ``(B,)`` of the two tables through the exact interval map, interval k on its own graph.
 
-    :func:`fxc_env.training.rings_scratch.log_errors` with ``Ŵ`` per episode and per interval
-    (``z_i(t_{k+1}) = P_k z_i + G_k r_i``, ``r = -Ŵ_k z``), agent i playing ``tables[0]`` (fixed graph)
-    or ``tables[1]`` (switching) as its probe decides (``batch["fixed"]``), padded agents masked
-    out, the state rescaled after every interval.
+    :func:`fxc_env.training.rings_scratch.log_errors` with ``Ŵ`` per episode and interval, agent i playing
+    ``tables[0]`` (fixed) or ``tables[1]`` (switching) as ``batch["fixed"]`` says, padded agents masked out.
     """
     import torch
 

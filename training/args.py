@@ -131,10 +131,8 @@ def canonical_backend(name: Any, *, warn: bool = True) -> Any:
 def load_hyperparams(path: str | Path, scenario: str, algo: str, *, name: str = "hyperparams") -> dict[str, Any]:
     """The ``env``, ``normalize`` and algorithm entries for ``scenario`` (or ``default``).
 
-    ``algo`` is the entry's key: ``ppo``, ``sac``, ``rllib_ppo`` or ``torch_ppo`` (an older
-    file's ``torchrl_ppo`` is read when it has no ``torch_ppo``). A missing or malformed file,
-    or one without the entries, raises :class:`~fxc_env.core.validation.ArgumentError` naming
-    ``name`` (``--hyperparams`` on the command line).
+    ``algo`` is the entry's key (an older file's ``torchrl_ppo`` is read when it has no ``torch_ppo``). A
+    missing or malformed file, or one without the entries, raises ArgumentError naming ``name``.
     """
     table = yaml_mapping_file(name, path)
     entry = table.get(scenario, table.get("default"))
@@ -305,9 +303,8 @@ def torch_device(name: str, value: Any) -> Any:
 def add_train_parser(commands: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``fxc train``: one flag per :class:`TrainArgs` field, with its default and help text.
 
-    A bool field is ``--flag/--no-flag``; every other flag is read as text and turned into
-    the field's type by :func:`args_from_namespace`, so that a bad value is refused by
-    :func:`check_train_args` in one line naming the flag, like every other bad value.
+    A bool field is ``--flag/--no-flag``; every other flag is read as text, for :func:`check_train_args` to
+    refuse a bad value naming the flag.
     """
     parser = commands.add_parser(
         "train",

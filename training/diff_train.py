@@ -7,10 +7,8 @@ the gradient's norm to ``max_grad_norm``, the gradient of
     loss = log_error:  mean over episodes of ln D(T_s) / D(0)  (the default; the paper's measure)
            return:     minus the mean episode return
 
-``window`` (K, or a divisor of K) truncates the back-propagation to windows of that many steps. Actor, policy
-file, run directory and checkpoints are the torch back end's; settings the ``diff_apg`` entry
-(:class:`DiffSettings`); ``progress.csv`` one row per batch (:data:`PROGRESS_COLUMNS`)
-(docs: differentiable.md, "Differentiable simulation").
+``window`` (K, or a divisor of K) truncates the back-propagation; settings are the ``diff_apg`` entry
+(:class:`DiffSettings`) (docs: differentiable.md, "Differentiable simulation").
 """
 
 from __future__ import annotations

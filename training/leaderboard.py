@@ -197,10 +197,8 @@ def train_and_score(task: NamedTask, algorithm: str, seed: int, frames: int, fol
 def policy_actor(policy: Any, hidden: tuple[int, int] | None = None) -> Any:
     """A trained BenchMARL policy as ``act(obs)`` for :func:`score_actor`, deterministic.
 
-    A recurrent actor (BenchMARL's GRU: its ``in_keys`` hold ``is_init`` and the hidden state
-    ``("agents", "_hidden_gru_0")``) carries its hidden state from one step to the next, from zeros
-    with ``is_init`` true at the first step, as BenchMARL's collector does; every episode of the
-    batch starts at the same step, so one flag serves them all.
+    A recurrent actor (``is_init`` and ``("agents", "_hidden_gru_0")`` in its ``in_keys``) carries its hidden
+    state from step to step, from zeros with ``is_init`` true at the first, as BenchMARL's collector does.
     """
     import torch
     from tensordict import TensorDict

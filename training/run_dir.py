@@ -7,13 +7,9 @@
     runs/<name>/checkpoints/            one per save, named with its step count (:data:`CHECKPOINT_NAMES`)
     runs/<name>/training_curve.png      mean episode return against timesteps (:func:`write_training_curve`)
 
-A back end: ``run = RunDir.of(args)``; ``run.resume_checkpoint(args.resume)``; ``run.start(record)``; the loop
-inside ``run.progress(...)`` and ``run.interruptible(unit, save)``; ``run.finish(...)``.
-
 Resuming runs no code from the run directory unless the user passes ``--trust-policy-file``
-(:data:`TRAIN_TRUST_HINT`): ``config.json`` is read with ``json``, sb3 checkpoints without unpickling
-(:func:`fxc_env.policies.policy_files.read_sb3_zip`), torch ones with ``weights_only=True``; what only
-unpickling can read is refused without the flag, naming it (docs: training.md, "Training learned policies").
+(:data:`TRAIN_TRUST_HINT`); what only unpickling can read is refused without it, naming it (docs: training.md,
+"Training learned policies").
 """
 
 from __future__ import annotations
@@ -109,11 +105,8 @@ class RunDir:
     def resume_checkpoint(self, resume: bool, args: TrainArgs | None = None) -> Path | None:
         """The checkpoint a run goes on from: the newest with ``resume``, None without; ``resume`` and none is refused.
 
-        With ``args``, a resumed run must keep the scenario and the critic that ``config.json``
-        records (``scenario``, ``critic``: both values named), and its ``timesteps`` must lie
-        beyond the checkpoint's (a target already reached would train nothing). An RLlib
-        checkpoint restores only by unpickling: refused unless ``args.trust_policy_file``
-        (see the module).
+        With ``args``, a resumed run must keep ``config.json``'s ``scenario`` and ``critic`` and reach beyond
+        the checkpoint's timesteps; an RLlib checkpoint is refused unless ``args.trust_policy_file``.
         """
         if not resume:
             return None
@@ -166,8 +159,7 @@ class RunDir:
     def create(self) -> None:
         """Create the run directory (``mkdir -p``).
 
-        A place this process cannot write (a read-only file system, say, which ``os.access``
-        does not see for root) is refused as ``run_dir``, naming the path.
+        A place this process cannot write is refused as ``run_dir``, naming the path.
         """
         try:
             self.path.mkdir(parents=True, exist_ok=True)
@@ -221,10 +213,8 @@ class RunDir:
 class Progress:
     """``progress.csv`` with fixed ``columns``, and with ``tensorboard`` the same scalars as TensorBoard events.
 
-    A fresh run writes the header. A run resumed from a checkpoint taken after
-    ``resumed_at = (iterations, timesteps)`` drops the rows logged after it (by the run that
-    went on past the checkpoint), and TensorBoard drops its events past ``timesteps``, so
-    the log reads as one run. A row's TensorBoard step is its ``time/total_timesteps``.
+    A run resumed from a checkpoint at ``resumed_at = (iterations, timesteps)`` drops the rows and events
+    logged after it, so the log reads as one run. A row's TensorBoard step is its ``time/total_timesteps``.
     """
 
     def __init__(

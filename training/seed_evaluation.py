@@ -200,9 +200,8 @@ def seed_contenders(
 ) -> list[Contender]:
     """One learned contender per run, named ``learned:<label>-seed<k>``, with its training settings.
 
-    The schedule, action and observation modes are the ones the policy records (its training
-    environment) unless given; every run is loaded here, so a missing or damaged one is refused
-    naming ``name`` before any job runs. Two runs with the same seed are refused.
+    Settings are the policy's recorded ones unless given; a missing or damaged run, or two with the same seed,
+    are refused naming ``name`` before any job runs.
     """
     seeds = [run.seed for run in runs]
     repeated = sorted({s for s in seeds if seeds.count(s) > 1})

@@ -207,10 +207,8 @@ LAYOUT_SETTINGS = ("obs_mode", "obs_slots", "obs_size", "limit_feature", "dim", 
 def init_actor(trainer: Any, source: str) -> Path:
     """Load the actor (and exploration noise) of ``source`` into ``trainer``'s model (``--init-from``).
 
-    ``source``: a shipped policy's name (resolved as :func:`~fxc_env.policies.learned.load_learned_policy`
-    resolves it), a ``policy.pt``, a checkpoint or a run directory of the torch or diff back end.
-    Refused by name, the model unchanged: a file that is not a torch policy, another architecture
-    (``arch``, widths, activation, memory settings) or another observation layout
+    ``source``: a shipped policy's name, a ``policy.pt``, a checkpoint or a torch or diff run directory. Refused
+    by name, the model unchanged: not a torch policy, another architecture or another observation layout
     (:data:`LAYOUT_SETTINGS`) than the run's.
     """
     path = pretrained_path(source) if source in SHIPPED and not Path(source).exists() else Path(source)

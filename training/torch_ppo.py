@@ -9,10 +9,8 @@ normalized global state). The loop is SB3's PPO written out for the engine's ten
     rollout:  T steps of B episodes (T divides K; an episode is K steps), B * N agent-steps each
     update:   ``epochs`` passes over the T * B * N agent-steps in minibatches of ``minibatch_size``
 
-``progress.csv`` has one row per rollout (:data:`PROGRESS_COLUMNS`); the run directory, checkpoints and
-``--resume`` are :mod:`fxc_env.training.run_dir`'s and :mod:`fxc_env.training.torch_common`'s. ``gru`` reruns
-the GRU over whole agent sequences in the update; ``gnn`` minibatches are whole (step, episode) graphs
-(docs: training.md, "Training learned policies").
+``progress.csv`` has one row per rollout (:data:`PROGRESS_COLUMNS`); checkpoints and ``--resume`` are
+:mod:`fxc_env.training.torch_common`'s (docs: training.md, "Training learned policies").
 """
 
 from __future__ import annotations
