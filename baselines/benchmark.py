@@ -50,9 +50,8 @@ def run_suite(
 ) -> list[JobResult]:
     """Run every job of the suite; results in table order.
 
-    On this machine over ``workers`` processes (default: all cores), or with ``ray`` as Ray
-    tasks on a local Ray (``workers`` cores, default all) or on the cluster at ``address``
-    (:mod:`fxc_env.baselines.ray_jobs`). Every job is seeded, so both give the same results.
+    Over ``workers`` processes (default: all cores), or with ``ray`` as Ray tasks on a local Ray or on the
+    cluster at ``address``; both give the same results.
     """
     from tqdm import tqdm
 

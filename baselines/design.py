@@ -102,9 +102,7 @@ def design_gamma(eigenvalues: np.ndarray, gain: float = 1.0) -> float:
 def zoh_mode_radius(eigenvalues: np.ndarray, gamma: np.ndarray | float, gain: float, h: float) -> np.ndarray:
     """Spectral radius of the one-sample ZOH map, over the modes of a fixed graph; ``gamma``'s shape.
 
-    Per eigenvalue ``mu = g lambda`` the map is ``[[1 - h^2 mu / 2, h - h^2 gamma mu / 2],
-    [-h mu, 1 - h gamma mu]]``: trace ``2 - h^2 mu / 2 - h gamma mu``, determinant
-    ``1 - h gamma mu + h^2 mu / 2``.
+    Per eigenvalue ``mu = g lambda``: trace ``2 - h^2 mu / 2 - h gamma mu``, determinant ``1 - h gamma mu + h^2 mu / 2``.
     """
     mu = gain * np.asarray(eigenvalues, dtype=complex)
     gammas = np.asarray(gamma, dtype=float)[..., None]
@@ -117,8 +115,7 @@ def zoh_mode_radius(eigenvalues: np.ndarray, gamma: np.ndarray | float, gain: fl
 def zoh_radius(topology: Topology, gamma: float, gain: float, h: float) -> float:
     """Per-sample contraction of the exact ZOH map: ``rho(M_{m-1} ... M_0)^(1/m)`` on the disagreement.
 
-    Below one iff ``u = -g L_k (x + gamma v)`` held for h seconds reaches consensus (Cao & Ren
-    2010's exact criterion; for a fixed graph it reduces to :func:`zoh_mode_radius`).
+    Below one iff ``u = -g L_k (x + gamma v)`` held for h seconds reaches consensus (Cao & Ren 2010).
     """
     mats = laplacians(topology)
     if len(mats) == 1:

@@ -151,10 +151,8 @@ def recurrence_limit(
 
     Returns:
         ``(limits (M, C), degrees (M,), certified (M,))``: ``Σ_m β_m w(k + m) / Σ_m β_m`` on the latest
-        window; the degree ``d`` of the recurrence ``Σ_m β_m Δw(k + m) = 0`` found (the smallest-σ degree when
-        no Hankel passes the test); and whether the kernel is backed by more windows than unknowns counting
-        only the numerically independent channels (dependent channels, as when every velocity is equal, add
-        no information).
+        window; the degree found (the smallest-σ degree when no Hankel passes); and whether the kernel is backed
+        by more windows than unknowns, counting only the numerically independent channels.
     """
     M, C, L = values.shape
     diffs = np.diff(values, axis=-1)  # (M, C, L - 1)

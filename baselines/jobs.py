@@ -40,11 +40,8 @@ class JobResult:
     """What one job measured.
 
     Attributes:
-        metrics: the episode metrics, one ``(B,)`` array per name of
-            :class:`fxc_env.core.metrics.EpisodeMetrics`, plus ``final_value_gap``
-            (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``;
-            the optimality columns (``energy_bound``, ``energy_ratio``, ``settled_interval``,
-            ``radius_bound``, ``all_roots_bound``) come with the engine's metrics.
+        metrics: the engine's episode metrics, one ``(B,)`` array per name, plus ``final_value_gap``
+            (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``.
         trace_times, trace: sampling instants and the median over seeds of ``D(t_k) / D(0)``
             (only for the suite's trace case).
         description: the policy's law, source, graph class and parameters (as text).

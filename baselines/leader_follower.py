@@ -6,19 +6,14 @@ centre coasts; every other agent i, on each interval k, lands on the coasted sta
 
     z_i(t_{k+1}) = P_k z_{p}(t_k),    P_k = [[1, T_k], [0, 1]]  (coasting),
 
-the plan ``(a_x, a_v) = P_k (z_p - z_i)`` read from its own relative row of p (paper Remark 1). The parents
-form a **time-respecting tree** from r: ``s(r) = 0``; an agent with ``s(i) > k`` follows its in-neighbour of
-``G_k`` with the smallest ``s(j)`` (ties: the smaller index) and is synchronised at ``t_{k+1}`` when
-``s(j) <= k``; a synchronised agent, or one with no in-neighbour in ``G_k``, coasts. Exact consensus at the
-centre's coasted state after exactly the radius.
+the plan ``(a_x, a_v) = P_k (z_p - z_i)`` from its own relative row of p (paper Remark 1), the parents forming a
+time-respecting shortest-path tree from r (:func:`follower_slots`). Exact after exactly the radius.
 
 - Source: this project (leader-follower consensus with an offline shortest-path tree).
 - Proven graph class: fixed digraphs with a directed spanning tree and periodic switching whose joint
   graph spans (the time-respecting radius), ideal double-integrator agents.
 - It refuses what it cannot honour, by name: topology families, ``switching='random'``, ``u_max``,
   ``obs_noise``, ``link_dropout`` and other agent models.
-
-The tree is per agent, so it is called with every agent's observation at once, ``(..., N, obs_size)``.
 """
 
 from __future__ import annotations
@@ -39,8 +34,10 @@ from fxc_env.core.validation import ArgumentError
 def follower_slots(topology: Topology, centre: int) -> np.ndarray:
     """The observation row each agent follows on each interval, ``(R + 1, N)`` int; -1: coast.
 
-    Row k (``k < R``, R the centre's reach time) holds, per agent, the slot of its parent in the module's
-    time-respecting tree among its in-neighbours of ``G_{k mod m}``; row R, used from interval R on, is all -1.
+    Row k (``k < R``, R the centre's reach time) holds, per agent, the slot of its parent among its
+    in-neighbours of ``G_{k mod m}``: with ``s(r) = 0``, an agent with ``s(i) > k`` follows its in-neighbour
+    with the smallest ``s(j)`` (ties: the smaller index), synchronised at ``t_{k+1}`` when ``s(j) <= k``; a
+    synchronised agent, or one with no in-neighbour, coasts. Row R, used from interval R on, is all -1.
     """
     n, m = topology.n_agents, topology.period
     index, mask = topology.neighbour_index, topology.neighbour_mask  # (m, N, d_max)

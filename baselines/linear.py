@@ -12,8 +12,6 @@ Law (agent i, in-neighbours j, ``a_ij = 1``)::
 - Parameters: ``gain`` ``g`` [1, 1/s^2], ``gamma`` [s], by default designed offline for the fastest decay
   (:func:`fxc_env.baselines.design.design_gamma`; a switching period on its average Laplacian, not covered by
   the theorem). An explicit ``gamma`` is used as given (:attr:`passes_gain_test`).
-
-A continuous-measurement law: the benchmark runs it on a fine ``uniform`` schedule in ``accel`` mode.
 """
 
 from __future__ import annotations

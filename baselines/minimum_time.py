@@ -14,9 +14,8 @@ clock from a schedule designed offline from the graph; interval k acts on the mo
   ``a + ib = 1/mu`` (conjugated by ``diag(1, 1/T_{k+1})`` for a gain's units);
 - an eigenvalue whose largest Jordan block has size s: its factor s times (:func:`design_eigenvalues`).
 
-The factors run in Leja order; afterwards the agents play the paper's plan (``G_k = P_k``, eq. 11). With
-fewer intervals than factors it plays the subset of smallest modal score (:func:`budget_factors`), warns
-(``UserWarning`` naming ``n_intervals``) and reports :func:`design_residual` as ``predicted_residual``.
+The factors run in Leja order, then the paper's plan (``G_k = P_k``, eq. 11); with fewer intervals than factors
+it warns (naming ``n_intervals``) and plays :func:`budget_factors`.
 
 - Source: this project (a deadbeat "minimal polynomial" design in the spirit of Sundaram & Hadjicostis 2007
   and Kibangou 2012, on the sampled-data plan of the paper).
@@ -66,9 +65,8 @@ def _same(a: complex, b: complex) -> bool:
 def _block_index(block: np.ndarray, mu: complex, multiplicity: int) -> int:
     """The size of the largest Jordan block of ``mu`` in ``block`` (its index), by a rank test; at most ``multiplicity``.
 
-    The smallest j with ``rank((block - mu I)^j) = size - multiplicity`` (numerical rank, singular values
-    below ``1e-8`` of the largest count as zero). Where the test is not conclusive (the rank stops
-    falling above that), ``multiplicity`` (the characteristic polynomial's count, always enough).
+    The smallest j with ``rank((block - mu I)^j) = size - multiplicity`` (singular values below ``1e-8`` of the
+    largest are zero); ``multiplicity`` where the test is not conclusive.
     """
     size = len(block)
     shifted = block - (mu.real if mu.imag == 0 else mu) * np.eye(size)

@@ -149,8 +149,7 @@ class SignalPolicy(LawPolicy):
 def averaging_weights(topology: Topology) -> np.ndarray:
     """``ξ`` ``(N,)``: the left null vector of ``Ŵ = (D + I)^{-1} L`` on the (union) graph, ``Σ ξ = 1``.
 
-    Positive on the root set (:func:`fxc_env.core.optimality.root_set`), zero elsewhere: exact
-    consensus by polynomials in ``Ŵ`` ends at ``ξᵀ q(0)`` (paper Theorem 1's weights, on the union).
+    Positive on the root set (:func:`fxc_env.core.optimality.root_set`), zero elsewhere (paper Theorem 1's weights).
 
     Raises:
         ArgumentError naming ``topology`` when the (union) graph has no directed spanning tree.
@@ -171,9 +170,8 @@ def averaging_weights(topology: Topology) -> np.ndarray:
 def register_eigenvalues(topology: Topology) -> np.ndarray:
     """The ``N - 1`` nonzero eigenvalues of ``Ŵ = (D + I)^{-1} L`` on the (union) graph, complex.
 
-    Block by block over the strongly connected components (``Ŵ`` is block triangular in their
-    order), so eigenvalues repeated across components come out exactly repeated; the consensus
-    eigenvalue 0, simple under a directed spanning tree, lies in the root component.
+    Block by block over the strongly connected components, so eigenvalues repeated across components come out
+    exactly repeated.
     """
     union = union_graph(topology)
     degree = np.asarray(union.sum(axis=1)).ravel()
@@ -191,11 +189,7 @@ def register_eigenvalues(topology: Topology) -> np.ndarray:
 
 
 def leja_order(eigenvalues: np.ndarray) -> np.ndarray:
-    """The eigenvalues ``(N - 1,)`` in the order that keeps partial products small.
-
-    Each next factor ``(1 - μ'/μ)`` kills the mode whose partial product ``|Π (1 - μ'/μ_k)|`` is
-    largest so far (the first: the largest ``|μ|``).
-    """
+    """The eigenvalues ``(N - 1,)`` in Leja order: each next one where ``|Π (1 - μ'/μ_k)|`` is largest so far."""
     points = np.asarray(eigenvalues, dtype=complex)
     remaining = list(range(len(points)))
     log_q = np.zeros(len(points))

@@ -103,11 +103,8 @@ class HoldPolicy(LawPolicy):
 class LinearRowPolicy(HoldPolicy):
     """A law linear in the rows: ``u_i = sum_j a_ij [p (x_j - x_i) + q (v_j - v_i)]``.
 
-    ``p`` (1/s^2) and ``q`` (1/s) may depend on the clock (:meth:`row_gains`). Being
-    homogeneous of degree one, the law is computable in both observation modes: with
-    normalised rows ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i`` the action is
-    ``alpha = T^2 sum_j [p dx_j + (q / T) dv_j]``, which the environment multiplies by
-    ``s_i / T^2``; the scale ``s_i`` itself is never needed.
+    ``p`` (1/s^2) and ``q`` (1/s) may depend on the clock (:meth:`row_gains`). On normalized rows the action
+    is ``alpha = T^2 sum_j [p dx_j + (q / T) dv_j]`` (homogeneous of degree one: ``s_i`` is never needed).
     """
 
     OBS_MODES: ClassVar[tuple[str, ...]] = ("raw", "normalized")

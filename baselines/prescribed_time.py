@@ -16,9 +16,6 @@ Law (``sigma = T_s - t``, the time left; the gain ``mu(t) = T_s / sigma`` grows 
 - **Cut-off**: under a zero-order hold at period h the gain is frozen at ``sigma = delta``,
   ``delta = max(2 h, 5 h k_v max|lambda|)``; from ``T_s - delta`` on the law is linear with constant gains
   (throughout when ``delta`` reaches ``T_s``: the row's ``cutoff_s`` says so).
-
-Homogeneous of degree one in the rows (``obs_mode`` ``"raw"`` or ``"normalized"``); the benchmark runs it on a
-fine ``uniform`` schedule.
 """
 
 from __future__ import annotations

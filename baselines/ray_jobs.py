@@ -21,8 +21,8 @@ def run_jobs_on_ray(
 ) -> list[JobResult]:
     """Run ``jobs`` as Ray tasks (submitted in the given order); results in the order of ``jobs``.
 
-    ``address`` joins a running cluster; without it a local Ray with ``num_cpus`` cores
-    (default: all) is started and stopped. ``on_done(n)`` is called as ``n`` jobs finish.
+    ``address`` joins a cluster, else a local Ray with ``num_cpus`` cores (default: all) is started and stopped;
+    ``on_done(n)`` is called as ``n`` jobs finish.
     """
     with ray_session("--ray", address, num_cpus) as ray:
         task = ray.remote(num_cpus=1, runtime_env={"env_vars": single_thread_environment()})(run_job)

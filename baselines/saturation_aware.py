@@ -80,10 +80,8 @@ class SaturationAwarePolicy(HoldPolicy):
     def act_in_plan_units(self, obs: np.ndarray) -> np.ndarray:
         """The same law as plan actions on normalized rows ``r_x = dx / s``, ``r_v = T dv / s``.
 
-        The plan ``alpha`` needs the input ``(s / T^2) (6 alpha_x - 2 alpha_v, 4 alpha_v - 6 alpha_x)``,
-        so it fits where those numbers are within ``rho = u_max T^2 / s``, which the limit entry
-        gives without ``s``. The held input ``u`` is the plan ``(u T^2 / 2, u T)``, in these units
-        ``alpha = g T^2 (S_x + (gamma / T) S_v) (1/2, 1)`` with the row sums ``S``.
+        The plan ``alpha`` fits where ``(6 alpha_x - 2 alpha_v, 4 alpha_v - 6 alpha_x)`` is within
+        ``rho = u_max T^2 / s`` (from the limit entry); the held input is ``alpha = g T^2 (S_x + (gamma / T) S_v) (1/2, 1)``.
         """
         layout = self.layout
         rows, mask, clock = layout.split(obs)

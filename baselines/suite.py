@@ -296,11 +296,8 @@ MODEL_CONDITIONS = (
 
 
 def models_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
-    """Every named agent model on ``paper_fig1`` and a random N = 20 digraph at K = 200 and 400.
-
-    The analytic baselines are laws for the double integrator: on the other models they do not
-    run (the table says why); the reference and ``plan``-mode learned policies run on all.
-    """
+    """Every named agent model on ``paper_fig1`` and a random N = 20 digraph at K = 200 and 400 (the analytic
+    baselines, laws for the double integrator, are reported as not run on the others)."""
     bases = (BenchmarkCase("paper_fig1", 6), BenchmarkCase("random", 20))
     cases = tuple(replace(base, conditions=c) for base in bases for c in MODEL_CONDITIONS)
     return Suite(
@@ -360,11 +357,8 @@ FLOOR_LIMITS = (0.3, 0.5, 1.0, 10.0)
 
 
 def floor_cases() -> tuple[BenchmarkCase, ...]:
-    """The directed ring of 20 under each of :data:`FLOOR_NOISE` and :data:`FLOOR_LIMITS`, and ``paper_fig1`` at ``u_max = 10``.
-
-    Their episodes carry ``noise_floor`` or ``input_floor`` (:mod:`fxc_env.core.floors`): what no
-    controller can beat under that setting.
-    """
+    """The directed ring of 20 under each of :data:`FLOOR_NOISE` and :data:`FLOOR_LIMITS`, and ``paper_fig1`` at
+    ``u_max = 10``: episodes that carry ``noise_floor`` or ``input_floor`` (:mod:`fxc_env.core.floors`)."""
     ring = BenchmarkCase("ring", 20)
     return (
         *(replace(ring, conditions=(("obs_noise", sigma),)) for sigma in FLOOR_NOISE),
@@ -382,8 +376,7 @@ def optimality_cases(sizes: tuple[int, ...] = (20, 100)) -> tuple[BenchmarkCase,
 def optimality_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     """How far from optimal (docs: optimality.md, "How far from optimal"): :func:`optimality_cases` at K = 200, T_s = 20 s.
 
-    Every job reports its episodes' bounds (``E*``, the radius and the all-roots bounds) beside the deadline
-    error, the energy ratio and the intervals used; run it with :func:`optimality_contenders`.
+    Run it with :func:`optimality_contenders`.
     """
     return Suite(
         cases=optimality_cases(),

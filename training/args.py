@@ -22,11 +22,9 @@ from fxc_env.training import registry
 from fxc_env.utils.cli_checks import output_directory, yaml_mapping_file
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
-#: Views of :data:`fxc_env.training.registry.BACKENDS`: every ``--algo``, every ``--backend``, those whose
-#: actor is one of :data:`POLICY_ARCHS` on a torch device (saved as ``policy.pt``), and the old names.
+#: Views of :data:`fxc_env.training.registry.BACKENDS`: every ``--algo``, every ``--backend`` and the old names.
 ALGORITHMS = registry.algorithms()
 BACKENDS = tuple(registry.BACKENDS)
-TORCH_BACKENDS = registry.with_flag("torch_actor")
 BACKEND_ALIASES = registry.ALIASES
 #: ``--critic`` of the torch back end: per-agent values, or one value per episode from the global state.
 CRITICS = ("local", "central")

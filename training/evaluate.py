@@ -67,11 +67,8 @@ def scored_settings(task: NamedTask) -> dict[str, Any]:
 
 
 def task_suite(task: NamedTask) -> tuple[Suite, dict[str, Any]]:
-    """The one case of a named task at its K, on its evaluation seeds; and its learned policies' settings.
-
-    The scenario's preset is spelled out, so every setting of the task reaches the case (its
-    ranges of initial states, input limits, family), not only those given next to the scenario.
-    """
+    """The one case of a named task at its K, on its evaluation seeds (every setting of its scenario's preset
+    spelled out); and its learned policies' settings."""
     kwargs = scored_settings(task)
     n_intervals = kwargs.pop("n_intervals")
     learned = {k: kwargs.pop(k) for k in ("action_mode", "obs_mode", "schedule") if k in kwargs}

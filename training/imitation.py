@@ -60,9 +60,7 @@ def demonstrations(
 ) -> Demonstrations:
     """Roll ``teacher`` out on ``venv`` for at least ``samples`` agent-steps, rounded up to whole episodes.
 
-    The executed actions are the teacher's plus Gaussian noise of standard deviation
-    ``noise`` (normalized units, drawn from ``rng``), so that states off the teacher's path
-    are covered; the labels are the clean actions.
+    The executed actions have Gaussian noise ``noise`` (normalized units, from ``rng``); the labels are clean.
     """
     config = config_of(venv, "imitation")
     n_envs, episode = venv.num_envs, config.n_intervals

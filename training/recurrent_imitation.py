@@ -54,10 +54,8 @@ def env_record(n_agents: int) -> dict[str, Any]:
 def play(config: EnvConfig, seeds: Sequence[int], student: Any = None, label: bool = True) -> dict[str, np.ndarray]:
     """Seeded episodes played by ``student`` (a callable on ``[B, N, obs]``, stateful), or the teacher if None.
 
-    Episode b draws its ring and initial state from ``np.random.default_rng(seeds[b])``. Returns
-    ``deadline_error`` ``(B,)`` and, with ``label``, the observations ``(K, B, N, obs_size)`` and the
-    teacher's plans at them ``(K, B, N, 2)``. A step that would overflow float64 (a diverging student)
-    ends the batch with ``deadline_error`` inf for every episode.
+    Returns ``deadline_error`` ``(B,)`` (inf for every episode when a diverging student overflows float64) and,
+    with ``label``, the observations ``(K, B, N, obs_size)`` and the teacher's plans ``(K, B, N, 2)``.
     """
     engine = ConsensusEngine(config, n_episodes=len(seeds))
     draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]

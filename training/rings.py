@@ -64,10 +64,8 @@ def task_config(n_agents: int = 20, topology: Any = None) -> EnvConfig:
 def run_episodes(config: EnvConfig, policy_of: Any, seeds: Sequence[int], record: bool = False) -> dict[str, Any]:
     """Seeded episodes of ``config``, every agent acting by ``policy_of(drawn_config)`` (one policy per episode).
 
-    Episode b draws its graph and initial state from ``np.random.default_rng(seeds[b])``, as
-    ``ConsensusParallelEnv.reset(seed=seeds[b])``. Returns ``deadline_error`` ``(B,)``
-    (``D(T_s)/D(0)``), and with ``record`` the observations ``(K, B, N, obs_size)`` and actions
-    ``(K, B, N, 2)`` along the way.
+    Episode b is ``reset(seed=seeds[b])``'s. Returns ``deadline_error`` ``(B,)`` and, with ``record``, the
+    observations ``(K, B, N, obs_size)`` and actions ``(K, B, N, 2)``.
     """
     engine = ConsensusEngine(config, n_episodes=len(seeds))
     draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]

@@ -42,10 +42,8 @@ FLOOR = 1e-13
 def factor_table(config: Any, q: Any) -> Any:
     """The ``(K, 2, 2)`` table in normalized units (torch float64) of the factors ``q`` ``(ceil(K / 2), 2)``.
 
-    Pair m sets ``G_{2m} = R_m P_{2m}``, ``G_{2m+1} = P_{2m+1} R_m^T`` (physical units, see the
-    module); an odd K's last interval is the real factor ``G = a P``. Normalized units divide the
-    physical gain by ``[[1, T_k], [1 / T_k, 1]]`` entrywise (the inverse of
-    :func:`fxc_env.training.rings.physical_map`).
+    Pairs as in the module; an odd K's last interval is the real factor ``G = a P``; normalized units are
+    the inverse of :func:`fxc_env.training.rings.physical_map`.
     """
     import torch
 
@@ -106,11 +104,9 @@ def minimise(
 ) -> tuple[list[float], int]:
     """L-BFGS on ``loss()`` over the tensor ``parameter``: the loop of every gain-schedule trainer here.
 
-    Each of at most ``steps`` steps runs 20 L-BFGS iterations (history 20, strong-Wolfe line search);
-    the loop ends on a non-finite loss, when ``stop(loss)`` holds, or when a step does not lower the
-    loss, after ``restarts`` fresh curvature histories (a stale history can stall a line search that a
-    fresh one gets past). ``progress(step, loss)`` is called after every step. Returns the loss before
-    and after each step, and the restarts used.
+    At most ``steps`` steps of 20 L-BFGS iterations (strong-Wolfe); it ends on a non-finite loss, when
+    ``stop(loss)`` holds, or when a step lowers nothing after ``restarts`` fresh curvature histories.
+    ``progress(step, loss)`` follows every step. Returns the loss before and after each step, and the restarts.
     """
     import torch
 

@@ -38,9 +38,8 @@ PROGRESS_COLUMNS = (
 class ConsensusRLlibEnv(ParallelPettingZooEnv):
     """``fxc_env.parallel_env(**config)`` as an RLlib ``MultiAgentEnv``.
 
-    RLlib's wrapper with two fixes: ``render()`` without an argument (PettingZoo's
-    signature), and agents in the environment's order ``agent_0 .. agent_{N-1}`` (the
-    wrapper takes them from a set, whose order changes from process to process).
+    RLlib's wrapper with ``render()`` without an argument and agents in the environment's order (the wrapper
+    takes them from a set, whose order changes from process to process).
     """
 
     def __init__(self, config: dict[str, Any] | None = None) -> None:

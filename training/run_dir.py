@@ -175,8 +175,7 @@ class RunDir:
     def sb3_logger(self, resumed_at: int | None = None) -> Any:
         """SB3's logger writing ``progress.csv`` and TensorBoard events here (SB3 picks the columns).
 
-        Resumed from a checkpoint at ``resumed_at`` timesteps, ``progress.csv`` keeps the
-        earlier run's rows up to it (SB3's own CSV log would start the file afresh).
+        Resumed at ``resumed_at`` timesteps, ``progress.csv`` keeps the earlier run's rows up to it.
         """
         from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoardOutputFormat
 
@@ -192,9 +191,8 @@ class RunDir:
     def interruptible(self, unit: str, save: Callable[[], Path]) -> Iterator[list[bool]]:
         """Run a training loop: Ctrl-C sets the yielded flag, the loop stops after the ``unit`` under way.
 
-        On leaving the block with the flag set, ``save()`` writes a checkpoint (its path is
-        printed on stderr) and ``KeyboardInterrupt`` is raised. A second Ctrl-C raises
-        ``KeyboardInterrupt`` at once, without a checkpoint (the unit is half done).
+        Then ``save()`` writes a checkpoint and ``KeyboardInterrupt`` is raised; a second Ctrl-C raises it at once,
+        without a checkpoint.
         """
         with deferred_interrupt(unit) as pressed:
             yield pressed

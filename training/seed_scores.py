@@ -174,9 +174,8 @@ def _episode_metrics(errors: np.ndarray, energies: np.ndarray) -> dict[str, list
 def marl_eval_record(scores: Sequence[CaseScores], runs: Sequence[TrainedRun], label: str) -> dict[str, Any]:
     """The raw scores in marl-eval's layout (see the module): env → case → algorithm → seed_<k> → step_0 / absolute_metrics.
 
-    Cases that a run could not play are left out (marl-eval needs every algorithm and run in
-    every task). Values are plain floats; an ``inf`` (a diverged episode) is written as JSON's
-    ``Infinity``, which Python's ``json`` (and so marl-eval) reads back.
+    Cases a run could not play are left out (marl-eval needs every algorithm and run in every task); an
+    ``inf`` (a diverged episode) is written as JSON's ``Infinity``.
     """
     tasks: dict[str, Any] = {}
     for case in scores:

@@ -154,10 +154,8 @@ LOG_2PI = math.log(2.0 * math.pi)
 class ActorCritic(nn.Module):
     """The shared Gaussian policy (mean network, state-independent log std) and the critic.
 
-    ``arch``: the mean network, an MLP of the observation (``mlp``), a GRU over the agent's
-    observations with a gain head (``gru``) or messages along the interval graph (``gnn``),
-    :mod:`fxc_env.policies.torch_memory`; ``clock_index``: the observation entry of ``k/K``
-    (``gru`` resets its memory where it is 0). The critic is an MLP in every case.
+    ``arch``: the mean network (``mlp``, ``gru`` or ``gnn``, :mod:`fxc_env.policies.torch_memory`);
+    ``clock_index``: the observation entry of ``k/K`` (``gru`` resets where it is 0). The critic is an MLP.
     """
 
     def __init__(
@@ -266,9 +264,8 @@ def drive(
 ) -> Path:
     """The run every back end on the torch engine shares (``torch``, ``diff``); returns the run directory.
 
-    Resumes ``checkpoint`` (or starts the run directory with the arguments, hyperparameters and
-    ``record``), then calls ``iterate(start_steps, start_time)`` — one ``unit`` of work that advances
-    ``trainer.timesteps`` and returns its progress row (``columns``) and console line — until ``args.timesteps``,
+    Resumes ``checkpoint`` (or starts the run directory), calls ``iterate(start_steps, start_time)`` (one
+    ``unit``: advances ``trainer.timesteps``, returns its progress row and console line) until ``args.timesteps``
     with checkpoints every ``args.checkpoint_every`` and on Ctrl-C, and writes ``policy.pt``.
     """
     if checkpoint is not None:
