@@ -1,12 +1,10 @@
 """``fxc leaderboard``: BenchMARL's algorithms beside the analytic laws and the shipped policies on the named tasks.
 
-For every task of :data:`fxc_env.config.tasks.TASKS` (or those named) every algorithm trains for the same
-frame budget on each training seed, and every contender (the laws, the shipped policies through
-``fxc evaluate --task``'s suite, the trained actors) is scored on the task's frozen evaluation seeds by
-``D(T_s)/D(0)``: median and IQM of log10 with stratified bootstrap intervals (:mod:`fxc_env.core.statistics`),
-``marl_eval.json``, ``performance_profile.png`` and ``versions.json``. Every finished piece is a file under
-``--out`` that a rerun skips. Training needs BenchMARL (the ``[benchmarl]`` extra); ``--algorithms none``
-scores the laws and the shipped policies only (docs: results.md, "MARL algorithms table").
+For every task of :data:`fxc_env.config.tasks.TASKS` (or those named) every algorithm trains for the same frame
+budget on each training seed; the laws, the shipped policies and the trained actors are scored on the task's
+frozen evaluation seeds (median and IQM of log10 ``D(T_s)/D(0)``, bootstrap intervals). Every finished piece is
+a file under ``--out`` that a rerun skips. Training needs BenchMARL (the ``[benchmarl]`` extra); ``--algorithms
+none`` scores the laws and the shipped policies only (docs: results.md, "MARL algorithms table").
 """
 
 from __future__ import annotations

@@ -52,9 +52,7 @@ _RUN_FILES = ("model.zip", "policy.pt", "config.json", "checkpoints")
 #: Saved policies by suffix: an SB3 model, a torch policy, a gain schedule (anything else, a log say, is no run).
 POLICY_SUFFIXES = (".zip", ".pt", ".npz")
 _NOT_A_RUN = "neither a saved policy (" + ", ".join(POLICY_SUFFIXES) + ") nor a run directory"
-#: What runs pooled as training seeds of one policy must share, in the order they are compared
-#: (:func:`pooled_identity`): the saved format, the algorithm, the network (its description and
-#: its parameter shapes), the training scenario and the training settings the file records.
+#: What runs pooled as training seeds of one policy must share, in the order :func:`pooled_identity` compares them.
 POOLED_FIELDS = ("format", "algorithm", "architecture", "parameter shapes", "scenario", "settings")
 #: The step count in a checkpoint's name (``model_4000000_steps.zip``, ``rllib_4000_steps``).
 _CHECKPOINT_STEPS = re.compile(r"_(\d+)_steps")
