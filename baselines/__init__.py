@@ -1,20 +1,9 @@
 """Classical consensus controllers (baselines) and the deadline benchmark.
 
-Each baseline is a policy on the local observation, like :class:`fxc_env.ReferencePolicy`,
-the classical ones acting in ``accel`` mode with a zero-order hold; its module docstring gives the law, its
-source paper, the graph class it is proven for, and its parameters. The laws, their settings and their
-opt-in variants are registered once in :mod:`fxc_env.baselines.registry`:
-:class:`SampledLinearPolicy`, :class:`LinearConsensusPolicy`, :class:`FiniteTimePolicy`,
-:class:`PrescribedTimePolicy`, :class:`SaturationAwarePolicy`, :class:`MinimumTimePolicy`,
-:class:`LeaderFollowerPolicy`, :class:`SignallingPolicy`, :class:`GraphAgnosticPolicy` and
-:class:`BoundedSteerPolicy`.
-
-:mod:`fxc_env.core.optimality` gives the bounds every law is measured against: the least energy
-``E*`` of an exact consensus at ``T_s`` and the fewest intervals (the radius, for every law; the
-all-roots bound for laws whose value depends on every root).
-
-``fxc benchmark`` (:mod:`fxc_env.baselines.benchmark`) scores them, the reference and learned
-policies (:func:`load_policy`) on one suite (:mod:`fxc_env.baselines.suite`).
+Each baseline is a policy on the local observation, like :class:`fxc_env.ReferencePolicy`; its module docstring
+gives the law, its source paper, the graph class it is proven for, and its parameters. The laws are registered
+once in :mod:`fxc_env.baselines.registry`; ``fxc benchmark`` (:mod:`fxc_env.baselines.benchmark`) scores them
+against the bounds of :mod:`fxc_env.core.optimality` (docs: benchmark.md, "Baselines and the deadline benchmark").
 
     >>> import fxc_env
     >>> from fxc_env import baselines

@@ -1,12 +1,9 @@
 """``fxc benchmark``: every policy on the same cases, scored at the deadline ``T_s``.
 
-Each job is one contender on one case at one budget K: a :class:`ConsensusEngine` runs
-all seeded initial states of the suite as one batch (B = number of seeds) and returns
-:meth:`ConsensusEngine.batch_metrics`. Jobs are spread over the machine's cores (one
-process per core, one BLAS thread per process), or with ``--ray`` over a Ray cluster
-(:mod:`fxc_env.baselines.ray_jobs`), behind a progress bar; the report
-(:mod:`fxc_env.baselines.report`) and the figures (:mod:`fxc_env.baselines.figures`) are built from the
-results. ``--quick`` runs a smaller suite in about a minute.
+Each job (:mod:`fxc_env.baselines.jobs`) runs all seeded initial states of the suite as one batch on a
+:class:`ConsensusEngine`; jobs are spread over the machine's cores (one BLAS thread each) or, with ``--ray``,
+over a Ray cluster (:mod:`fxc_env.baselines.ray_jobs`); :mod:`fxc_env.baselines.report` and
+:mod:`fxc_env.baselines.figures` are built from the results. ``--quick`` runs a smaller suite.
 """
 
 from __future__ import annotations
@@ -53,9 +50,8 @@ def run_suite(
 ) -> list[JobResult]:
     """Run every job of the suite; results in table order.
 
-    On this machine over ``workers`` processes (default: all cores), or with ``ray`` as Ray
-    tasks on a local Ray (``workers`` cores, default all) or on the cluster at ``address``
-    (:mod:`fxc_env.baselines.ray_jobs`). Every job is seeded, so both give the same results.
+    Over ``workers`` processes (default: all cores), or with ``ray`` as Ray tasks on a local Ray or on the
+    cluster at ``address``; both give the same results.
     """
     from tqdm import tqdm
 

@@ -1,56 +1,34 @@
 """Exact consensus under an input limit: gather every prediction by small motions, then the least-peak steer.
 
-Law (docs: optimality.md, "How far from optimal", input limits):
+Law (docs: results.md, "Beat-the-best under noise and limits"):
 
-1. **Gathering.** Per axis, agent i's free-motion prediction ``p_i = (x_i + T_s v_i, v_i)`` as the complex
-   register ``q_i = p_{i,x} + i T_s p_{i,v}`` (:mod:`fxc_env.baselines.signalling`). At ``t_0`` it reads
-   ``q_j - q_i`` of its in-neighbours from its rows. At every instant each agent signals, at amplitude ε as a
-   deviation from coasting, one relative register ``q_s - q_j`` it knows; an out-neighbour i reads it and adds
-   ``q_j - q_i``. Which one is sent when is a flooding schedule designed offline from the graph (each agent
-   sends the value that most of its out-neighbours still lack): on a directed ring every agent knows every
-   ``q_s - q_i`` after N - 2 instants (``N - 1`` hops, one per interval); on the random strongly connected
-   digraphs of :mod:`fxc_env.baselines.graph_agnostic_goals` after 15 (N = 20) and 21 (N = 40) instants (each
-   link carries one value per interval, so about N / in-degree at least).
-2. **A common point.** Every agent then knows all predictions relative to its own and computes the same
-   point: the mid-range of the final positions and of the final velocities, ``((max + min) / 2)`` per axis,
-   which needs a smaller peak input than the mean when the spread is set by a few outlying agents.
-3. **The least-peak steer.** Over the remaining intervals each agent plays the piecewise-constant input of
-   least peak that lands it on the point: bang-bang with one switch (``+U`` then ``-U`` or the mirror), the
-   interval of the switch taking the value that makes the landing exact (closed form, every switch interval
-   tried). Wherever that peak is within ``u_max`` the limit never acts and the law is exact; elsewhere the clip
-   breaks the landing.
+1. **Gathering.** Per axis, agent i's prediction as the register ``q_i = p_{i,x} + i T_s p_{i,v}``
+   (:mod:`fxc_env.baselines.signalling`). At ``t_0`` it reads ``q_j - q_i`` of its in-neighbours; at every
+   instant each agent signals, at amplitude ε, one relative register ``q_s - q_j`` it knows, chosen by a
+   flooding schedule designed offline from the graph; an out-neighbour i reads it and adds ``q_j - q_i``.
+2. **A common point.** The mid-range ``(max + min) / 2`` of the final positions and velocities, per axis.
+3. **The least-peak steer.** Bang-bang with one switch (``+U`` then ``-U`` or the mirror), the switch interval
+   taking the value that makes the landing exact (closed form). Exact wherever that peak is within ``u_max``.
 
-Measured (directed ring N = 20, K = 200 uniform, T_s = 20 s, seeds 0-19, medians of D(T_s)/D(0) and energy /
-E*; the gathering ends at 1.8 s; docs: optimality.md, "How far from optimal"): u_max = 0.3 6.2e-10 at 2.12 (exact on 13 of
-20 seeds, the others' least peak above 0.3; the input floor from t = 0 is 0.23); u_max = 0.5 4.9e-10 (20 of
-20); u_max = 0.25 0.22 (2 of 20); no limit 5.0e-10 at 2.12.
-
-- Source: this project (flooding by small motions; the least-peak landing of a double integrator is bang-bang
-  with one switch, the extremal of ``min max |u|``).
-- Proven graph class: a fixed strongly connected digraph (known offline), ideal double-integrator agents;
-  exact up to rounding / ε wherever every agent's least peak from the end of the gathering is within
-  ``u_max``.
-- It refuses by name: switching and families (``topology``, ``switching``: the schedule and the offsets read at
-  ``t_0`` need one fixed graph), graphs that are not strongly connected (``topology``: some agent would never
-  hear some prediction), ``obs_noise``, ``link_dropout``, other agent models, ``obs_mode`` other than raw, and
-  ``n_intervals`` that leave no interval to steer.
+- Source: this project (flooding by small motions; the least-peak landing of a double integrator).
+- Proven graph class: a fixed strongly connected digraph (known offline), ideal double-integrator agents.
+- It refuses by name: switching and families (``topology``, ``switching``), graphs that are not strongly
+  connected (``topology``), ``obs_noise``, ``link_dropout``, other agent models, ``obs_mode`` other than raw,
+  and ``n_intervals`` that leave no interval to steer.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 from scipy.sparse import csgraph
 
-from fxc_env.baselines.policy import describe_law
-from fxc_env.baselines.signalling import (
+from fxc_env.baselines.motion_signals import (
+    SignalPolicy,
     advance,
-    current_instant,
     deviation_of,
     initial_offset,
-    plan_action,
     predicted_register,
     read_deviation,
     refuse_unless_exact_raw_rows,
@@ -128,12 +106,11 @@ def least_peak_inputs(need_x: np.ndarray, need_v: np.ndarray, times: np.ndarray,
     return np.where(np.isfinite(best_u)[..., None], inputs, 0.0)
 
 
-class BoundedSteerPolicy:
+class BoundedSteerPolicy(SignalPolicy):
     """The gathering law with the least-peak steer, on raw rows, ``plan`` or ``accel`` actions.
 
-    It has memory, so it is called with **every agent's** observation at once, ``(..., N, obs_size)`` in agent
-    order, one instant after the other from ``k = 0``; agent i's action depends only on its own rows, clock and
-    memory, and the offline schedule of the known graph.
+    It has memory, so it is called as :class:`~fxc_env.baselines.motion_signals.SignalPolicy` says; agent i's
+    action depends only on its own rows, clock and memory, and the offline schedule of the known graph.
 
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed strongly connected digraph with
@@ -146,6 +123,7 @@ class BoundedSteerPolicy:
     """
 
     NAME: ClassVar[str] = "bounded_steer"
+    TITLE: ClassVar[str] = "the bounded-steer law"
     LAW: ClassVar[str] = (
         "flood every relative prediction by small motions (offline schedule), agree on the mid-range point, "
         "then the least-peak (bang-bang, one switch) piecewise-constant steer to it"
@@ -179,21 +157,6 @@ class BoundedSteerPolicy:
         self._memory: dict[str, np.ndarray] | None = None
         self._next_instant = 0
 
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Actions ``(..., N, 2 dim)`` for every agent's observation ``(..., N, obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""
-        obs = np.asarray(obs, dtype=np.float64)
-        memory = None if self._memory is None else self._memory["d"].shape[:-2]
-        k, rows = current_instant(obs, self.config, "the bounded-steer law", self._next_instant, memory)
-        if k == 0:
-            self._reset(rows, obs.shape[:-1])
-        plan = self._plan(k, rows)
-        self._next_instant = k + 1
-        return plan_action(plan, self.config, self._intervals[k])
-
     def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:
         n, dim = self.config.n_agents, self.config.dim
         base = initial_offset(rows, self._times[0])  # (..., N, slots, 2, dim): z_j(0) - z_i(0)
@@ -206,7 +169,7 @@ class BoundedSteerPolicy:
         self._memory = {"base": base, "offsets": offsets, "known": known, "d": np.zeros((*lead, 2, dim))}
         self._memory["inputs"] = np.zeros((*lead, dim, self.config.n_intervals - self.steer_at))
 
-    def _plan(self, k: int, rows: np.ndarray) -> np.ndarray:
+    def _plan(self, k: int, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
         """The plan ``(..., N, 2, dim)`` of every agent at instant k; updates the memory."""
         memory = self._memory
         assert memory is not None
@@ -248,10 +211,6 @@ class BoundedSteerPolicy:
     def parameters(self) -> dict[str, float]:
         """The design: the gathering's length and the amplitude."""
         return {"gathering_intervals": float(self.steer_at), "amplitude": self.amplitude}
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def guarantee(self) -> str:
         return (

@@ -1,25 +1,14 @@
 """Offline gain design from the graph: Laplacian spectra, the gain tests, and the ZOH map.
 
-The classical papers pick their gains from the Laplacian ``L = D - A`` of the (known)
-communication graph. This module does that once, before a run, for the designer: nothing
-here is available to an agent at run time, and nothing here is per agent. Dense linear
-algebra; meant for N up to a few hundred.
+Done once, before a run, by the designer who knows the graph (nothing here is available to an agent).
+For the linear law ``u = -g L (x + gamma v)``:
 
-For the linear law ``u = -g L (x + gamma v)`` (stacked over agents, one component):
-
-- **Continuous time** (Yu, Chen & Cao 2010, Theorem 1): second-order consensus on a digraph
-  with a directed spanning tree holds iff every nonzero eigenvalue ``mu`` of ``g L`` makes
-  ``s^2 + gamma mu s + mu`` Hurwitz, i.e. ``gamma^2 > Im(mu)^2 / (Re(mu) |mu|^2)``
-  (:func:`gain_test_bound`). Its decay rate is the least ``-Re(s)`` over those roots
-  (:func:`continuous_decay_rate`).
-- **Sampled data with zero-order hold** at period h (Cao & Ren 2010): the exact one-sample map
-  of the disagreement is ``[[I - h^2 g L / 2, h I - h^2 g gamma L / 2], [-h g L, I - h g gamma L]]``
-  (:func:`zoh_radius`); consensus holds iff its spectral radius, over a switching period the
-  radius of the ordered product, is below one.
-
-Switching topologies: the exact ZOH test uses the product of the period's maps. A continuous
-law sees a graph that switches every (fine) sample, so its design uses the average Laplacian
-of the period, the graph it effectively sees (:func:`design_eigenvalues`).
+- **Continuous time** (Yu, Chen & Cao 2010, Theorem 1): consensus on a digraph with a directed spanning tree
+  iff ``gamma^2 > Im(mu)^2 / (Re(mu) |mu|^2)`` for every nonzero eigenvalue ``mu`` of ``g L``
+  (:func:`gain_test_bound`; decay rate :func:`continuous_decay_rate`).
+- **Sampled data with zero-order hold** at period h (Cao & Ren 2010): the one-sample map
+  ``[[I - h^2 g L / 2, h I - h^2 g gamma L / 2], [-h g L, I - h g gamma L]]`` (:func:`zoh_radius`) must have
+  spectral radius below one (over a switching period, the ordered product).
 """
 
 from __future__ import annotations
@@ -64,9 +53,8 @@ def _is_acyclic(laplacian: np.ndarray) -> bool:
 def nonzero_eigenvalues(laplacian: np.ndarray) -> np.ndarray:
     """The N-1 eigenvalues of ``L`` other than its (simple) zero, complex ``(N-1,)``.
 
-    On an acyclic graph (path, star) ``L`` is triangular in topological order, so its
-    eigenvalues are its diagonal exactly; a numerical solver would scatter the defective
-    eigenvalue 1 of a directed path over a circle of radius ``eps^(1/N)``.
+    On an acyclic graph ``L`` is triangular in topological order: its diagonal, exactly (a solver would scatter
+    a directed path's defective eigenvalue 1 over a circle of radius ``eps^(1/N)``).
     """
     if _is_acyclic(laplacian):
         diagonal = np.sort(np.diag(laplacian))
@@ -114,9 +102,7 @@ def design_gamma(eigenvalues: np.ndarray, gain: float = 1.0) -> float:
 def zoh_mode_radius(eigenvalues: np.ndarray, gamma: np.ndarray | float, gain: float, h: float) -> np.ndarray:
     """Spectral radius of the one-sample ZOH map, over the modes of a fixed graph; ``gamma``'s shape.
 
-    Per eigenvalue ``mu = g lambda`` the map is ``[[1 - h^2 mu / 2, h - h^2 gamma mu / 2],
-    [-h mu, 1 - h gamma mu]]``: trace ``2 - h^2 mu / 2 - h gamma mu``, determinant
-    ``1 - h gamma mu + h^2 mu / 2``.
+    Per eigenvalue ``mu = g lambda``: trace ``2 - h^2 mu / 2 - h gamma mu``, determinant ``1 - h gamma mu + h^2 mu / 2``.
     """
     mu = gain * np.asarray(eigenvalues, dtype=complex)
     gammas = np.asarray(gamma, dtype=float)[..., None]
@@ -129,8 +115,7 @@ def zoh_mode_radius(eigenvalues: np.ndarray, gamma: np.ndarray | float, gain: fl
 def zoh_radius(topology: Topology, gamma: float, gain: float, h: float) -> float:
     """Per-sample contraction of the exact ZOH map: ``rho(M_{m-1} ... M_0)^(1/m)`` on the disagreement.
 
-    Below one iff ``u = -g L_k (x + gamma v)`` held for h seconds reaches consensus (Cao & Ren
-    2010's exact criterion; for a fixed graph it reduces to :func:`zoh_mode_radius`).
+    Below one iff ``u = -g L_k (x + gamma v)`` held for h seconds reaches consensus (Cao & Ren 2010).
     """
     mats = laplacians(topology)
     if len(mats) == 1:
@@ -149,11 +134,8 @@ def _zoh_map(reduced_laplacian: np.ndarray, gamma: float, gain: float, h: float)
 
 
 def design_sampled_gains(topology: Topology, h: float, max_halvings: int = 12) -> tuple[float, float, float]:
-    """``(gain, gamma, radius)`` for the ZOH law at period ``h``: the gamma with the smallest exact radius.
-
-    The gain starts at 1 (the law as written) and is halved only while no gamma on the grid
-    is stable, as a designer would slow the law down for a long sampling period.
-    """
+    """``(gain, gamma, radius)`` for the ZOH law at period ``h``: the gamma with the smallest exact radius; the
+    gain starts at 1 and is halved only while no gamma on the grid is stable."""
     mats = laplacians(topology)
     fixed = nonzero_eigenvalues(mats[0]) if len(mats) == 1 else None
     gain = 1.0

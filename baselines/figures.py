@@ -1,15 +1,6 @@
-"""The benchmark's figures, written headless as PNG (matplotlib's Agg canvas, as :mod:`fxc_env.analysis.plots`).
-
-1. ``deadline_vs_budget.png``: relative deadline error against the budget K (log-log),
-   all cases pooled and on the trace case; continuous laws are single points at
-   their fine K.
-2. ``energy_vs_error.png``: energy against deadline error, one point per policy,
-   case and K (medians over seeds).
-3. ``disagreement_vs_time.png``: median ``D(t) / D(0)`` over seeds on the trace case,
-   every policy on one axis.
-4. ``error_vs_energy_ratio.png`` (optimality suite): deadline error against energy / E*, the
-   bound E* drawn; error against measurement noise with the noise floor, and against the input
-   limit with the input floor (:func:`optimality_figure`).
+"""The benchmark's figures, written headless as PNG (matplotlib's Agg canvas, as :mod:`fxc_env.analysis.plots`):
+``deadline_vs_budget.png``, ``energy_vs_error.png``, ``disagreement_vs_time.png`` and, for the optimality suite,
+``error_vs_energy_ratio.png`` (:func:`optimality_figure`) (docs: benchmark.md, "Baselines and the deadline benchmark").
 """
 
 from __future__ import annotations
@@ -262,16 +253,9 @@ def _legend_entries(axes: Any) -> tuple[list, list]:
 
 
 def optimality_figure(results: list[JobResult], contenders: list[Contender], path: Path) -> Path:
-    """Three panels, medians over seeds, one marker and colour per law, the legend outside the axes.
-
-    1. Deadline error against energy / E* (ideal cases), one point per (policy, case): exact
-       consensus costs at least E* (:func:`fxc_env.core.optimality.energy_bound`), so no point with an
-       error at round-off lies left of the line at energy / E* = 1.
-    2. Error against ``obs_noise`` sigma on the directed ring of 20, with the noise floor of each
-       schedule (:func:`fxc_env.core.floors.noise_floor`): no controller lies below it on average.
-    3. Error against ``u_max`` on the directed ring of 20, with the input floor
-       (:func:`fxc_env.core.floors.input_floor`): left of it no controller is exact.
-    """
+    """Three panels, medians over seeds, one marker and colour per law, the legend outside the axes: error
+    against energy / E* (ideal cases), against ``obs_noise`` with the noise floor and against ``u_max`` with
+    the input floor (docs: optimality.md, "How far from optimal")."""
     fig = new_figure(17.0, 5.0)
     energy_ax, noise_ax, limit_ax = fig.subplots(1, 3)
     _energy_panel(energy_ax, results, contenders)

@@ -5,16 +5,11 @@ Law (componentwise, ``sig(z)^a = sign(z) |z|^a``)::
     u_i = -g sum_j a_ij [sig(x_i - x_j)^a1 + sig(v_i - v_j)^a2],   a2 = 2 a1 / (1 + a1)
 
 - Source: X. Wang and Y. Hong, "Finite-time consensus for multi-agent networks with
-  second-order agent dynamics", Proc. 17th IFAC World Congress (2008); the homogeneity
-  argument with ``0 < a1 < 1``, ``a2 = 2 a1 / (1 + a1)``.
-- Proven graph class: **undirected** connected graphs. Every named topology of this project
-  but ``complete`` is directed, so the benchmark runs it there **unproven** (each row says so).
-- Parameters: ``alpha`` = a1 in (0, 1) [0.5, so a2 = 2/3], ``gain`` g [1, SI units: the law
-  is not homogeneous in the physical units, so its speed depends on the scale of the state].
-
-Not homogeneous of degree one, so it needs physical rows: ``obs_mode="raw"`` only. It is a
-continuous-measurement law: in the benchmark it runs on a fine ``uniform`` schedule with a
-zero-order hold, which leaves a chattering floor of the order of the sampling period.
+  second-order agent dynamics", Proc. 17th IFAC World Congress (2008).
+- Proven graph class: **undirected** connected graphs; the benchmark runs it on directed ones **unproven**.
+- Parameters: ``alpha`` = a1 in (0, 1) [0.5, so a2 = 2/3], ``gain`` g [1, SI units: not homogeneous, so its
+  speed depends on the scale of the state]; ``obs_mode="raw"`` only. A continuous-measurement law: the
+  benchmark runs it on a fine ``uniform`` schedule with a zero-order hold.
 """
 
 from __future__ import annotations

@@ -4,81 +4,44 @@ Law (after Yuan, Stan, Shi, Barahona & Gonçalves, "Decentralised minimum-time c
 Automatica 49(5), 2013, carried by the motions of :mod:`fxc_env.baselines.signalling`; docs: optimality.md,
 "Exact consensus without knowing the graph"):
 
-1. **A virtual iteration carried by motion.** Per axis, agent i holds the complex register
-   ``w_i = p_{i,x} + i T_s p_{i,v}`` (m) of its free-motion prediction ``p_i = (x_i + T_s v_i, v_i)``,
-   whose start it does not know absolutely; it tracks the change ``c_i(k) = w_i(k) - w_i(0)`` and
-   signals it as a deviation from coasting ``ε (Re c, Im c / T_s)``, which its in-neighbours read
-   exactly from their relative rows (the signalling law's step 1). Every agent runs
-   ``w <- W w``, ``W = D^{-1} A``: the mean of its in-neighbours' registers (its own weights only;
-   an agent with no in-neighbour keeps its value). ``w_i(k + 1)`` is known at instant k.
-2. **Its own recurrence.** Agent i's sequence ``w_i(0), w_i(1), …`` obeys the minimal polynomial of
-   ``W`` seen from i, ``q(λ) = (λ - 1) p(λ)``, degree ``≤ N`` (1 is a simple eigenvalue of ``W`` under a
-   directed spanning tree), so the differences ``Δw_i(k)`` obey ``p``; so do the ``2 dim`` real parts of
-   the register (position and velocity part of every axis: the same iteration on other initial values).
-   The agent finds the shortest recurrence shared by its channels: the smallest degree whose block Hankel
-   matrix of its own differences has a singular value below ``rank_tolerance`` times their norm; ``β``
-   spans its kernel. Then ``Σ_m β_m w_i(k + m) = p(1) w*`` for every k: the common limit
-   ``w* = ξᵀ w(0)`` (``ξ`` the left null vector of ``I - W``) is read off the latest window, where modes
-   the test may have missed have decayed most. With ``C = 2 dim`` independent channels
-   ``L = max_agents + ceil((max_agents + 1) / C) + 1`` values suffice (:func:`listening_values`; one
-   channel: Yuan et al.'s ``2 max_agents + 2``). When an agent's channels are dependent (every velocity
-   equal, or an affine function of the position: every agent with a nonconstant sequence sees it alike)
-   and its kernel is not backed by enough independent windows, it listens on to ``2 max_agents + 2``.
-3. **Pre-steering toward a settled iterate.** At instant ``k_a`` (:data:`DEFAULT_ANNOUNCE`) agent i picks an
-   aim ``a_i``: its iterate ``c_i(k_a + 1)`` weighted by how settled it looks (none when its latest changes
-   exceed :data:`RHO` of it, as on a ring, whose iterate wanders), on a ``2^-24`` m grid. The iteration holds
-   one interval while the deviation ``η (Re a, Im a / T_s)`` announces it; the grid lets every reader round to
-   the very aim chosen, so from then on the agent's deviation is the (closed-form) minimum-energy path from the
-   announcement to ``a_i`` at ``T_s`` plus the signal, and its readers subtract the path exactly. Where the
-   iterate settles fast (random digraphs) the agent is near the E*-optimal path by the time it knows the limit.
-4. **Steering once.** At instant ``L - 1`` (``t_L``; ``L - 2`` without the announcement) agent i knows
-   ``w* - w_i(0)``, the consensus point less its own prediction; over ``[t_L, T_s]`` it plays the
-   minimum-energy input to it from where it is (the signalling law's step 4). Energy without a pre-steer:
-   the least energy of one steer from ``t_L`` when ``ξ`` is uniform (a directed ring), more when it is not
-   (the target ``ξᵀ p`` is then not the mean of the predictions that ``E*`` steers to).
-
-``W = D^{-1} A`` rather than the lazy ``(D + I)^{-1} (A + I)``: both work (the recurrence is exact,
-periodicity does not matter), and on a ring ``D^{-1} A`` is a shift whose modes never decay, the
-best-conditioned case for the rank test.
-
-The agent reads only its own observation rows (its in-neighbours' relative states, their mask, the
-clock) and its memory: it is never given the graph, its spectrum or N. Its one prior is
-``max_agents``, an upper bound on N that sets the listening window; at ``max_agents = N = 20`` it
-listens 30 intervals and holds one (3.1 s of 20 at K = 200, uniform).
-
-Measured (K = 200, T_s = 20 s, uniform schedule, 20 seeds, medians of the relative deadline error and
-of energy / E*, :func:`fxc_env.baselines.graph_agnostic_goals.goal_table`): directed ring N = 20 2.9e-10 at
-1.95, N = 30 4.5e-10 at 2.79; random strongly connected N = 20 2.2e-9 at 1.35, N = 40 1.6e-10 at 1.26 (4.02
-with one steer from t_L = 6 s and no pre-steer); at ``max_agents = 2N`` the window doubles (ring N = 20:
-8.6e-10 at 4.14; random N = 40: 2.6e-10 at 1.29). docs: optimality.md, "Exact consensus without knowing the graph".
+1. **A virtual iteration carried by motion.** Per axis, agent i holds the register
+   ``w_i = p_{i,x} + i T_s p_{i,v}`` (m), signals its change ``c_i(k) = w_i(k) - w_i(0)`` as
+   ``ε (Re c, Im c / T_s)`` and runs ``w <- W w``, ``W = D^{-1} A`` (an agent with no in-neighbour keeps
+   its value).
+2. **Its own recurrence.** The differences ``Δw_i(k)`` obey ``p``, ``q(λ) = (λ - 1) p(λ)`` the minimal
+   polynomial of ``W`` seen from i; the agent finds the smallest degree whose block Hankel matrix of its own
+   differences (``C = 2 dim`` channels) has a singular value below ``rank_tolerance`` times their norm, ``β``
+   its kernel; then ``Σ_m β_m w_i(k + m) = p(1) w*``, ``w* = ξᵀ w(0)``, read off the latest window.
+   ``L = max_agents + ceil((max_agents + 1) / C) + 1`` values suffice (:func:`listening_values`), up to
+   ``2 max_agents + 2`` when its channels are dependent.
+3. **Pre-steering toward a settled iterate.** At instant ``k_a`` (:data:`DEFAULT_ANNOUNCE`) agent i announces
+   an aim ``a_i`` (its iterate weighted by how settled it looks, :data:`RHO`, on a ``2^-24`` m grid) and follows
+   the closed-form minimum-energy path to it, which its readers subtract exactly.
+4. **Steering once.** At instant ``L - 1`` agent i knows ``w* - w_i(0)`` and plays the minimum-energy input
+   to it over ``[t_L, T_s]``.
 
 - Source: Yuan et al. 2013 (the recurrence and the final-value formula), carried by this project's
   signalling through small motions.
 - Proven graph class: a fixed digraph with a directed spanning tree and at most ``max_agents`` agents,
-  ideal double-integrator agents, exact in exact arithmetic; in float64 the error is set by the
-  reading error (about ``1e-16 |z| / ε``) and the rank test. It agrees on ``ξᵀ p``, which is the
-  E*-optimal point only where ``ξ`` is uniform.
-- It refuses what it cannot honour, by name: switching topologies (no fixed recurrence), topology
-  families, ``u_max``, ``obs_noise``, ``link_dropout``, agent models other than the double
-  integrator, ``obs_mode='normalized'``, ``max_agents`` below the environment's N, K shorter than
-  ``2 max_agents + 1`` (the window when the register parts are dependent, and one interval to steer; one more
-  with the announcement, which is left out by default where K has no room for it), and ``announce_at``
-  outside the listening window.
+  ideal double-integrator agents, exact in exact arithmetic; it agrees on ``ξᵀ p``, the E*-optimal point
+  only where ``ξ`` is uniform.
+- It refuses what it cannot honour, by name: switching topologies, topology families, ``u_max``,
+  ``obs_noise``, ``link_dropout``, agent models other than the double integrator,
+  ``obs_mode='normalized'``, ``max_agents`` below the environment's N, K shorter than
+  ``2 max_agents + 1``, and ``announce_at`` outside the listening window.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 
 from fxc_env.baselines.motion_signals import (
+    SignalPolicy,
     advance,
-    current_instant,
     deviation_of,
     initial_offset,
-    plan_action,
     predicted_register,
     read_deviation,
     refuse_unless_exact_raw_rows,
@@ -86,7 +49,6 @@ from fxc_env.baselines.motion_signals import (
     signal_plan,
     steer_plan,
 )
-from fxc_env.baselines.policy import describe_law
 from fxc_env.config import config_of
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
@@ -170,12 +132,8 @@ def _announce_instant(value: Any, listening: int, full_listening: int, n_interva
 def listening_values(max_agents: int, channels: int = 1) -> int:
     """``L = max_agents + ceil((max_agents + 1) / C) + 1``: the values ``w_i(0..L-1)`` recorded before the steer.
 
-    The minimal polynomial seen from an agent has degree at most N, so the differences obey a
-    recurrence ``p`` of degree ``d <= N - 1``; its Hankel matrix has ``d + 1`` columns, and C channels
-    that share the recurrence (independent initial values) give ``C (L - 1 - d)`` rows, which must exceed
-    the columns (by one) for every ``d <= max_agents - 1``. One channel: ``L = 2 max_agents + 2`` (Yuan et
-    al.); the ``2 dim`` parts of the register (position and velocity of each axis): about 1.5 max_agents in
-    one dimension.
+    C channels give a Hankel matrix of ``C (L - 1 - d)`` rows, one more than its ``d + 1`` columns for every
+    degree ``d <= max_agents - 1``; one channel: ``2 max_agents + 2`` (Yuan et al.).
     """
     return max_agents + -(-(max_agents + 1) // channels) + 1
 
@@ -193,10 +151,8 @@ def recurrence_limit(
 
     Returns:
         ``(limits (M, C), degrees (M,), certified (M,))``: ``Σ_m β_m w(k + m) / Σ_m β_m`` on the latest
-        window; the degree ``d`` of the recurrence ``Σ_m β_m Δw(k + m) = 0`` found (the smallest-σ degree when
-        no Hankel passes the test); and whether the kernel is backed by more windows than unknowns counting
-        only the numerically independent channels (dependent channels, as when every velocity is equal, add
-        no information).
+        window; the degree found (the smallest-σ degree when no Hankel passes); and whether the kernel is backed
+        by more windows than unknowns, counting only the numerically independent channels.
     """
     M, C, L = values.shape
     diffs = np.diff(values, axis=-1)  # (M, C, L - 1)
@@ -235,12 +191,11 @@ def recurrence_limit(
     return limits, degrees, certified
 
 
-class GraphAgnosticPolicy:
+class GraphAgnosticPolicy(SignalPolicy):
     """The graph-agnostic law on the local observation, raw rows, ``plan`` or ``accel`` actions.
 
-    Like :class:`~fxc_env.baselines.SignallingPolicy` the law has memory, so it is called with **every
-    agent's** observation at once, ``(..., N, obs_size)`` in agent order, one instant after the other from
-    ``k = 0``; agent i's action depends only on its own observations and memory.
+    It has memory, so it is called as :class:`~fxc_env.baselines.motion_signals.SignalPolicy` says; agent i's
+    action depends only on its own observations and memory.
 
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with ideal
@@ -259,6 +214,7 @@ class GraphAgnosticPolicy:
     """
 
     NAME: ClassVar[str] = "graph_agnostic"
+    TITLE: ClassVar[str] = "the graph-agnostic law"
     LAW: ClassVar[str] = (
         "virtual iteration w <- D⁻¹A w on registers w_i = p_i, carried at amplitude ε by motions read from own rows; "
         "each agent's shortest recurrence of its own differences (block Hankel rank test over its register parts, "
@@ -323,23 +279,7 @@ class GraphAgnosticPolicy:
         self.degrees: np.ndarray | None = None
 
     # ----------------------------------------------------------------------------- acting
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Actions ``(..., N, 2 dim)`` for every agent's observation ``(..., N, obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""
-        obs = np.asarray(obs, dtype=np.float64)
-        memory = None if self._memory is None else self._memory["d"].shape[:-2]
-        k, rows = current_instant(obs, self.config, "the graph-agnostic law", self._next_instant, memory)
-        _, mask, _ = self.layout.split(obs)
-        if k == 0:
-            self._reset(obs.shape[:-1])
-        plan = self._plan(k, rows, mask)
-        self._next_instant = k + 1
-        return plan_action(plan, self.config, self._intervals[k])
-
-    def _reset(self, lead: tuple[int, ...]) -> None:
+    def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:
         dim, slots = self.config.dim, self.layout.slots
         self._memory = {
             "base": np.zeros((*lead, slots, 2, dim)),  # z_j(0) - z_i(0) per row slot
@@ -357,8 +297,9 @@ class GraphAgnosticPolicy:
         """The index n of the value ``c_j(n)`` the rows carry at instant k (one less after the held interval)."""
         return k if self.announce_at is None or k <= self.announce_at else k - 1
 
-    def _plan(self, k: int, rows: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    def _plan(self, k: int, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
         """The plan ``(a_x, a_v)`` ``(..., N, 2, dim)`` of every agent at instant k; updates the memory."""
+        _, mask, _ = self.layout.split(obs)
         memory = self._memory
         assert memory is not None
         T_s, eps, k_a = self.config.settling_time, self.amplitude, self.announce_at
@@ -442,10 +383,6 @@ class GraphAgnosticPolicy:
             "amplitude": self.amplitude,
             "rank_tolerance": self.rank_tolerance,
         }
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def guarantee(self) -> str:
         t_l = self._times[self.steer_at]

@@ -1,11 +1,8 @@
 """The benchmark's unit of work: one contender on one case at one budget K, and what it measured.
 
-:func:`run_job` runs a :class:`Job` in this process; :mod:`fxc_env.baselines.benchmark` spreads
-jobs over processes, :mod:`fxc_env.baselines.ray_jobs` over a Ray cluster, and
-:mod:`fxc_env.baselines.report` and :mod:`fxc_env.baselines.figures` read the :class:`JobResult`.
-Every job is seeded: its initial states come from the suite's seeds, and measurement
-noise, link dropout and random switching from a generator seeded by the same seeds, so a
-job gives the same numbers wherever and whenever it runs.
+:func:`run_job` runs a :class:`Job` in this process. Every job is seeded (initial states from the suite's
+seeds; noise, dropout and random switching from a generator seeded by the same seeds), so a job gives the
+same numbers wherever and whenever it runs.
 """
 
 from __future__ import annotations
@@ -43,11 +40,8 @@ class JobResult:
     """What one job measured.
 
     Attributes:
-        metrics: the episode metrics, one ``(B,)`` array per name of
-            :class:`fxc_env.core.metrics.EpisodeMetrics`, plus ``final_value_gap``
-            (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``;
-            the optimality columns (``energy_bound``, ``energy_ratio``, ``settled_interval``,
-            ``radius_bound``, ``all_roots_bound``) come with the engine's metrics.
+        metrics: the engine's episode metrics, one ``(B,)`` array per name, plus ``final_value_gap``
+            (``|achieved - predicted|`` mean position at ``T_s``, m) and ``initial_disagreement``.
         trace_times, trace: sampling instants and the median over seeds of ``D(t_k) / D(0)``
             (only for the suite's trace case).
         description: the policy's law, source, graph class and parameters (as text).

@@ -1,50 +1,31 @@
 """A time-optimal law for a known graph: follow the centre, exact after exactly the radius.
 
-Law (docs: optimality.md, "How far from optimal"). The designer picks offline, from the graph, a **centre** r: an
-agent whose initial state reaches every agent soonest, in :func:`fxc_env.core.optimality.radius_bound`
-intervals (the graph's radius, the fewest intervals in which *any* law can be exact). The centre
-coasts. Every other agent i, on each interval k, lands on the coasted state of its parent ``p_k(i)``:
+Law (docs: optimality.md, "How far from optimal"). The designer picks offline a **centre** r attaining the
+graph's radius (:func:`fxc_env.core.optimality.radius_bound`, the fewest intervals of any exact law). The
+centre coasts; every other agent i, on each interval k, lands on the coasted state of its parent ``p_k(i)``:
 
     z_i(t_{k+1}) = P_k z_{p}(t_k),    P_k = [[1, T_k], [0, 1]]  (coasting),
 
-i.e. it plans the change ``(a_x, a_v) = P_k (z_p - z_i)`` relative to its own coasting, read from its
-own relative row of p (the minimum-energy input of paper Remark 1 realises it exactly). By induction
-an agent at time-respecting distance d from r is on the centre's coasted trajectory from ``t_d`` on,
-so every agent is after the radius: exact consensus at the centre's coasted state, after exactly
-:func:`~fxc_env.core.optimality.radius_bound` intervals, and not one sooner for a generic initial state.
+the plan ``(a_x, a_v) = P_k (z_p - z_i)`` from its own relative row of p (paper Remark 1), the parents forming a
+time-respecting shortest-path tree from r (:func:`follower_slots`). Exact after exactly the radius.
 
-The parents form a **time-respecting tree** from r, one per interval: ``s(r) = 0``; an agent that is
-not yet on the centre's trajectory at ``t_k`` (``s(i) > k``) follows, on interval k, its in-neighbour of
-``G_k`` with the smallest ``s(j)`` (ties: the smaller index), and is on it at ``t_{k+1}`` when
-``s(j) <= k``; an agent already on it coasts (landing on a synchronised parent is coasting). On a fixed
-graph this is the shortest-path tree from r and every agent follows its parent on every interval until
-it is synchronised, then coasts; on a switching period ``G_0, G_1, ...`` the parents change with the
-graph. An agent with no in-neighbour in ``G_k`` coasts.
-
-- Source: this project (leader-follower consensus with an offline shortest-path tree; a dead-beat
-  copy of the parent on the paper's sampled-data plan).
+- Source: this project (leader-follower consensus with an offline shortest-path tree).
 - Proven graph class: fixed digraphs with a directed spanning tree and periodic switching whose joint
   graph spans (the time-respecting radius), ideal double-integrator agents.
-- It refuses what it cannot honour, by name: topology families (the design needs the graph),
-  ``switching='random'``, ``u_max``, ``obs_noise``, ``link_dropout`` and other agent models.
-
-The law knows which agent it acts for (the tree is per agent), so it is called with every agent's
-observation at once, ``(..., N, obs_size)`` in agent order, as the benchmark and ``simulate`` do. Its
-price is energy: it ignores E*'s mean and drags every agent to the centre's coasted state over short
-intervals (docs: optimality.md, "How far from optimal").
+- It refuses what it cannot honour, by name: topology families, ``switching='random'``, ``u_max``,
+  ``obs_noise``, ``link_dropout`` and other agent models.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 
 from fxc_env.baselines.minimum_time import refuse_what_a_graph_design_cannot_honour
-from fxc_env.baselines.policy import describe_law
+from fxc_env.baselines.motion_signals import plan_action
+from fxc_env.baselines.policy import LawPolicy
 from fxc_env.config import config_of
-from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.graphs import Topology
 from fxc_env.core.optimality import radius_centre, reach_intervals
 from fxc_env.core.validation import ArgumentError
@@ -54,8 +35,9 @@ def follower_slots(topology: Topology, centre: int) -> np.ndarray:
     """The observation row each agent follows on each interval, ``(R + 1, N)`` int; -1: coast.
 
     Row k (``k < R``, R the centre's reach time) holds, per agent, the slot of its parent among its
-    in-neighbours of ``G_{k mod m}`` (ascending, as observed); row R, used from interval R on, is all
-    -1. See the module docstring for the time-respecting tree.
+    in-neighbours of ``G_{k mod m}``: with ``s(r) = 0``, an agent with ``s(i) > k`` follows its in-neighbour
+    with the smallest ``s(j)`` (ties: the smaller index), synchronised at ``t_{k+1}`` when ``s(j) <= k``; a
+    synchronised agent, or one with no in-neighbour, coasts. Row R, used from interval R on, is all -1.
     """
     n, m = topology.n_agents, topology.period
     index, mask = topology.neighbour_index, topology.neighbour_mask  # (m, N, d_max)
@@ -78,7 +60,7 @@ def follower_slots(topology: Topology, centre: int) -> np.ndarray:
     return np.stack(rows).astype(np.int64)
 
 
-class LeaderFollowerPolicy:
+class LeaderFollowerPolicy(LawPolicy):
     """The leader-follower law on the local observation, every ``action_mode`` and ``obs_mode``.
 
     Args:
@@ -125,10 +107,6 @@ class LeaderFollowerPolicy:
         self.slots = follower_slots(topology, self.centre)
         self._intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
 
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Actions ``(..., N, 2 dim)`` for every agent's observation ``(..., N, obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Plans (``plan`` mode) or end inputs (``accel``) from every agent's flat observation ``(..., N, obs_size)``."""
         c = self.config
@@ -147,18 +125,11 @@ class LeaderFollowerPolicy:
         # Raw rows: a_x = dx + T_k dv, a_v = dv. Normalized rows dx/s, T_k dv/s and plans a_x/s, T_k a_v/s:
         # alpha_x = rho_x + rho_v, alpha_v = rho_v.
         interval = 1.0 if c.obs_mode == "normalized" else self._intervals[k][..., None]
-        plan_x, plan_v = dx + interval * dv, dv
-        if c.action_mode == "plan":
-            return np.concatenate([plan_x, plan_v], axis=-1)
-        return np.concatenate(input_from_plan(plan_x, plan_v, interval), axis=-1)
+        return plan_action(np.stack([dx + interval * dv, dv], axis=-2), c, interval)
 
     def parameters(self) -> dict[str, float]:
         """The design: the centre and the intervals after which the law is exact."""
         return {"centre": float(self.centre), "needed_intervals": float(self.needed_intervals)}
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def guarantee(self) -> str:
         if self.config.n_intervals < self.needed_intervals:

@@ -5,22 +5,13 @@ Law (agent i, in-neighbours j, ``a_ij = 1``)::
     u_i = -g sum_j a_ij [(x_i - x_j) + gamma (v_i - v_j)]
 
 - Source: W. Ren and E. Atkins, "Distributed multi-vehicle coordinated control via local
-  information exchange", Int. J. Robust Nonlinear Control 17 (2007). The law as written
-  there has ``g = 1``.
+  information exchange", Int. J. Robust Nonlinear Control 17 (2007) (there ``g = 1``).
 - Proven graph class: a fixed digraph with a directed spanning tree, **iff**
   ``gamma^2 > max Im(mu)^2 / (Re(mu) |mu|^2)`` over the nonzero eigenvalues ``mu`` of ``g L``
-  (W. Yu, G. Chen and M. Cao, "Some necessary and sufficient conditions for second-order
-  consensus in multi-agent dynamical systems", Automatica 46 (2010)). On an undirected
-  graph any ``gamma > 0`` passes.
-- Parameters: ``gain`` ``g`` [1, 1/s^2], ``gamma`` [s]. By default gamma is **designed offline**
-  from the graph: the value on a log grid with the fastest continuous-time decay (which passes
-  the test; :func:`fxc_env.baselines.design.design_gamma`). A switching period is designed on its
-  average Laplacian, the graph a fast-sampled law sees; that case is not covered by the
-  theorem. An explicit ``gamma`` is used as given (check it with :attr:`passes_gain_test`).
-
-It is a continuous-measurement law: in the benchmark it runs on a fine ``uniform`` schedule
-in ``accel`` mode, the input computed at each ``t_k`` and held until ``t_{k+1}``
-(zero-order hold); the number of samples is part of its result.
+  (W. Yu, G. Chen and M. Cao, Automatica 46 (2010)); on an undirected graph any ``gamma > 0``.
+- Parameters: ``gain`` ``g`` [1, 1/s^2], ``gamma`` [s], by default designed offline for the fastest decay
+  (:func:`fxc_env.baselines.design.design_gamma`; a switching period on its average Laplacian, not covered by
+  the theorem). An explicit ``gamma`` is used as given (:attr:`passes_gain_test`).
 """
 
 from __future__ import annotations

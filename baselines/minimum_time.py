@@ -5,55 +5,29 @@ relative row ``r_i = (1/(d_i+1)) sum_{j in N_i} (z_j - z_i)``, ``z = (x, v)``, a
 
     z_i(t_{k+1}) = P_k z_i(t_k) + G_k r_i(t_k),    P_k = [[1, T_k], [0, 1]]  (coasting),
 
-which the minimum-energy input of paper Remark 1 realises exactly (the plan relative to coasting
-is ``(a_x, a_v) = G_k r_i``). The 2 x 2 gain ``G_k`` is the same for every agent and chosen by the
-clock from a schedule designed **offline** from the graph. With ``r = -Ŵ z``, ``Ŵ = (D + I)^{-1} L``,
-interval k acts on the mode of an eigenvalue ``mu'`` of ``Ŵ`` as ``P_k - mu' G_k``:
+realised exactly by the minimum-energy input of paper Remark 1. The 2 x 2 gain ``G_k`` is chosen by the
+clock from a schedule designed offline from the graph; interval k acts on the mode of an eigenvalue
+``mu'`` of ``Ŵ = (D + I)^{-1} L`` as ``P_k - mu' G_k``:
 
-- a real eigenvalue ``mu``: ``G_k = P_k / mu`` multiplies every mode by ``(1 - mu'/mu)``;
-- a complex pair ``mu, conj(mu)``: with ``R = [[a, -b], [b, a]]``, ``a = Re mu/|mu|^2``,
-  ``b = Im mu/|mu|^2``, two consecutive intervals ``G_k = R P_k`` and ``G_{k+1} = P_{k+1} R^T``
-  give ``P_{k+1} (I - mu' R^T)(I - mu' R) P_k = (1 - mu'/mu)(1 - mu'/conj(mu)) P_{k+1} P_k``
-  (``R + R^T = 2a I``, ``R^T R = I/|mu|^2``); here ``R`` is conjugated by ``diag(1, 1/T_{k+1})`` so
-  that its entries carry the units of a gain;
-- an eigenvalue whose largest Jordan block has size s repeats its factor s times: the minimal
-  polynomial decides, not the characteristic one (:func:`design_eigenvalues`; a path's N - 1
-  eigenvalues 1/2 form one block, so N - 1 factors; a binary tree's are 1/2 too but its blocks are
-  only as long as its depth, so depth factors: copying the parent each interval); ``mu = 0``, the
-  consensus mode, is never touched.
+- a real eigenvalue ``mu``: ``G_k = P_k / mu``;
+- a complex pair ``mu, conj(mu)``: ``G_k = R P_k``, ``G_{k+1} = P_{k+1} R^T``, ``R = [[a, -b], [b, a]]``,
+  ``a + ib = 1/mu`` (conjugated by ``diag(1, 1/T_{k+1})`` for a gain's units);
+- an eigenvalue whose largest Jordan block has size s: its factor s times (:func:`design_eigenvalues`).
 
-After these factors every disagreement mode is zero: a directed ring of N agrees after N - 1
-intervals. It is **minimum-time only where that count equals the graph's radius**
-(:func:`fxc_env.core.optimality.radius_bound`, the fewest intervals of any law): generically the
-count is N - 1, so only where N - 1 equals the radius (rings, paths), and on trees (depth = radius).
-Elsewhere it is bounded by, and on random digraphs well above, the all-roots bound, and the
-leader-follower law (:mod:`fxc_env.baselines.leader_follower`) is exact sooner. The factors run in Leja
-order (each next one kills the mode whose partial product is largest), so partial products stay
-small; afterwards the agents play the paper's plan (``G_k = P_k``, eq. 11), which holds consensus
-and damps the round-off left. The consensus value is the paper's, ``xi^T z(0)`` coasted (Theorem 1:
-every factor is a polynomial in ``Ŵ`` equal to 1 at 0). With fewer intervals K than the factors
-need, the design plays the subset with the smallest Jordan-aware modal score (:func:`budget_factors`),
-**warns** (``UserWarning`` naming ``n_intervals``) and reports the residual it leaves, computed from
-the matrix (:func:`design_residual`), as ``predicted_residual``; this project chose a warning over a
-refusal because a short budget is a benchmark setting, not a misuse.
+The factors run in Leja order, then the paper's plan (``G_k = P_k``, eq. 11); with fewer intervals than factors
+it warns (naming ``n_intervals``) and plays :func:`budget_factors`.
 
-- Source: this project (a deadbeat / finite-time "minimal polynomial" design in the spirit of
-  Sundaram & Hadjicostis 2007 and Kibangou 2012, on the sampled-data plan of the paper).
-- Proven graph class: a fixed digraph with a directed spanning tree, ideal agents (exact in exact
-  arithmetic after the factors; float64 round-off grows with the partial products, so large slow
-  rings lose digits).
-- It refuses what it cannot honour, by name: switching topologies and topology families (the design
-  needs the one graph), ``u_max``, ``obs_noise`` (unless ``allow_noise=True``: the error then grows
-  linearly with the noise, 2.2e-6 at sigma = 1e-6 on the ring of 20), ``link_dropout``,
-  ``switching='random'`` and agent models other than the double integrator.
-
-Its price is energy: the early factors of a slow graph move agents far (docs: optimality.md, "How far from optimal").
+- Source: this project (a deadbeat "minimal polynomial" design in the spirit of Sundaram & Hadjicostis 2007
+  and Kibangou 2012, on the sampled-data plan of the paper).
+- Proven graph class: a fixed digraph with a directed spanning tree, ideal agents (exact in exact arithmetic).
+- It refuses what it cannot honour, by name: switching topologies and topology families, ``u_max``,
+  ``obs_noise`` (unless ``allow_noise=True``), ``link_dropout``, ``switching='random'`` and agent models
+  other than the double integrator.
 """
 
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -62,9 +36,9 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from fxc_env.baselines.policy import describe_law
+from fxc_env.baselines.motion_signals import plan_action
+from fxc_env.baselines.policy import LawPolicy
 from fxc_env.config import config_of
-from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.graphs import DENSE_LIMIT, Topology
 from fxc_env.core.validation import ArgumentError
 
@@ -91,9 +65,8 @@ def _same(a: complex, b: complex) -> bool:
 def _block_index(block: np.ndarray, mu: complex, multiplicity: int) -> int:
     """The size of the largest Jordan block of ``mu`` in ``block`` (its index), by a rank test; at most ``multiplicity``.
 
-    The smallest j with ``rank((block - mu I)^j) = size - multiplicity`` (numerical rank, singular values
-    below ``1e-8`` of the largest count as zero). Where the test is not conclusive (the rank stops
-    falling above that), ``multiplicity`` (the characteristic polynomial's count, always enough).
+    The smallest j with ``rank((block - mu I)^j) = size - multiplicity`` (singular values below ``1e-8`` of the
+    largest are zero); ``multiplicity`` where the test is not conclusive.
     """
     size = len(block)
     shifted = block - (mu.real if mu.imag == 0 else mu) * np.eye(size)
@@ -113,13 +86,9 @@ def _block_index(block: np.ndarray, mu: complex, multiplicity: int) -> int:
 def design_eigenvalues(topology: Topology) -> np.ndarray:
     """The roots of the minimal polynomial of ``Ŵ`` but 0, each repeated by its index (largest Jordan block).
 
-    A product ``q(Ŵ) = prod (I - Ŵ/mu)`` over these is zero on every disagreement mode, and no product
-    of fewer such factors is (for a Jordan block of size s the factor must come s times: the minimal
-    polynomial decides, not the characteristic one). ``Ŵ`` is block triangular over the strongly
-    connected components in their order, so the index of ``mu`` is at most the largest sum, along a
-    chain of components linked by paths, of its index inside each component (:func:`_block_index`);
-    that sum is used. A tree's eigenvalue 1/2 comes once per level (its depth: copying the parent
-    each interval), a path's ``N - 1`` times, a ring's N - 1 distinct eigenvalues once each.
+    ``prod (I - Ŵ/mu)`` over these is zero on every disagreement mode. The index of ``mu`` is taken as the
+    largest sum, along a chain of strongly connected components, of its index inside each
+    (:func:`_block_index`), an upper bound (``Ŵ`` is block triangular over the components).
 
     Returns:
         ``(F,)`` complex, conjugate pairs both listed; ``F <= N - 1``.
@@ -186,9 +155,8 @@ def _topological_order(condensed: sp.csr_array, n_comp: int) -> list[int]:
 def leja_factors(eigenvalues: np.ndarray) -> list[Factor]:
     """One :class:`Factor` per real eigenvalue and per conjugate pair, in Leja order.
 
-    The first kills the eigenvalue of largest modulus; each next one the eigenvalue ``mu'`` where
-    the partial product ``prod_j |1 - mu'/mu_j|`` of the factors so far is largest (ties: the larger
-    modulus), the greedy ordering that keeps partial products small (Reichel 1990).
+    Each next factor kills the eigenvalue where the partial product ``prod_j |1 - mu'/mu_j|`` is largest (ties:
+    the larger modulus; Reichel 1990).
     """
     points = np.asarray(eigenvalues, dtype=complex)
     units = [complex(mu) for mu in points if mu.imag >= 0]
@@ -226,16 +194,11 @@ def _log_factor(points: np.ndarray, factor: Factor) -> np.ndarray:
 def budget_factors(eigenvalues: np.ndarray, n_intervals: int) -> tuple[list[Factor], float]:
     """The factors to play in K intervals, and the modal residual they leave as the design sees it.
 
-    ``eigenvalues`` are :func:`design_eigenvalues` (each repeated by its index). When every factor fits,
-    all of them (:func:`leja_factors`; residual 0). Otherwise the best, by a Jordan-aware modal score,
-    of: the first factors in Leja order, or the factors of the s slowest modes (smallest ``|mu|``,
-    played in Leja order) for the best s, each followed by the paper's plan (the factor of
-    ``mu = 1``) on the intervals left. The score of an eigenvalue ``mu'`` of index m is
-    ``prod |1 - mu'/mu_j|`` over the factors played at *other* eigenvalues, and zero only once its own
-    factor has been played m times (a Jordan block of size m needs m; the derivative terms left
-    before that are counted as the product itself). The paper's plan alone is the case s = 0. The
-    score only ranks the candidates: :class:`MinimumTimePolicy` reports the residual of the chosen
-    design from the matrix (:func:`design_residual`).
+    When every factor fits, all of them (:func:`leja_factors`; residual 0). Otherwise the best, by the
+    Jordan-aware modal score ``prod |1 - mu'/mu_j|`` (zero once ``mu'``'s own factor has been played its index
+    times), of: the first factors in Leja order, or the factors of the s slowest modes for the best s
+    (s = 0: the paper's plan alone), each followed by the paper's plan. The residual reported is
+    :func:`design_residual`'s.
     """
     points = np.asarray(eigenvalues, dtype=complex)
     everything = leja_factors(points)
@@ -275,11 +238,8 @@ def budget_factors(eigenvalues: np.ndarray, n_intervals: int) -> tuple[list[Fact
 def design_residual(topology: Topology, factors: list[Factor], n_intervals: int) -> float:
     """The largest gain of the design's polynomial on a disagreement, from the matrix itself.
 
-    ``q(Ŵ) = prod_f (I - Ŵ/mu_f) (I - Ŵ)^(K - used)`` (a complex pair as the real quadratic), and the
-    residual ``max ||q(Ŵ) d|| / ||d||`` over the disagreements d (``xi^T d = 0``, Theorem 1's weights):
-    the 2-norm of ``q(Ŵ) B`` for an orthonormal basis B of them. For a normal ``Ŵ`` (a ring's) it is
-    the largest ``|q(mu')|``; with Jordan blocks it counts what a modal figure misses. Computed in
-    float64 (so round-off of large partial products shows); NaN above ``DENSE_LIMIT`` agents.
+    ``max ||q(Ŵ) d|| / ||d||`` over the disagreements d (``xi^T d = 0``) for
+    ``q(Ŵ) = prod_f (I - Ŵ/mu_f) (I - Ŵ)^(K - used)``, in float64; NaN above ``DENSE_LIMIT`` agents.
     """
     n = topology.n_agents
     if n > DENSE_LIMIT:
@@ -333,15 +293,14 @@ def gain_schedule(factors: list[Factor], intervals: np.ndarray) -> tuple[np.ndar
     return gains, k
 
 
-class MinimumTimePolicy:
+class MinimumTimePolicy(LawPolicy):
     """The minimum-time law on the local observation, every ``action_mode`` and ``obs_mode``.
 
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with ideal
             double-integrator agents (any schedule, ``dim``, modes, formation offsets).
-        allow_noise: run under ``obs_noise`` too (off by default: the design assumes exact rows).
-            The law is linear, so the noise passes through its gains and the deadline error grows
-            linearly with sigma (docs: optimality.md, "How far from optimal", measured on the ring of 20).
+        allow_noise: run under ``obs_noise`` too (off by default: the design assumes exact rows); the deadline
+            error grows linearly with sigma (docs: optimality.md, "How far from optimal").
 
     Raises:
         ArgumentError naming ``topology``, ``u_max``, ``obs_noise``, ``link_dropout``,
@@ -395,10 +354,6 @@ class MinimumTimePolicy:
         self._table = scaled if config.obs_mode == "normalized" else self.gains
         self._intervals = intervals
 
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Action(s) ``(..., 2 dim)`` for observation(s) ``(..., obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Plans (``plan`` mode) or end inputs (``accel``) from flat observations ``(..., obs_size)``."""
         c = self.config
@@ -407,12 +362,8 @@ class MinimumTimePolicy:
         sums = np.sum(real * rows, axis=-3)  # (..., 2, dim): sum_j (x_j - x_i), sum_j (v_j - v_i)
         r = sums / (np.sum(mask, axis=-1)[..., None, None] + 1.0)
         k = np.clip(np.rint(clock[..., 2] * c.n_intervals).astype(np.int64), 0, c.n_intervals - 1)
-        plan = self._table[k] @ r  # (..., 2, dim): a_x, a_v (or their normalized alpha)
-        plan_x, plan_v = plan[..., 0, :], plan[..., 1, :]
-        if c.action_mode == "plan":
-            return np.concatenate([plan_x, plan_v], axis=-1)
         interval = 1.0 if c.obs_mode == "normalized" else self._intervals[k][..., None]
-        return np.concatenate(input_from_plan(plan_x, plan_v, interval), axis=-1)
+        return plan_action(self._table[k] @ r, c, interval)  # the plan (..., 2, dim): a_x, a_v (or normalized)
 
     def parameters(self) -> dict[str, float]:
         """The design: factors, the intervals they need and use, and the largest modulus of a gain."""
@@ -424,10 +375,6 @@ class MinimumTimePolicy:
             "min_abs_eigenvalue": float(magnitudes.min()),
             "predicted_residual": self.predicted_residual,
         }
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def guarantee(self) -> str:
         if self.factor_intervals < self.needed_intervals:

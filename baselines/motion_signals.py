@@ -7,12 +7,13 @@ Arrays end in ``(2, dim)``: position and velocity parts. The derivation is
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
+from fxc_env.baselines.policy import LawPolicy
 from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.graphs import Topology
 from fxc_env.core.optimality import root_set
@@ -110,11 +111,45 @@ def plan_action(plan: np.ndarray, config: Any, interval: float) -> np.ndarray:
     return np.concatenate(input_from_plan(plan_x, plan_v, interval), axis=-1)
 
 
+class SignalPolicy(LawPolicy):
+    """A law with memory (its own first measurements and plans): called with every agent's observation at once,
+    ``(..., N, obs_size)`` in agent order, one instant after the other from ``k = 0`` (which starts an episode).
+
+    Subclasses set :attr:`TITLE`, ``config``, ``_intervals``, ``_memory`` (None, or holding the own deviation
+    ``"d"`` ``(..., N, 2, dim)``) and ``_next_instant = 0``, and implement ``_reset`` and ``_plan``.
+    """
+
+    #: How messages name the law (``"the signalling law"``).
+    TITLE: ClassVar[str] = ""
+    config: Any
+    _intervals: np.ndarray
+    _memory: dict[str, np.ndarray] | None
+    _next_instant: int
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""
+        obs = np.asarray(obs, dtype=np.float64)
+        memory = None if self._memory is None else self._memory["d"].shape[:-2]
+        k, rows = current_instant(obs, self.config, self.TITLE, self._next_instant, memory)
+        if k == 0:
+            self._reset(rows, obs.shape[:-1])
+        plan = self._plan(k, rows, obs)
+        self._next_instant = k + 1
+        return plan_action(plan, self.config, self._intervals[k])
+
+    def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:
+        """A new episode's memory for the lead shape ``(..., N)``, from the rows at ``t_0``."""
+        raise NotImplementedError
+
+    def _plan(self, k: int, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        """The plan ``(a_x, a_v)`` ``(..., N, 2, dim)`` of every agent at instant k; updates the memory."""
+        raise NotImplementedError
+
+
 def averaging_weights(topology: Topology) -> np.ndarray:
     """``ξ`` ``(N,)``: the left null vector of ``Ŵ = (D + I)^{-1} L`` on the (union) graph, ``Σ ξ = 1``.
 
-    Positive on the root set (:func:`fxc_env.core.optimality.root_set`), zero elsewhere: exact
-    consensus by polynomials in ``Ŵ`` ends at ``ξᵀ q(0)`` (paper Theorem 1's weights, on the union).
+    Positive on the root set (:func:`fxc_env.core.optimality.root_set`), zero elsewhere (paper Theorem 1's weights).
 
     Raises:
         ArgumentError naming ``topology`` when the (union) graph has no directed spanning tree.
@@ -135,9 +170,8 @@ def averaging_weights(topology: Topology) -> np.ndarray:
 def register_eigenvalues(topology: Topology) -> np.ndarray:
     """The ``N - 1`` nonzero eigenvalues of ``Ŵ = (D + I)^{-1} L`` on the (union) graph, complex.
 
-    Block by block over the strongly connected components (``Ŵ`` is block triangular in their
-    order), so eigenvalues repeated across components come out exactly repeated; the consensus
-    eigenvalue 0, simple under a directed spanning tree, lies in the root component.
+    Block by block over the strongly connected components, so eigenvalues repeated across components come out
+    exactly repeated.
     """
     union = union_graph(topology)
     degree = np.asarray(union.sum(axis=1)).ravel()
@@ -155,11 +189,7 @@ def register_eigenvalues(topology: Topology) -> np.ndarray:
 
 
 def leja_order(eigenvalues: np.ndarray) -> np.ndarray:
-    """The eigenvalues ``(N - 1,)`` in the order that keeps partial products small.
-
-    Each next factor ``(1 - μ'/μ)`` kills the mode whose partial product ``|Π (1 - μ'/μ_k)|`` is
-    largest so far (the first: the largest ``|μ|``).
-    """
+    """The eigenvalues ``(N - 1,)`` in Leja order: each next one where ``|Π (1 - μ'/μ_k)|`` is largest so far."""
     points = np.asarray(eigenvalues, dtype=complex)
     remaining = list(range(len(points)))
     log_q = np.zeros(len(points))

@@ -1,19 +1,11 @@
 """What every baseline shares: reading the local observation and holding an input.
 
-A baseline is a policy in the sense of :class:`fxc_env.ReferencePolicy`: it is built from an
-environment (parallel, AEC, VecEnv) or an :class:`~fxc_env.EnvConfig`, and maps observations
-``(..., obs_size)`` to actions ``(..., 2 dim)`` in one vectorised call. It reads only
-
-- the observation: the rows ``[x_j - x_i, v_j - v_i]`` of agent i's in-neighbours at ``t_k``,
-  their 0/1 mask and the clock ``t_k / T_s``, ``T_{k+1} / T_s``, ``k / K`` (the env card's Observation Space);
-- the environment's settings (``T_s``, the modes, the layout, ``dim``).
-
-Gains that the papers choose from the graph (a Laplacian eigenvalue bound, say) are chosen
-once, offline, by the designer who knows the topology, as the paper's schedule is; they are
-the same for every agent and carry no run-time information (see :mod:`fxc_env.baselines.design`).
-
-Every baseline acts in ``accel`` mode with a zero-order hold: the input it computes at ``t_k``
-is held until ``t_{k+1}``, so the action is ``(u, u)``.
+A baseline is built from an environment (parallel, AEC, VecEnv) or an :class:`~fxc_env.EnvConfig` and maps
+observations ``(..., obs_size)`` to actions ``(..., 2 dim)`` in one vectorised call. It reads only the
+observation (its in-neighbours' rows ``[x_j - x_i, v_j - v_i]`` at ``t_k``, their mask, the clock) and the
+environment's settings; gains the papers choose from the graph are chosen once, offline
+(:mod:`fxc_env.baselines.design`). The classical laws act in ``accel`` mode with a zero-order hold: the
+action is ``(u, u)``.
 """
 
 from __future__ import annotations
@@ -24,28 +16,15 @@ from typing import Any, ClassVar
 import numpy as np
 
 from fxc_env.config import config_of
+from fxc_env.config.layout import ObservationLayout
 from fxc_env.core.validation import ArgumentError
 
 
-def describe_law(policy: Any) -> dict[str, str]:
-    """A law's name, law, source, proven graph class and parameters (its ``NAME``, ``LAW``, ``SOURCE``,
-    ``GRAPH_CLASS`` and ``parameters()``), as the benchmark's tables and logs show them."""
-    params = ", ".join(f"{k} = {v:.4g}" for k, v in policy.parameters().items())
-    return {
-        "name": policy.NAME,
-        "law": policy.LAW,
-        "source": policy.SOURCE,
-        "graph_class": policy.GRAPH_CLASS,
-        "parameters": params,
-    }
+class LawPolicy:
+    """Base class of every baseline: the law's description, and a call on flat or dict observations.
 
-
-class HoldPolicy:
-    """Base class: a feedback law on the local observation, held over each interval (ZOH).
-
-    Subclasses set :attr:`LAW`, :attr:`SOURCE`, :attr:`GRAPH_CLASS` and :attr:`OBS_MODES`,
-    and implement :meth:`input` (the physical input ``u_i`` in m/s^2 from raw rows) or
-    override :meth:`act`.
+    Subclasses set :attr:`NAME`, :attr:`LAW`, :attr:`SOURCE`, :attr:`GRAPH_CLASS` and ``self.layout``, and
+    implement :meth:`act`.
     """
 
     #: Name used by the benchmark and :func:`baselines.load_policy`.
@@ -56,6 +35,39 @@ class HoldPolicy:
     SOURCE: ClassVar[str] = ""
     #: The graphs for which the source proves convergence.
     GRAPH_CLASS: ClassVar[str] = ""
+    layout: ObservationLayout
+
+    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
+        """Action(s) ``(..., 2 dim)`` for observation(s) ``(..., obs_size)`` (flat or dict)."""
+        return self.act(self.layout.flat(observation))
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def parameters(self) -> dict[str, float]:
+        """The law's parameters as used (after any offline design)."""
+        return {}
+
+    def describe(self) -> dict[str, str]:
+        """Law, source, proven graph class and parameters (``parameters()``), for tables and logs."""
+        params = ", ".join(f"{k} = {v:.4g}" for k, v in self.parameters().items())
+        return {
+            "name": self.NAME,
+            "law": self.LAW,
+            "source": self.SOURCE,
+            "graph_class": self.GRAPH_CLASS,
+            "parameters": params,
+        }
+
+
+class HoldPolicy(LawPolicy):
+    """Base class: a feedback law on the local observation, held over each interval (ZOH).
+
+    Subclasses set :attr:`LAW`, :attr:`SOURCE`, :attr:`GRAPH_CLASS` and :attr:`OBS_MODES`,
+    and implement :meth:`input` (the physical input ``u_i`` in m/s^2 from raw rows) or
+    override :meth:`act`.
+    """
+
     #: Observation modes the law can be computed in.
     OBS_MODES: ClassVar[tuple[str, ...]] = ("raw",)
 
@@ -72,10 +84,6 @@ class HoldPolicy:
                 f"obs_mode: {type(self).__name__} supports {self.OBS_MODES}, got {self.config.obs_mode!r}"
             )
 
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Action(s) ``(..., 2 dim)`` for observation(s) ``(..., obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Zero-order hold of :meth:`input`: the action ``(u, u)``, ``(..., 2 dim)``."""
         rows, mask, clock = self.layout.split(obs)
@@ -86,14 +94,6 @@ class HoldPolicy:
         """Physical input ``u_i`` ``(..., dim)`` from rows ``x_j - x_i``, ``v_j - v_i`` ``(..., d_max, dim)``."""
         raise NotImplementedError
 
-    def parameters(self) -> dict[str, float]:
-        """The law's parameters as used (after any offline design)."""
-        return {}
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
-
     def time_features(self, clock: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``t_k`` and ``T_{k+1}`` in seconds from the clock, each ``(..., 1)``."""
         settling_time = self.config.settling_time
@@ -103,11 +103,8 @@ class HoldPolicy:
 class LinearRowPolicy(HoldPolicy):
     """A law linear in the rows: ``u_i = sum_j a_ij [p (x_j - x_i) + q (v_j - v_i)]``.
 
-    ``p`` (1/s^2) and ``q`` (1/s) may depend on the clock (:meth:`row_gains`). Being
-    homogeneous of degree one, the law is computable in both observation modes: with
-    normalised rows ``(x_j - x_i) / s_i`` and ``T (v_j - v_i) / s_i`` the action is
-    ``alpha = T^2 sum_j [p dx_j + (q / T) dv_j]``, which the environment multiplies by
-    ``s_i / T^2``; the scale ``s_i`` itself is never needed.
+    ``p`` (1/s^2) and ``q`` (1/s) may depend on the clock (:meth:`row_gains`). On normalized rows the action
+    is ``alpha = T^2 sum_j [p dx_j + (q / T) dv_j]`` (homogeneous of degree one: ``s_i`` is never needed).
     """
 
     OBS_MODES: ClassVar[tuple[str, ...]] = ("raw", "normalized")

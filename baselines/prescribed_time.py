@@ -5,33 +5,17 @@ Law (``sigma = T_s - t``, the time left; the gain ``mu(t) = T_s / sigma`` grows 
     u_i = -sum_j a_ij [k_x (x_i - x_j) / sigma^2 + k_v (v_i - v_j) / sigma]
 
 - Source: Y. Wang, Y. Song, D. J. Hill and M. Krstic, "Prescribed-time consensus and
-  containment control of networked multiagent systems", IEEE Trans. Cybern. 49 (2019): a
-  scaling ``mu(t) = T_s / (T_s - t)`` turns an asymptotic law into one that settles at ``T_s``.
-  This is the double-integrator member of that family with gains ``mu^2`` on positions and
-  ``mu`` on velocities.
-- Why it works: on a Laplacian mode ``lambda`` the closed loop is an Euler equation in
-  sigma, solved by ``sigma^r`` with ``r^2 - (1 + lambda k_v) r + lambda k_x = 0``. Disagreement
-  then vanishes like ``(T_s - t)^r`` and the input stays bounded when ``Re(r) >= 2``.
-- Proven graph class: undirected connected graphs (then every ``lambda`` is real and positive);
-  on digraphs the complex ``lambda`` must still give ``Re(r) > 1``, which the design checks
-  (:meth:`PrescribedTimePolicy.guarantee`) but the paper does not prove.
-- Parameters, designed **offline** from the graph (average Laplacian of a switching period):
-  the exponent ``p`` [3] places the roots at ``r = p, p + 1`` on the slowest mode
-  ``lambda_min = min Re(lambda)``: ``k_v = 2 p / lambda_min``, ``k_x = p (p + 1) / lambda_min``
-  (dimensionless).
-- **Cut-off**: the gain cannot grow forever under a zero-order hold at a sampling period h.
-  It is frozen at ``sigma = delta`` with ``delta = max(2 h, 5 h k_v max|lambda|)``: the last
-  remaining time at which one sampling period is at most a fifth of the fastest closed-loop
-  time constant ``delta / (k_v max|lambda|)`` (a coarser hold lets the ZOH, the switching or
-  the long Jordan chain of a directed path amplify the disagreement). From ``T_s - delta`` on
-  the law is linear with constant gains. Velocities decay one power slower than positions
-  (``sigma^(p-1)``), so ``D = e_x + T_s e_v`` is down to about ``(delta / T_s)^(p-1)`` at the
-  cut-off, and the constant-gain phase shrinks it further. On a slowly mixing graph (small
-  ``lambda_min``, hence large ``k_v``) ``delta`` may reach ``T_s``: the law is then linear with
-  constant gains throughout, and the row's ``cutoff_s`` says so.
-
-Homogeneous of degree one in the rows: works with ``obs_mode`` ``"raw"`` and ``"normalized"``.
-In the benchmark it runs on a fine ``uniform`` schedule, like the other continuous laws.
+  containment control of networked multiagent systems", IEEE Trans. Cybern. 49 (2019); this is the
+  double-integrator member with gains ``mu^2`` on positions and ``mu`` on velocities. On a Laplacian mode
+  ``lambda`` the disagreement vanishes like ``sigma^r``, ``r^2 - (1 + lambda k_v) r + lambda k_x = 0``.
+- Proven graph class: undirected connected graphs; on digraphs the design checks ``Re(r) > 1``
+  (:meth:`PrescribedTimePolicy.guarantee`), which the paper does not prove.
+- Parameters, designed offline (average Laplacian of a switching period): the exponent ``p`` [3] places the
+  roots at ``r = p, p + 1`` on ``lambda_min = min Re(lambda)``: ``k_v = 2 p / lambda_min``,
+  ``k_x = p (p + 1) / lambda_min`` (dimensionless).
+- **Cut-off**: under a zero-order hold at period h the gain is frozen at ``sigma = delta``,
+  ``delta = max(2 h, 5 h k_v max|lambda|)``; from ``T_s - delta`` on the law is linear with constant gains
+  (throughout when ``delta`` reaches ``T_s``: the row's ``cutoff_s`` says so).
 """
 
 from __future__ import annotations

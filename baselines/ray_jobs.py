@@ -1,8 +1,6 @@
-"""The benchmark's jobs as Ray tasks: ``fxc benchmark --ray [--address ADDR]``.
+"""The benchmark's jobs as Ray tasks (one CPU, one BLAS thread each): ``fxc benchmark --ray [--address ADDR]``.
 
-Each :class:`~fxc_env.baselines.jobs.Job` runs :func:`~fxc_env.baselines.jobs.run_job` as one Ray
-task (one CPU, one BLAS thread), on a local Ray or on every node of a cluster. Jobs are
-seeded, so the results, and the table built from them, are those of the single-machine run.
+Jobs are seeded, so the results are those of the single-machine run.
 """
 
 from __future__ import annotations
@@ -23,8 +21,8 @@ def run_jobs_on_ray(
 ) -> list[JobResult]:
     """Run ``jobs`` as Ray tasks (submitted in the given order); results in the order of ``jobs``.
 
-    ``address`` joins a running cluster; without it a local Ray with ``num_cpus`` cores
-    (default: all) is started and stopped. ``on_done(n)`` is called as ``n`` jobs finish.
+    ``address`` joins a cluster, else a local Ray with ``num_cpus`` cores (default: all) is started and stopped;
+    ``on_done(n)`` is called as ``n`` jobs finish.
     """
     with ray_session("--ray", address, num_cpus) as ray:
         task = ray.remote(num_cpus=1, runtime_env={"env_vars": single_thread_environment()})(run_job)

@@ -2,7 +2,7 @@
 ``fxc leaderboard`` and the tests read :data:`LAWS` and nothing else.
 
 A law is a policy class built from a config (``cls(config)``) with the settings it runs under. To add
-a baseline, write its module (a :class:`~fxc_env.baselines.policy.HoldPolicy` or a plan-mode policy
+a baseline, write its module (a :class:`~fxc_env.baselines.policy.HoldPolicy` or a plan-mode ``LawPolicy``
 with ``NAME``) and call :func:`register` with it here; ``fxc benchmark --policies``, the tables, the
 figures' markers and :func:`fxc_env.baselines.load_policy` pick it up.
 """

@@ -1,10 +1,8 @@
-"""The benchmark's tables: medians with spread, as Markdown and CSV.
+"""The benchmark's tables: medians with the interquartile range ``[q25, q75]`` over episodes, as Markdown and CSV.
 
-Spread is the interquartile range ``[q25, q75]`` over episodes. The headline table pools
-every case's episodes per policy (sampled policies at the headline budget, continuous
-laws at their fine K); the other tables break the deadline error down by case and by
-budget; the notes state each policy's law, source, proven graph class, parameters and the
-environment settings it ran with.
+The headline table pools every case's episodes per policy (sampled policies at the headline budget); the others
+break the deadline error down by case and by budget; the notes give each policy's law, source, proven graph
+class, parameters and settings.
 """
 
 from __future__ import annotations

@@ -1,22 +1,16 @@
 """Sampled-data linear consensus (Cao & Ren 2010): the linear law held over a uniform period.
 
-Law: the linear law of :mod:`fxc_env.baselines.linear`, measured only at the sampling instants and
-held (zero-order hold) for the sampling period ``h = T_s / K``::
+Law: the linear law of :mod:`fxc_env.baselines.linear`, measured at the sampling instants and held for
+``h = T_s / K``::
 
     u_i(t) = -g sum_j a_ij [(x_i(t_k) - x_j(t_k)) + gamma (v_i(t_k) - v_j(t_k))],  t in [t_k, t_k + h)
 
 - Source: Y. Cao and W. Ren, "Sampled-data discrete-time coordination algorithms for
   double-integrator dynamics under dynamic directed interaction", Int. J. Control 83 (2010).
-- Proven graph class: fixed or periodically switching digraphs whose union has a directed
-  spanning tree, for ``(g, gamma, h)`` that make the exact one-sample map of the disagreement
-  a contraction (:func:`fxc_env.baselines.design.zoh_radius`; over a switching period, the ordered
-  product of the maps).
-- Parameters: ``gain`` ``g`` (1/s^2), ``gamma`` (s), designed **offline** for the sampling
-  period: gamma minimises the exact spectral radius at ``g = 1``; g is halved only while no
-  gamma on the grid is stable (:func:`fxc_env.baselines.design.design_sampled_gains`).
-
-It runs with the same number K of samples as the reference (the ``uniform`` schedule
-instead of the paper's), so both spend the same communication budget.
+- Proven graph class: fixed or periodically switching digraphs whose union has a directed spanning tree, for
+  ``(g, gamma, h)`` whose exact one-sample map is a contraction (:func:`fxc_env.baselines.design.zoh_radius`).
+- Parameters: ``gain`` ``g`` (1/s^2), ``gamma`` (s), designed offline for the sampling period
+  (:func:`fxc_env.baselines.design.design_sampled_gains`). It runs with the reference's K.
 """
 
 from __future__ import annotations

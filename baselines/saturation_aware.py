@@ -1,27 +1,16 @@
 """A saturation-aware law: the paper's plan where it fits under the input limit, a held linear law where it does not.
 
-Law, on each interval of a uniform schedule (``T = T_s / K``): agent i forms the paper's
-minimum-energy plan (eq. 11) to the average of the coasted states of itself and its
-in-neighbours, whose input runs from ``u(t_k+)`` to ``u(t_{k+1}-)``. If both ends lie within
-``±u_max`` (every component), it applies that plan: one exact averaging step, as the
-reference. Otherwise it holds the linear consensus input
+Law, on each interval of a uniform schedule (``T = T_s / K``): agent i forms the paper's minimum-energy plan
+(eq. 11) to the average of the coasted states of itself and its in-neighbours. If the plan's input at both ends
+lies within ``±u_max`` it applies it (the reference's exact averaging step); otherwise it holds
 
     u_i = g sum_j a_ij [(x_j - x_i) + gamma (v_j - v_i)]
 
-(clipped by the actuator if need be) until the next sample. Far from agreement the plan
-needs ``~6 e / T^2`` and the gentle linear law brings the agents together; once the
-disagreement is small enough the exact plans fit and finish the job at the paper's rate,
-which a linear law never reaches.
+(clipped by the actuator if need be) until the next sample. ``u_max`` is read from the observation's
+input-limit entry ``l / (1 + |l|)``, ``l = log10(u_max T^2 / s_i)``; without a limit the law is the reference.
 
-``u_max`` is read from the observation, not from the settings: the input-limit entry is
-``l / (1 + |l|)`` with ``l = log10(u_max T^2 / s_i)`` and ``s_i`` the agent's own scale,
-which the raw rows give, so a limit drawn per episode is known to the agent as it is to a
-learned policy. Without a limit every plan fits and the law is the reference.
-
-Parameters: ``gain`` g = 1 s^-2 and ``gamma`` = 3 s, chosen by a scan of g in {0.5, 1, 2}
-and gamma in {1.5, 3} on ``paper_fig1`` and a random N = 20 digraph at ``u_max`` 10 and 100
-(20 seeds): g = 1, gamma = 3 was the only pair below 1e-5 on all four. No proof: a
-heuristic of this project (docs: training.md, "Training learned policies").
+Parameters: ``gain`` g = 1 s^-2 and ``gamma`` = 3 s (a scan on ``paper_fig1`` and a random N = 20 digraph at
+``u_max`` 10 and 100). No proof: a heuristic of this project (docs: training.md, "Training learned policies").
 """
 
 from __future__ import annotations
@@ -91,10 +80,8 @@ class SaturationAwarePolicy(HoldPolicy):
     def act_in_plan_units(self, obs: np.ndarray) -> np.ndarray:
         """The same law as plan actions on normalized rows ``r_x = dx / s``, ``r_v = T dv / s``.
 
-        The plan ``alpha`` needs the input ``(s / T^2) (6 alpha_x - 2 alpha_v, 4 alpha_v - 6 alpha_x)``,
-        so it fits where those numbers are within ``rho = u_max T^2 / s``, which the limit entry
-        gives without ``s``. The held input ``u`` is the plan ``(u T^2 / 2, u T)``, in these units
-        ``alpha = g T^2 (S_x + (gamma / T) S_v) (1/2, 1)`` with the row sums ``S``.
+        The plan ``alpha`` fits where ``(6 alpha_x - 2 alpha_v, 4 alpha_v - 6 alpha_x)`` is within
+        ``rho = u_max T^2 / s`` (from the limit entry); the held input is ``alpha = g T^2 (S_x + (gamma / T) S_v) (1/2, 1)``.
         """
         layout = self.layout
         rows, mask, clock = layout.split(obs)

@@ -1,83 +1,51 @@
 """A law on the energy-accuracy frontier: agree on the target by small motions, then steer once.
 
-Law (derived for this project; docs: optimality.md, "How far from optimal"). The least energy of any exact
-consensus at ``T_s`` is ``E*`` (:func:`fxc_env.core.optimality.energy_bound`), reached when every
-agent steers once, with the minimum-energy input (paper Remark 1), to the *unweighted* mean ``p̄`` of
-the free-motion predictions ``p_i = (x_i + T_s v_i, v_i)``. Each agent only needs its own offset
-``p̄ - p_i``, and it can learn it from its sampled relative measurements alone:
+Law (derived for this project; docs: optimality.md, "How far from optimal"). Every agent steers once, with the
+minimum-energy input (paper Remark 1), to the mean ``p̄`` of the free-motion predictions
+``p_i = (x_i + T_s v_i, v_i)`` (the E*-optimal point, :func:`fxc_env.core.optimality.energy_bound`); it learns
+its offset ``p̄ - p_i`` from its sampled relative measurements alone:
 
-1. **Reading numbers from motion.** Agent i's *deviation* ``d_i(t) = z_i(t) - Φ(t) z_i(0)``,
-   ``Φ(t) = [[1, t], [0, 1]]``, is what its plans added to coasting; it knows it exactly (it planned
-   it: ``d_i(t_{k+1}) = P_k d_i(t_k) + a_i^k``, ``P_k = [[1, T_k], [0, 1]]``). Its first measurement of
-   in-neighbour j gives ``z_j(0) - z_i(0)``; afterwards the measured row is
-   ``z_j(t_k) - z_i(t_k) = Φ(t_k) (z_j(0) - z_i(0)) + d_j(t_k) - d_i(t_k)``, so i reads ``d_j(t_k)``
-   exactly up to float64 rounding. Agent j writes a number into its deviation: ``d_j = ε (c_x, c_v)``.
-2. **Registers.** Per axis, agent i holds the complex register ``q_i = p_{i,x} + i T_s p_{i,v}`` (m),
-   whose start it does not know absolutely; it tracks the change ``c_i = q_i - q_i(0)`` and signals it
-   (``d = ε (Re c, Im c / T_s)``: two numbers per axis, what one interval's plan can set). The
-   difference ``q_j - q_i = Φ(T_s)``-predicted ``(z_j(0) - z_i(0))`` ``+ c_j - c_i`` is then known to i.
-3. **Exact consensus on the registers, then the unweighted mean.** Stage 1 runs the minimum-time
-   construction on the registers: ``q <- (I - Ŵ/μ) q``, ``Ŵ = (D + I)^{-1} L`` (union graph), one update
-   per nonzero eigenvalue ``μ`` (complex ones one at a time, the register being complex: the product
-   of all factors is a real polynomial in ``Ŵ`` that annihilates every disagreement mode,
-   Cayley-Hamilton), in Leja order (each next factor kills the mode whose partial product is
-   largest). It ends at ``ξᵀ q(0)`` (``ξ`` the left null vector of ``Ŵ``, positive on the root set R),
-   and agent i knows its offset ``o_i = ξᵀ q - q_i``. Stage 2 moves the value to the roots' unweighted
-   mean ``ξᵀ q + Σ_R (ξ_i - 1/R) o_i``: the roots start *known* registers ``γ_i = (ξ_i - 1/R) o_i / ξ_i``
-   (0 elsewhere) and the same construction agrees on ``ξᵀ γ``. (The one-stage alternative,
-   ``q <- (I - M L/μ) q`` with ``M ∝ diag(ξ)^{-1}``-like weights, spreads the spectrum and amplified
-   reading errors to 1e-2 on a random digraph N = 20.) Stage 2 is skipped when ``ξ`` is uniform
-   (a directed ring, ``paper_fig1``'s union). On a fixed graph one update per interval: ``N - 1``
-   intervals per stage (a directed ring: the propagation bound). A periodic switching set (paper
-   Theorem 2) runs on the union of its ``m`` graphs: each agent reads every union in-neighbour once per
-   period (registers held over the period), then updates.
-   The team agrees on the mean over the roots: the whole team on a strongly connected graph (then the
-   E*-optimal point); on a graph with a directed spanning tree no root can hear the other agents, so
-   the roots' mean is the best point the roots can know (energy above ``E*`` by the offset's cost).
-4. **Steering once.** At the last update (instant ``t_c``) agent i knows ``c_i = q̄ - q_i(0)``; over
-   ``[t_c, T_s]`` it plays the minimum-energy input to its point ``p̄`` at ``T_s``, interval by interval
-   (the input ``λ_1 (H - s) + λ_2``, ``λ = G(H)^{-1} Δ``, is affine on each interval, so its piece is a
-   plan the environment realises exactly). Energy ``≈ E* (T_s / (T_s - t_c))³`` plus signalling.
+1. **Reading numbers from motion.** Agent i's deviation ``d_i(t) = z_i(t) - Φ(t) z_i(0)``,
+   ``Φ(t) = [[1, t], [0, 1]]``, is known to it exactly; a measured row is
+   ``z_j(t_k) - z_i(t_k) = Φ(t_k) (z_j(0) - z_i(0)) + d_j(t_k) - d_i(t_k)``, so i reads ``d_j(t_k)``;
+   agent j writes a number into its deviation: ``d_j = ε (c_x, c_v)``.
+2. **Registers.** Per axis, the complex register ``q_i = p_{i,x} + i T_s p_{i,v}`` (m); agent i signals its
+   change ``c_i = q_i - q_i(0)`` as ``d = ε (Re c, Im c / T_s)``.
+3. **Exact consensus on the registers, then the unweighted mean.** Stage 1: ``q <- (I - Ŵ/μ) q``,
+   ``Ŵ = (D + I)^{-1} L`` (union graph), one update per nonzero eigenvalue ``μ`` in Leja order, ending at
+   ``ξᵀ q(0)``. Stage 2 (skipped when ``ξ`` is uniform) moves it to the roots' unweighted mean
+   ``ξᵀ q + Σ_R (ξ_i - 1/R) o_i``, ``o_i = ξᵀ q - q_i``, by the same construction on
+   ``γ_i = (ξ_i - 1/R) o_i / ξ_i``. A periodic switching set (paper Theorem 2) runs on the union of its
+   ``m`` graphs, one update per period.
+4. **Steering once.** At the last update ``t_c`` agent i plays the minimum-energy input to ``p̄`` over
+   ``[t_c, T_s]``, interval by interval. Energy ``≈ E* (T_s / (T_s - t_c))³`` plus signalling.
 
-The signalling amplitude ``ε`` (dimensionless: metres of deviation per metre of register) trades
-energy for accuracy: the reading error of a register is the rounding of a measured row over ``ε``
-(about ``1e-16 |z| / ε``), the signalling energy grows like ``ε²``. It is refused outside
-``1e-12 <= ε <= 1`` (:data:`AMPLITUDE_RANGE`): below, rounding takes the reads' digits for no energy
-saved; above, the error grows again like ε while the energy keeps growing like ε². The measured
-figures are on the docs' optimality page (``tests/baselines/test_signalling.py`` runs both ends).
+The amplitude ``ε`` (dimensionless) trades energy (like ``ε²``) for accuracy (reads off by ``1e-16 |z| / ε``);
+refused outside :data:`AMPLITUDE_RANGE`, where it loses accuracy for nothing.
 
-- Source: this project (information is cheap, motion is not: signalling through motion in the
-  spirit of implicit communication, on the minimum-time law of :mod:`fxc_env.baselines.minimum_time`).
-- Proven graph class: a fixed digraph with a directed spanning tree, or a periodic set whose union has
-  one; ideal double-integrator agents; ``K >=`` the agreement's intervals (``m (N - 1)``, twice that with
-  stage 2). Exact (up to rounding / ε) at the roots' mean, the unweighted mean when strongly connected.
-- Settings it runs with: ``action_mode="plan"`` (or ``"accel"``), ``obs_mode="raw"`` (the agent needs
-  physical rows to subtract the coasting prediction).
-- Measurement noise: with ``obs_noise`` σ each read of a register is off by about ``σ / ε`` and the exact
-  factors amplify it: the error falls like ``σ/ε`` while the energy grows like ``ε²`` (figures on the docs'
-  optimality page), off the frontier, so the law refuses ``obs_noise`` unless ``amplitude`` is chosen.
+- Source: this project (signalling through motion, on :mod:`fxc_env.baselines.minimum_time`).
+- Proven graph class: a fixed digraph with a directed spanning tree, or a periodic set whose union has one;
+  ideal double-integrator agents; ``K >= m (N - 1)`` (twice that with stage 2). Exact (up to rounding / ε)
+  at the roots' mean, the unweighted mean when strongly connected.
 - It refuses what it cannot honour, by name: a graph (or period union) without a directed spanning
-  tree, topology families, ``switching='random'``, ``u_max`` (unless ``allow_limit=True``: exact
-  wherever its inputs stay within the limit), ``obs_noise`` (without an explicit
-  ``amplitude``), ``link_dropout``, agent models
-  other than the double integrator, ``obs_mode='normalized'``, and too few intervals.
+  tree, topology families, ``switching='random'``, ``u_max`` (unless ``allow_limit=True``), ``obs_noise``
+  (without an explicit ``amplitude``), ``link_dropout``, agent models other than the double integrator,
+  ``obs_mode='normalized'``, and too few intervals.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
 
 from fxc_env.baselines.motion_signals import (
+    SignalPolicy,
     advance,
     averaging_weights,
-    current_instant,
     deviation_of,
     initial_offset,
     leja_order,
-    plan_action,
     predicted_register,
     read_deviation,
     refuse_unless_exact_raw_rows,
@@ -87,7 +55,6 @@ from fxc_env.baselines.motion_signals import (
     steer_plan,
     union_graph,
 )
-from fxc_env.baselines.policy import describe_law
 from fxc_env.config import config_of
 from fxc_env.core import validation
 from fxc_env.core.optimality import root_set
@@ -101,14 +68,11 @@ DEFAULT_AMPLITUDE = 1e-6
 AMPLITUDE_RANGE = (1e-12, 1.0)
 
 
-class SignallingPolicy:
+class SignallingPolicy(SignalPolicy):
     """The signalling law on the local observation, raw rows, ``plan`` or ``accel`` actions.
 
-    The law has memory (each agent's own first measurements, its register and its own plans), so
-    it is called with **every agent's** observation at once, ``(..., N, obs_size)`` in agent order
-    (the benchmark's and :func:`fxc_env.simulate`'s layout), one instant after the other from
-    ``k = 0`` (an observation with ``k = 0`` starts a new episode); agent i's action depends only on
-    its own observations and memory.
+    It has memory, so it is called as :class:`~fxc_env.baselines.motion_signals.SignalPolicy` says; agent i's
+    action depends only on its own observations and memory.
 
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with a
@@ -117,11 +81,8 @@ class SignallingPolicy:
         amplitude: the signalling amplitude ε (dimensionless, in :data:`AMPLITUDE_RANGE`, ``1e-12 <= ε <= 1``;
             None: :data:`DEFAULT_AMPLITUDE`). Under ``obs_noise`` the law runs only with an explicit amplitude
             (the frontier point is the user's choice).
-        allow_limit: run under ``u_max`` too (off by default: the law plans exact changes). Its
-            signals are small and its steer is the minimum-energy one, so wherever every input stays
-            within the limit the clip never acts and the law is as exact as without it; where the
-            steer needs more (a late steer on the paper's schedule, a limit near the input floor)
-            the clip breaks the landing (docs: optimality.md, "How far from optimal", for measured figures).
+        allow_limit: run under ``u_max`` too (off by default): exact wherever every input stays within the
+            limit, the clip breaks the landing elsewhere (docs: optimality.md, "How far from optimal").
 
     Raises:
         ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``, ``agent_model``,
@@ -129,6 +90,7 @@ class SignallingPolicy:
     """
 
     NAME: ClassVar[str] = "signalling"
+    TITLE: ClassVar[str] = "the signalling law"
     LAW: ClassVar[str] = (
         "read neighbours' deviations from coasting as numbers; exact consensus q <- (I - Ŵ/μ) q on registers "
         "q_i = p_i (μ over the eigenvalues of Ŵ in Leja order), then on the known correction to the unweighted mean, "
@@ -196,22 +158,7 @@ class SignallingPolicy:
         self._next_instant = 0
 
     # ----------------------------------------------------------------------------- acting
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Actions ``(..., N, 2 dim)`` for every agent's observation ``(..., N, obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""
-        obs = np.asarray(obs, dtype=np.float64)
-        memory = None if self._memory is None else self._memory["c"].shape[:-1]
-        k, rows = current_instant(obs, self.config, "the signalling law", self._next_instant, memory)
-        if k == 0:
-            self._reset(obs.shape[:-1])
-        plan = self._plan(k, rows)
-        self._next_instant = k + 1
-        return plan_action(plan, self.config, self._intervals[k])
-
-    def _reset(self, lead: tuple[int, ...]) -> None:
+    def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:
         dim = self.config.dim
         self._memory = {
             "base": np.zeros((*lead, self._union_slots, 2, dim)),  # z_j(0) - z_i(0) per union neighbour
@@ -221,7 +168,7 @@ class SignallingPolicy:
             "d": np.zeros((*lead, 2, dim)),  # own deviation from coasting
         }
 
-    def _plan(self, k: int, rows: np.ndarray) -> np.ndarray:
+    def _plan(self, k: int, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
         """The plan ``(a_x, a_v)`` ``(..., N, 2, dim)`` of every agent at instant k; updates the memory."""
         memory = self._memory
         assert memory is not None
@@ -291,10 +238,6 @@ class SignallingPolicy:
             "steer_start_s": float(self._times[self.agreement_intervals - 1]),
             "min_abs_eigenvalue": float(np.min(np.abs(self.eigenvalues))) if len(self.eigenvalues) else 1.0,
         }
-
-    def describe(self) -> dict[str, str]:
-        """Law, source, proven graph class and parameters, for tables and logs."""
-        return describe_law(self)
 
     def guarantee(self) -> str:
         t_c = self._times[self.agreement_intervals - 1]

@@ -1,15 +1,9 @@
 """What the deadline benchmark runs: cases, contenders and the settings each contender uses.
 
-A **case** is a topology family at a size N (``paper_fig1``, ``ring``, ``path``, ``star``,
-``random`` fixed and switching; N in {6, 20, 100}); every contender meets the same seeded
-initial states on it. A **contender** is a policy together with the environment settings it
-runs with: sampled controllers (the reference, the sampled-data linear law, learned policies)
-are run at every communication budget K of the suite; continuous-measurement laws run once,
-on a fine ``uniform`` schedule with a zero-order hold (``accel`` mode), and their sample
-count is reported with their result.
-
-:func:`load_policy` turns a name or a saved model into a policy for one config; the training
-issue plugs learned policies in there.
+A **case** is a topology (family) at a size N; every contender meets the same seeded initial states on it. A
+**contender** is a policy with its environment settings: sampled controllers run at every budget K of the
+suite, continuous-measurement laws once, on a fine ``uniform`` schedule with a zero-order hold.
+:func:`load_policy` turns a name or a saved model into a policy for one config.
 """
 
 from __future__ import annotations
@@ -165,16 +159,10 @@ def learned_contender(
     """A saved policy (``pretrained``, an SB3 ``.zip``, an RLlib checkpoint or run directory) as a
     sampled contender, named after its file or directory.
 
-    A fixed-width network's observation width fixes ``obs_slots`` (rows = (obs_size - 3) /
-    (2 dim + 1), dim = 1, one more entry for a policy that sees the input limit); cases with more
-    in-neighbours than that, or without an input limit for a policy that expects one, are
-    reported as not run. A gain-scheduled network reads any number of rows
-    (:class:`fxc_env.policies.learned.SlotAdaptedPolicy`): ``obs_slots`` is left to each case. In ``dim > 1`` it acts per axis (:class:`fxc_env.policies.learned.PerAxisPolicy`). The model is loaded
-    here, so a missing, empty or corrupt file raises :class:`ArgumentError` naming ``name``
-    (``--policy`` on the command line) before any job runs. ``trusted`` allows formats that
-    unpickle (RLlib checkpoints, pickled SB3 entries); without it they are refused by name.
-    ``allow_out_of_domain`` runs it on cases outside its recorded training domain (with a
-    warning); without it those cases are reported as not run, naming every difference.
+    A fixed-width network's observation width fixes ``obs_slots`` (cases it does not fit are reported as not
+    run); a gain-scheduled network reads any number of rows. The model is loaded here, so a missing, empty or
+    corrupt file raises :class:`ArgumentError` naming ``name`` before any job runs. ``trusted`` and
+    ``allow_out_of_domain`` as in :class:`Contender`.
     """
     path = model_path(spec)
     try:
@@ -308,11 +296,8 @@ MODEL_CONDITIONS = (
 
 
 def models_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
-    """Every named agent model on ``paper_fig1`` and a random N = 20 digraph at K = 200 and 400.
-
-    The analytic baselines are laws for the double integrator: on the other models they do not
-    run (the table says why); the reference and ``plan``-mode learned policies run on all.
-    """
+    """Every named agent model on ``paper_fig1`` and a random N = 20 digraph at K = 200 and 400 (the analytic
+    baselines, laws for the double integrator, are reported as not run on the others)."""
     bases = (BenchmarkCase("paper_fig1", 6), BenchmarkCase("random", 20))
     cases = tuple(replace(base, conditions=c) for base in bases for c in MODEL_CONDITIONS)
     return Suite(
@@ -372,11 +357,8 @@ FLOOR_LIMITS = (0.3, 0.5, 1.0, 10.0)
 
 
 def floor_cases() -> tuple[BenchmarkCase, ...]:
-    """The directed ring of 20 under each of :data:`FLOOR_NOISE` and :data:`FLOOR_LIMITS`, and ``paper_fig1`` at ``u_max = 10``.
-
-    Their episodes carry ``noise_floor`` or ``input_floor`` (:mod:`fxc_env.core.floors`): what no
-    controller can beat under that setting.
-    """
+    """The directed ring of 20 under each of :data:`FLOOR_NOISE` and :data:`FLOOR_LIMITS`, and ``paper_fig1`` at
+    ``u_max = 10``: episodes that carry ``noise_floor`` or ``input_floor`` (:mod:`fxc_env.core.floors`)."""
     ring = BenchmarkCase("ring", 20)
     return (
         *(replace(ring, conditions=(("obs_noise", sigma),)) for sigma in FLOOR_NOISE),
@@ -394,8 +376,7 @@ def optimality_cases(sizes: tuple[int, ...] = (20, 100)) -> tuple[BenchmarkCase,
 def optimality_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     """How far from optimal (docs: optimality.md, "How far from optimal"): :func:`optimality_cases` at K = 200, T_s = 20 s.
 
-    Every job reports its episodes' bounds (``E*``, the radius and the all-roots bounds) beside the deadline
-    error, the energy ratio and the intervals used; run it with :func:`optimality_contenders`.
+    Run it with :func:`optimality_contenders`.
     """
     return Suite(
         cases=optimality_cases(),
@@ -449,12 +430,10 @@ def contender_config(contender: Contender, case: BenchmarkCase, n_intervals: int
 def load_policy(spec: str, config: EnvConfig, trusted: bool = False, allow_out_of_domain: bool = False) -> Policy:
     """A policy for ``config``: ``reference``, a baseline name, ``pretrained`` or a saved policy's path.
 
-    Saved policies (an SB3 PPO or SAC ``.zip``, an RLlib checkpoint or run directory) load
-    through :func:`fxc_env.policies.learned.load_learned_policy`, which checks that the model's
-    observation and action sizes fit ``config``. Raises :class:`ArgumentError` (a
-    ``ValueError``) naming ``policy`` when the spec is unknown, nothing is saved at the path,
-    the file is not a readable model, the model does not fit, or ``config`` lies outside its
-    training domain; ``trusted`` and ``allow_out_of_domain`` as in :func:`learned_contender`.
+    Saved policies load through :func:`fxc_env.policies.learned.load_learned_policy`. Raises
+    :class:`ArgumentError` naming ``policy`` when the spec is unknown, nothing is saved at the path, the file
+    is not a readable model, the model does not fit, or ``config`` lies outside its training domain;
+    ``trusted`` and ``allow_out_of_domain`` as in :class:`Contender`.
     """
     if spec in LAWS:
         return LAWS[spec].policy(config)

@@ -1,40 +1,16 @@
 """Train the shipped ``agnostic`` policy: gain schedules for every graph, learned without being told the graph.
 
-The network is :class:`fxc_env.policies.regime_gains.RegimeGainPolicy`: agent i plans ``G_k r_i``
-from its own aggregated relative row ``r_i``, its mask and the clock's ``k / K``, from one of two
-``(K, 2, 2)`` tables, the same for every agent: the **fixed-graph** table, or the **switching** table
-once its own probe has seen its in-neighbour set change (every agent coasts the first
-:data:`PROBES` intervals and checks that its rows coasted too: its memory). Nothing it reads carries
-N, the graph or its spectrum. Both tables are parameterised by factors, as ``rings_scratch``
-(:func:`fxc_env.training.rings_scratch.factor_table`): on a fixed graph every mode mu of
-``(D + I)^{-1} L`` is multiplied over an episode by ``prod_m (1 - mu q_m)(1 - mu conj(q_m))``, so
-learning moves the roots ``1 / q_m`` of a polynomial that must be small wherever the eigenvalues of
-the graphs it will meet lie (a Chebyshev-like design found by gradient); the probe's intervals are
-``q_m = 0`` (coasting) in both. One table cannot serve both regimes: a polynomial small on every
-ring amplifies the modes that switching mixes (docs: results.md, "agnostic policy"), and the paper's
-averaging, robust to switching, is slow on a ring.
+The network is :class:`fxc_env.policies.regime_gains.RegimeGainPolicy`: agent i plans ``G_k r_i`` from its
+own aggregated relative row, its mask and ``k / K``, from the **fixed-graph** ``(K, 2, 2)`` table, or the
+**switching** one once its probe (coasting the first :data:`PROBES` intervals) has seen its in-neighbour set
+change. Both tables are parameterised by factors (:func:`fxc_env.training.rings_scratch.factor_table`).
 
-It is trained over a **distribution of graphs** (:data:`CASES`): directed rings of every size in
-12..40 except :data:`HELD_OUT_RINGS`, random digraphs (mean in-degree 1.5 to 3), paths and stars at
-N = 12, 20, 40, and periodic switching of period 2 to 4 between rings and between random digraphs
-(N = 20). The loss, through the exact closed-form interval map of the plan (:func:`log_errors`,
-each interval's graph its own, each agent on the table its probe picks: :func:`probe_keeps_fixed`),
-is the mean ``log D(T_s)/D(0)`` over the fixed rings (each clamped at :data:`RING_TARGET`, so that
-the larger rings pull) plus a quadratic penalty on every episode whose error exceeds its bound
-relative to the paper's controller on the same episode (:func:`loss_terms`; every case weighs
-alike): at least :data:`RING_MARGIN` decades below it on fixed rings, at most :data:`OTHER_MARGIN`
-decade above it (both floored at :data:`FLOOR`) elsewhere. L-BFGS (:func:`fxc_env.training.rings_scratch.minimise`)
-from a random start of the fixed table (``q_m ~ N(0, 1)``, the training seed) and the paper's
-factors for the switching table; no teacher, no demonstration, no spectrum read.
-
-Run (the shipped file is ``--seed 0``)::
-
-    .venv/bin/python -m fxc_env.training.agnostic --out fxc_env/pretrained/agnostic.npz --seed 0
-
-``--init paper`` (the paper's factors, perturbed) and ``--init chebyshev`` (:func:`chebyshev_factors`)
-start the fixed table elsewhere (controls). ``--quick`` trains for seconds (a few cases, one L-BFGS
-step), for tests; ``--evaluate PATH`` only measures a saved policy: the held-out ring sizes, against
-the reference, on held-out seeds 0 .. (training episodes are drawn from seed ``3000 + seed``).
+It is trained over the graphs of :data:`CASES` (rings except :data:`HELD_OUT_RINGS`, random digraphs, paths,
+stars, periodic switching) by L-BFGS (:func:`fxc_env.training.rings_scratch.minimise`) on :func:`loss_terms`
+through the exact closed-form interval map (:func:`log_errors`, :func:`probe_keeps_fixed`); no teacher, no
+spectrum read. Training episodes are drawn from seed ``3000 + seed``, evaluation seeds from 0. The command, the
+controls (``--init paper|chebyshev``), ``--quick``, ``--evaluate`` and the results: (docs: results.md,
+"agnostic policy").
 """
 
 from __future__ import annotations
@@ -122,9 +98,8 @@ def _w_hat(topology: Any, g: int) -> np.ndarray:
 def probe_keeps_fixed(topology: Any) -> np.ndarray:
     """``(N,)``: whether each agent's probe sees no change and it plays the fixed table (see the module).
 
-    The probe (:mod:`fxc_env.policies.regime_gains`) compares the rows of consecutive instants while
-    every agent coasts: they coast too exactly when the agent's in-neighbour set, its row of ``Ŵ``, is
-    the same on the graphs of intervals ``0 .. PROBES``.
+    The probe (:mod:`fxc_env.policies.regime_gains`) sees no change exactly when the agent's row of ``Ŵ`` is the
+    same on the graphs of intervals ``0 .. PROBES``.
     """
     rows = np.stack([_w_hat(topology, c % topology.period) for c in range(PROBES + 1)])
     return np.all(rows[1:] == rows[:1], axis=(0, 2))
@@ -173,10 +148,8 @@ def draw_cases(cases: Sequence[tuple[dict[str, Any], int, int]], seed: int) -> d
 def log_errors(config: EnvConfig, tables: tuple[Any, Any], batch: dict[str, Any]) -> Any:
     """``log D(T_s)/D(0)`` ``(B,)`` of the two tables through the exact interval map, interval k on its own graph.
 
-    :func:`fxc_env.training.rings_scratch.log_errors` with ``Ŵ`` per episode and per interval
-    (``z_i(t_{k+1}) = P_k z_i + G_k r_i``, ``r = -Ŵ_k z``), agent i playing ``tables[0]`` (fixed graph)
-    or ``tables[1]`` (switching) as its probe decides (``batch["fixed"]``), padded agents masked
-    out, the state rescaled after every interval.
+    :func:`fxc_env.training.rings_scratch.log_errors` with ``Ŵ`` per episode and interval, agent i playing
+    ``tables[0]`` (fixed) or ``tables[1]`` (switching) as ``batch["fixed"]`` says, padded agents masked out.
     """
     import torch
 
@@ -229,15 +202,9 @@ def loss_terms(config: EnvConfig, tables: tuple[Any, Any], batch: dict[str, Any]
 def chebyshev_factors(pairs: int, design: int = DESIGN_PAIRS, gap: float = DESIGN_GAP) -> np.ndarray:
     """Factors ``(pairs, 2)`` of a Chebyshev design on the directed-ring circle, Leja-ordered (the ``chebyshev`` start).
 
-    On the circle ``|mu - 1/2| = 1/2`` (where ``(D + I)^{-1} L`` of every directed ring has its
-    eigenvalues, ``mu = (1 - e^{i theta}) / 2``) the factor of ``q = 1 + i t`` is
-    ``(1 - mu q)(1 - mu conj q)``, and ``design`` such pairs multiply a mode by a polynomial in
-    ``v = cos^2(theta / 2)`` with value 1 at ``v = 1``; the Chebyshev polynomial on ``[0, cos^2(gap / 2)]``
-    is the smallest (``2 exp(-design * gap)`` for every ``theta >= gap``): its roots give
-    ``t = sqrt(v / (1 - v))``. The other pairs are the paper's (``q = 1``, small on ``|1 - mu| < 1``).
-    The pairs are Leja-ordered (each root as far as possible from the ones before), which keeps the
-    partial products, and so float64 round-off along an episode, small. It places roots on a region of
-    the plane, not on any graph's spectrum: training moves them.
+    On the directed rings' circle ``mu = (1 - e^{i theta}) / 2``, ``design`` pairs ``q = 1 + i t`` multiply a
+    mode by a polynomial in ``v = cos^2(theta / 2)``; the roots ``v`` of the Chebyshev polynomial on
+    ``[0, cos^2(gap / 2)]`` give ``t = sqrt(v / (1 - v))``. The other pairs are the paper's (``q = 1``).
     """
     j = np.arange(1, design + 1)
     top = np.cos(gap / 2) ** 2

@@ -1,12 +1,8 @@
 """The arguments of ``fxc train``, shared by every back end, and the hyperparameter file.
 
-:class:`TrainArgs` is the one description of a training run: each field is declared once,
-with its default and its help text (:func:`arg`), and ``fxc train``'s flags are built from the
-fields (:func:`add_train_parser`: ``--n-envs`` for ``n_envs``, ``--resume/--no-resume`` for
-a bool). Each back end reads it: :mod:`fxc_env.training.sb3_train` (stable-baselines3),
-:mod:`fxc_env.training.rllib_train` (Ray RLlib) and :mod:`fxc_env.training.torch_ppo` (the
-lean torch PPO loop, ``--backend torch``). Hyperparameters live in a YAML file keyed by
-scenario, then algorithm (``hyperparams.yml`` beside this module).
+:class:`TrainArgs` describes a run: each field declared once with its default and help text (:func:`arg`);
+``fxc train``'s flags are built from the fields (:func:`add_train_parser`). Hyperparameters live in a YAML
+file keyed by scenario, then algorithm (``hyperparams.yml`` beside this module).
 """
 
 from __future__ import annotations
@@ -26,11 +22,9 @@ from fxc_env.training import registry
 from fxc_env.utils.cli_checks import output_directory, yaml_mapping_file
 
 HYPERPARAMS = Path(__file__).with_name("hyperparams.yml")
-#: Views of :data:`fxc_env.training.registry.BACKENDS`: every ``--algo``, every ``--backend``, those whose
-#: actor is one of :data:`POLICY_ARCHS` on a torch device (saved as ``policy.pt``), and the old names.
+#: Views of :data:`fxc_env.training.registry.BACKENDS`: every ``--algo``, every ``--backend`` and the old names.
 ALGORITHMS = registry.algorithms()
 BACKENDS = tuple(registry.BACKENDS)
-TORCH_BACKENDS = registry.with_flag("torch_actor")
 BACKEND_ALIASES = registry.ALIASES
 #: ``--critic`` of the torch back end: per-agent values, or one value per episode from the global state.
 CRITICS = ("local", "central")
@@ -135,10 +129,8 @@ def canonical_backend(name: Any, *, warn: bool = True) -> Any:
 def load_hyperparams(path: str | Path, scenario: str, algo: str, *, name: str = "hyperparams") -> dict[str, Any]:
     """The ``env``, ``normalize`` and algorithm entries for ``scenario`` (or ``default``).
 
-    ``algo`` is the entry's key: ``ppo``, ``sac``, ``rllib_ppo`` or ``torch_ppo`` (an older
-    file's ``torchrl_ppo`` is read when it has no ``torch_ppo``). A missing or malformed file,
-    or one without the entries, raises :class:`~fxc_env.core.validation.ArgumentError` naming
-    ``name`` (``--hyperparams`` on the command line).
+    ``algo`` is the entry's key (an older file's ``torchrl_ppo`` is read when it has no ``torch_ppo``). A
+    missing or malformed file, or one without the entries, raises ArgumentError naming ``name``.
     """
     table = yaml_mapping_file(name, path)
     entry = table.get(scenario, table.get("default"))
@@ -164,16 +156,9 @@ def load_hyperparams(path: str | Path, scenario: str, algo: str, *, name: str = 
 def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
     """Check every argument of a run before work starts; returns the run's hyperparameters.
 
-    Raises :class:`~fxc_env.core.validation.ArgumentError` naming the argument: the field
-    name (``n_envs``), or with ``flags`` the command-line flag (``--n-envs``). Checked: the
-    back end (``torchrl`` is read as ``torch``) and algorithm, the counts and thresholds, the
-    seed, the hyperparameter file (a YAML mapping with an entry for the scenario and
-    algorithm), the environment it describes, that the run directory can be created, and that
-    the RLlib-only flags (:data:`RLLIB_ONLY`) keep their defaults on another back end, which
-    would ignore them. ``--resume`` without a checkpoint, from a damaged one, with another
-    scenario or critic than the run's ``config.json``, or to a target already reached is refused
-    by the back end (:meth:`~fxc_env.training.run_dir.RunDir.resume_checkpoint`), which knows
-    its checkpoint layout.
+    Raises :class:`~fxc_env.core.validation.ArgumentError` naming the field (``n_envs``), or with ``flags`` the
+    flag (``--n-envs``). ``--resume`` is checked by the back end
+    (:meth:`~fxc_env.training.run_dir.RunDir.resume_checkpoint`), which knows its checkpoint layout.
     """
 
     def name(field: str) -> str:
@@ -316,9 +301,8 @@ def torch_device(name: str, value: Any) -> Any:
 def add_train_parser(commands: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register ``fxc train``: one flag per :class:`TrainArgs` field, with its default and help text.
 
-    A bool field is ``--flag/--no-flag``; every other flag is read as text and turned into
-    the field's type by :func:`args_from_namespace`, so that a bad value is refused by
-    :func:`check_train_args` in one line naming the flag, like every other bad value.
+    A bool field is ``--flag/--no-flag``; every other flag is read as text, for :func:`check_train_args` to
+    refuse a bad value naming the flag.
     """
     parser = commands.add_parser(
         "train",

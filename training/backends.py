@@ -1,10 +1,7 @@
 """Which back end trains: ``fxc train --backend sb3|rllib|torch|diff`` lands in :func:`train`.
 
-The back ends share :class:`fxc_env.training.args.TrainArgs` and the run directory
-(:mod:`fxc_env.training.run_dir`); each is imported only when chosen (Ray is an optional
-extra; ``torch`` is the lean PPO loop of :mod:`fxc_env.training.torch_ppo`, on the engine's
-torch tensors, also accepted under its old name ``torchrl``; ``diff`` is analytic policy
-gradients through the engine, :mod:`fxc_env.training.diff_train`).
+Each back end is imported only when chosen (:mod:`fxc_env.training.registry`); they share
+:class:`fxc_env.training.args.TrainArgs` and the run directory (:mod:`fxc_env.training.run_dir`).
 """
 
 from __future__ import annotations

@@ -1,25 +1,14 @@
 """``fxc train --backend diff``: analytic policy gradients through the engine's closed-form intervals.
 
-Every interval of the engine is a closed-form map, affine in the plan (docs: differentiable.md, "Differentiable
-simulation"), so the episode's outcome is a differentiable function of the policy's weights: the
-loop plays B episodes of N agents (:class:`fxc_env.engine.ConsensusEngine`, float64 on
-``--device``) with the deterministic policy (the actor's mean, clipped to ``±action_bound``, as
-:class:`~fxc_env.policies.torch_policy.TorchPolicy` plays it), and descends the gradient of
+The loop plays B episodes (:class:`fxc_env.engine.ConsensusEngine`, float64 on ``--device``) with the
+deterministic policy (the actor's mean clipped to ``±action_bound``) and descends, with Adam after clipping
+the gradient's norm to ``max_grad_norm``, the gradient of
 
     loss = log_error:  mean over episodes of ln D(T_s) / D(0)  (the default; the paper's measure)
-           return:     minus the mean episode return (the same with the reward's floor f,
-                       ln (D(T_s) + f) / (D(0) + f): the rewards telescope)
+           return:     minus the mean episode return
 
-with Adam after clipping the gradient's norm to ``max_grad_norm``. ``window`` (K, the default,
-or a divisor of K) truncates the back-propagation: the loss of each window of ``window`` steps
-(its share of the telescoped sum) is minimised in turn and the graph cut between windows, which
-bounds the memory and gives K / window gradient steps per episode. The actor and the policy
-file are the torch back end's (:mod:`fxc_env.training.torch_ppo`, ``--policy-arch``, the
-``policy.pt`` that ``fxc evaluate`` and ``load_learned_policy`` read); so are the run directory,
-the checkpoints (same format: ``--resume`` goes on with the optimiser's state and the
-generators), Ctrl-C, ``--seeds`` and ``--init-from``. Settings come from the ``diff_apg`` entry
-of the hyperparameter file (:class:`DiffSettings`). ``progress.csv`` has one row per batch of
-episodes (:data:`PROGRESS_COLUMNS`); timesteps count agent-steps, K * B * N a batch.
+``window`` (K, or a divisor of K) truncates the back-propagation; settings are the ``diff_apg`` entry
+(:class:`DiffSettings`) (docs: differentiable.md, "Differentiable simulation").
 """
 
 from __future__ import annotations
@@ -62,10 +51,8 @@ TINY = 1e-300
 def cut_graph(engine: Any) -> None:
     """Detach every tensor the engine and its parts hold, so the next loss's graph starts here.
 
-    Needed between truncated windows. Also called before each reset as a workaround of the
-    engine bug "Trying to backward through the graph a second time" (issue 26, item 1: a reset
-    writes the fresh state into the previous episode's tensor in place, keeping its graph);
-    once resets cut the graph themselves that call is redundant and can go.
+    Needed between truncated windows, and before each reset (a reset writes in place into the previous
+    episode's tensor, keeping its graph: issue 26, item 1).
     """
     seen: set[int] = set()
 

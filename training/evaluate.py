@@ -1,9 +1,7 @@
 """``fxc evaluate``: a learned policy next to the reference on the deadline benchmark.
 
-The suite is the paper's example plus generalisation graphs (directed
-``ring``, ``path`` and ``random`` at N = 20), 20 seeded initial states each, at the
-reference's budget K = 200; the table, CSVs and plots are the benchmark's
-(:mod:`fxc_env.baselines.benchmark`), written to ``out/evaluate`` by default.
+The suite: the paper's example plus directed ``ring``, ``path`` and ``random`` at N = 20, 20 seeded initial
+states each, at K = 200; tables and plots are the benchmark's (:mod:`fxc_env.baselines.benchmark`).
 """
 
 from __future__ import annotations
@@ -69,11 +67,8 @@ def scored_settings(task: NamedTask) -> dict[str, Any]:
 
 
 def task_suite(task: NamedTask) -> tuple[Suite, dict[str, Any]]:
-    """The one case of a named task at its K, on its evaluation seeds; and its learned policies' settings.
-
-    The scenario's preset is spelled out, so every setting of the task reaches the case (its
-    ranges of initial states, input limits, family), not only those given next to the scenario.
-    """
+    """The one case of a named task at its K, on its evaluation seeds (every setting of its scenario's preset
+    spelled out); and its learned policies' settings."""
     kwargs = scored_settings(task)
     n_intervals = kwargs.pop("n_intervals")
     learned = {k: kwargs.pop(k) for k in ("action_mode", "obs_mode", "schedule") if k in kwargs}

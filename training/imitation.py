@@ -1,18 +1,11 @@
 """A warm start for PPO: the policy first imitates an analytic law (the paper's controller by default), then PPO improves on it.
 
-The reference (eq. 11) is a known good policy, and a network that copies it to within a
-few per cent already contracts the disagreement almost as fast: in normalized units an
-action error of relative size eps turns the per-interval contraction rho into about
-rho + eps, so over K = 200 intervals it costs about a decade, not the deadline. PPO from
-scratch needs most of its budget to get there; behaviour cloning gets there in a minute, and
-PPO then spends its budget where the reference is not optimal (energy, input limits).
-
-:func:`imitate_reference` rolls the reference out on the run's own VecEnv (with Gaussian
-noise on the executed actions, so states off the reference's path are covered, and labels
-that are always the clean reference action), regresses the policy's mean on those labels
-and its value function on the discounted returns, and sets the policy's log standard
-deviation. It is configured by the ``imitation`` entry of the hyperparameter file and runs
-once, when a run starts (never on ``--resume``); the run's ``config.json`` records it.
+A network that copies the reference (eq. 11) to within a few per cent already contracts the disagreement
+almost as fast (an action error eps turns the per-interval contraction rho into about rho + eps).
+:func:`imitate_reference` rolls the reference out on the run's own VecEnv (Gaussian noise on the executed
+actions, clean labels), regresses the policy's mean on the labels and its value function on the discounted
+returns, and sets the log standard deviation. Configured by the ``imitation`` entry of the hyperparameter
+file; runs once when a run starts (never on ``--resume``).
 """
 
 from __future__ import annotations
@@ -53,11 +46,8 @@ def teacher_policy(name: str, config: Any) -> Any:
 class Demonstrations:
     """The teacher's demonstrations on a VecEnv of ``n_envs`` sub-environments (one per agent and episode).
 
-    ``steps`` is a whole number of episodes of K steps. Arrays are float32:
-    ``observations [steps, n_envs, obs_size]`` (what each agent saw), ``actions
-    [steps, n_envs, action_size]`` (the teacher's clean action there, the label; the executed
-    action had noise added) and ``returns [steps, n_envs]`` (the discounted return from each
-    step to its episode's end, the value target).
+    float32 ``observations [steps, n_envs, obs_size]``, ``actions [steps, n_envs, action_size]`` (the teacher's
+    clean action, the label) and ``returns [steps, n_envs]`` (discounted, the value target); ``steps`` whole episodes.
     """
 
     observations: np.ndarray
@@ -70,9 +60,7 @@ def demonstrations(
 ) -> Demonstrations:
     """Roll ``teacher`` out on ``venv`` for at least ``samples`` agent-steps, rounded up to whole episodes.
 
-    The executed actions are the teacher's plus Gaussian noise of standard deviation
-    ``noise`` (normalized units, drawn from ``rng``), so that states off the teacher's path
-    are covered; the labels are the clean actions.
+    The executed actions have Gaussian noise ``noise`` (normalized units, from ``rng``); the labels are clean.
     """
     config = config_of(venv, "imitation")
     n_envs, episode = venv.num_envs, config.n_intervals
@@ -97,12 +85,9 @@ def demonstrations(
 def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int) -> dict[str, float]:
     """Behaviour-clone the teacher into ``model`` (an SB3 PPO) on ``venv``; returns the fit's figures.
 
-    ``settings`` overrides :data:`DEFAULTS`; an unknown key or teacher raises
-    :class:`~fxc_env.core.validation.ArgumentError` naming ``hyperparams`` before ``model``
-    or ``venv`` is touched. Returns ``samples`` (agent-steps demonstrated),
-    ``relative_action_rms_error`` (RMS of the mean action's error over RMS of the label, on
-    up to 100,000 of the demonstrations) and ``value_rms_error``. Deterministic for a given
-    ``seed`` on the CPU.
+    ``settings`` overrides :data:`DEFAULTS`; an unknown key or teacher raises ArgumentError naming
+    ``hyperparams`` before anything is touched. Returns ``samples``, ``relative_action_rms_error`` (on up to
+    100,000 demonstrations) and ``value_rms_error``. Deterministic for a given ``seed`` on the CPU.
     """
     import torch
 

@@ -1,22 +1,10 @@
 """``fxc leaderboard``: BenchMARL's algorithms beside the analytic laws and the shipped policies on the named tasks.
 
-For every task of :data:`fxc_env.config.tasks.TASKS` (or those named), every algorithm trains
-for the same frame budget on each training seed (BenchMARL's MLP; ``mappo_gnn`` its GNN,
-``mappo_gru`` its GRU, whose hidden state the scoring loop carries from step to step), and
-every contender is scored on the task's frozen evaluation seeds at its K by ``D(T_s)/D(0)``:
-the laws (reference, minimum_time, leader_follower, graph_agnostic, signalling) and the shipped
-learned policies through ``fxc evaluate --task``'s suite, the trained actors on the same
-episodes (each seed draws the same initial state and graph). The table gives the median and
-the IQM of log10 over training seeds x episodes with stratified bootstrap intervals
-(:mod:`fxc_env.core.statistics`), beside ``marl_eval.json`` and a performance profile
-(``performance_profile.png``: the fraction of episodes with ``log10 D(T_s)/D(0) <= tau``) and
-``versions.json`` (Python, torch, torchrl, BenchMARL, ..., and fxc_env's git commit, ``-dirty`` when
-the checkout has uncommitted changes).
-
-Every finished piece is a file under ``--out`` (``<task>/laws.json``,
-``<task>/<algorithm>/seed<k>.json``); a rerun skips them, so an interrupted leaderboard
-resumes where it stopped. Training needs BenchMARL (``.venv-benchmarl``, the ``[benchmarl]``
-extra); without it ``--algorithms none`` scores the laws and the shipped policies only.
+For every task of :data:`fxc_env.config.tasks.TASKS` (or those named) every algorithm trains for the same frame
+budget on each training seed; the laws, the shipped policies and the trained actors are scored on the task's
+frozen evaluation seeds (median and IQM of log10 ``D(T_s)/D(0)``, bootstrap intervals). Every finished piece is
+a file under ``--out`` that a rerun skips. Training needs BenchMARL (the ``[benchmarl]`` extra); ``--algorithms
+none`` scores the laws and the shipped policies only (docs: results.md, "MARL algorithms table").
 """
 
 from __future__ import annotations
@@ -207,10 +195,8 @@ def train_and_score(task: NamedTask, algorithm: str, seed: int, frames: int, fol
 def policy_actor(policy: Any, hidden: tuple[int, int] | None = None) -> Any:
     """A trained BenchMARL policy as ``act(obs)`` for :func:`score_actor`, deterministic.
 
-    A recurrent actor (BenchMARL's GRU: its ``in_keys`` hold ``is_init`` and the hidden state
-    ``("agents", "_hidden_gru_0")``) carries its hidden state from one step to the next, from zeros
-    with ``is_init`` true at the first step, as BenchMARL's collector does; every episode of the
-    batch starts at the same step, so one flag serves them all.
+    A recurrent actor (``is_init`` and ``("agents", "_hidden_gru_0")`` in its ``in_keys``) carries its hidden
+    state from step to step, from zeros with ``is_init`` true at the first, as BenchMARL's collector does.
     """
     import torch
     from tensordict import TensorDict

@@ -1,44 +1,13 @@
 """Behaviour cloning (DAgger) of the minimum-time law into a recurrent policy for directed rings.
 
-The task is :mod:`fxc_env.training.rings`'s (directed rings relabelled per episode, initial scales over
-two decades, K = 200 intervals of the paper's schedule, eq. 27, T_s = 20 s, plans in normalized units,
-one observation slot), with ``action_bound = 20``: the teacher's plans reach 14.2 at k = 1, beyond
-the default box of 2 (docs: environment.md, "The environment").
-
-**Teacher.** The minimum-time law (:mod:`fxc_env.baselines.minimum_time`), designed per episode from
-the drawn ring: it knows the graph's spectrum. **Student.** The ``gru`` actor of the torch back end
-(:class:`fxc_env.policies.torch_memory.RecurrentActor`) with ``gru_input="schedule"`` (the default
-here): a GRU reads, at each sampling instant, the non-measurement part of the agent's observation,
-``[mask, t_k/T_s, T_{k+1}/T_s, k/K]``, and the plan is linear in the measured row,
-``mu_k = A(h_k) [(x_j - x_i)/s_i, T_{k+1} (v_j - v_i)/s_i]`` (the in-neighbour's relative row in the
-agent's local scale, docs: environment.md, "The environment"). The student is **not told** N or the
-spectrum: neither is in its observation. Trained on rings of one size it learns that size's
-schedule from the clock and its memory (as the ``rings`` table does); ``--sizes`` trains it on
-several ring sizes at once. ``--gru-input observation`` lets the GRU read the rows too (then the
-plan is no longer linear in them, and errors that differ from agent to agent feed every mode of the
-ring: the ``rings`` table with its plans perturbed by 1 % per agent is worse than the reference,
-with one common 1 % gain error it stays 18x below it; hence the schedule form by default).
-
-**Cloning, then least squares.** Round 0 plays the teacher on seeded episodes and records its plans;
-the student is fitted by Adam on the mean squared error between its mean and the teacher's plan
-over whole episodes (the GRU run over the K = 200 steps of every agent's sequence from a zero
-memory, which the clock's ``k = 0`` also resets), then the gain head's last layer is solved by
-least squares on the features before it (:func:`polish`; the plan is linear in that layer), which
-takes the fit from an RMS of about 2e-2 to below 1e-6 of the plan. ``--rounds r`` adds DAgger
-rounds: the previous round's student plays fresh seeded episodes, the teacher labels every
-observation it visits, all data are kept and the fit is repeated. The schedule form's gain does not
-depend on the visited states, so DAgger has little to add here (``--rounds 1 --n-agents 20,24,16``
-measured worse: median 2.6e-6 on seeds 0-19 at N = 20, and 0.087 and 0.027 at N = 24 and 16, above
-the reference's 0.063 and 0.010). Float32 networks, float64 episodes (the numpy engine).
-
-Run (one core, 1.5 minutes of CPU; writes a ``policy.pt`` that ``fxc evaluate --policy`` reads)::
-
-    nice -n 10 .venv/bin/python -m fxc_env.training.recurrent_imitation --out runs/rings-gru --sizes 20
-
-and measure a saved one on seeds 0-19 next to the reference (as ``python -m fxc_env.training.rings
---evaluate``)::
-
-    .venv/bin/python -m fxc_env.training.recurrent_imitation --evaluate runs/rings-gru --n-agents 20
+The task is :mod:`fxc_env.training.rings`'s with ``action_bound = 20`` (the teacher's plans reach 14.2).
+**Teacher:** the minimum-time law (:mod:`fxc_env.baselines.minimum_time`), designed per episode from the drawn
+ring. **Student:** the ``gru`` actor (:class:`fxc_env.policies.torch_memory.RecurrentActor`); with
+``gru_input="schedule"`` (the default) the GRU reads ``[mask, t_k/T_s, T_{k+1}/T_s, k/K]`` and the plan is
+linear in the measured row, ``mu_k = A(h_k) [(x_j - x_i)/s_i, T_{k+1} (v_j - v_i)/s_i]``; it is not told N or
+the spectrum. Round 0 clones the teacher's plans (Adam on whole episodes), then :func:`polish` solves the gain
+head's last layer by least squares; ``--rounds r`` adds DAgger rounds. Float32 networks, float64 episodes.
+Commands and results: (docs: results.md, "Memory and message passing").
 """
 
 from __future__ import annotations
@@ -85,10 +54,8 @@ def env_record(n_agents: int) -> dict[str, Any]:
 def play(config: EnvConfig, seeds: Sequence[int], student: Any = None, label: bool = True) -> dict[str, np.ndarray]:
     """Seeded episodes played by ``student`` (a callable on ``[B, N, obs]``, stateful), or the teacher if None.
 
-    Episode b draws its ring and initial state from ``np.random.default_rng(seeds[b])``. Returns
-    ``deadline_error`` ``(B,)`` and, with ``label``, the observations ``(K, B, N, obs_size)`` and the
-    teacher's plans at them ``(K, B, N, 2)``. A step that would overflow float64 (a diverging student)
-    ends the batch with ``deadline_error`` inf for every episode.
+    Returns ``deadline_error`` ``(B,)`` (inf for every episode when a diverging student overflows float64) and,
+    with ``label``, the observations ``(K, B, N, obs_size)`` and the teacher's plans ``(K, B, N, 2)``.
     """
     engine = ConsensusEngine(config, n_episodes=len(seeds))
     draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
@@ -160,10 +127,8 @@ def fit(
 def polish(actor: RecurrentActor, observations: torch.Tensor, targets: torch.Tensor, sequences: int = 256) -> float:
     """Least squares for the gain head's last layer given the features before it; the RMS residual after.
 
-    The plan is ``mu_a = sum_o rows_o (W_(a,o) . phi(h) + c_(a,o))``, linear in ``(W, c)``: over
-    ``sequences`` of the data (every step) the best ``(W, c)`` solves one float64 least-squares
-    problem per action component (as ``fxc_env.training.rings`` regresses its table), so the last
-    layer is exact for the features the GRU and the hidden layers give.
+    The plan ``mu_a = sum_o rows_o (W_(a,o) . phi(h) + c_(a,o))`` is linear in ``(W, c)``: one float64
+    least-squares problem per action component over ``sequences`` of the data.
     """
     if actor.gru_input != "schedule":
         raise ArgumentError("polish: only the schedule form's head is linear in its rows")

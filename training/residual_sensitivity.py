@@ -1,16 +1,9 @@
 """How much PPO's exploration costs on the rings task: D(T_s)/D(0) under Gaussian residuals around eq. (11).
 
-Directed rings of 20 (a new labelling per episode), K = 200 on the paper's schedule, T_s = 20 s,
-``action_mode="residual"``: every agent adds ``sigma * N(0, 1)`` to its correction's ``alpha_x``, its
-``alpha_v`` or both, on every interval or on the last / all but the last ``n``. Prints the median
-over 20 seeded episodes (docs: results.md, "PPO from scratch around the reference")::
-
-    .venv/bin/python -m fxc_env.training.residual_sensitivity
-
-A velocity correction is applied as ``a_v = s alpha_v / T_s`` and D weighs velocities by ``T_s``,
-so noise on ``alpha_v`` moves D by about ``s sigma`` on every interval, as noise on ``alpha_x``
-does. (Applied like the plan's ``s alpha_v / T_k``, it moved D by ``s sigma (pi k)^2 / 6``, up to
-6.6e4 ``s sigma`` on the last interval: sigma = 1e-3 on ``alpha_v`` alone gave 0.76.)"""
+Directed rings of 20, K = 200 on the paper's schedule, ``action_mode="residual"``: every agent adds
+``sigma * N(0, 1)`` to ``alpha_x``, ``alpha_v`` or both, on every interval or on the last / all but the last
+``n``; prints the median over 20 seeded episodes (``.venv/bin/python -m fxc_env.training.residual_sensitivity``).
+"""
 
 from __future__ import annotations
 

@@ -1,36 +1,16 @@
 """Train the shipped ``rings`` policy: a learned gain schedule for directed rings of 20 agents.
 
-The task: directed rings of N = 20 agents with a new random labelling every episode, initial states
-across two decades of scale (positions U(-a, a), a drawn log-uniformly in [0.5, 50] m; velocities
-likewise in [0.2, 20] m/s), K = 200 intervals of the paper's schedule (eq. 27), T_s = 20 s, plans in
-normalized units. There the paper's controller (eq. 11) leaves ``D(T_s)/D(0)`` about 0.034 (docs: optimality.md,
-"How far from optimal"): a ring mixes slowly and one gain for every interval cannot do better.
+The task: directed rings of N = 20 relabelled every episode, initial scales over two decades, K = 200
+intervals of the paper's schedule (eq. 27), T_s = 20 s, plans in normalized units. The network is
+:class:`fxc_env.policies.interval_gains.IntervalGainPolicy` (``G_k r_i`` from a ``(K, 2, 2)`` table indexed
+by ``k / K``), learned in float64 by
 
-The network is :class:`fxc_env.policies.interval_gains.IntervalGainPolicy`: each agent plans
-``G_k r_i`` from its aggregated relative row ``r_i`` and a ``(K, 2, 2)`` table indexed by the clock's
-``k / K``. It is learned in two steps, both in float64:
+1. **Imitation** of the minimum-time law (:mod:`fxc_env.baselines.minimum_time`): ``G_k`` is the
+   least-squares solution of ``plan = G_k r`` over every agent and seeded episode at interval k;
+2. **Direct refinement** (optional, ``--refine-steps``): gradient steps on the mean ``log D(T_s)/D(0)``
+   through the exact closed-form interval map; ``--init paper`` starts from eq. 11's table.
 
-1. **Imitation.** The teacher is the minimum-time law (:mod:`fxc_env.baselines.minimum_time`),
-   designed per episode from the drawn graph (a relabelled ring has the same spectrum, so the same
-   table). Its demonstrations, the agents' observations and the teacher's plans along seeded
-   episodes, are regressed interval by interval: ``G_k`` is the least-squares solution of
-   ``plan = G_k r`` over every agent and episode at interval k. The teacher is linear in ``r``, so
-   the regression recovers its table to rounding: D(T_s)/D(0) at the float64 floor.
-2. **Direct refinement** (optional, ``--refine-steps``): gradient steps on the mean of
-   ``log D(T_s)/D(0)`` over a batch of seeded episodes, through the exact closed-form interval map
-   of the plan (the minimum-energy input of Remark 1 realises ``z_i(t_{k+1}) = P_k z_i + G_k r_i``
-   exactly, so an episode is a product of K 2N x 2N matrices, differentiable in the table). From
-   the teacher's table it has nothing left to gain on rings of 20; ``--init paper`` starts it
-   from the paper's table (eq. 11: ``G_k = [[1, 1], [0, 1]]`` in normalized units) instead, to see how far plain minimisation gets alone.
-
-Run (the shipped file: 0.4 s of training, 3 s with its 20-seed evaluation, one core)::
-
-    .venv/bin/python -m fxc_env.training.rings --out fxc_env/pretrained/rings.npz
-
-and measure it at other sizes (the table is tied to N = 20's spectrum: transfer is measured with
-the graph and size checks off)::
-
-    .venv/bin/python -m fxc_env.training.rings --evaluate fxc_env/pretrained/rings.npz --n-agents 24
+Commands and results: (docs: results.md, "What learning reached").
 """
 
 from __future__ import annotations
@@ -84,10 +64,8 @@ def task_config(n_agents: int = 20, topology: Any = None) -> EnvConfig:
 def run_episodes(config: EnvConfig, policy_of: Any, seeds: Sequence[int], record: bool = False) -> dict[str, Any]:
     """Seeded episodes of ``config``, every agent acting by ``policy_of(drawn_config)`` (one policy per episode).
 
-    Episode b draws its graph and initial state from ``np.random.default_rng(seeds[b])``, as
-    ``ConsensusParallelEnv.reset(seed=seeds[b])``. Returns ``deadline_error`` ``(B,)``
-    (``D(T_s)/D(0)``), and with ``record`` the observations ``(K, B, N, obs_size)`` and actions
-    ``(K, B, N, 2)`` along the way.
+    Episode b is ``reset(seed=seeds[b])``'s. Returns ``deadline_error`` ``(B,)`` and, with ``record``, the
+    observations ``(K, B, N, obs_size)`` and actions ``(K, B, N, 2)``.
     """
     engine = ConsensusEngine(config, n_episodes=len(seeds))
     draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]

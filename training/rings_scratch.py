@@ -1,36 +1,15 @@
 """Train the shipped ``rings_scratch`` policy: a gain schedule for directed rings of 20, learned from scratch.
 
-The task is the shipped ``rings`` policy's (:mod:`fxc_env.training.rings`): directed rings of N = 20
-with a new labelling every episode, initial scales over two decades, K = 200 intervals of the
-paper's schedule (eq. 27), T_s = 20 s, plans in normalized units; the network is the same
-:class:`fxc_env.policies.interval_gains.IntervalGainPolicy` (each agent plans ``G_k r_i`` from its
-own aggregated relative row and the clock). Unlike ``rings`` nothing here is copied: no teacher, no
-demonstration, no spectrum. The table is learned by minimising the mean of ``log D(T_s)/D(0)`` over
-seeded episodes through the exact closed-form interval map of the plan
-(:func:`log_errors`: ``z_i(t_{k+1}) = P_k z_i + G_k r_i``, the
-minimum-energy input of Remark 1 realising it exactly), with L-BFGS, from a random start.
+The task and network are :mod:`fxc_env.training.rings`'s; nothing is copied (no teacher, no spectrum). L-BFGS
+minimises the mean ``log D(T_s)/D(0)`` over seeded episodes through the exact interval map (:func:`log_errors`)
+from a random start ``q_m ~ N(0, 1)`` (a real start is a saddle: the loss is even in each ``b_m``).
 
-**The parameterisation by factors.** A free ``(K, 2, 2)`` table stalls at a few 1e-3 (docs: results.md,
-"What learning reached"): the product of K non-commuting 2 x 2 maps has many poor local minima. Here
-the intervals go in pairs ``(2m, 2m + 1)`` and each pair holds one learned number ``q_m = a_m + i b_m``:
-in physical units ``G_{2m} = R_m P_{2m}`` and ``G_{2m+1} = P_{2m+1} R_m^T`` with
-``R_m = [[a_m, -b_m], [b_m, a_m]]`` and ``P_k = [[1, T_k], [0, 1]]`` (coasting). On a mode of
-eigenvalue mu of ``(D + I)^{-1} L`` the pair acts as ``P_{2m+1} (I - mu R_m^T)(I - mu R_m) P_{2m}``
-and ``(I - mu R^T)(I - mu R) = (1 - mu q)(1 - mu conj(q)) I``, so an episode multiplies every mode by
-the real polynomial ``prod_m (1 - mu q_m)(1 - mu conj(q_m))`` of degree K and coasts: learning moves
-its roots ``1 / q_m``. ``q_m = 1`` for every pair is the paper's controller (eq. 11), ``q_m = 0``
-coasting. The loss never reads the spectrum; it sees only simulated deadline errors. A real start
-(the paper's, or zero) is a saddle of the loss in ``b`` (the loss is even in each ``b_m``), so the
-start is random: ``q_m ~ N(0, 1)`` per component, from the training seed.
-
-Run (the shipped file; about a minute on one core, docs: results.md gives the wall time)::
-
-    .venv/bin/python -m fxc_env.training.rings_scratch --out fxc_env/pretrained/rings_scratch.npz
-
-``--free`` is the control experiment: the same start, loss and optimiser over the free table (docs: results.md,
-"What learning reached", for what it reaches). ``--quick`` trains for seconds (8 episodes, one L-BFGS step), for tests; ``--evaluate PATH`` only
-measures a saved table on held-out seeds (evaluation seeds 0 .., training episodes are drawn from
-seed ``2000 + seed``).
+**Factors.** Intervals go in pairs, each holding ``q_m = a_m + i b_m``: ``G_{2m} = R_m P_{2m}``,
+``G_{2m+1} = P_{2m+1} R_m^T``, ``R_m = [[a_m, -b_m], [b_m, a_m]]``, ``P_k = [[1, T_k], [0, 1]]``, so an
+episode multiplies every mode mu of ``(D + I)^{-1} L`` by ``prod_m (1 - mu q_m)(1 - mu conj(q_m))``;
+``q_m = 1`` is the paper's controller (eq. 11), ``q_m = 0`` coasting. ``--free`` learns the free table
+instead (the control). Training episodes are drawn from seed ``2000 + seed``, evaluation seeds from 0.
+Commands and results: (docs: results.md, "What learning reached").
 """
 
 from __future__ import annotations
@@ -63,10 +42,8 @@ FLOOR = 1e-13
 def factor_table(config: Any, q: Any) -> Any:
     """The ``(K, 2, 2)`` table in normalized units (torch float64) of the factors ``q`` ``(ceil(K / 2), 2)``.
 
-    Pair m sets ``G_{2m} = R_m P_{2m}``, ``G_{2m+1} = P_{2m+1} R_m^T`` (physical units, see the
-    module); an odd K's last interval is the real factor ``G = a P``. Normalized units divide the
-    physical gain by ``[[1, T_k], [1 / T_k, 1]]`` entrywise (the inverse of
-    :func:`fxc_env.training.rings.physical_map`).
+    Pairs as in the module; an odd K's last interval is the real factor ``G = a P``; normalized units are
+    the inverse of :func:`fxc_env.training.rings.physical_map`.
     """
     import torch
 
@@ -91,10 +68,8 @@ def factor_table(config: Any, q: Any) -> Any:
 def log_errors(config: Any, gains: Any, x0: np.ndarray, v0: np.ndarray, w_hat: np.ndarray) -> Any:
     """``log D(T_s)/D(0)`` ``(B,)`` of the table ``gains``, as :func:`fxc_env.training.rings.episode_log_errors`, in any range.
 
-    The same exact map ``z_i(t_{k+1}) = P_k z_i + G_k r_i``, with each episode's state rescaled to unit
-    size after every interval and the logarithms of the scales summed (D is homogeneous of degree one
-    in the state): a random table that grows the state by 1e400 scores a finite loss, and its
-    gradient stays finite, where the plain product overflows.
+    Each episode's state is rescaled to unit size after every interval and the logarithms of the scales
+    summed (D is homogeneous of degree one), so a table that grows the state by 1e400 scores a finite loss.
     """
     import torch
 
@@ -129,11 +104,9 @@ def minimise(
 ) -> tuple[list[float], int]:
     """L-BFGS on ``loss()`` over the tensor ``parameter``: the loop of every gain-schedule trainer here.
 
-    Each of at most ``steps`` steps runs 20 L-BFGS iterations (history 20, strong-Wolfe line search);
-    the loop ends on a non-finite loss, when ``stop(loss)`` holds, or when a step does not lower the
-    loss, after ``restarts`` fresh curvature histories (a stale history can stall a line search that a
-    fresh one gets past). ``progress(step, loss)`` is called after every step. Returns the loss before
-    and after each step, and the restarts used.
+    At most ``steps`` steps of 20 L-BFGS iterations (strong-Wolfe); it ends on a non-finite loss, when
+    ``stop(loss)`` holds, or when a step lowers nothing after ``restarts`` fresh curvature histories.
+    ``progress(step, loss)`` follows every step. Returns the loss before and after each step, and the restarts.
     """
     import torch
 

@@ -1,21 +1,12 @@
 """``fxc train --backend rllib``: PPO in Ray RLlib, one module shared by every agent.
 
-The environment reaches RLlib through its own PettingZoo wrapper
-(:class:`ray.rllib.env.wrappers.pettingzoo_env.ParallelPettingZooEnv`), subclassed by
-:class:`ConsensusRLlibEnv` where it does not fit: its ``render()`` passes the render mode as
-an argument, which PettingZoo's ``render()`` does not take. Env runners sample on a local
-Ray (default) or on a cluster joined with ``--address``; the learner runs in this process.
-Hyperparameters come from the ``rllib_<algo>`` entry of the hyperparameter file.
-
-An iteration samples ``train_batch_size_per_learner`` environment steps (times N agent-steps)
-and updates the module; ``--timesteps`` (agent-steps, as for SB3) is rounded up to whole
-iterations. The run directory is :mod:`fxc_env.training.run_dir`'s (config.json,
-versions.json with Ray's version, training_curve.png; no TensorBoard events), with:
+The environment reaches RLlib through :class:`ConsensusRLlibEnv` (RLlib's PettingZoo wrapper, whose
+``render()`` passes an argument PettingZoo's does not take). Env runners sample on a local Ray or a cluster
+(``--address``); settings are the ``rllib_<algo>`` entry of the hyperparameter file; ``--timesteps`` is rounded
+up to whole iterations. The run directory is :mod:`fxc_env.training.run_dir`'s (no TensorBoard events), with:
 
     runs/<name>/progress.csv                         one row per iteration (:data:`PROGRESS_COLUMNS`, SB3's names)
     runs/<name>/checkpoints/rllib_<timesteps>_steps/ RLlib algorithm checkpoints (the newest is the policy)
-
-``fxc evaluate --policy runs/<name>`` (or a checkpoint directory) scores the trained module.
 """
 
 from __future__ import annotations
@@ -47,9 +38,8 @@ PROGRESS_COLUMNS = (
 class ConsensusRLlibEnv(ParallelPettingZooEnv):
     """``fxc_env.parallel_env(**config)`` as an RLlib ``MultiAgentEnv``.
 
-    RLlib's wrapper with two fixes: ``render()`` without an argument (PettingZoo's
-    signature), and agents in the environment's order ``agent_0 .. agent_{N-1}`` (the
-    wrapper takes them from a set, whose order changes from process to process).
+    RLlib's wrapper with ``render()`` without an argument and agents in the environment's order (the wrapper
+    takes them from a set, whose order changes from process to process).
     """
 
     def __init__(self, config: dict[str, Any] | None = None) -> None:

@@ -2,40 +2,14 @@
 
     runs/<name>/config.json             the exact arguments and resolved hyperparameters (:meth:`RunDir.start`)
     runs/<name>/versions.json           Python and library versions (:func:`versions`)
-    runs/<name>/progress.csv            one row per rollout or iteration (:class:`Progress`; SB3's own
-                                        logger for sb3, :meth:`RunDir.sb3_logger`), SB3's column names;
-                                        a resumed run keeps the rows up to its checkpoint
+    runs/<name>/progress.csv            one row per rollout or iteration (:class:`Progress`; SB3's names)
     runs/<name>/events.out.tfevents.*   the same scalars for TensorBoard (sb3 and torch)
     runs/<name>/checkpoints/            one per save, named with its step count (:data:`CHECKPOINT_NAMES`)
     runs/<name>/training_curve.png      mean episode return against timesteps (:func:`write_training_curve`)
 
-A back end reads top to bottom with it: ``run = RunDir.of(args)``; ``run.resume_checkpoint(args.resume)``
-(the newest checkpoint, or None for a fresh run; ``--resume`` without one is refused);
-``run.start(record)`` for a fresh run; the loop inside ``run.progress(...)`` (one row a unit of
-work) and ``run.interruptible(unit, save)`` (Ctrl-C finishes the unit under way, saves a
-checkpoint and stops; a second Ctrl-C stops at once); ``run.finish(...)``.
-
-**Resuming runs no code from the run directory** unless the user passes ``--trust-policy-file``
-(:data:`TRAIN_TRUST_HINT`; ``TrainArgs.trust_policy_file``), the flag ``fxc evaluate`` has. A run
-directory is only files, and anyone who could write one could have written any of them, so a
-checksum manifest kept inside it (sha256 of each file as it is written) would be rewritten
-together with the files it vouches for: it would catch a damaged file, not a crafted one. So
-instead every file a resume needs is *read* in a form that cannot run code:
-
-* ``config.json`` with ``json`` (nothing in it is imported or called: the model is rebuilt from
-  this run's hyperparameter file, not from the ``policy`` class it records);
-* an sb3 checkpoint ``.zip`` without unpickling its ``data``
-  (:func:`fxc_env.policies.policy_files.read_sb3_zip`, then the state dicts with
-  ``torch.load(..., weights_only=True)``: :func:`fxc_env.training.sb3_train.restore_checkpoint`),
-  and its VecNormalize statistics from the plain-JSON record written beside SB3's ``.pkl``;
-* a torch checkpoint ``.pt`` with ``torch.load(..., weights_only=True)``.
-
-What only unpickling can read is refused without the flag, naming it: an sb3 checkpoint of a
-network the safe reader does not rebuild (a custom policy class), VecNormalize statistics kept
-only as a ``.pkl`` (run directories written before the ``.json`` record), a torch checkpoint
-holding objects other than tensors and plain values, and every RLlib checkpoint (RLlib restores
-an algorithm by unpickling). With the flag, sb3 resumes with SB3's own loaders and torch with
-``weights_only=False``: only for run directories you made or trust.
+Resuming runs no code from the run directory unless the user passes ``--trust-policy-file``
+(:data:`TRAIN_TRUST_HINT`); what only unpickling can read is refused without it, naming it (docs: training.md,
+"Training learned policies").
 """
 
 from __future__ import annotations
@@ -131,11 +105,8 @@ class RunDir:
     def resume_checkpoint(self, resume: bool, args: TrainArgs | None = None) -> Path | None:
         """The checkpoint a run goes on from: the newest with ``resume``, None without; ``resume`` and none is refused.
 
-        With ``args``, a resumed run must keep the scenario and the critic that ``config.json``
-        records (``scenario``, ``critic``: both values named), and its ``timesteps`` must lie
-        beyond the checkpoint's (a target already reached would train nothing). An RLlib
-        checkpoint restores only by unpickling: refused unless ``args.trust_policy_file``
-        (see the module).
+        With ``args``, a resumed run must keep ``config.json``'s ``scenario`` and ``critic`` and reach beyond
+        the checkpoint's timesteps; an RLlib checkpoint is refused unless ``args.trust_policy_file``.
         """
         if not resume:
             return None
@@ -188,8 +159,7 @@ class RunDir:
     def create(self) -> None:
         """Create the run directory (``mkdir -p``).
 
-        A place this process cannot write (a read-only file system, say, which ``os.access``
-        does not see for root) is refused as ``run_dir``, naming the path.
+        A place this process cannot write is refused as ``run_dir``, naming the path.
         """
         try:
             self.path.mkdir(parents=True, exist_ok=True)
@@ -205,8 +175,7 @@ class RunDir:
     def sb3_logger(self, resumed_at: int | None = None) -> Any:
         """SB3's logger writing ``progress.csv`` and TensorBoard events here (SB3 picks the columns).
 
-        Resumed from a checkpoint at ``resumed_at`` timesteps, ``progress.csv`` keeps the
-        earlier run's rows up to it (SB3's own CSV log would start the file afresh).
+        Resumed at ``resumed_at`` timesteps, ``progress.csv`` keeps the earlier run's rows up to it.
         """
         from stable_baselines3.common.logger import CSVOutputFormat, Logger, TensorBoardOutputFormat
 
@@ -222,9 +191,8 @@ class RunDir:
     def interruptible(self, unit: str, save: Callable[[], Path]) -> Iterator[list[bool]]:
         """Run a training loop: Ctrl-C sets the yielded flag, the loop stops after the ``unit`` under way.
 
-        On leaving the block with the flag set, ``save()`` writes a checkpoint (its path is
-        printed on stderr) and ``KeyboardInterrupt`` is raised. A second Ctrl-C raises
-        ``KeyboardInterrupt`` at once, without a checkpoint (the unit is half done).
+        Then ``save()`` writes a checkpoint and ``KeyboardInterrupt`` is raised; a second Ctrl-C raises it at once,
+        without a checkpoint.
         """
         with deferred_interrupt(unit) as pressed:
             yield pressed
@@ -243,10 +211,8 @@ class RunDir:
 class Progress:
     """``progress.csv`` with fixed ``columns``, and with ``tensorboard`` the same scalars as TensorBoard events.
 
-    A fresh run writes the header. A run resumed from a checkpoint taken after
-    ``resumed_at = (iterations, timesteps)`` drops the rows logged after it (by the run that
-    went on past the checkpoint), and TensorBoard drops its events past ``timesteps``, so
-    the log reads as one run. A row's TensorBoard step is its ``time/total_timesteps``.
+    A run resumed from a checkpoint at ``resumed_at = (iterations, timesteps)`` drops the rows and events
+    logged after it, so the log reads as one run. A row's TensorBoard step is its ``time/total_timesteps``.
     """
 
     def __init__(

@@ -1,19 +1,11 @@
 """``fxc train`` (``--backend sb3``, the default): PPO or SAC (stable-baselines3) on :class:`fxc_env.ConsensusVecEnv`.
 
-One policy is shared by every agent (parameter sharing): each agent of each parallel
-episode is one SB3 sub-environment. Read top to bottom: the environment and the model, the
-checkpoints, then :func:`train_sb3` (arguments, set-up, the loop, the final files). The run
-directory is :mod:`fxc_env.training.run_dir`'s (config.json, versions.json, progress.csv and
-TensorBoard events from SB3's logger, training_curve.png), plus:
+One policy shared by every agent: each agent of each parallel episode is one SB3 sub-environment. The run
+directory is :mod:`fxc_env.training.run_dir`'s, plus:
 
     runs/<name>/checkpoints/model_<steps>_steps.zip  policy, optimiser and step count (SB3's ``save``),
-                                                     VecNormalize statistics beside it when used: SB3's
-                                                     ``.pkl`` and the ``.json`` record ``--resume`` reads
+                                                     VecNormalize statistics beside it (``.pkl`` and ``.json``)
     runs/<name>/model.zip                            the final policy (+ vecnormalize.pkl)
-
-``--backend rllib`` trains PPO in Ray RLlib instead (:mod:`fxc_env.training.rllib_train`),
-``--backend torch`` a lean PPO loop on the batched engine (:mod:`fxc_env.training.torch_ppo`);
-:func:`fxc_env.training.backends.train` picks one.
 """
 
 from __future__ import annotations
@@ -157,13 +149,9 @@ def load_checkpoint(
 ) -> tuple[Any, Any]:
     """The model saved at ``checkpoint`` on ``venv`` (with its VecNormalize statistics when ``venv`` normalizes).
 
-    Without ``trusted`` nothing in the run directory is unpickled (see
-    :mod:`fxc_env.training.run_dir`): ``model``, this run's fresh model, takes the checkpoint's
-    weights, optimiser state and step count (:func:`restore_checkpoint`), and ``venv`` its
-    statistics from the plain-JSON record beside it (:func:`restore_vecnormalize`). With
-    ``trusted`` it is SB3's own ``load`` and ``VecNormalize.load``, which unpickle the files (and
-    so run whatever code a crafted file holds). A damaged or truncated file is refused as
-    ``resume``, naming the path.
+    Without ``trusted`` nothing is unpickled (:func:`restore_checkpoint`, :func:`restore_vecnormalize`); with it,
+    SB3's own ``load`` and ``VecNormalize.load``. A damaged or truncated file is refused as ``resume``, naming
+    the path.
     """
     if not trusted:
         if isinstance(venv, VecNormalize):
@@ -196,11 +184,8 @@ def load_checkpoint(
 def restore_checkpoint(model: Any, checkpoint: Path) -> Any:
     """``model`` (this run's, freshly built) with the weights, optimiser state and step count of ``checkpoint``.
 
-    Nothing is unpickled: :func:`~fxc_env.policies.policy_files.read_sb3_zip` checks that the
-    zip is a network this project rebuilds from plain JSON (refused otherwise, naming
-    ``--trust-policy-file``), the state dicts load with ``torch.load(..., weights_only=True)``
-    (SB3's ``load_from_zip_file`` without its pickled ``data``), and the step counts come from
-    ``data``'s plain JSON. The checkpoint must be of this run's algorithm and network.
+    Nothing is unpickled (:func:`~fxc_env.policies.policy_files.read_sb3_zip`, refused otherwise naming
+    ``--trust-policy-file``; state dicts with ``weights_only=True``). It must be of this run's algorithm and network.
     """
     from stable_baselines3.common.save_util import load_from_zip_file, recursive_getattr
 
@@ -243,11 +228,8 @@ def restore_checkpoint(model: Any, checkpoint: Path) -> Any:
 class RolloutCheckpoint(BaseCallback):
     """Save a checkpoint every ``every`` timesteps, at the start of a rollout; after Ctrl-C, save there and stop.
 
-    The start of a rollout is just after the previous rollout's update. SB3's
-    CheckpointCallback saves inside a rollout, before its update, so resuming from it would
-    replay the rollout's steps without their gradient update. Once :attr:`pressed` (the flag
-    of :meth:`RunDir.interruptible <fxc_env.training.run_dir.RunDir.interruptible>`) is set, the
-    next rollout start saves (:attr:`saved_on_interrupt`) and the step after it stops SB3.
+    (SB3's CheckpointCallback saves before a rollout's update, which a resume would skip.) Once :attr:`pressed`
+    is set, the next rollout start saves (:attr:`saved_on_interrupt`) and the step after it stops SB3.
     """
 
     def __init__(self, run: RunDir, every: int) -> None:

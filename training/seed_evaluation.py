@@ -1,18 +1,9 @@
 """``fxc evaluate --runs``: one policy trained with several seeds, scored with confidence intervals.
 
-Each run (a training seed) plays the suite's seeded initial states next to the reference, as
-``fxc evaluate --policy`` does; per case the deadline errors form a ``(R, S)`` matrix (R
-training seeds by S initial states) and :mod:`fxc_env.core.statistics` gives
-
-* the **median** of ``D(T_s)/D(0)`` over all seeds and initial states, and
-* the **IQM** (interquartile mean) of ``log10(max(D(T_s)/D(0), 1e-12))``, the benchmark's log
-  column in decades,
-
-each with a 95 % stratified bootstrap interval (training seeds resampled, then initial states
-within each; a fixed bootstrap seed, so the same scores give the same interval). The reference
-is one deterministic law: its interval resamples initial states only (R = 1).
-
-The scores and the files written (``seeds.md``, ``seeds.json``, ``marl_eval.json``) are
+Each run (a training seed) plays the suite's seeded initial states next to the reference; per case the
+deadline errors form a ``(R, S)`` matrix and :mod:`fxc_env.core.statistics` gives the **median** of
+``D(T_s)/D(0)`` and the **IQM** of ``log10(max(D(T_s)/D(0), 1e-12))``, each with a 95 % stratified bootstrap
+interval (fixed bootstrap seed; the reference resamples initial states only). The scores and files are
 :mod:`fxc_env.training.seed_scores`'s.
 """
 
@@ -61,9 +52,7 @@ _RUN_FILES = ("model.zip", "policy.pt", "config.json", "checkpoints")
 #: Saved policies by suffix: an SB3 model, a torch policy, a gain schedule (anything else, a log say, is no run).
 POLICY_SUFFIXES = (".zip", ".pt", ".npz")
 _NOT_A_RUN = "neither a saved policy (" + ", ".join(POLICY_SUFFIXES) + ") nor a run directory"
-#: What runs pooled as training seeds of one policy must share, in the order they are compared
-#: (:func:`pooled_identity`): the saved format, the algorithm, the network (its description and
-#: its parameter shapes), the training scenario and the training settings the file records.
+#: What runs pooled as training seeds of one policy must share, in the order :func:`pooled_identity` compares them.
 POOLED_FIELDS = ("format", "algorithm", "architecture", "parameter shapes", "scenario", "settings")
 #: The step count in a checkpoint's name (``model_4000000_steps.zip``, ``rllib_4000_steps``).
 _CHECKPOINT_STEPS = re.compile(r"_(\d+)_steps")
@@ -209,9 +198,8 @@ def seed_contenders(
 ) -> list[Contender]:
     """One learned contender per run, named ``learned:<label>-seed<k>``, with its training settings.
 
-    The schedule, action and observation modes are the ones the policy records (its training
-    environment) unless given; every run is loaded here, so a missing or damaged one is refused
-    naming ``name`` before any job runs. Two runs with the same seed are refused.
+    Settings are the policy's recorded ones unless given; a missing or damaged run, or two with the same seed,
+    are refused naming ``name`` before any job runs.
     """
     seeds = [run.seed for run in runs]
     repeated = sorted({s for s in seeds if seeds.count(s) > 1})

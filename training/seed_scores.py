@@ -1,21 +1,15 @@
 """The scores of several training seeds (:mod:`fxc_env.training.seed_evaluation`) and the files they go to.
 
-Written next to the benchmark's files: ``seeds.md`` (the table), ``seeds.json`` (every
-estimate and interval, the runs and their seeds) and ``marl_eval.json``, the raw scores in the
-layout marl-eval reads (Gorsane et al. 2022; ``marl_eval.utils.data_processing_utils``)::
+``seeds.md`` (the table), ``seeds.json`` (every estimate and interval, the runs and their seeds) and
+``marl_eval.json``, the raw scores in the layout marl-eval reads (Gorsane et al. 2022)::
 
     {"fxc_env": {"<case>": {"<label>": {"seed_<k>": {
         "step_0": {"step_count": <timesteps trained>, "deadline_error": [S floats], ...},
         "absolute_metrics": {"deadline_error": [S floats], ...}}}}}}
 
-one environment (``fxc_env``), a task per case, an algorithm per policy (the runs' label and
-``reference``), a run per training seed, one evaluation step (the final policy; marl-eval reads
-the last key of a run as its absolute metrics, so ``absolute_metrics`` comes last) holding one
-value per initial state. marl-eval needs the same runs for every algorithm of a task, so the
-reference, which has no training seed, is listed under each run's key (and step count) with the same
-scores.
-Metrics: ``deadline_error`` (``D(T_s)/D(0)``, lower is better), ``decades_reached``
-(``-log10(max(D(T_s)/D(0), 1e-12))``, higher is better: what marl-eval's plots assume) and
+a task per case, an algorithm per policy, a run per training seed (the reference, which has none, listed
+under each run's key with the same scores), one value per initial state. Metrics: ``deadline_error``
+(``D(T_s)/D(0)``), ``decades_reached`` (``-log10(max(D(T_s)/D(0), 1e-12))``, higher is better) and
 ``energy`` (``Σ_i ∫ u_i² dt``, m²/s³).
 """
 
@@ -180,9 +174,8 @@ def _episode_metrics(errors: np.ndarray, energies: np.ndarray) -> dict[str, list
 def marl_eval_record(scores: Sequence[CaseScores], runs: Sequence[TrainedRun], label: str) -> dict[str, Any]:
     """The raw scores in marl-eval's layout (see the module): env → case → algorithm → seed_<k> → step_0 / absolute_metrics.
 
-    Cases that a run could not play are left out (marl-eval needs every algorithm and run in
-    every task). Values are plain floats; an ``inf`` (a diverged episode) is written as JSON's
-    ``Infinity``, which Python's ``json`` (and so marl-eval) reads back.
+    Cases a run could not play are left out (marl-eval needs every algorithm and run in every task); an
+    ``inf`` (a diverged episode) is written as JSON's ``Infinity``.
     """
     tasks: dict[str, Any] = {}
     for case in scores:

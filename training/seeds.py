@@ -1,16 +1,9 @@
 """``fxc train --seeds``: one run per training seed, in turn, each in its own run directory.
 
-``--seeds 0-4`` (a range, both ends included), ``--seeds 0,2,5`` or both (``0-2,7``) train the
-same run once per seed, one after another in this process, on whichever back end ``--backend``
-names (an RLlib run still samples with its own env runners; the seeds do not run side by side).
-Run directories: ``<--run-dir>-seed<k>`` when ``--run-dir`` is given, else each seed's default
-(``runs/<scenario>-[<backend>-]<algo>-seed<k>``), so ``fxc evaluate --runs 'runs/x-seed*'``
-finds them.
-
-With ``--resume`` each directory goes on by itself: a run that already reached ``--timesteps``
-is left as it is, one with a checkpoint resumes from its newest, one without starts afresh, and
-every seed says which on stdout, so an interrupted sweep finishes by running the same command
-with ``--resume``. Every seed's arguments, run directory and resume checks are made before the
+``--seeds 0-4``, ``--seeds 0,2,5`` or ``0-2,7`` train the same run once per seed, one after another, on any
+back end. Run directories: ``<--run-dir>-seed<k>``, else each seed's default
+(``runs/<scenario>-[<backend>-]<algo>-seed<k>``). With ``--resume`` each directory goes on by itself (finished,
+resumed or started afresh, said on stdout); every seed's arguments and resume checks are made before the
 first one trains.
 """
 

@@ -154,10 +154,8 @@ LOG_2PI = math.log(2.0 * math.pi)
 class ActorCritic(nn.Module):
     """The shared Gaussian policy (mean network, state-independent log std) and the critic.
 
-    ``arch``: the mean network, an MLP of the observation (``mlp``), a GRU over the agent's
-    observations with a gain head (``gru``) or messages along the interval graph (``gnn``),
-    :mod:`fxc_env.policies.torch_memory`; ``clock_index``: the observation entry of ``k/K``
-    (``gru`` resets its memory where it is 0). The critic is an MLP in every case.
+    ``arch``: the mean network (``mlp``, ``gru`` or ``gnn``, :mod:`fxc_env.policies.torch_memory`);
+    ``clock_index``: the observation entry of ``k/K`` (``gru`` resets where it is 0). The critic is an MLP.
     """
 
     def __init__(
@@ -187,11 +185,7 @@ class ActorCritic(nn.Module):
 
 
 def adam(parameters: Iterator[nn.Parameter], learning_rate: float) -> torch.optim.Adam:
-    """SB3's Adam (``eps = 1e-5``), fused where torch has it for the device.
-
-    Fused: one kernel for every parameter; the optimiser step is about a third of the cost
-    of a minibatch of 2048 on the CPU. torch < 2.4 has no fused Adam on the CPU.
-    """
+    """SB3's Adam (``eps = 1e-5``), fused (one kernel for every parameter) where torch has it for the device."""
     parameters = list(parameters)
     try:
         return torch.optim.Adam(parameters, lr=learning_rate, eps=1e-5, fused=True)
@@ -211,10 +205,8 @@ LAYOUT_SETTINGS = ("obs_mode", "obs_slots", "obs_size", "limit_feature", "dim", 
 def init_actor(trainer: Any, source: str) -> Path:
     """Load the actor (and exploration noise) of ``source`` into ``trainer``'s model (``--init-from``).
 
-    ``source``: a shipped policy's name (resolved as :func:`~fxc_env.policies.learned.load_learned_policy`
-    resolves it), a ``policy.pt``, a checkpoint or a run directory of the torch or diff back end.
-    Refused by name, the model unchanged: a file that is not a torch policy, another architecture
-    (``arch``, widths, activation, memory settings) or another observation layout
+    ``source``: a shipped policy's name, a ``policy.pt``, a checkpoint or a torch or diff run directory. Refused
+    by name, the model unchanged: not a torch policy, another architecture or another observation layout
     (:data:`LAYOUT_SETTINGS`) than the run's.
     """
     path = pretrained_path(source) if source in SHIPPED and not Path(source).exists() else Path(source)
@@ -272,9 +264,8 @@ def drive(
 ) -> Path:
     """The run every back end on the torch engine shares (``torch``, ``diff``); returns the run directory.
 
-    Resumes ``checkpoint`` (or starts the run directory with the arguments, hyperparameters and
-    ``record``), then calls ``iterate(start_steps, start_time)`` — one ``unit`` of work that advances
-    ``trainer.timesteps`` and returns its progress row (``columns``) and console line — until ``args.timesteps``,
+    Resumes ``checkpoint`` (or starts the run directory), calls ``iterate(start_steps, start_time)`` (one
+    ``unit``: advances ``trainer.timesteps``, returns its progress row and console line) until ``args.timesteps``
     with checkpoints every ``args.checkpoint_every`` and on Ctrl-C, and writes ``policy.pt``.
     """
     if checkpoint is not None:

@@ -1,35 +1,16 @@
 """``fxc train --backend torch``: a lean PPO loop on the batched engine, on a torch device.
 
-One Gaussian policy is shared by every agent of B parallel episodes (IPPO with parameter
-sharing): the engine (:class:`fxc_env.engine.ConsensusEngine`, float64 on ``--device``)
-plays B episodes of N agents in lock step, and the networks (float32) read float32 copies of
-the observations ``[B, N, obs_size]``. Nothing is read back to the host on the stepping
-path: the host reads the rollout's statistics once per rollout (and the episodes' metrics
-once per episode end) for the log. The critic is ``local`` (each agent's value from its own
-observation) or ``central`` (``--critic central``: one value per episode from the
-normalized global state, the TorchRL environment's root ``"state"``, broadcast to its
-agents). Plain torch: the loop does not use TorchRL (``--backend torchrl``, its old name, is
-still accepted). Hyperparameters come from the ``torch_ppo`` entry of the hyperparameter
-file (:class:`PPOSettings` lists them); the loop is SB3's PPO (clipped surrogate, GAE,
-advantages normalised per minibatch, gradient clipping, Adam), written out for the engine's
-tensors:
+One Gaussian policy shared by every agent of B parallel episodes (IPPO with parameter sharing) on
+:class:`fxc_env.engine.ConsensusEngine` (float64 on ``--device``; float32 networks); nothing is read back to
+the host on the stepping path. The critic is ``local`` or ``central`` (one value per episode from the
+normalized global state). The loop is SB3's PPO written out for the engine's tensors, its settings the
+``torch_ppo`` entry of the hyperparameter file (:class:`PPOSettings`):
 
     rollout:  T steps of B episodes (T divides K; an episode is K steps), B * N agent-steps each
     update:   ``epochs`` passes over the T * B * N agent-steps in minibatches of ``minibatch_size``
 
-Timesteps count agent-steps (B * N per environment step), as for the SB3 back end; a run
-stops at the first whole rollout past ``--timesteps``. The run directory is
-:mod:`fxc_env.training.run_dir`'s, ``progress.csv`` one row per rollout (:data:`PROGRESS_COLUMNS`:
-SB3's names, plus ``rollout/deadline_error``, the median D(T_s)/D(0) of the episodes that ended in
-it); checkpoints, ``policy.pt``, ``--resume`` and Ctrl-C are :mod:`fxc_env.training.torch_common`'s
-(``--resume`` starts fresh episodes from the checkpoint's step count, optimiser and generators).
-
-**Memory and messages** (``--policy-arch``, the actors of :mod:`fxc_env.policies.torch_memory`; ``mlp``
-trains bit for bit as before). ``gru``: the rollout stores the memory at its start; the update reruns
-the GRU from it over the T steps of whole agent sequences (``minibatch_size // T`` sequences a
-minibatch), so the log probabilities are exact for the current weights and the gradient runs through
-the rollout (truncated at its boundaries). ``gnn``: the interval graphs are stored per step and
-minibatches are whole (step, episode) graphs. The critic is an MLP in every case.
+``progress.csv`` has one row per rollout (:data:`PROGRESS_COLUMNS`); checkpoints and ``--resume`` are
+:mod:`fxc_env.training.torch_common`'s (docs: training.md, "Training learned policies").
 """
 
 from __future__ import annotations
@@ -298,12 +279,8 @@ class Trainer(TrainerFiles):
     def _update_sequences(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
         """``gru``: minibatches of whole agent sequences, the GRU rerun over the rollout's T steps.
 
-        Each of the B * N agents' T steps is one sequence; a minibatch holds
-        ``max(1, minibatch_size // T)`` of them, and the GRU is rerun from the hidden state
-        stored when the rollout began (:attr:`start_hidden`), resetting where the clock reads
-        k = 0, so the log-probabilities are those of the current weights over the same
-        memory the actions were drawn with, and the gradient flows through the whole rollout
-        (truncated back-propagation through time at rollout boundaries).
+        A minibatch holds ``max(1, minibatch_size // T)`` of the B * N agent sequences, the GRU rerun from
+        :attr:`start_hidden` (truncated back-propagation through time at rollout boundaries).
         """
         s, model, n, t = self.settings, self.model, self.n_agents, self.settings.rollout_steps
         sequences = self.n_envs * n
