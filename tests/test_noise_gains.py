@@ -1,0 +1,76 @@
+"""The noise-fitted gain tables (issue 25, item 5): the closed form, the rank-one floor, refusals by name."""
+
+import numpy as np
+import pytest
+
+from fxc_env.core.validation import ArgumentError
+from fxc_env.training import noise_gains
+
+torch = pytest.importorskip("torch")
+
+
+@pytest.fixture(scope="module")
+def config():
+    return noise_gains.task_config(1e-3)
+
+
+def _metrics(config, gains, seeds):
+    """The engine's episode metrics of the table on ``seeds`` (plans on raw rows)."""
+    from fxc_env.engine import ConsensusEngine
+
+    engine = ConsensusEngine(config, n_episodes=len(seeds))
+    engine.reset_from_draws(
+        [engine.draw_episode(np.random.default_rng(s)) for s in seeds], rng=np.random.default_rng(7)
+    )
+    obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
+    while not engine.done:
+        engine.observations(out=obs)
+        rows, mask, clock = config.layout.split(obs)
+        r = np.sum(mask[..., None, None] * rows, axis=-3) / (np.sum(mask, axis=-1)[..., None, None] + 1.0)
+        plan = gains[np.rint(clock[..., 2] * config.n_intervals).astype(int).clip(0, config.n_intervals - 1)] @ r
+        engine.step(np.concatenate([plan[..., 0, :], plan[..., 1, :]], axis=-1))
+    return engine.batch_metrics()
+
+
+def test_closed_form_predicts_the_environment(config):
+    """The expected energy and E* of the closed form match the engine's means (64 seeds, sampling error ~3%)."""
+    gains = noise_gains.start_table(config, "deadbeat")
+    _, energy, _, e_star = noise_gains.ring_moments(config, torch.tensor(gains))
+    metrics = _metrics(config, gains, range(64))
+    assert float(energy) == pytest.approx(np.mean(metrics["energy_ratio"] * metrics["energy_bound"]), rel=0.1)
+    assert e_star == pytest.approx(np.mean(metrics["energy_bound"]), rel=0.1)
+
+
+def test_measure_scores_the_deadbeat_table_as_the_suite_scores_minimum_time_noisy(config):
+    """``minimum_time/noisy`` in the optimality suite: 2.2e-3 at 9.4e7 x E* (median of 20; raw rows here)."""
+    result = noise_gains.measure(config, noise_gains.start_table(config, "deadbeat"))
+    assert result["error"] == pytest.approx(2.2e-3, rel=0.15)
+    assert result["energy_ratio"] == pytest.approx(9.4e7, rel=0.05)
+    assert result["noise_floor"] == pytest.approx(2.06e-5, rel=0.01)
+
+
+def test_no_rank_one_table_beats_the_rank_one_floor(config):
+    """Any table of rank-one gains (one input shape per interval) stays above 0.0165 rms on ring N = 20, K = 200."""
+    floor = noise_gains.rank_one_floor(config)
+    assert floor == pytest.approx(0.0165, rel=0.01)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        left, right = rng.normal(size=(200, 2, 1)), rng.normal(size=(200, 1, 2))
+        gains = 0.3 * left @ right * np.array([0.1, 1.0])[None, :, None]
+        final, _, initial, _ = noise_gains.ring_moments(config, torch.tensor(gains), sigma=0.0)
+        assert float(final / initial) ** 0.5 >= floor
+    final, _, initial, _ = noise_gains.ring_moments(config, torch.tensor(noise_gains.start_table(config, "accel")))
+    assert float(final / initial) ** 0.5 >= floor
+
+
+def test_refusals_name_the_argument(config):
+    with pytest.raises(ArgumentError, match="topology"):
+        noise_gains.ring_moments(noise_gains.task_config(1e-3, topology="path"), torch.zeros(200, 2, 2))
+    with pytest.raises(ArgumentError, match="gains"):
+        noise_gains.measure(config, np.zeros((199, 2, 2)))
+    with pytest.raises(ArgumentError, match="start"):
+        noise_gains.start_table(config, "zero")
+    with pytest.raises(ArgumentError, match="cap"):
+        noise_gains.fit(config, cap=0.0)
+    with pytest.raises(ArgumentError, match="sigma"):
+        noise_gains.task_config(-1.0)
