@@ -15,9 +15,10 @@ def config():
 
 
 def _metrics(config, gains, seeds):
-    """The engine's episode metrics of the table on ``seeds`` (plans on raw rows)."""
+    """The engine's episode metrics of the table on ``seeds`` (its own noise stream)."""
     from fxc_env.engine import ConsensusEngine
 
+    policy = noise_gains.policy_of(config, gains)
     engine = ConsensusEngine(config, n_episodes=len(seeds))
     engine.reset_from_draws(
         [engine.draw_episode(np.random.default_rng(s)) for s in seeds], rng=np.random.default_rng(7)
@@ -25,10 +26,7 @@ def _metrics(config, gains, seeds):
     obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
     while not engine.done:
         engine.observations(out=obs)
-        rows, mask, clock = config.layout.split(obs)
-        r = np.sum(mask[..., None, None] * rows, axis=-3) / (np.sum(mask, axis=-1)[..., None, None] + 1.0)
-        plan = gains[np.rint(clock[..., 2] * config.n_intervals).astype(int).clip(0, config.n_intervals - 1)] @ r
-        engine.step(np.concatenate([plan[..., 0, :], plan[..., 1, :]], axis=-1))
+        engine.step(policy(obs))
     return engine.batch_metrics()
 
 
@@ -42,8 +40,8 @@ def test_closed_form_predicts_the_environment(config):
 
 
 def test_measure_scores_the_deadbeat_table_as_the_suite_scores_minimum_time_noisy(config):
-    """``minimum_time/noisy`` in the optimality suite: 2.2e-3 at 9.4e7 x E* (median of 20; raw rows here)."""
-    result = noise_gains.measure(config, noise_gains.start_table(config, "deadbeat"))
+    """``minimum_time/noisy`` in the optimality suite: 2.2e-3 at 9.4e7 x E* (median of 20 seeds)."""
+    result = noise_gains.measure(config, noise_gains.policy_of(config, noise_gains.start_table(config, "deadbeat")))
     assert result["error"] == pytest.approx(2.2e-3, rel=0.15)
     assert result["energy_ratio"] == pytest.approx(9.4e7, rel=0.05)
     assert result["noise_floor"] == pytest.approx(2.06e-5, rel=0.01)
@@ -63,13 +61,18 @@ def test_no_rank_one_table_beats_the_rank_one_floor(config):
     assert float(final / initial) ** 0.5 >= floor
 
 
-def test_refusals_name_the_argument(config):
+def test_refusals_name_the_argument(config, tmp_path):
     with pytest.raises(ArgumentError, match="topology"):
         noise_gains.ring_moments(noise_gains.task_config(1e-3, topology="path"), torch.zeros(200, 2, 2))
     with pytest.raises(ArgumentError, match="gains"):
-        noise_gains.measure(config, np.zeros((199, 2, 2)))
+        noise_gains.policy_of(config, np.zeros((199, 2, 2)))
+    with pytest.raises(ArgumentError, match="policy"):
+        noise_gains.measure(config, np.zeros((200, 2, 2)))
     with pytest.raises(ArgumentError, match="start"):
         noise_gains.start_table(config, "zero")
+    np.save(tmp_path / "short.npy", np.zeros((10, 2, 2)))
+    with pytest.raises(ArgumentError, match="start"):
+        noise_gains.start_table(config, str(tmp_path / "short.npy"))
     with pytest.raises(ArgumentError, match="cap"):
         noise_gains.fit(config, cap=0.0)
     with pytest.raises(ArgumentError, match="sigma"):

@@ -37,8 +37,9 @@ Run (minutes on one core)::
 from __future__ import annotations
 
 import argparse
+import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -46,16 +47,18 @@ import numpy as np
 from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError, integer, real
 from fxc_env.engine import ConsensusEngine
-from fxc_env.policies.interval_gains import spectrum
+from fxc_env.policies.domain import training_domain
+from fxc_env.policies.interval_gains import IntervalGainPolicy, spectrum
+from fxc_env.policies.policy_files import training_settings
 
 #: The task: directed ring of 20, K = 200 uniform intervals, T_s = 20 s, the optimality suite's noise case.
 TASK = {"topology": "ring", "n_agents": 20, "n_intervals": 200, "settling_time": 20.0, "schedule": "uniform"}
 
 
 def task_config(sigma: float, **changes: Any) -> Any:
-    """The environment of the task at ``obs_noise = sigma`` (plans on raw rows)."""
+    """The environment of the task at ``obs_noise = sigma`` (plans on normalized rows, as the suite runs ``minimum_time``)."""
     real("sigma", sigma, 0.0)
-    return make_config(**{**TASK, **changes}, obs_noise=sigma, action_mode="plan", obs_mode="raw")
+    return make_config(**{**TASK, **changes}, obs_noise=sigma, action_mode="plan", obs_mode="normalized")
 
 
 def _modes(config: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -121,7 +124,12 @@ def rank_one_floor(config: Any) -> float:
 
 
 def start_table(config: Any, start: str) -> np.ndarray:
-    """A physical ``(K, 2, 2)`` start: ``minimum_time``'s dead-beat table, or ``accel`` (``u = 0.5 r_x + r_v``)."""
+    """A physical ``(K, 2, 2)`` start: ``minimum_time``'s dead-beat table, ``accel`` (``u = 0.5 r_x + r_v``) or a saved table (.npy)."""
+    if start.endswith(".npy"):
+        gains = np.load(start, allow_pickle=False)
+        if gains.shape != (config.n_intervals, 2, 2) or not np.all(np.isfinite(gains)):
+            raise ArgumentError(f"start: {start} holds no finite ({config.n_intervals}, 2, 2) table")
+        return gains
     if start == "deadbeat":
         from fxc_env.baselines.minimum_time import MinimumTimePolicy
 
@@ -130,27 +138,38 @@ def start_table(config: Any, start: str) -> np.ndarray:
         tau = np.asarray(config.schedule.intervals, dtype=np.float64)
         shape = np.stack([tau**2 / 2, tau], axis=-1)[:, :, None]  # (K, 2, 1): offsets of a constant input
         return shape * np.array([0.5, 1.0])[None, None, :]
-    raise ArgumentError(f"start: expected 'deadbeat' or 'accel', got {start!r}")
+    raise ArgumentError(f"start: expected 'deadbeat', 'accel' or a table's .npy path, got {start!r}")
 
 
 def fit(
-    config: Any, cap: float, start: str = "deadbeat", steps: int = 20, weight: float = 3.0
+    config: Any,
+    cap: float,
+    start: str = "deadbeat",
+    steps: int = 20,
+    weight: float = 3.0,
+    out: str | None = None,
+    progress: Callable[[str], Any] | None = None,
 ) -> tuple[np.ndarray, list]:
     """A table fitted for ``config.obs_noise`` under ``cap x E[E*]`` (module): ``(gains (K, 2, 2), history)``.
 
     Minimises ``log E[S_K]/S_0 + weight * softplus(10 log(E[energy] / (cap E[E*]))) / 10`` with L-BFGS
     (``steps`` rounds of 50 iterations); ``history`` lists ``(seconds, rms, energy ratio)`` per round.
+    ``out``: a .npy path, rewritten with the table after every round (an interrupted fit keeps its progress);
+    ``progress`` receives one line per round.
     """
     import torch
 
     real("cap", cap, positive=True)
     integer("steps", steps, 1)
     real("weight", weight, positive=True)
-    table = torch.tensor(start_table(config, start), requires_grad=True)
-    optimiser = torch.optim.LBFGS([table], lr=1.0, max_iter=50, history_size=30, line_search_fn="strong_wolfe")
+    tau = np.asarray(config.schedule.intervals, dtype=np.float64)
+    # The variables are accelerations: G_k = diag(T_k^2 / 2, T_k) theta_k (theta in 1/s^2 and 1/s), scaled alike.
+    shape = torch.tensor(np.stack([tau**2 / 2, tau], axis=-1)[:, :, None])
+    theta = torch.tensor(start_table(config, start) / shape.numpy(), requires_grad=True)
+    optimiser = torch.optim.LBFGS([theta], lr=1.0, max_iter=50, history_size=30, line_search_fn="strong_wolfe")
 
     def loss() -> tuple[Any, float, float]:
-        final, energy, initial, e_star = ring_moments(config, table)
+        final, energy, initial, e_star = ring_moments(config, shape * theta)
         ratio = energy / e_star
         penalty = torch.nn.functional.softplus(10 * torch.log(ratio / cap)) / 10
         return (
@@ -174,33 +193,54 @@ def fit(
             with torch.no_grad():
                 _, rms, ratio = loss()
             history.append((round(time.perf_counter() - began, 1), rms, ratio))
+            if progress is not None:
+                progress(f"{history[-1][0]:8.1f} s  predicted rms {rms:.3g}  energy {ratio:.3g} x E[E*]")
+            if out is not None:
+                np.save(out, (shape * theta).detach().numpy())
     finally:
         torch.set_num_threads(threads)
-    return table.detach().numpy().copy(), history
+    return (shape * theta).detach().numpy(), history
 
 
-def measure(config: Any, gains: np.ndarray, seeds: Sequence[int] = tuple(range(20))) -> dict[str, float]:
-    """Medians of ``D(T_s)/D(0)`` and energy / E* of the table on ``seeds``, as the optimality suite scores a law.
+def policy_of(config: Any, gains: np.ndarray, training: dict[str, Any] | None = None) -> IntervalGainPolicy:
+    """The table as an :class:`~fxc_env.policies.interval_gains.IntervalGainPolicy` for ``config`` (saved with ``.save``).
 
-    The initial states come from ``np.random.default_rng(seed)`` and the noise from
-    ``np.random.default_rng([*seeds, K])``, as in :func:`fxc_env.baselines.jobs.run_job`.
+    ``gains`` are physical ``(K, 2, 2)``; the policy holds them in normalized units (divided by
+    ``[[1, T_k], [1/T_k, 1]]`` entrywise) and records ``config``'s domain, noise level included.
     """
     gains = np.asarray(gains, dtype=np.float64)
     if gains.shape != (config.n_intervals, 2, 2) or not np.all(np.isfinite(gains)):
         raise ArgumentError(f"gains: expected a finite ({config.n_intervals}, 2, 2) table, got shape {gains.shape}")
-    if config.obs_mode != "raw" or config.action_mode != "plan":
-        raise ArgumentError("config: measure plays plans on raw rows (obs_mode='raw', action_mode='plan')")
+    tau = np.asarray(config.schedule.intervals, dtype=np.float64)
+    scale = np.ones((len(tau), 2, 2))
+    scale[:, 0, 1], scale[:, 1, 0] = tau, 1.0 / tau
+    eigenvalues = spectrum(config.topology)
+    header = {
+        "name": "noise_gains",
+        "env": training_settings(config),
+        "topology": {"family": "ring", "relabel": True, "period": 1},
+        "eigenvalues": np.stack([eigenvalues.real, eigenvalues.imag], axis=-1).tolist(),
+        "domain": training_domain(config),
+        "training": training or {},
+    }
+    return IntervalGainPolicy(gains / scale, header)
+
+
+def measure(config: Any, policy: Any, seeds: Sequence[int] = tuple(range(20))) -> dict[str, float]:
+    """Medians of ``D(T_s)/D(0)`` and energy / E* of ``policy`` on ``seeds``, as the optimality suite scores a law.
+
+    The initial states come from ``np.random.default_rng(seed)`` and the noise from
+    ``np.random.default_rng([*seeds, K])``, as in :func:`fxc_env.baselines.jobs.run_job`.
+    """
+    if not callable(policy):
+        raise ArgumentError(f"policy: expected a callable of observations, got {type(policy).__name__}")
     engine = ConsensusEngine(config, n_episodes=len(seeds))
     draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
     engine.reset_from_draws(draws, rng=np.random.default_rng([*seeds, config.n_intervals]))
     obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
     while not engine.done:
         engine.observations(out=obs)
-        rows, mask, clock = config.layout.split(obs)
-        r = np.sum(mask[..., None, None] * rows, axis=-3) / (np.sum(mask, axis=-1)[..., None, None] + 1.0)
-        k = np.clip(np.rint(clock[..., 2] * config.n_intervals).astype(np.int64), 0, config.n_intervals - 1)
-        plan = gains[k] @ r
-        engine.step(np.concatenate([plan[..., 0, :], plan[..., 1, :]], axis=-1))
+        engine.step(np.asarray(policy(obs), dtype=np.float64))
     metrics = engine.batch_metrics()
     return {
         "error": float(np.median(metrics["relative_deadline_error"])),
@@ -213,25 +253,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fxc_env.training.noise_gains", description=__doc__.splitlines()[0])
     parser.add_argument("--sigma", type=float, default=1e-3, help="obs_noise (m, m/s)")
     parser.add_argument("--cap", type=float, default=1e3, help="energy budget, in units of E[E*]")
-    parser.add_argument("--start", default="deadbeat", help="'deadbeat' (minimum_time's table) or 'accel'")
+    parser.add_argument(
+        "--start", default="deadbeat", help="'deadbeat' (minimum_time's table), 'accel' or a saved table (.npy)"
+    )
     parser.add_argument("--steps", type=int, default=20, help="L-BFGS rounds of 50 iterations")
     parser.add_argument("--weight", type=float, default=3.0, help="weight of the energy penalty")
+    parser.add_argument("--policy", default=None, help="save the table as an interval-gain policy (.npz)")
     parser.add_argument("--table", default=None, help="measure this saved table (.npy) instead of fitting")
-    parser.add_argument("--out", default=None, help="save the fitted physical table here (.npy)")
+    parser.add_argument("--out", default=None, help="save the fitted physical table here after every round (.npy)")
     args = parser.parse_args(argv)
     try:
         config = task_config(args.sigma)
         print(f"rank-one floor (any energy): relative rms >= {rank_one_floor(config):.3g}")
         if args.table is None:
-            gains, history = fit(config, args.cap, args.start, args.steps, args.weight)
-            for seconds, rms, ratio in history:
-                print(f"{seconds:8.1f} s  predicted rms {rms:.3g}  energy {ratio:.3g} x E[E*]", flush=True)
-            if args.out:
-                np.save(args.out, gains)
+            gains, _ = fit(config, args.cap, args.start, args.steps, args.weight, args.out, print)
         else:
             gains = np.load(args.table, allow_pickle=False)
+        if args.policy:
+            print("wrote", policy_of(config, gains, {"command": " ".join(sys.argv)}).save(args.policy))
         for sigma in (args.sigma, 0.0):
-            result = measure(task_config(sigma), gains)
+            result = measure(task_config(sigma), policy_of(task_config(sigma), gains))
             print(
                 f"measured, sigma = {sigma:g}, 20 seeds: median D(T_s)/D(0) {result['error']:.3g}, "
                 f"energy {result['energy_ratio']:.3g} x E*, noise floor {result['noise_floor']:.3g}"
