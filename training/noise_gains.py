@@ -259,7 +259,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=20, help="L-BFGS rounds of 50 iterations")
     parser.add_argument("--weight", type=float, default=3.0, help="weight of the energy penalty")
     parser.add_argument("--policy", default=None, help="save the table as an interval-gain policy (.npz)")
-    parser.add_argument("--table", default=None, help="measure this saved table (.npy) instead of fitting")
+    parser.add_argument(
+        "--table", default=None, help="measure this table instead of fitting: 'deadbeat', 'accel' or a saved .npy"
+    )
     parser.add_argument("--out", default=None, help="save the fitted physical table here after every round (.npy)")
     args = parser.parse_args(argv)
     try:
@@ -268,7 +270,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.table is None:
             gains, _ = fit(config, args.cap, args.start, args.steps, args.weight, args.out, print)
         else:
-            gains = np.load(args.table, allow_pickle=False)
+            gains = start_table(config, args.table)
         if args.policy:
             print("wrote", policy_of(config, gains, {"command": " ".join(sys.argv)}).save(args.policy))
         for sigma in (args.sigma, 0.0):
