@@ -95,3 +95,15 @@ def test_a_fit_round_lowers_the_predicted_error_and_saves_the_table(config, tmp_
     assert float(final / initial) ** 0.5 == pytest.approx(9.23, rel=0.01)
     assert history[0][1] < 0.1
     np.testing.assert_array_equal(np.load(tmp_path / "t.npy"), gains)
+
+
+def test_a_saved_table_runs_in_the_benchmark_only_at_its_noise(config, tmp_path):
+    """``--policy`` files load through the benchmark's ``load_policy``; another σ is refused by name."""
+    from fxc_env.baselines.suite import load_policy
+
+    path = noise_gains.policy_of(config, noise_gains.start_table(config, "deadbeat")).save(tmp_path / "t.npz")
+    policy = load_policy(str(path), config)
+    result = noise_gains.measure(config, policy)
+    assert result["error"] == pytest.approx(2.32e-3, rel=0.01)
+    with pytest.raises(ArgumentError, match="obs_noise"):
+        load_policy(str(path), noise_gains.task_config(1e-4))
