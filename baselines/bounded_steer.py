@@ -1,20 +1,6 @@
 """Exact consensus under an input limit: gather every prediction by small motions, then the least-peak steer.
 
-Law (docs: results.md, "Beat-the-best under noise and limits"):
-
-1. **Gathering.** Per axis, agent i's prediction as the register ``q_i = p_{i,x} + i T_s p_{i,v}``
-   (:mod:`fxc_env.baselines.signalling`). At ``t_0`` it reads ``q_j - q_i`` of its in-neighbours; at every
-   instant each agent signals, at amplitude ε, one relative register ``q_s - q_j`` it knows, chosen by a
-   flooding schedule designed offline from the graph; an out-neighbour i reads it and adds ``q_j - q_i``.
-2. **A common point.** The mid-range ``(max + min) / 2`` of the final positions and velocities, per axis.
-3. **The least-peak steer.** Bang-bang with one switch (``+U`` then ``-U`` or the mirror), the switch interval
-   taking the value that makes the landing exact (closed form). Exact wherever that peak is within ``u_max``.
-
-- Source: this project (flooding by small motions; the least-peak landing of a double integrator).
-- Proven graph class: a fixed strongly connected digraph (known offline), ideal double-integrator agents.
-- It refuses by name: switching and families (``topology``, ``switching``), graphs that are not strongly
-  connected (``topology``), ``obs_noise``, ``link_dropout``, other agent models, ``obs_mode`` other than raw,
-  and ``n_intervals`` that leave no interval to steer.
+Law, source, proven graph class and refusals: docs: optimality.md, "Under an input limit (`bounded_steer`)".
 """
 
 from __future__ import annotations

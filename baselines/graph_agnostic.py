@@ -1,34 +1,6 @@
 """Exact consensus without knowing the graph: a virtual iteration carried by motion, a recurrence, one steer.
 
-Law (after Yuan, Stan, Shi, Barahona & Gonçalves, "Decentralised minimum-time consensus",
-Automatica 49(5), 2013, carried by the motions of :mod:`fxc_env.baselines.signalling`; docs: optimality.md,
-"Exact consensus without knowing the graph"):
-
-1. **A virtual iteration carried by motion.** Per axis, agent i holds the register
-   ``w_i = p_{i,x} + i T_s p_{i,v}`` (m), signals its change ``c_i(k) = w_i(k) - w_i(0)`` as
-   ``ε (Re c, Im c / T_s)`` and runs ``w <- W w``, ``W = D^{-1} A`` (an agent with no in-neighbour keeps
-   its value).
-2. **Its own recurrence.** The differences ``Δw_i(k)`` obey ``p``, ``q(λ) = (λ - 1) p(λ)`` the minimal
-   polynomial of ``W`` seen from i; the agent finds the smallest degree whose block Hankel matrix of its own
-   differences (``C = 2 dim`` channels) has a singular value below ``rank_tolerance`` times their norm, ``β``
-   its kernel; then ``Σ_m β_m w_i(k + m) = p(1) w*``, ``w* = ξᵀ w(0)``, read off the latest window.
-   ``L = max_agents + ceil((max_agents + 1) / C) + 1`` values suffice (:func:`listening_values`), up to
-   ``2 max_agents + 2`` when its channels are dependent.
-3. **Pre-steering toward a settled iterate.** At instant ``k_a`` (:data:`DEFAULT_ANNOUNCE`) agent i announces
-   an aim ``a_i`` (its iterate weighted by how settled it looks, :data:`RHO`, on a ``2^-24`` m grid) and follows
-   the closed-form minimum-energy path to it, which its readers subtract exactly.
-4. **Steering once.** At instant ``L - 1`` agent i knows ``w* - w_i(0)`` and plays the minimum-energy input
-   to it over ``[t_L, T_s]``.
-
-- Source: Yuan et al. 2013 (the recurrence and the final-value formula), carried by this project's
-  signalling through small motions.
-- Proven graph class: a fixed digraph with a directed spanning tree and at most ``max_agents`` agents,
-  ideal double-integrator agents, exact in exact arithmetic; it agrees on ``ξᵀ p``, the E*-optimal point
-  only where ``ξ`` is uniform.
-- It refuses what it cannot honour, by name: switching topologies, topology families, ``u_max``,
-  ``obs_noise``, ``link_dropout``, agent models other than the double integrator,
-  ``obs_mode='normalized'``, ``max_agents`` below the environment's N, K shorter than
-  ``2 max_agents + 1``, and ``announce_at`` outside the listening window.
+Law, source, proven graph class and refusals: docs: optimality.md, "Without knowing the graph (`graph_agnostic`)".
 """
 
 from __future__ import annotations

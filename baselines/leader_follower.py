@@ -1,19 +1,6 @@
 """A time-optimal law for a known graph: follow the centre, exact after exactly the radius.
 
-Law (docs: optimality.md, "How far from optimal"). The designer picks offline a **centre** r attaining the
-graph's radius (:func:`fxc_env.core.optimality.radius_bound`, the fewest intervals of any exact law). The
-centre coasts; every other agent i, on each interval k, lands on the coasted state of its parent ``p_k(i)``:
-
-    z_i(t_{k+1}) = P_k z_{p}(t_k),    P_k = [[1, T_k], [0, 1]]  (coasting),
-
-the plan ``(a_x, a_v) = P_k (z_p - z_i)`` from its own relative row of p (paper Remark 1), the parents forming a
-time-respecting shortest-path tree from r (:func:`follower_slots`). Exact after exactly the radius.
-
-- Source: this project (leader-follower consensus with an offline shortest-path tree).
-- Proven graph class: fixed digraphs with a directed spanning tree and periodic switching whose joint
-  graph spans (the time-respecting radius), ideal double-integrator agents.
-- It refuses what it cannot honour, by name: topology families, ``switching='random'``, ``u_max``,
-  ``obs_noise``, ``link_dropout`` and other agent models.
+Law, source, proven graph class and refusals: docs: optimality.md, "Follow the centre (`leader_follower`)".
 """
 
 from __future__ import annotations

@@ -1,28 +1,6 @@
 """A dead-beat law for a known fixed digraph: exact consensus in one interval per root of the minimal polynomial.
 
-Law (derived for this project; docs: optimality.md, "How far from optimal"). Agent i reads its aggregated
-relative row ``r_i = (1/(d_i+1)) sum_{j in N_i} (z_j - z_i)``, ``z = (x, v)``, at ``t_k`` and plans
-
-    z_i(t_{k+1}) = P_k z_i(t_k) + G_k r_i(t_k),    P_k = [[1, T_k], [0, 1]]  (coasting),
-
-realised exactly by the minimum-energy input of paper Remark 1. The 2 x 2 gain ``G_k`` is chosen by the
-clock from a schedule designed offline from the graph; interval k acts on the mode of an eigenvalue
-``mu'`` of ``Ŵ = (D + I)^{-1} L`` as ``P_k - mu' G_k``:
-
-- a real eigenvalue ``mu``: ``G_k = P_k / mu``;
-- a complex pair ``mu, conj(mu)``: ``G_k = R P_k``, ``G_{k+1} = P_{k+1} R^T``, ``R = [[a, -b], [b, a]]``,
-  ``a + ib = 1/mu`` (conjugated by ``diag(1, 1/T_{k+1})`` for a gain's units);
-- an eigenvalue whose largest Jordan block has size s: its factor s times (:func:`design_eigenvalues`).
-
-The factors run in Leja order, then the paper's plan (``G_k = P_k``, eq. 11); with fewer intervals than factors
-it warns (naming ``n_intervals``) and plays :func:`budget_factors`.
-
-- Source: this project (a deadbeat "minimal polynomial" design in the spirit of Sundaram & Hadjicostis 2007
-  and Kibangou 2012, on the sampled-data plan of the paper).
-- Proven graph class: a fixed digraph with a directed spanning tree, ideal agents (exact in exact arithmetic).
-- It refuses what it cannot honour, by name: switching topologies and topology families, ``u_max``,
-  ``obs_noise`` (unless ``allow_noise=True``), ``link_dropout``, ``switching='random'`` and agent models
-  other than the double integrator.
+Law, source, proven graph class and refusals: docs: optimality.md, "Dead-beat on a known digraph (`minimum_time`)".
 """
 
 from __future__ import annotations

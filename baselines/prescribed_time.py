@@ -1,21 +1,6 @@
 """Prescribed-time consensus with a gain that grows as ``1 / (T_s - t)`` (Wang, Song, Hill & Krstic 2019 family).
 
-Law (``sigma = T_s - t``, the time left; the gain ``mu(t) = T_s / sigma`` grows without bound)::
-
-    u_i = -sum_j a_ij [k_x (x_i - x_j) / sigma^2 + k_v (v_i - v_j) / sigma]
-
-- Source: Y. Wang, Y. Song, D. J. Hill and M. Krstic, "Prescribed-time consensus and
-  containment control of networked multiagent systems", IEEE Trans. Cybern. 49 (2019); this is the
-  double-integrator member with gains ``mu^2`` on positions and ``mu`` on velocities. On a Laplacian mode
-  ``lambda`` the disagreement vanishes like ``sigma^r``, ``r^2 - (1 + lambda k_v) r + lambda k_x = 0``.
-- Proven graph class: undirected connected graphs; on digraphs the design checks ``Re(r) > 1``
-  (:meth:`PrescribedTimePolicy.guarantee`), which the paper does not prove.
-- Parameters, designed offline (average Laplacian of a switching period): the exponent ``p`` [3] places the
-  roots at ``r = p, p + 1`` on ``lambda_min = min Re(lambda)``: ``k_v = 2 p / lambda_min``,
-  ``k_x = p (p + 1) / lambda_min`` (dimensionless).
-- **Cut-off**: under a zero-order hold at period h the gain is frozen at ``sigma = delta``,
-  ``delta = max(2 h, 5 h k_v max|lambda|)``; from ``T_s - delta`` on the law is linear with constant gains
-  (throughout when ``delta`` reaches ``T_s``: the row's ``cutoff_s`` says so).
+Law, source, proven graph class and refusals: docs: optimality.md, "Prescribed time (`prescribed_time`)".
 """
 
 from __future__ import annotations

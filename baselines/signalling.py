@@ -1,36 +1,6 @@
 """A law on the energy-accuracy frontier: agree on the target by small motions, then steer once.
 
-Law (derived for this project; docs: optimality.md, "How far from optimal"). Every agent steers once, with the
-minimum-energy input (paper Remark 1), to the mean ``p̄`` of the free-motion predictions
-``p_i = (x_i + T_s v_i, v_i)`` (the E*-optimal point, :func:`fxc_env.core.optimality.energy_bound`); it learns
-its offset ``p̄ - p_i`` from its sampled relative measurements alone:
-
-1. **Reading numbers from motion.** Agent i's deviation ``d_i(t) = z_i(t) - Φ(t) z_i(0)``,
-   ``Φ(t) = [[1, t], [0, 1]]``, is known to it exactly; a measured row is
-   ``z_j(t_k) - z_i(t_k) = Φ(t_k) (z_j(0) - z_i(0)) + d_j(t_k) - d_i(t_k)``, so i reads ``d_j(t_k)``;
-   agent j writes a number into its deviation: ``d_j = ε (c_x, c_v)``.
-2. **Registers.** Per axis, the complex register ``q_i = p_{i,x} + i T_s p_{i,v}`` (m); agent i signals its
-   change ``c_i = q_i - q_i(0)`` as ``d = ε (Re c, Im c / T_s)``.
-3. **Exact consensus on the registers, then the unweighted mean.** Stage 1: ``q <- (I - Ŵ/μ) q``,
-   ``Ŵ = (D + I)^{-1} L`` (union graph), one update per nonzero eigenvalue ``μ`` in Leja order, ending at
-   ``ξᵀ q(0)``. Stage 2 (skipped when ``ξ`` is uniform) moves it to the roots' unweighted mean
-   ``ξᵀ q + Σ_R (ξ_i - 1/R) o_i``, ``o_i = ξᵀ q - q_i``, by the same construction on
-   ``γ_i = (ξ_i - 1/R) o_i / ξ_i``. A periodic switching set (paper Theorem 2) runs on the union of its
-   ``m`` graphs, one update per period.
-4. **Steering once.** At the last update ``t_c`` agent i plays the minimum-energy input to ``p̄`` over
-   ``[t_c, T_s]``, interval by interval. Energy ``≈ E* (T_s / (T_s - t_c))³`` plus signalling.
-
-The amplitude ``ε`` (dimensionless) trades energy (like ``ε²``) for accuracy (reads off by ``1e-16 |z| / ε``);
-refused outside :data:`AMPLITUDE_RANGE`, where it loses accuracy for nothing.
-
-- Source: this project (signalling through motion, on :mod:`fxc_env.baselines.minimum_time`).
-- Proven graph class: a fixed digraph with a directed spanning tree, or a periodic set whose union has one;
-  ideal double-integrator agents; ``K >= m (N - 1)`` (twice that with stage 2). Exact (up to rounding / ε)
-  at the roots' mean, the unweighted mean when strongly connected.
-- It refuses what it cannot honour, by name: a graph (or period union) without a directed spanning
-  tree, topology families, ``switching='random'``, ``u_max`` (unless ``allow_limit=True``), ``obs_noise``
-  (without an explicit ``amplitude``), ``link_dropout``, agent models other than the double integrator,
-  ``obs_mode='normalized'``, and too few intervals.
+Law, source, proven graph class and refusals: docs: optimality.md, "Signalling through motion (`signalling`)".
 """
 
 from __future__ import annotations

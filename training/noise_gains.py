@@ -1,46 +1,6 @@
 """Gain tables fitted for measurement noise on a directed ring: the measured error-energy frontier (issue 25, item 5).
 
-The law is ``minimum_time``'s (:mod:`fxc_env.baselines.minimum_time`): agent i reads its aggregated row
-``r_i = (1/(d_i+1)) sum_j (z_j - z_i)`` (``z = (x, v)``, noisy under ``obs_noise``) and plans
-``z_i(t_{k+1}) = P_k z_i + G_k r_i``; the minimum-energy input of paper Remark 1 realises the plan, costing
-``(G_k r_i)^T Gram(T_k)^{-1} (G_k r_i)``. Here the ``(K, 2, 2)`` table is not a dead-beat product but is
-fitted, offline from the graph, for the noise and an energy budget.
-
-**Closed form** (:func:`ring_moments`). On a directed ring ``Ŵ = (D + I)^{-1} L`` is circulant, hence
-normal: the Fourier modes decouple, with ``y <- (P_k - mu G_k) y + G_k nu`` on the mode of eigenvalue mu,
-``nu`` the mode's share of the row noise (variance ``sigma^2 / (d + 1)^2`` per component; a row of a
-ring has one in-neighbour). With initial states drawn uniformly (independent per agent) every
-disagreement mode starts with the covariance ``diag(var x, var v)``, so the second moment of each mode
-follows ``M <- A M A^H + sigma^2/4 G G^T`` exactly, and so do the expected final disagreement
-``E sum_i |x_i - x̄|^2 + T_s^2 |v_i - v̄|^2`` and the expected energy (Parseval). :func:`fit` minimises
-``log`` of that disagreement plus a soft penalty above ``cap x E[E*]`` with L-BFGS from the dead-beat
-table of ``minimum_time`` (or the accelerations ``u = 0.5 r_x + r_v``); it takes minutes, so it is a
-design function, not a law built at construction. :func:`measure` runs a table through the engine
-exactly as the optimality suite scores ``minimum_time/noisy`` (same seeds, draws and noise stream).
-
-**Why rank-one tables stall** (:func:`rank_one_floor`). A table whose every ``G_k`` has rank one
-(an input of one shape per interval, e.g. a zero-order-hold acceleration ``u = a r_x + b r_v``) has
-``det(P_k - mu G_k) = 1 - c_k mu`` with ``c_k`` real, and ``min_c |1 - c mu| = |sin arg mu|``; on the
-ring's slowest mode (``mu = (1 - e^{2 pi i / N}) / 2``, ``|mu|^2 = Re mu``) that is ``(1 - Re mu)^{1/2}``
-per interval, so ``|det Φ_K(mu)| >= (1 - Re mu)^{K/2}`` (0.084 for N = 20, K = 200: the "0.084" of a
-plain gain 0.5 is this bound, whatever the gains). The final mean square is at least
-``var x * 2 |det Φ|`` per mode: :func:`rank_one_floor` returns the resulting bound on the relative root
-mean square, 0.0165 on ring N = 20, K = 200 (the default uniform draws), at any energy.
-Beating it needs rank-two gains, i.e. position offsets that are not the trace of an acceleration,
-whose energy ``12 |delta x|^2 / T_k^3`` per 0.1 s interval is what the budget pays for.
-
-**Measured** (:func:`measure`, seeds 0-19, σ = 1e-3; the fit sees no seed): from ``accel`` at
-``cap = 1e3``, 335 rounds chained in eight runs (15 rounds five times, then 60, 100, 100), 2.8e-4 at 577 x E*
-(4.3e-6 without noise; goal 1e-4 not met, the error is the noise's); the best law before, ``minimum_time/noisy``, 2.32e-3 at 9.42e7 x E*; the noise floor
-2.06e-5. Run (about 5 s a round on an idle core; each run restarts L-BFGS from the table the one before saved)::
-
-    .venv/bin/python -m fxc_env.training.noise_gains --cap 1e3 --start accel --steps 15 --out a.npy
-    .venv/bin/python -m fxc_env.training.noise_gains --cap 1e3 --start a.npy --steps 15 --out b.npy
-    ... (c, d, e: 15 rounds each; f: 60; g: 100 from f)
-    .venv/bin/python -m fxc_env.training.noise_gains --cap 1e3 --start g.npy --steps 100 --out h.npy --policy h.npz
-
-``h.npz`` is an :class:`~fxc_env.policies.interval_gains.IntervalGainPolicy` file: the benchmark loads it by
-path (:func:`fxc_env.baselines.suite.load_policy`) on this ring at this σ and refuses it elsewhere by name.
+Law, source, proven graph class and refusals: docs: optimality.md, "Noise-fitted gain tables (`noise_gains`)".
 """
 
 from __future__ import annotations

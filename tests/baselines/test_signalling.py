@@ -107,7 +107,7 @@ def test_it_refuses_by_name_what_it_cannot_honour(kwargs, name):
 
 @pytest.mark.parametrize(("inside", "outside"), [(1e-12, 1e-13), (1.0, 1.5)])
 def test_it_refuses_amplitudes_past_where_the_reads_decode_and_the_ends_of_the_range_still_decode(inside, outside):
-    """Below 1e-12 rounding over ε takes the reads' digits; above 1 the error grows again like ε (module docstring)."""
+    """Below 1e-12 rounding over ε takes the reads' digits; above 1 the error grows again like ε (docs: optimality.md)."""
     config = make_config(scenario=None, topology="ring", n_agents=6, obs_mode="raw")
     for bad in (outside, 1e-16, 1e12, 1e300):
         with pytest.raises(ArgumentError, match=r"^amplitude: expected 1e-12 <= amplitude <= 1; .*got "):
