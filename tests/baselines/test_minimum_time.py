@@ -130,7 +130,7 @@ def test_it_is_registered_for_the_benchmark_and_fxc_evaluate():
         ({"topology": "ring", "n_agents": 6, "switching": "random"}, "switching"),
         ({"topology": "paper_fig1"}, "topology"),
         ({"topology": TopologyFamily("ring"), "n_agents": 6}, "topology"),
-        ({"topology": "ring", "n_agents": 6, "agent_model": "integrator_chain", "order": 3}, "agent_model"),
+        ({"topology": "ring", "n_agents": 6, "agent_model": {"name": "integrator_chain", "order": 3}}, "agent_model"),
         ({"topology": "ring", "n_agents": 6, "agent_model": ([[0.0, 1.0], [0.0, 0.0]], [[0.0], [1.0]])}, "agent_model"),
     ],
 )

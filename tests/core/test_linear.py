@@ -486,7 +486,7 @@ def test_a_heavily_damped_gramian_over_the_paper_s_first_interval_is_accurate(da
 def test_a_damped_agent_reaches_consensus_on_the_paper_schedule():
     import fxc_env
 
-    trajectory = fxc_env.simulate(scenario="paper_fig1", agent_model="damped", damping=4.0, seed=0)
+    trajectory = fxc_env.simulate(scenario="paper_fig1", agent_model={"name": "damped", "damping": 4.0}, seed=0)
     assert trajectory.metrics.relative_deadline_error < 1e-9
 
 
