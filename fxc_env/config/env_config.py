@@ -33,7 +33,7 @@ from fxc_env.core import validation
 from fxc_env.core.families import AnyFamily, is_family_spec, make_family
 from fxc_env.core.graphs import Topology, make_topology
 from fxc_env.core.linear import IntervalMaps, LinearModel, check_horizon, formation_offsets, model_matrices
-from fxc_env.core.models import FLAT_PARAMETERS, model_spec
+from fxc_env.core.models import FLAT_PARAMETERS, MODEL_PARAMETERS, model_spec
 from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
 
@@ -447,7 +447,7 @@ def _agent_model(merged: dict[str, Any], arguments: dict[str, Any]) -> tuple[str
 
 def _blamed(error: ArgumentError, parameters: dict[str, Any], expected: str) -> ArgumentError:
     """``error`` of a model built from ``parameters`` named after them (the user gave those, not what failed)."""
-    named = [key for key in FLAT_PARAMETERS if key in parameters]
+    named = [key for key in MODEL_PARAMETERS.values() if key in parameters]
     if not named or str(error).startswith(tuple(named)):
         return error
     shown = ", ".join(f"{key} = {parameters[key]!r}" for key in named)
