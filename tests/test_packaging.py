@@ -1,12 +1,8 @@
-"""One import name: the wheel installs ``fxc_env`` and its Hydra plugin only, and the layers import only downward.
+"""One import name: the wheel installs ``fxc_env`` only, and the layers import only downward.
 
 The folders ``baselines/`` and ``training/`` install as ``fxc_env.baselines`` and
 ``fxc_env.training`` (setuptools ``package-dir``). A wheel that put them at the top level
-would let another distribution named ``baselines`` overwrite ours. Beside ``fxc_env`` stands
-only ``hydra_plugins/fxc_env`` (source: ``fxc_env/_hydra_plugins/``): ``hydra_plugins`` is
-Hydra's namespace package, shared by design (every Hydra plugin ships into it, no
-``__init__.py``), not an import name of ours; it is the only way ``python -m benchmarl.run``
-finds the ``fxc/<task>`` tasks.
+would let another distribution named ``baselines`` overwrite ours.
 """
 
 from __future__ import annotations
@@ -35,17 +31,13 @@ def wheel(tmp_path_factory) -> Path:
 
 
 @pytest.mark.slow
-def test_the_wheel_installs_fxc_env_and_one_module_in_hydras_plugin_namespace(wheel):
+def test_the_wheel_installs_fxc_env_as_its_only_top_level_name(wheel):
     with zipfile.ZipFile(wheel) as archive:
         names = archive.namelist()
         (top_level,) = [n for n in names if n.endswith(".dist-info/top_level.txt")]
-        assert archive.read(top_level).decode().split() == ["fxc_env", "hydra_plugins"]
+        assert archive.read(top_level).decode().split() == ["fxc_env"]
     tops = {name.split("/")[0] for name in names if not name.split("/")[0].endswith(".dist-info")}
-    assert tops == {"fxc_env", "hydra_plugins"}
-    # Hydra's namespace: our one plugin module and no hydra_plugins/__init__.py (that would shadow every
-    # other Hydra plugin); its source folder is not shipped a second time inside fxc_env.
-    assert [name for name in names if name.startswith("hydra_plugins/")] == ["hydra_plugins/fxc_env/__init__.py"]
-    assert not [name for name in names if name.startswith("fxc_env/_hydra_plugins")]
+    assert tops == {"fxc_env"}
     for module in (
         "fxc_env/baselines/benchmark.py",
         "fxc_env/training/sb3_train.py",

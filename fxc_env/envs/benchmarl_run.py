@@ -3,10 +3,9 @@
     python -m fxc_env.envs.benchmarl_run algorithm=mappo task=fxc/rings20-v1
 
 takes every argument of ``python -m benchmarl.run`` (Hydra overrides, ``--multirun``) and runs
-BenchMARL's own ``hydra_experiment`` after :func:`fxc_env.envs.benchmarl_task.register`. An
-installed package needs it not: plain ``python -m benchmarl.run`` finds the tasks through the
-Hydra plugin ``hydra_plugins.fxc_env``. This entry serves where Hydra sees no plugin (a source
-checkout on ``sys.path``, not installed).
+BenchMARL's own ``hydra_experiment`` after :func:`fxc_env.envs.benchmarl_task.register`. Plain
+``python -m benchmarl.run`` finds an external task only through a Hydra plugin in the
+``hydra_plugins`` namespace, a second top-level import name this package does not install.
 """
 
 from __future__ import annotations

@@ -7,8 +7,8 @@ builds: a factory of :class:`fxc_env.envs.torch_env.ConsensusTorchEnv` (``batch_
 BenchMARL's number of environments), one agent group ``"agents"``, continuous actions only.
 A task's config is a dict of ``ConsensusTorchEnv`` keyword arguments, checked when the task is
 made; BenchMARL owns ``batch_size``, ``seed`` and ``device`` and a config naming one is refused.
-:func:`register` puts the tasks in BenchMARL's registry and Hydra's ``task`` group (the plugin
-``hydra_plugins.fxc_env`` calls it). Use, the plugin and an experiment: docs:
+:func:`register` puts the tasks in BenchMARL's registry and Hydra's ``task`` group (``python -m
+fxc_env.envs.benchmarl_run`` calls it before BenchMARL's own command line). Use, the plugin and an experiment: docs:
 tutorials/benchmarl.md, "Tutorial: BenchMARL".
 
 Needs ``pip install "fxc-env[benchmarl]"`` (BenchMARL 1.5 with torchrl 0.11); ``import fxc_env``
@@ -204,9 +204,8 @@ def register() -> None:
     BenchMARL's docs ask an external task for two things: an entry ``"fxc/<task>"`` in
     ``benchmarl.environments.task_config_registry``, and its config in Hydra's ``task`` group
     (here Hydra's config store, from :meth:`FxcTask.default_config`, instead of files in
-    BenchMARL's ``conf/task``). The Hydra plugin ``hydra_plugins.fxc_env`` calls this when
-    BenchMARL's command line builds its search path, ``python -m fxc_env.envs.benchmarl_run``
-    before BenchMARL's ``hydra_experiment``; call it yourself before your own
+    BenchMARL's ``conf/task``). ``python -m fxc_env.envs.benchmarl_run`` calls this before
+    BenchMARL's ``hydra_experiment``; call it yourself before your own
     ``hydra.main`` or ``load_task_config_from_hydra``.
     """
     from benchmarl.environments import task_config_registry
