@@ -5,7 +5,8 @@
 # .venv-rllib for the Ray RLlib tests: Ray 2.60 pins gymnasium 1.2.2 where .venv has 1.4.0,
 # so it gets its own environment, pinned by constraints-rllib.txt. It also builds .venv-benchmarl
 # for the BenchMARL task: BenchMARL 1.5 needs torchrl < 0.12 where .venv has 0.14, pinned by
-# constraints-benchmarl.txt (`make benchmarl` builds only that environment).
+# constraints-benchmarl.txt (`make benchmarl` builds only that environment), with fxc_env's Hydra plugin, so that
+# BenchMARL's own `python -m benchmarl.run ... task=fxc/<task>` finds the tasks there.
 PYTHON ?= python3
 PIP_FLAGS := --quiet --disable-pip-version-check
 VENV := .venv
@@ -49,6 +50,7 @@ $(RLLIB_STAMP): pyproject.toml constraints-rllib.txt
 $(BENCHMARL_STAMP): pyproject.toml constraints-benchmarl.txt
 	test -x $(BENCHMARL_BIN)/python || $(PYTHON) -m venv $(BENCHMARL_VENV)
 	$(BENCHMARL_BIN)/pip install $(PIP_FLAGS) -c constraints-benchmarl.txt -e ".[benchmarl,test]"
+	$(BENCHMARL_BIN)/python -m fxc_env.envs.benchmarl_run --install-plugin
 	touch $(BENCHMARL_STAMP)
 
 benchmarl: $(BENCHMARL_STAMP)

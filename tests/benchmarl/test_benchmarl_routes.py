@@ -1,8 +1,9 @@
-"""BenchMARL's own routes run the named, versioned tasks unmodified: its command line (Hydra) and ``Benchmark``."""
+"""BenchMARL's own routes run the named, versioned tasks unmodified: its command line (Hydra, with the plugin) and ``Benchmark``."""
 
 from __future__ import annotations
 
 import csv
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -18,6 +19,8 @@ from hydra import compose, initialize_config_module
 from hydra.core.global_hydra import GlobalHydra
 
 from fxc_env.config.tasks import TASKS
+from fxc_env.core.validation import ArgumentError
+from fxc_env.envs.benchmarl_run import PLUGIN_SOURCE, install_plugin, uninstall_plugin
 from fxc_env.envs.benchmarl_task import BENCHMARL_SETTINGS, FxcTask, FxcTaskClass, register
 
 VERSIONED = [member for member in FxcTask if member.task_name in TASKS]
@@ -72,21 +75,72 @@ def test_a_versioned_tasks_config_is_its_frozen_settings_with_benchmarls_float32
     assert env.config.n_agents == 20 and task.max_steps(env) == 200
 
 
+def test_the_plugin_installs_into_hydras_namespace_and_uninstalls(tmp_path):
+    path = install_plugin(tmp_path)
+    assert path == tmp_path / "hydra_plugins" / "fxc_env_benchmarl.py"
+    assert path.read_text() == PLUGIN_SOURCE.read_text()
+    assert not (tmp_path / "hydra_plugins" / "__init__.py").exists()  # a namespace package, shared with other plugins
+    assert install_plugin(tmp_path) == path  # again: an earlier copy is replaced
+    assert uninstall_plugin(tmp_path) == path and not (tmp_path / "hydra_plugins").exists()
+    assert uninstall_plugin(tmp_path) is None
+
+
+def test_the_plugin_installer_refuses_a_missing_folder_and_a_file_it_did_not_write(tmp_path):
+    with pytest.raises(ArgumentError, match=r"^target: expected an existing folder"):
+        install_plugin(tmp_path / "missing")
+    foreign = tmp_path / "hydra_plugins" / "fxc_env_benchmarl.py"
+    foreign.parent.mkdir()
+    foreign.write_text("# someone else's plugin\n")
+    with pytest.raises(ArgumentError, match="is not fxc_env's BenchMARL plugin; nothing was written"):
+        install_plugin(tmp_path)
+    with pytest.raises(ArgumentError, match="is not fxc_env's BenchMARL plugin; nothing was removed"):
+        uninstall_plugin(tmp_path)
+    assert foreign.read_text() == "# someone else's plugin\n"
+
+
+def test_the_plugin_leaves_other_hydra_applications_alone(tmp_path):
+    """A Hydra application that has not imported BenchMARL composes its config without importing fxc_env."""
+    (tmp_path / "site").mkdir()
+    install_plugin(tmp_path / "site")
+    (tmp_path / "conf").mkdir()
+    (tmp_path / "conf" / "config.yaml").write_text("answer: 42\n")
+    script = (
+        "import sys\n"
+        "from hydra import compose, initialize_config_dir\n"
+        f"with initialize_config_dir(config_dir={str(tmp_path / 'conf')!r}, version_base=None):\n"
+        "    assert compose(config_name='config').answer == 42\n"
+        "import hydra_plugins.fxc_env_benchmarl  # the plugin was scanned\n"
+        "print(sorted(name for name in sys.modules if name.split('.')[0] in ('fxc_env', 'benchmarl')))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, env=_path_first(tmp_path / "site"), timeout=120
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert result.stdout.strip() == "[]"
+
+
+def _path_first(folder: Path) -> dict[str, str]:
+    """This environment with ``folder`` first on ``sys.path``."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(folder), os.environ.get("PYTHONPATH")]))}
+
+
 @pytest.mark.slow
-def test_benchmarls_command_line_runs_every_task(tmp_path):
-    """``python -m fxc_env.envs.benchmarl_run algorithm=mappo task=fxc/<task>-v1``: BenchMARL's own Hydra entry, once per task."""
+@pytest.mark.parametrize("entry", ["benchmarl.run", "fxc_env.envs.benchmarl_run"])
+def test_benchmarls_command_line_runs_every_task(entry, tmp_path):
+    """``python -m benchmarl.run algorithm=mappo task=fxc/<task>-v1`` with the plugin installed, once per task.
+
+    ``python -m fxc_env.envs.benchmarl_run`` takes the same arguments and needs no plugin.
+    """
+    site = tmp_path / "site"
+    site.mkdir()
+    if entry == "benchmarl.run":
+        subprocess.run(
+            [sys.executable, "-m", "fxc_env.envs.benchmarl_run", "--install-plugin", "--target", str(site)], check=True
+        )
     tasks = ",".join(f"fxc/{member.task_name}" for member in VERSIONED)
-    command = [
-        sys.executable,
-        "-m",
-        "fxc_env.envs.benchmarl_run",
-        "--multirun",
-        "algorithm=mappo",
-        f"task={tasks}",
-        *TINY,
-    ]
+    command = [sys.executable, "-m", entry, "--multirun", "algorithm=mappo", f"task={tasks}", *TINY]
     command += [f"experiment.save_folder={tmp_path}", f"hydra.sweep.dir={tmp_path / 'hydra'}"]
-    result = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=900)
+    result = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, env=_path_first(site), timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
     counters = frames_logged(tmp_path)
     assert sorted(name.split("_mlp_")[0] for name in counters) == sorted(
