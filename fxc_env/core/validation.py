@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 import operator
-import os
 import sys
 import warnings
 from collections.abc import Mapping, Sequence
@@ -61,13 +60,16 @@ class ArgumentTypeError(ArgumentError, TypeError):
     """An argument of the wrong type (also a ``TypeError``)."""
 
 
-_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: Top-level packages whose frames a deprecation warning passes over to reach the user's line: this one
+#: (``fxc_env.baselines`` and ``fxc_env.training`` live outside its folder), and TorchRL's and tensordict's
+#: machinery that constructs a ``ConsensusTorchEnv`` (their metaclasses call ``__init__``).
+_PASS_OVER = frozenset({"fxc_env", "torchrl", "tensordict"})
 
 
 def deprecated(message: str) -> None:
     """A :class:`DeprecationWarning` pointed at the first caller outside the package (the user's line)."""
     frame, level = sys._getframe(1), 2
-    while frame.f_back is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE):
+    while frame.f_back is not None and str(frame.f_globals.get("__name__", "")).split(".")[0] in _PASS_OVER:
         frame, level = frame.f_back, level + 1
     warnings.warn(message, DeprecationWarning, stacklevel=level)
 

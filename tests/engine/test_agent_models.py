@@ -356,5 +356,6 @@ def test_every_front_end_takes_the_flat_alias_with_a_warning():
         lambda: torchrl.ConsensusTorchEnv(**flat).config,
     ]
     for make in makers:
-        with pytest.warns(DeprecationWarning, match=r"^damping=0.7 is deprecated"):
+        with pytest.warns(DeprecationWarning, match=r"^damping=0.7 is deprecated") as caught:
             assert make().model.A[1, 1] == -0.7
+        assert caught[0].filename == __file__  # the user's line, not PettingZoo's or TorchRL's machinery
