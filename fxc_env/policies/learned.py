@@ -234,6 +234,19 @@ def load_learned_policy(
     return policy
 
 
+def saved_format(path: str | Path) -> str:
+    """The format of the saved policy at ``path``, as :func:`load_learned_policy` reads it, for messages:
+    ``gain schedule`` (``.npz``), ``torch policy``, ``RLlib checkpoint`` (another directory) or ``SB3 model``."""
+    from fxc_env.policies.torch_policy import is_torch_policy
+
+    path = Path(path)
+    if path.suffix == ".npz":
+        return "gain schedule"
+    if is_torch_policy(path):
+        return "torch policy"
+    return "RLlib checkpoint" if path.is_dir() else "SB3 model"
+
+
 def _read(path: Path, trusted: bool) -> Any:
     """The policy saved at ``path``: a torch policy, an RLlib checkpoint (a directory) or an SB3 ``.zip``."""
     from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
