@@ -166,7 +166,8 @@ def _add_contender_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="PATH",
-        help="a saved SB3 model (PPO or SAC .zip), a torch policy (policy.pt or its run directory), an RLlib checkpoint or run directory, or 'pretrained' "
+        help="a saved SB3 model (PPO or SAC .zip), a torch policy (policy.pt or its run directory), a gain schedule "
+        "(.npz), an RLlib checkpoint or run directory, or 'pretrained' "
         "for the one shipped with fxc_env, to score as well; repeatable",
     )
     add_policy_file_flags(parser)

@@ -322,15 +322,9 @@ def notes(results: list[JobResult], suite: Suite, contenders: list[Contender]) -
             d = ran[0].description
             lines.append(f"  Law: `{d['law']}`. Source: {d['source']}. Proven for: {d['graph_class']}.")
         elif contender.name.startswith("learned:"):
-            from fxc_env.policies.torch_policy import is_torch_policy  # torch only when a learned policy is reported
+            from fxc_env.policies.learned import saved_format  # torch only when a learned policy is reported
 
-            kind = (
-                "torch policy"
-                if is_torch_policy(contender.spec)
-                else "RLlib checkpoint"
-                if Path(contender.spec).is_dir()
-                else "SB3 model"
-            )
+            kind = saved_format(contender.spec)
             width = (
                 "It reads any number of neighbour rows (a gain-scheduled network)."
                 if contender.obs_slots is None

@@ -449,6 +449,7 @@ def load_policy(spec: str, config: EnvConfig, trusted: bool = False, allow_out_o
         except FileNotFoundError as exc:
             raise ArgumentError(str(exc)) from exc
     raise ArgumentError(
-        f"policy: unknown {spec!r}; expected 'reference', one of {tuple(BASELINES)}, 'pretrained' "
-        "or the path of a saved SB3 model (.zip) or RLlib checkpoint (directory)"
+        f"policy: unknown {spec!r}; expected 'reference', one of {tuple(BASELINES)}, a shipped policy "
+        f"{tuple(SHIPPED)} or the path of a saved policy (an SB3 model .zip, a torch policy .pt or its run "
+        "directory, a gain schedule .npz, an RLlib checkpoint or run directory)"
     )

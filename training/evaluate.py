@@ -99,7 +99,7 @@ def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--policy",
         help="'reference', 'pretrained' (shipped with fxc_env), the path of a saved SB3 model (.zip), "
-        "a torch policy (policy.pt or its run directory: fxc train --backend torch), "
+        "a torch policy (policy.pt or its run directory: fxc train --backend torch), a gain schedule (.npz), "
         "or an RLlib checkpoint or run directory (fxc train --backend rllib)",
     )
     parser.add_argument(

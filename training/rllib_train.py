@@ -7,6 +7,8 @@ up to whole iterations. The run directory is :mod:`fxc_env.training.run_dir`'s (
 
     runs/<name>/progress.csv                         one row per iteration (:data:`PROGRESS_COLUMNS`, SB3's names)
     runs/<name>/checkpoints/rllib_<timesteps>_steps/ RLlib algorithm checkpoints (the newest is the policy)
+    runs/<name>/checkpoints/rllib_<timesteps>_steps/fxc_policy.json   its training settings and domain (plain JSON:
+                                                     :func:`~fxc_env.policies.saving.write_rllib_record`)
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 import fxc_env
 from fxc_env.policies.learned import RLLIB_MODULE
+from fxc_env.policies.saving import write_rllib_record
 from fxc_env.training.args import TrainArgs
 from fxc_env.training.run_dir import RunDir, begin_run
 from fxc_env.utils.cluster import ray_session
@@ -84,17 +87,20 @@ def latest_rllib_checkpoint(run_dir: Path) -> Path | None:
     return RunDir(run_dir, "rllib").newest_checkpoint()
 
 
-def save(algo: Any, run: RunDir, timesteps: int) -> Path:
-    """Save the whole algorithm (module, optimiser, connectors, counters) as ``rllib_<timesteps>_steps``."""
+def save(algo: Any, run: RunDir, timesteps: int, config: Any) -> Path:
+    """Save the whole algorithm (module, optimiser, connectors, counters) as ``rllib_<timesteps>_steps``, and
+    beside it the training settings and domain of ``config``, the training EnvConfig (RLlib records neither)."""
     path = run.checkpoint_path(timesteps)
     algo.save_to_path(str(path.resolve()))
+    write_rllib_record(path, config, RLLIB_MODULE)
     return path
 
 
 def train_rllib(args: TrainArgs) -> Path:
     """Run (or resume) RLlib PPO training; returns the run directory."""
     args, params, run, checkpoint = begin_run(args, "rllib")
-    n_agents = fxc_env.make_config(**env_config(args, params)).n_agents
+    config = fxc_env.make_config(**env_config(args, params))
+    n_agents = config.n_agents
     per_iteration = int(params["algo"]["train_batch_size_per_learner"]) * n_agents
     iterations = math.ceil(args.timesteps / per_iteration)
     save_every = max(1, math.ceil(args.checkpoint_every / per_iteration))
@@ -119,7 +125,9 @@ def train_rllib(args: TrainArgs) -> Path:
         try:
             with (
                 run.progress(PROGRESS_COLUMNS, tensorboard=False, resumed_at=resumed_at) as progress,
-                run.interruptible("iteration", lambda: save(algo, run, algo.iteration * per_iteration)) as interrupted,
+                run.interruptible(
+                    "iteration", lambda: save(algo, run, algo.iteration * per_iteration, config)
+                ) as interrupted,
             ):
                 while algo.iteration < iterations and not interrupted:
                     row = progress_row(algo.train(), n_agents)
@@ -130,7 +138,7 @@ def train_rllib(args: TrainArgs) -> Path:
                         f"over {row['rollout/episodes']} episodes, {row['time/iteration_seconds']:.1f} s"
                     )
                     if algo.iteration % save_every == 0 or algo.iteration == iterations:
-                        save(algo, run, algo.iteration * per_iteration)
+                        save(algo, run, algo.iteration * per_iteration, config)
         finally:
             logdir = Path(algo.logdir)
             algo.stop()

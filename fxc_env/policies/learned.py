@@ -13,6 +13,7 @@ actions ``(..., 2 dim)`` out, deterministic) and must fit the environment it is 
 
 from __future__ import annotations
 
+import json
 import re
 import warnings
 from importlib import resources
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.config import config_of
+from fxc_env.config import config_of, make_config
 from fxc_env.config.layout import ObservationLayout
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import check_domain, checked_allow, domain_from_settings, training_domain
@@ -48,7 +49,7 @@ from fxc_env.policies.policy_files import (
     read_sb3_zip,
     summary,
 )
-from fxc_env.policies.saving import innermost
+from fxc_env.policies.saving import METADATA_MEMBER, RLLIB_RECORD_FORMAT, innermost
 
 #: The policies that ship with the package, by name (docs: training.md, "Training learned policies"):
 #: ``generalist`` (one policy for every graph family), ``saturated`` (inputs bounded by a
@@ -233,6 +234,19 @@ def load_learned_policy(
     return policy
 
 
+def saved_format(path: str | Path) -> str:
+    """The format of the saved policy at ``path``, as :func:`load_learned_policy` reads it, for messages:
+    ``gain schedule`` (``.npz``), ``torch policy``, ``RLlib checkpoint`` (another directory) or ``SB3 model``."""
+    from fxc_env.policies.torch_policy import is_torch_policy
+
+    path = Path(path)
+    if path.suffix == ".npz":
+        return "gain schedule"
+    if is_torch_policy(path):
+        return "torch policy"
+    return "RLlib checkpoint" if path.is_dir() else "SB3 model"
+
+
 def _read(path: Path, trusted: bool) -> Any:
     """The policy saved at ``path``: a torch policy, an RLlib checkpoint (a directory) or an SB3 ``.zip``."""
     from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
@@ -286,20 +300,40 @@ class RLlibPolicy:
     Loads only the module (``learner_group/learner/rl_module/<module_id>`` of an algorithm
     checkpoint), on the CPU, without starting Ray; needs Ray RLlib installed. The action is
     the mode of the module's action distribution (the Gaussian's mean), clipped to the
-    action space as during training.
+    action space as during training. Where it was trained is read, as plain JSON, from the
+    checkpoint's ``fxc_policy.json`` (:func:`~fxc_env.policies.saving.write_rllib_record`); for
+    a checkpoint of an older run without it, from its run directory's ``config.json`` (the
+    scenario and hyperparameter ``env`` it trained on); a checkpoint with neither records no
+    training environment, and its settings and domain are not checked (as an SB3 ``.zip``
+    without its record).
 
     Args:
         checkpoint: an RLlib algorithm checkpoint directory, or a run directory of
             ``fxc train --backend rllib`` (its newest checkpoint).
-        env: an fxc_env environment or EnvConfig, checked against the module's sizes.
+        env: an fxc_env environment or EnvConfig, checked against the module's sizes, its
+            training settings and its training domain.
         module_id: the module to load.
         trusted: must be True: RLlib restores a module by unpickling its checkpoint
             (``class_and_ctor_args.pkl`` and friends), which runs any code a crafted
             checkpoint holds. Without it the checkpoint is refused and nothing in it is read.
+        allow_out_of_domain: run in an ``env`` outside the training domain, with an
+            :class:`~fxc_env.policies.domain.OutOfDomainWarning` naming every difference
+            (refused by name otherwise; :func:`fxc_env.policies.domain.check_domain`).
+
+    Attributes:
+        training_settings: the settings of the environment it was trained on
+            (:func:`fxc_env.policies.policy_files.training_settings`), or None when nothing records them.
+        training_domain: where it was trained (:func:`fxc_env.policies.domain.training_domain`), or None.
     """
 
     def __init__(
-        self, checkpoint: str | Path, env: Any = None, module_id: str = RLLIB_MODULE, *, trusted: bool = False
+        self,
+        checkpoint: str | Path,
+        env: Any = None,
+        module_id: str = RLLIB_MODULE,
+        *,
+        trusted: bool = False,
+        allow_out_of_domain: bool = False,
     ) -> None:
         found = rllib_checkpoint(checkpoint)
         if found is None:
@@ -313,8 +347,7 @@ class RLlibPolicy:
                 f"files); nothing in it was read. {TRUST_HINT}"
             )
         self.source = found
-        self.training_settings: dict[str, Any] | None = None
-        self.training_domain: dict[str, Any] | None = None  # an RLlib checkpoint records none
+        self.training_settings, self.training_domain = rllib_record(found)
         module_dir = found / "learner_group" / "learner" / "rl_module" / module_id
         if not module_dir.is_dir():
             raise ArgumentError(f"policy: the RLlib checkpoint {found} has no module {module_id!r}")
@@ -337,7 +370,7 @@ class RLlibPolicy:
         self._low = np.asarray(self.module.action_space.low, dtype=np.float64)
         self._high = np.asarray(self.module.action_space.high, dtype=np.float64)
         if env is not None:
-            check_fit(self, env, "RLlibPolicy")
+            check_fit(self, env, "RLlibPolicy", allow_out_of_domain=allow_out_of_domain)
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
         """Actions ``(..., action_size)`` for observations ``(..., obs_size)``."""
@@ -350,3 +383,33 @@ class RLlibPolicy:
             actions = self._distribution.from_logits(out["action_dist_inputs"]).to_deterministic().sample()
         actions = np.clip(actions.numpy().astype(np.float64), self._low, self._high)
         return actions.reshape((*lead, self.action_size))
+
+
+def rllib_record(checkpoint: Path) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+    """``(training_settings, training_domain)`` of the RLlib checkpoint directory ``checkpoint``, read as plain JSON.
+
+    From its ``fxc_policy.json`` (:func:`~fxc_env.policies.saving.write_rllib_record`); else, for an older run,
+    from the run directory's ``config.json`` (the scenario and the hyperparameter file's ``env``, as
+    ``fxc train --backend rllib`` builds the environment); else ``(None, None)``. Raises
+    :class:`ArgumentError` naming ``policy`` and the file when ``fxc_policy.json`` is there but unreadable.
+    """
+    path = checkpoint / METADATA_MEMBER
+    if path.is_file():
+        try:
+            record = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+            raise ArgumentError(f"policy: {path} is not readable JSON ({summary(exc)})") from exc
+        if not isinstance(record, dict) or record.get("format") != RLLIB_RECORD_FORMAT:
+            raise ArgumentError(f"policy: {path} is not a {RLLIB_RECORD_FORMAT!r} record")
+        settings, domain = record.get("env"), record.get("domain")
+        return settings, domain or domain_from_settings(settings)
+    run_config = checkpoint.parent.parent / "config.json"
+    if checkpoint.parent.name != "checkpoints" or not run_config.is_file():
+        return None, None
+    try:
+        started = json.loads(run_config.read_text())
+        env = {k: v for k, v in started["hyperparams"]["env"].items() if k != "n_envs"}
+        config = make_config(**{"scenario": started["args"]["scenario"], **env})
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError, KeyError, TypeError, AttributeError):
+        return None, None  # a damaged config.json records nothing readable (ArgumentError is a ValueError)
+    return training_settings(config), training_domain(config)

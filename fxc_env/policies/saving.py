@@ -1,6 +1,8 @@
 """Writing an SB3 policy file that loads without unpickling: :func:`save_model` and its record
 (:data:`~fxc_env.policies.policy_files.METADATA_MEMBER`, read back by
-:func:`~fxc_env.policies.policy_files.read_sb3_zip`).
+:func:`~fxc_env.policies.policy_files.read_sb3_zip`); and the same record's ``env`` and ``domain``
+beside an RLlib checkpoint (:func:`write_rllib_record`, read back by
+:class:`~fxc_env.policies.learned.RLlibPolicy`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ from fxc_env.policies.fit import training_settings
 #: The plain-JSON member :func:`save_model` adds to an SB3 ``.zip``, and its format.
 METADATA_MEMBER = "fxc_policy.json"
 METADATA_FORMAT = "fxc_env.sb3_policy/1"
+#: The format of the :data:`METADATA_MEMBER` file in an RLlib checkpoint directory (:func:`write_rllib_record`).
+RLLIB_RECORD_FORMAT = "fxc_env.rllib_policy/1"
 
 
 def policy_metadata(model: Any, env: Any = None) -> dict[str, Any]:
@@ -123,3 +127,22 @@ def save_model(model: Any, path: str | Path, env: Any = None) -> Path:
     if path.suffix != ".zip":
         path = path.with_name(path.name + ".zip")
     return add_metadata(path, policy_metadata(model, env))
+
+
+def write_rllib_record(checkpoint: str | Path, config: Any, module_id: str) -> Path:
+    """Write :data:`METADATA_MEMBER` into the RLlib checkpoint directory ``checkpoint``: plain JSON.
+
+    ``format`` (:data:`RLLIB_RECORD_FORMAT`), ``module`` (``module_id``, the module every agent
+    shares), and as in an SB3 file's record ``env`` (:func:`~fxc_env.policies.fit.training_settings`)
+    and ``domain`` (:func:`~fxc_env.policies.domain.training_domain`) of ``config``, the training
+    environment (an EnvConfig or fxc_env environment). RLlib itself records neither. Returns the path.
+    """
+    record = {
+        "format": RLLIB_RECORD_FORMAT,
+        "module": module_id,
+        "env": training_settings(config),
+        "domain": training_domain(config),
+    }
+    path = Path(checkpoint) / METADATA_MEMBER
+    path.write_text(json.dumps(record, indent=1) + "\n")
+    return path

@@ -1,4 +1,5 @@
-"""fxc_env.training.rllib_train: RLlib PPO on paper_fig1 with 2 env runners on a local Ray, restored and evaluated."""
+"""fxc_env.training.rllib_train: RLlib PPO on paper_fig1 with 2 env runners on a local Ray, restored and evaluated;
+its checkpoints record their training settings and domain, and a policy outside that domain says so."""
 
 from __future__ import annotations
 
@@ -12,6 +13,9 @@ import yaml
 from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
 from fxc_env import cli, make_config
+from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.domain import OutOfDomainWarning, training_domain
+from fxc_env.policies.fit import training_settings
 from fxc_env.policies.learned import RLlibPolicy, load_learned_policy
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import HYPERPARAMS
@@ -124,7 +128,61 @@ def test_fxc_evaluate_scores_the_rllib_run_next_to_the_reference(trained, tmp_pa
     assert {(r["policy"], r["case"]) for r in rows} == {
         (policy, s.key) for policy in ("reference", name) for s in EVALUATION_CASES
     }
-    assert all(r["error"] == "" and int(r["n_episodes"]) == 2 for r in rows)
+    # Trained on the paper's six agents: the N = 20 cases lie outside its training domain and are not run.
+    errors = {(r["policy"], r["case"]): r["error"] for r in rows}
+    assert all(errors[("reference", s.key)] == "" for s in EVALUATION_CASES)
+    assert errors[(name, EVALUATION_CASES[0].key)] == ""
+    for case in EVALUATION_CASES[1:3]:  # the ring and path of 20 (the random one may first exceed its 4 rows)
+        assert "n_agents: trained on 6, this environment has 20" in errors[(name, case.key)]
+    assert all(errors[(name, case.key)] for case in EVALUATION_CASES[1:])
+
+
+#: Inside paper_fig1's sizes (in-degree 1 of 4 rows), outside its training domain: eight agents on a ring.
+RING_OF_8 = {"topology": "ring", "n_agents": 8, "obs_slots": 4}
+
+
+@pytest.mark.slow
+def test_the_checkpoint_records_its_training_settings_and_domain_as_plain_json(trained):
+    trained_on = make_config("paper_fig1", obs_slots=4)  # the hyperparameter file's env for paper_fig1
+    checkpoint = trained / "checkpoints" / f"rllib_{2 * PER_ITERATION}_steps"
+    record = json.loads((checkpoint / "fxc_policy.json").read_text())
+    assert record["format"] == "fxc_env.rllib_policy/1" and record["module"] == "shared"
+    assert record["env"] == training_settings(trained_on) and record["domain"] == training_domain(trained_on)
+    policy = RLlibPolicy(trained, trusted=True)
+    assert policy.training_domain == training_domain(trained_on)
+    assert policy.training_settings == training_settings(trained_on)
+
+
+@pytest.mark.slow
+def test_an_rllib_policy_outside_its_training_domain_is_refused_by_name_unless_allowed(trained):
+    ring = make_config(**RING_OF_8)
+    refusal = r"trained on another domain than this environment: n_agents: trained on 6, this environment has 8"
+    with pytest.raises(ArgumentError, match=refusal + ".*allow_out_of_domain=True"):
+        load_learned_policy(trained, ring, trusted=True)
+    with pytest.raises(ArgumentError, match=refusal):
+        RLlibPolicy(trained, ring, trusted=True)
+    with pytest.warns(OutOfDomainWarning, match=r"outside its training domain: n_agents: trained on 6.*'ring'"):
+        policy = load_learned_policy(trained, ring, trusted=True, allow_out_of_domain=True)
+    assert policy(np.zeros((8, ring.layout.size))).shape == (8, 2)
+
+
+@pytest.mark.slow
+def test_an_older_checkpoint_without_the_record_reads_its_domain_from_the_run_directory(trained, tmp_path):
+    run = shutil.copytree(trained, tmp_path / "older")
+    for record in run.glob("checkpoints/*/fxc_policy.json"):
+        record.unlink()  # as a run of a version before the record
+    older = RLlibPolicy(run, trusted=True)
+    assert older.training_domain == training_domain(make_config("paper_fig1", obs_slots=4))
+    with pytest.raises(ArgumentError, match="n_agents: trained on 6, this environment has 8"):
+        load_learned_policy(run, make_config(**RING_OF_8), trusted=True)
+    # A checkpoint with neither record is checked as an SB3 .zip without its record: for sizes and width only.
+    (run / "config.json").unlink()
+    bare = load_learned_policy(run, make_config(**RING_OF_8), trusted=True)
+    assert bare.training_domain is None and bare.training_settings is None
+    # A record that is there but damaged is refused by name, not read as "no record".
+    (older.checkpoint / "fxc_policy.json").write_text("{not json")
+    with pytest.raises(ArgumentError, match=r"fxc_policy.json is not readable JSON"):
+        RLlibPolicy(run, trusted=True)
 
 
 def test_rllib_env_renders_with_the_pettingzoo_signature_and_keeps_agent_order():

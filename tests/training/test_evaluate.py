@@ -148,3 +148,11 @@ def test_the_notes_state_the_initial_state_ranges_that_were_drawn(tmp_path, caps
     assert cli.main([*common, *ranges, "--out", str(tmp_path / "ranges")]) == 0
     expected = "Initial states: positions U(-r, r) m, r log-uniform in [0.5, 50], velocities U(-3, 3) m/s,"
     assert expected in capsys.readouterr().out
+
+
+def test_the_notes_name_the_learned_policys_format(tmp_path, capsys):
+    # The notes called every saved policy that was neither a torch policy nor a directory an "SB3 model".
+    argv = ["evaluate", "--policy", "rings", "--topology", "ring", "--n-agents", "20", "--seeds", "1"]
+    assert cli.main([*argv, "--out", str(tmp_path), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "Law: a learned policy (gain schedule `" in out and "rings.npz`)" in out and "SB3 model" not in out
