@@ -183,9 +183,18 @@ def check_domain(
 
     Raises :class:`ArgumentError` naming ``policy``, the file and every difference (field,
     training range and this environment's value) unless ``allow_out_of_domain`` or every
-    difference is exact by construction; then warns (:class:`OutOfDomainWarning`) naming them.
+    difference is exact by construction; then warns (:class:`OutOfDomainWarning`) naming them. A
+    policy that records no domain (``None``) also warns: nothing can be checked.
     """
     checked_allow(allow_out_of_domain)
+    if domain is None:  # a file from before domains were recorded: say that nothing is checked
+        warnings.warn(
+            f"policy: {source} records no training domain, so nothing checks that this environment is one it "
+            "was trained on (retrain it, or save it with this release to record one)",
+            OutOfDomainWarning,
+            stacklevel=stacklevel,
+        )
+        return []
     differences = domain_differences(domain, config)
     if not differences:
         return differences
