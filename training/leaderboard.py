@@ -44,7 +44,7 @@ ALGORITHMS = {
     "mappo_gnn": ("MappoConfig", "gnn"),
     "mappo_gru": ("MappoConfig", "gru"),
 }
-#: The frame budget per run of the shipped table (fxc_env/assets/leaderboard/): the whole table took 13 CPU-minutes.
+#: The frame budget per run of the shipped table (fxc_env/assets/leaderboard/): the whole table took 11 CPU-minutes.
 SHIPPED_FRAMES = 1000
 #: The analytic laws beside them (fxc_env.baselines).
 LAWS = tuple(name for name, law in registry.LAWS.items() if law.leaderboard)
@@ -66,7 +66,7 @@ def add_leaderboard_parser(commands: argparse._SubParsersAction) -> argparse.Arg
         "--frames",
         type=int,
         default=SHIPPED_FRAMES,
-        help=f"frames per training run ({SHIPPED_FRAMES}: the shipped table, about 13 CPU-minutes in all; "
+        help=f"frames per training run ({SHIPPED_FRAMES}: the shipped table, about 11 CPU-minutes in all; "
         "training time grows linearly with it)",
     )
     parser.add_argument("--seeds", type=int, default=3, help="training seeds per algorithm (3: seeds 0, 1, 2)")
