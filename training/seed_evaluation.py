@@ -239,6 +239,7 @@ def pooled_identity(policy: Any) -> dict[str, Any]:
         "TorchPolicy": "a torch policy (fxc train --backend torch)",
         "RLlibPolicy": "an RLlib checkpoint",
         "IntervalGainPolicy": "a gain schedule (.npz)",
+        "RegimeGainPolicy": "a pair of gain schedules chosen by a probe (.npz)",
     }
     if model is not None:
         algorithm = getattr(model, "algorithm", None) or type(model).__name__
