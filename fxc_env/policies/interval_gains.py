@@ -49,19 +49,27 @@ class IntervalGainPolicy:
     matched_settings = MATCHED_SETTINGS
 
     def __init__(self, gains: np.ndarray, header: Mapping[str, Any], source: str | Path | None = None) -> None:
+        from fxc_env.config.layout import ObservationLayout
+        from fxc_env.policies.records import checked_domain, file_number
+
+        label = source or "the gain schedule"
         gains = np.asarray(gains, dtype=np.float64)
-        settings = dict(header.get("env", {}))
+        settings = header.get("env")
+        if not isinstance(settings, Mapping):
+            raise ArgumentError(f"policy: {label}: env: expected the training settings (a mapping), got {settings!r}")
+        settings = dict(settings)
+        for key in ("n_intervals", "obs_slots", "dim"):
+            file_number(label, f"env.{key}", settings.get(key), integral=True, minimum=1)
         if gains.ndim != 3 or gains.shape[1:] != (2, 2):
             raise ArgumentError(f"gains: expected a (K, 2, 2) table, got shape {gains.shape}")
-        if int(settings.get("n_intervals", -1)) != len(gains):
+        if settings["n_intervals"] != len(gains):
             raise ArgumentError(
                 f"gains: the table has {len(gains)} intervals; the header's env records "
                 f"n_intervals={settings.get('n_intervals')!r}"
             )
         if not np.all(np.isfinite(gains)):
             raise ArgumentError("gains: the table holds non-finite entries")
-        from fxc_env.config.layout import ObservationLayout
-
+        checked_domain(header.get("domain"), label)
         self.gains = gains
         self.header = dict(header)
         self.source = source
@@ -78,7 +86,7 @@ class IntervalGainPolicy:
     def training_domain(self) -> dict[str, Any]:
         """Where the table was learned (:mod:`fxc_env.policies.domain`): the header's ``domain``, or for a
         file without one its ``env`` settings and ``topology`` family on ideal agents with periodic switching."""
-        if self.header.get("domain"):
+        if self.header.get("domain") is not None:  # checked on load (records.checked_domain)
             return dict(self.header["domain"])
         from fxc_env.policies.domain import domain_from_settings
 

@@ -49,6 +49,7 @@ from fxc_env.policies.policy_files import (
     read_sb3_zip,
     summary,
 )
+from fxc_env.policies.records import checked_domain
 from fxc_env.policies.saving import METADATA_MEMBER, RLLIB_RECORD_FORMAT, innermost
 
 #: The policies that ship with the package, by name (docs: training.md, "Training learned policies"):
@@ -150,7 +151,8 @@ class LearnedPolicy:
         if self.source is not None and trusted:  # SB3's loader: the plain record still says how it was trained
             record = read_metadata(self.source) or {}
             self.training_settings = self.training_settings or record.get("env")
-            self.training_domain = record.get("domain") or domain_from_settings(self.training_settings)
+            recorded_domain = checked_domain(record.get("domain"), self.source)
+            self.training_domain = recorded_domain or domain_from_settings(self.training_settings)
             self._stats = self._stats or record.get("normalization")
         if self._stats is not None:
             self._stats = normalization_stats(self._stats, self.obs_size, self.source)
@@ -401,7 +403,7 @@ def rllib_record(checkpoint: Path) -> tuple[dict[str, Any] | None, dict[str, Any
             raise ArgumentError(f"policy: {path} is not readable JSON ({summary(exc)})") from exc
         if not isinstance(record, dict) or record.get("format") != RLLIB_RECORD_FORMAT:
             raise ArgumentError(f"policy: {path} is not a {RLLIB_RECORD_FORMAT!r} record")
-        settings, domain = record.get("env"), record.get("domain")
+        settings, domain = record.get("env"), checked_domain(record.get("domain"), path)
         return settings, domain or domain_from_settings(settings)
     run_config = checkpoint.parent.parent / "config.json"
     if checkpoint.parent.name != "checkpoints" or not run_config.is_file():

@@ -26,8 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core.validation import ArgumentError, real
 from fxc_env.policies.fit import CHECKED_SETTINGS, check_settings, settings_from_env_kwargs, training_settings  # noqa: F401
+from fxc_env.policies.records import checked_domain, file_box, file_number, file_tensor
 from fxc_env.policies.saving import METADATA_FORMAT, METADATA_MEMBER, add_metadata, policy_metadata, save_model  # noqa: F401
 
 #: Policy classes whose network :func:`read_sb3_zip` rebuilds, by algorithm.
@@ -195,11 +196,22 @@ def read_sb3_zip(path: str | Path) -> SavedModel:
         raise ArgumentError(f"policy: {path}: policy.pth is not a state dict of tensors")
     try:
         spec = _architecture(path, data, metadata, weights)
+        _check_numbers(path, spec, data, weights)
         return SavedModel(path, spec, _build(path, spec, weights), data)
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         if isinstance(exc, ArgumentError):
             raise
         raise ArgumentError(f"policy: {path}: its model description is malformed ({summary(exc)})") from exc
+
+
+def _check_numbers(path: Path, spec: Mapping[str, Any], data: Mapping[str, Any], weights: Mapping[str, Any]) -> None:
+    """Refuse, naming the file and the field, a malformed space, ``num_timesteps`` or a non-finite weight."""
+    file_box(path, "observation", spec["observation"], bounded=False)
+    file_box(path, "action", spec["action"], bounded=True)
+    for record in (data, spec.get("metadata") or {}):  # SB3's count, and the count fxc_policy.json records
+        file_number(path, "num_timesteps", record.get("num_timesteps", 0), integral=True, minimum=0)
+    for name, tensor in weights.items():
+        file_tensor(path, f"policy.pth {name}", tensor)
 
 
 def summary(exc: BaseException) -> str:
@@ -256,7 +268,7 @@ def _recorded_spec(path: Path, metadata: Any) -> dict[str, Any]:
         action=metadata.get("action"),
         normalization=metadata.get("normalization"),
         env=metadata.get("env"),
-        domain=metadata.get("domain"),
+        domain=checked_domain(metadata.get("domain"), path),
         metadata=dict(metadata),
     )
     for key in ("observation", "action"):
@@ -447,4 +459,8 @@ def normalization_stats(record: Any, obs_size: int, source: Any) -> dict[str, An
         raise ArgumentError(
             f"vecnormalize: {source} holds statistics of shape {stats['mean'].shape}; the model takes ({obs_size},)"
         )
+    if not (np.all(np.isfinite(stats["mean"])) and np.all(np.isfinite(stats["var"])) and np.all(stats["var"] >= 0)):
+        raise ArgumentError(f"vecnormalize: {source}: mean and var must be finite, var >= 0 (no NaN or inf)")
+    for key in ("epsilon", "clip_obs"):
+        real(f"vecnormalize: {source}: {key}", stats[key], positive=True)
     return stats

@@ -24,10 +24,11 @@ import torch
 
 from fxc_env.config import make_config
 from fxc_env.config.layout import ObservationLayout
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core.validation import FLOAT32_MAX, ArgumentError
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.fit import check_fit, check_width, settings_from_env_kwargs
 from fxc_env.policies.networks import ACTIVATIONS, mlp  # noqa: F401  (their public path before networks.py)
+from fxc_env.policies.records import checked_domain, file_number, file_tensor
 from fxc_env.policies.torch_memory import build_actor
 
 #: The ``format`` of a policy record, and of a checkpoint (which holds one under ``"policy"``).
@@ -50,18 +51,19 @@ class TorchPolicy:
         self.source = source
         if record.get("format") != POLICY_FORMAT:
             raise ArgumentError(f"policy: expected a {POLICY_FORMAT!r} record, got format {record.get('format')!r}")
-        self.obs_size = int(record["obs_size"])
-        self.action_size = int(record["action_size"])
-        self.action_bound = float(record["action_bound"])
+        label = source or "the policy record"
+        self.obs_size, self.action_size, self.action_bound = checked_numbers(record, label)
         self.env: dict[str, Any] = dict(record.get("env", {}))
-        self.timesteps = int(record.get("timesteps", 0))
+        self.timesteps = file_number(label, "timesteps", record.get("timesteps", 0), integral=True, minimum=0)
         #: ``mlp`` (absent in older files), ``gru`` or ``gnn`` (:mod:`fxc_env.policies.torch_memory`).
         self.arch = str(record.get("arch", "mlp"))
         self.module = build_actor(record, self.obs_size, self.action_size)
         self.module.load_state_dict(record["actor"])
+        for name, weight in record["actor"].items():
+            file_tensor(label, f"actor.{name}", weight)
         self.module.eval().requires_grad_(False)
         self._settings: dict[str, Any] | None = None
-        self._domain: dict[str, Any] | None = record.get("domain")
+        self._domain = checked_domain(record.get("domain"), label)
         self._hidden: torch.Tensor | None = None  # gru: the memory of the episodes under way
 
     @property
@@ -139,6 +141,42 @@ class TorchPolicy:
         if numpy_in:
             return actions.double().numpy()
         return actions.to(x.dtype) if x.is_floating_point() else actions
+
+
+#: The integer entries of a policy record besides the sizes (those its ``arch`` uses): their smallest values, and
+#: their largest as an offset from ``obs_size`` (an index into the observation), or None.
+ARCH_INTEGERS = {
+    "gru_size": (1, None),
+    "clock_index": (0, -1),
+    "rows_end": (0, 0),
+    "embed_size": (1, None),
+    "rounds": (1, None),
+}
+
+
+def checked_numbers(record: Mapping[str, Any], source: Any) -> tuple[int, int, float]:
+    """``(obs_size, action_size, action_bound)`` of a policy record once every number in it is well formed.
+
+    The sizes and the ``hidden`` widths integers >= 1, ``action_bound`` positive and finite in float32 (the actor
+    clamps its float32 mean to ``±action_bound``), the :data:`ARCH_INTEGERS` in range, ``log_std`` finite of shape
+    ``(action_size,)``; else an :class:`ArgumentError` naming ``policy``, ``source`` and the field
+    (:func:`fxc_env.policies.records.file_number`). A missing key raises ``KeyError`` (the loader names it).
+    """
+    obs_size = file_number(source, "obs_size", record["obs_size"], integral=True, minimum=1)
+    action_size = file_number(source, "action_size", record["action_size"], integral=True, minimum=1)
+    bound = file_number(source, "action_bound", record["action_bound"], positive=True, maximum=FLOAT32_MAX)
+    hidden = record["hidden"]
+    if not isinstance(hidden, list | tuple):
+        raise ArgumentError(f"policy: {source}: hidden: expected a list of layer widths, got {hidden!r}")
+    for width in hidden:
+        file_number(source, "hidden", width, integral=True, minimum=1)
+    for key, (smallest, offset) in ARCH_INTEGERS.items():
+        if key in record:
+            largest = None if offset is None else obs_size + offset
+            file_number(source, key, record[key], integral=True, minimum=smallest, maximum=largest)
+    if "log_std" in record:
+        file_tensor(source, "log_std", record["log_std"], (action_size,))
+    return obs_size, action_size, bound
 
 
 def flat_observation(observation: Any) -> np.ndarray:
