@@ -26,6 +26,7 @@ from fxc_env.policies.domain import training_domain
 from fxc_env.policies.fit import training_settings
 from fxc_env.policies.learned import SHIPPED, pretrained_path
 from fxc_env.policies.networks import mlp
+from fxc_env.policies.records import file_tensor
 from fxc_env.policies.torch_memory import build_actor
 from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, is_torch_policy, load_torch_policy, one_line
 from fxc_env.training.args import TrainArgs
@@ -237,10 +238,22 @@ def init_actor(trainer: Any, source: str) -> Path:
                 f"init_from: {source!r} has another observation layout than this run: {key} {trained[key]!r} there, "
                 f"{here[key]!r} here"
             )
+    log_std = _initial_log_std(record, file, tuple(trainer.model.log_std.shape))
     trainer.model.actor.load_state_dict(policy.module.state_dict())
     with torch.no_grad():
-        trainer.model.log_std.copy_(record["log_std"].to(trainer.model.log_std))
+        trainer.model.log_std.copy_(log_std.to(trainer.model.log_std))
     return path
+
+
+def _initial_log_std(record: Mapping[str, Any], file: Path, shape: tuple[int, ...]) -> torch.Tensor:
+    """The ``log_std`` of the policy record read from ``file``, once it is a finite tensor of ``shape``
+    (:func:`fxc_env.policies.records.file_tensor`); else the error naming ``init_from``, the file and ``log_std``."""
+    if "log_std" not in record:
+        raise ArgumentError(f"init_from: {file} has no log_std (the exploration noise a run starts from)")
+    try:
+        return torch.as_tensor(file_tensor(file, "log_std", record["log_std"], shape))
+    except ArgumentError as exc:
+        raise ArgumentError(f"init_from: {exc}") from exc
 
 
 def prepare(args: TrainArgs, backend: str, settings_class: Any, trainer_class: Any) -> tuple[Any, ...]:

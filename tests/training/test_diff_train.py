@@ -267,3 +267,37 @@ def test_the_readme_hyperparameter_files_check(tmp_path, name, backend):
     path = Path(__file__).parents[2] / "training" / name
     run_args = args(tmp_path, hyperparams=str(path), backend=backend, algo="apg" if backend == "diff" else "ppo")
     assert check_train_args(run_args)["env"]["n_intervals"] == 50
+
+
+def shipped_gru_with(tmp_path, change) -> str:
+    """A copy of the shipped ``rings_gru`` policy record with ``change`` applied to it; its path."""
+    from fxc_env.policies.learned import pretrained_path
+
+    record = torch.load(pretrained_path("rings_gru"), map_location="cpu", weights_only=True)
+    change(record)
+    path = tmp_path / "crafted.pt"
+    torch.save(record, path)
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda r: r.pop("log_std"), r"^init_from: \S+crafted\.pt has no log_std"),
+        (
+            lambda r: r.update(log_std=torch.zeros(3)),
+            r"^init_from: policy: \S+crafted\.pt: log_std: expected shape \(2,\)",
+        ),
+        (lambda r: r.update(log_std=torch.zeros(2, 1)), r"^init_from: policy: \S+crafted\.pt: log_std: expected shape"),
+        (lambda r: r.update(log_std=[-3.0, -3.0]), r"^init_from: policy: \S+crafted\.pt: log_std: expected shape"),
+        (
+            lambda r: r.update(log_std=torch.tensor([float("nan"), -3.0])),
+            r"^init_from: policy: \S+crafted\.pt: log_std: every entry must be finite",
+        ),
+    ],
+    ids=["missing", "three entries", "a column", "a list", "NaN"],
+)
+def test_init_from_refuses_a_missing_misshapen_or_non_finite_log_std_by_name(tmp_path, change, message):
+    """Before: a missing or misshapen log_std raised KeyError/RuntimeError tracebacks; a NaN one was copied silently."""
+    with pytest.raises(ArgumentError, match=message):
+        diff_trainer(rings_args(tmp_path, init_from=shipped_gru_with(tmp_path, change)))
