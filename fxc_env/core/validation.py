@@ -115,6 +115,41 @@ def real(
     return number
 
 
+def in_range(
+    name: str,
+    value: Any,
+    low: float,
+    high: float,
+    *,
+    low_open: bool = False,
+    high_open: bool = False,
+    below: str = "",
+    above: str = "",
+) -> float:
+    """``value`` as a finite ``float`` in the range ``low <= value <= high`` (an end excluded with ``low_open`` or
+    ``high_open``): the one check of a law's parameter against the range where the law's promise holds.
+
+    Outside, :class:`ArgumentError` (:class:`ArgumentTypeError` for a non-number) names ``name`` and the range
+    (``amplitude: expected 1e-12 <= amplitude <= 1; ...``) and, after a semicolon, ``below`` or ``above``: what
+    breaks on that side, so a user learns why the range ends there.
+    """
+    expected = (
+        f"{_number_text(low)} {'<' if low_open else '<='} {name} {'<' if high_open else '<='} {_number_text(high)}"
+    )
+    if isinstance(value, bool | np.bool_ | str | bytes):
+        raise ArgumentTypeError(f"{name}: expected a number, {expected}; got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise ArgumentTypeError(f"{name}: expected a number, {expected}; got {_short(value)}") from None
+    too_low = number < low or (low_open and number == low)
+    too_high = number > high or (high_open and number == high)
+    if too_low or too_high or not math.isfinite(number):
+        reason = below if too_low else above if too_high else ""
+        raise ArgumentError(f"{name}: expected {expected}; " + (f"{reason}; " if reason else "") + f"got {value!r}")
+    return number
+
+
 def probability(name: str, value: Any) -> float:
     """``value`` as a probability in ``[0, 1)``."""
     number = real(name, value)
