@@ -36,7 +36,7 @@ def law_gain(name: str, value: Any, unit: str) -> float:
         MAX_GAIN,
         low_open=True,
         below=f"the law's theorem needs a positive {name} ({unit})",
-        above=f"above {MAX_GAIN:g} {unit} a held input leaves float64 for states the environment admits",
+        above=f"above 1e12 {unit} a held input leaves float64 for states the environment admits",
     )
 
 

@@ -133,9 +133,8 @@ def in_range(
     (``amplitude: expected 1e-12 <= amplitude <= 1; ...``) and, after a semicolon, ``below`` or ``above``: what
     breaks on that side, so a user learns why the range ends there.
     """
-    expected = (
-        f"{_number_text(low)} {'<' if low_open else '<='} {name} {'<' if high_open else '<='} {_number_text(high)}"
-    )
+    low_text, high_text = (_number_text(end).replace("e+", "e") for end in (low, high))  # 1e12, not 1e+12
+    expected = f"{low_text} {'<' if low_open else '<='} {name} {'<' if high_open else '<='} {high_text}"
     if isinstance(value, bool | np.bool_ | str | bytes):
         raise ArgumentTypeError(f"{name}: expected a number, {expected}; got {value!r}")
     try:
