@@ -171,14 +171,19 @@ def episode_energy_bound(model: LinearModel | None, z0: Any, settling_time: Any)
     ``model`` None is the double integrator (``z = (x, v)``, :func:`energy_bound`'s closed form);
     otherwise :func:`linear_energy_bound` with that model's Gramian. With formation offsets ``z0``
     is the formation error, so the bound is that of reaching the formation. NaN for an episode whose
-    ``E*`` is beyond float64 (where :func:`energy_bound` raises): a step's metrics have no answer there.
+    ``E*`` is beyond float64 (where :func:`energy_bound` raises), and for every episode where the Gramian over
+    ``T_s`` is singular in float64 (an unstable ``A`` over a long ``T_s``): a step's metrics have no answer there.
     """
     z = np.asarray(z0, dtype=np.float64)
     T = float(settling_time)
     if model is None:
         bound, beyond = _double_integrator_bound(z[:, :, 0], z[:, :, 1], T)
     else:
-        bound, beyond = _linear_bound(model.interval_maps([T]), z, T)
+        try:
+            maps = model.interval_maps([T])
+        except ArgumentError:  # the Gramian over T_s is singular in float64 (an unstable A over a long T_s)
+            return np.full(z.shape[0], np.nan)
+        bound, beyond = _linear_bound(maps, z, T)
     return np.where(beyond, np.nan, bound)
 
 

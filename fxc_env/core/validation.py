@@ -68,10 +68,15 @@ _PASS_OVER = frozenset({"fxc_env", "torchrl", "tensordict"})
 
 def deprecated(message: str) -> None:
     """A :class:`DeprecationWarning` pointed at the first caller outside the package (the user's line)."""
+    warn_user(message, DeprecationWarning)
+
+
+def warn_user(message: str, category: type[Warning]) -> None:
+    """A warning of ``category`` pointed at the first caller outside the package (the user's line)."""
     frame, level = sys._getframe(1), 2
     while frame.f_back is not None and str(frame.f_globals.get("__name__", "")).split(".")[0] in _PASS_OVER:
         frame, level = frame.f_back, level + 1
-    warnings.warn(message, DeprecationWarning, stacklevel=level)
+    warnings.warn(message, category, stacklevel=level)
 
 
 def _is_integer(value: Any) -> bool:
