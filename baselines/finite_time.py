@@ -9,8 +9,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines.policy import HoldPolicy
-from fxc_env.core.validation import ArgumentError
+from fxc_env.baselines.policy import HoldPolicy, law_gain
+from fxc_env.core import validation
 
 
 def sig(z: np.ndarray, power: float) -> np.ndarray:
@@ -32,8 +32,9 @@ class FiniteTimePolicy(HoldPolicy):
 
     Args:
         env: an fxc_env environment or config (``action_mode="accel"``, ``obs_mode="raw"``).
-        alpha: a1 in (0, 1); a2 = 2 a1 / (1 + a1).
-        gain: g > 0.
+        alpha: a1, ``0 < a1 < 1`` (the theorem's range: a1 = 1 is the linear law, which converges only
+            asymptotically); a2 = 2 a1 / (1 + a1).
+        gain: g in 1/s², ``0 < g <= 1e12`` (:data:`~fxc_env.baselines.policy.MAX_GAIN`).
     """
 
     NAME: ClassVar[str] = "finite_time"
@@ -43,13 +44,18 @@ class FiniteTimePolicy(HoldPolicy):
 
     def __init__(self, env: Any, alpha: float = 0.5, gain: float = 1.0) -> None:
         super().__init__(env)
-        if not 0.0 < alpha < 1.0:
-            raise ArgumentError(f"alpha: expected a number in (0, 1), got {alpha!r}")
-        if not np.isfinite(gain) or gain <= 0:
-            raise ArgumentError(f"gain: expected a positive finite number, got {gain!r}")
-        self.alpha = float(alpha)
+        self.alpha = validation.in_range(
+            "alpha",
+            alpha,
+            0.0,
+            1.0,
+            low_open=True,
+            high_open=True,
+            below="the theorem's exponents are positive",
+            above="at 1 the law is linear and converges only asymptotically, above it is not the theorem's law",
+        )
         self.alpha_velocity = 2.0 * self.alpha / (1.0 + self.alpha)
-        self.gain = float(gain)
+        self.gain = law_gain("gain", gain, "1/s²")
 
     def input(self, dx: np.ndarray, dv: np.ndarray, mask: np.ndarray, clock: np.ndarray) -> np.ndarray:
         # Rows hold x_j - x_i; sig is odd, so -sig(x_i - x_j) = sig(x_j - x_i). Padded rows are 0.
@@ -61,5 +67,8 @@ class FiniteTimePolicy(HoldPolicy):
 
     def guarantee(self) -> str:
         if is_undirected(self.config.topology) and self.config.topology.period == 1:
-            return "proven: undirected connected graph"
+            return (
+                "proven in continuous time: undirected connected graph (held over the schedule's intervals: "
+                "unproven, a large gain diverges)"
+            )
         return "unproven: directed or switching graph"

@@ -18,6 +18,7 @@ from fxc_env.baselines.motion_signals import (
     read_deviation,
     refuse_unless_exact_raw_rows,
     register_of,
+    signal_amplitude,
     signal_plan,
     steer_plan,
 )
@@ -41,6 +42,13 @@ DEFAULT_AMPLITUDE = 3e-6
 #: Default rank-test tolerance: a Hankel singular value below this fraction of the differences' norm
 #: counts as zero (reading errors at the default amplitude are about 1e-10 of the registers).
 DEFAULT_RANK_TOLERANCE = 1e-8
+
+#: The rank tolerances the law accepts, ``(smallest, largest)``. Below float64's rounding unit (1.1e-16) no
+#: singular value of real reads ever counts as zero, so the test never certifies a recurrence and every agent
+#: listens on to the one-channel window: still exact, at more energy (ring N = 20, K = 200 uniform: 5e-10 at
+#: 2.47 x E* from 1e-12 down, 3.2e-10 at 1.95 x E* at 1e-10 to 1e-6). Above 1e-6 it takes reading errors for a
+#: kernel and finds a wrong limit (random N = 20: 4.7e-7 at 1e-4; ring N = 20: 0.35 at 1e-2, 13 at 0.99).
+RANK_TOLERANCE_RANGE = (1e-16, 1e-6)
 
 
 #: Default instant of the pre-steer announcement ``k_a`` (1 s at the uniform K = 200): late enough for a fast
@@ -174,8 +182,10 @@ class GraphAgnosticPolicy(SignalPolicy):
             double-integrator agents, ``obs_mode="raw"``, and ``K >= 2 max_agents + 1``.
         max_agents: an upper bound on N, the law's one prior (None: the environment's N). It sets the
             listening window (:func:`listening_values`; ``2 max_agents + 2`` values where the register parts are dependent).
-        amplitude: the signalling amplitude ε (dimensionless, > 0; None: :data:`DEFAULT_AMPLITUDE`).
-        rank_tolerance: the rank test's relative tolerance (in (0, 1); None: :data:`DEFAULT_RANK_TOLERANCE`).
+        amplitude: the signalling amplitude ε (dimensionless, ``1e-12 <= ε <= 1``,
+            :data:`~fxc_env.baselines.motion_signals.AMPLITUDE_RANGE`; None: :data:`DEFAULT_AMPLITUDE`).
+        rank_tolerance: the rank test's relative tolerance (``1e-16 <= tol <= 1e-6``, :data:`RANK_TOLERANCE_RANGE`;
+            None: :data:`DEFAULT_RANK_TOLERANCE`).
         announce_at: the instant ``k_a`` of the pre-steer announcement, in ``[2, L - 4]``, or 0 for none (None:
             :data:`DEFAULT_ANNOUNCE` or ``L - 4`` if earlier, none where K has no room for the held interval).
 
@@ -219,11 +229,14 @@ class GraphAgnosticPolicy(SignalPolicy):
                 f"max_agents: an upper bound on the number of agents, at least the environment's N = {n}; "
                 f"got {max_agents}"
             )
-        amplitude = validation.real("amplitude", DEFAULT_AMPLITUDE if amplitude is None else amplitude, positive=True)
-        rank_tolerance = DEFAULT_RANK_TOLERANCE if rank_tolerance is None else rank_tolerance
-        rank_tolerance = validation.real("rank_tolerance", rank_tolerance, positive=True)
-        if rank_tolerance >= 1.0:
-            raise ArgumentError(f"rank_tolerance: a relative tolerance in (0, 1), got {rank_tolerance!r}")
+        amplitude = _amplitude(DEFAULT_AMPLITUDE if amplitude is None else amplitude)
+        rank_tolerance = validation.in_range(
+            "rank_tolerance",
+            DEFAULT_RANK_TOLERANCE if rank_tolerance is None else rank_tolerance,
+            *RANK_TOLERANCE_RANGE,
+            below="below float64's rounding unit no recurrence is ever certified",
+            above="above, reading errors pass for a kernel and the limit is wrong (ring N = 20: 0.35 at 1e-2)",
+        )
         #: Values ``w_i(0..L-1)`` recorded with the ``2 dim`` register parts as channels.
         self.listening = listening_values(max_agents, 2 * config.dim)
         #: The one-channel window ``2 max_agents + 2``: agents whose register parts turn out dependent listen on.
@@ -388,3 +401,15 @@ def _refuse_what_it_cannot_honour(config: Any) -> None:
             f"got obs_noise={config.obs_noise!r}"
         )
     refuse_unless_exact_raw_rows(config, name)
+
+
+def _amplitude(value: Any) -> float:
+    """ε in the signalling laws' range, or an error naming ``amplitude`` with what this law measured past its ends."""
+    return signal_amplitude(
+        value,
+        below="below 1e-12 rounding over ε takes the reads' digits and the rank test fails (D(T_s)/D(0), K = 200 "
+        "uniform, rings of 6 and 20, random N = 20: up to 2e-3 at 1e-12, 0.2 at 1e-14, 2.7e14 at 1e-16; NaN actions "
+        "at 1e-300)",
+        above="above 1 the energy grows like ε² (1e8 to 1.2e9 x E* at 1) and the error again like ε (6e-9 at 1e4, "
+        "6e87 at 1e100)",
+    )

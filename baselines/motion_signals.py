@@ -14,6 +14,7 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 
 from fxc_env.baselines.policy import LawPolicy
+from fxc_env.core import validation
 from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.graphs import Topology
 from fxc_env.core.optimality import root_set
@@ -209,6 +210,19 @@ def union_graph(topology: Topology) -> sp.csr_array:
     union.data = np.ones_like(union.data)
     union.eliminate_zeros()
     return union
+
+
+#: The signalling amplitudes ε every law that reads numbers off motions accepts, ``(smallest, largest)``
+#: (``signalling``, ``graph_agnostic``, ``bounded_steer``): a read is off by about 1e-16 |q| / ε, so below 1e-12
+#: rounding takes its digits, and above 1 the energy grows like ε² while the error grows again like ε
+#: (measured per law in its module's amplitude check; docs: bad-input.md, "Law parameters").
+AMPLITUDE_RANGE = (1e-12, 1.0)
+
+
+def signal_amplitude(value: Any, below: str, above: str) -> float:
+    """ε as a float in :data:`AMPLITUDE_RANGE`, or an :class:`ArgumentError` naming ``amplitude``, the range and
+    what the calling law measured past each end (``below``, ``above``)."""
+    return validation.in_range("amplitude", value, *AMPLITUDE_RANGE, below=below, above=above)
 
 
 def refuse_unless_exact_raw_rows(config: Any, name: str) -> None:

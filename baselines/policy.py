@@ -17,7 +17,27 @@ import numpy as np
 
 from fxc_env.config import config_of
 from fxc_env.config.layout import ObservationLayout
+from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
+
+#: Largest gain or time constant of a classical law (``g`` in 1/s², ``γ`` in s, the finite-time gain): with
+#: states within ±1e100 (:data:`~fxc_env.core.validation.STATE_LIMIT`) and up to 1e8 neighbours, a held input
+#: ``g Σ_j (z_j - z_i)`` stays below 1e121 and its interval energy finite in float64; the theorems hold for
+#: every positive value, and :meth:`LawPolicy.guarantee` says what holding the input over the schedule changes.
+MAX_GAIN = 1e12
+
+
+def law_gain(name: str, value: Any, unit: str) -> float:
+    """A classical law's gain or time constant as a float, ``0 < value <= MAX_GAIN``; else an error naming ``name``."""
+    return validation.in_range(
+        name,
+        value,
+        0.0,
+        MAX_GAIN,
+        low_open=True,
+        below=f"the law's theorem needs a positive {name} ({unit})",
+        above=f"above 1e12 {unit} a held input leaves float64 for states the environment admits",
+    )
 
 
 class LawPolicy:

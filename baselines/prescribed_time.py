@@ -12,10 +12,14 @@ import numpy as np
 from fxc_env.baselines import design
 from fxc_env.baselines.finite_time import is_undirected
 from fxc_env.baselines.policy import LinearRowPolicy
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core import validation
 
 #: Largest ratio of the sampling period to the fastest closed-loop time constant at the cut-off.
 HOLD_RESOLUTION = 0.2
+
+#: Largest decay exponent p: the gains grow like p² (complete N = 6, K = 200 uniform: D(T_s)/D(0) = 1.4e-3 at
+#: p = 3, 1.6e-16 at 100); at p = 1e4 a held step overflows float64 (directed ring of 6).
+MAX_EXPONENT = 100.0
 
 
 class PrescribedTimePolicy(LinearRowPolicy):
@@ -23,9 +27,9 @@ class PrescribedTimePolicy(LinearRowPolicy):
 
     Args:
         env: an fxc_env environment or config (``action_mode="accel"``).
-        exponent: p > 1, the decay exponent ``(T_s - t)^p`` of the slowest mode.
-        cutoff: delta in seconds; None uses ``max(2 h, 5 h k_v max|lambda|)`` with h the
-            schedule's longest interval.
+        exponent: p, ``1 < p <= 100`` (:data:`MAX_EXPONENT`), the decay exponent ``(T_s - t)^p`` of the slowest mode.
+        cutoff: delta in seconds, ``0 < delta < T_s``; None uses ``max(2 h, 5 h k_v max|lambda|)`` with h the
+            schedule's longest interval (at most T_s: then the gain is frozen throughout, :meth:`guarantee` says so).
     """
 
     NAME: ClassVar[str] = "prescribed_time"
@@ -37,12 +41,20 @@ class PrescribedTimePolicy(LinearRowPolicy):
 
     def __init__(self, env: Any, exponent: float = 3.0, cutoff: float | None = None) -> None:
         super().__init__(env)
-        if not np.isfinite(exponent) or exponent <= 1.0:
-            raise ArgumentError(f"exponent: expected a number > 1, got {exponent!r}")
+        self.exponent = validation.in_range(
+            "exponent",
+            exponent,
+            1.0,
+            MAX_EXPONENT,
+            low_open=True,
+            below="at p <= 1 the slowest mode does not reach zero by T_s",
+            above=f"above {MAX_EXPONENT:g} the gains (like p²) leave what a held step keeps in float64",
+        )
         settling_time = self.config.settling_time
-        if cutoff is not None and not 0.0 < cutoff < settling_time:
-            raise ArgumentError(f"cutoff: expected seconds in (0, T_s = {settling_time:g}), got {cutoff!r}")
-        self.exponent = float(exponent)
+        if cutoff is not None:
+            cutoff = validation.in_range(
+                "cutoff", cutoff, 0.0, settling_time, low_open=True, high_open=True, above="T_s is the deadline (s)"
+            )
         eigenvalues = design.design_eigenvalues(self.config.topology)
         slowest = float(np.min(eigenvalues.real))
         self.velocity_gain = 2.0 * self.exponent / slowest
@@ -70,6 +82,12 @@ class PrescribedTimePolicy(LinearRowPolicy):
         }
 
     def guarantee(self) -> str:
+        frozen = self.cutoff >= self.config.settling_time
+        if frozen:
+            return (
+                f"no prescribed-time decay: the cut-off reaches T_s = {self.config.settling_time:g} s, so the gains "
+                "are frozen throughout (a linear law with constant gains; a shorter hold or a smaller exponent helps)"
+            )
         if is_undirected(self.config.topology) and self.config.topology.period == 1:
             return "proven: undirected connected graph"
         return f"unproven: directed or switching graph (least mode exponent Re r = {self.mode_exponent:.3g})"

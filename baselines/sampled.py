@@ -9,6 +9,7 @@ from typing import Any, ClassVar
 
 from fxc_env.baselines import design
 from fxc_env.baselines.linear import LinearConsensusPolicy
+from fxc_env.core.validation import ArgumentError
 
 
 class SampledLinearPolicy(LinearConsensusPolicy):
@@ -17,7 +18,9 @@ class SampledLinearPolicy(LinearConsensusPolicy):
     Args:
         env: an fxc_env environment or config, ``action_mode="accel"``; its schedule's longest
             interval is the sampling period h the design uses (``T_s / K`` when uniform).
-        gamma, gain: explicit gains; None (the default for gamma) designs both for h.
+        gamma, gain: explicit gains (``γ`` in s, ``g`` in 1/s², each ``0 < value <= 1e12``,
+            :data:`~fxc_env.baselines.policy.MAX_GAIN`); both None (the default) designs both for h. A ``gain``
+            without ``gamma`` is refused by name: the design chooses the gain too, so it would be ignored.
     """
 
     NAME: ClassVar[str] = "linear_sampled"
@@ -27,9 +30,14 @@ class SampledLinearPolicy(LinearConsensusPolicy):
         "fixed or periodically switching digraphs with a jointly spanning tree, iff the exact ZOH map contracts"
     )
 
-    def __init__(self, env: Any, gamma: float | None = None, gain: float = 1.0) -> None:
+    def __init__(self, env: Any, gamma: float | None = None, gain: float | None = None) -> None:
+        if gamma is None and gain is not None:
+            raise ArgumentError(
+                f"gain: {type(self).__name__} designs the gain with gamma for the sampling period; give gamma too "
+                f"to run an explicit gain, got gain={gain!r} without gamma"
+            )
         self.radius = float("nan")
-        super().__init__(env, gamma=gamma, gain=gain)
+        super().__init__(env, gamma=gamma, gain=1.0 if gain is None else gain)
 
     @property
     def sampling_period(self) -> float:

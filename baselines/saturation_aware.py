@@ -9,10 +9,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines.policy import HoldPolicy
+from fxc_env.baselines.policy import HoldPolicy, law_gain
 from fxc_env.config import config_of
 from fxc_env.core.dynamics import input_from_plan
-from fxc_env.core.validation import ArgumentError, real
+from fxc_env.core.validation import ArgumentError
 
 
 def neighbourhood_sums(rows: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -24,7 +24,13 @@ def neighbourhood_sums(rows: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, 
 
 
 class SaturationAwarePolicy(HoldPolicy):
-    """The paper's plan where it fits under ``u_max``, else a held linear consensus input."""
+    """The paper's plan where it fits under ``u_max``, else a held linear consensus input.
+
+    Args:
+        env: an fxc_env environment or config (``accel`` actions on raw rows, or ``plan`` on normalized rows).
+        gain, gamma: the held linear law's ``g`` (1/s²) and ``γ`` (s), each ``0 < value <= 1e12``
+            (:data:`~fxc_env.baselines.policy.MAX_GAIN`).
+    """
 
     NAME: ClassVar[str] = "saturation_aware"
     LAW: ClassVar[str] = (
@@ -46,8 +52,8 @@ class SaturationAwarePolicy(HoldPolicy):
             self.config, self.layout = config, config.layout
         if config.obs_mode == "normalized" and not self.planning:
             raise ArgumentError("obs_mode: SaturationAwarePolicy reads normalized rows with plan actions only")
-        self.gain = real("gain", gain, positive=True)
-        self.gamma = real("gamma", gamma, positive=True)
+        self.gain = law_gain("gain", gain, "1/s²")
+        self.gamma = law_gain("gamma", gamma, "s")
 
     def parameters(self) -> dict[str, float]:
         return {"gain": self.gain, "gamma": self.gamma}

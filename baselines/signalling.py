@@ -10,6 +10,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from fxc_env.baselines.motion_signals import (
+    AMPLITUDE_RANGE,
     SignalPolicy,
     advance,
     averaging_weights,
@@ -21,21 +22,18 @@ from fxc_env.baselines.motion_signals import (
     refuse_unless_exact_raw_rows,
     register_eigenvalues,
     register_of,
+    signal_amplitude,
     signal_plan,
     steer_plan,
     union_graph,
 )
 from fxc_env.config import config_of
-from fxc_env.core import validation
 from fxc_env.core.optimality import root_set
 from fxc_env.core.validation import ArgumentError
 
 #: Default signalling amplitude ε: a deviation of 1e-6 of the register, read about 1e10 above the
 #: float64 rounding of a row (1e-16 relative), at an energy about 1e-12 of the state scale squared.
 DEFAULT_AMPLITUDE = 1e-6
-
-#: The amplitudes the law accepts, ``(smallest, largest)``: outside, it loses accuracy for nothing (module docstring).
-AMPLITUDE_RANGE = (1e-12, 1.0)
 
 
 class SignallingPolicy(SignalPolicy):
@@ -220,21 +218,16 @@ class SignallingPolicy(SignalPolicy):
 
 def _amplitude(value: Any) -> float:
     """ε as a float in :data:`AMPLITUDE_RANGE`, or an error naming ``amplitude`` and why the range ends there."""
-    amplitude = validation.real("amplitude", value, positive=True)
     low, high = AMPLITUDE_RANGE
-    if amplitude < low:
-        raise ArgumentError(
-            f"amplitude: expected {low:g} <= amplitude <= {high:g}; below {low:g} float64 rounding over ε takes the "
-            "reads' digits (deadline error D(T_s)/D(0) a few 1e-16 / ε: 9e-3 to 6e-2 at 1e-14, 1 to 6 at 1e-16 on a "
-            f"ring and a random digraph of 20 and paper_fig1) and saves no energy; got {value!r}"
-        )
-    if amplitude > high:
-        raise ArgumentError(
-            f"amplitude: expected {low:g} <= amplitude <= {high:g}; above {high:g} the deadline error grows again "
-            "like ε (rounding of the larger motions: 2e-9 to 6e-9 at 1e4, 0.1 to 0.7 at 1e12 on a ring and a random "
-            f"digraph of 20 and paper_fig1) while the energy grows like ε² (9e7 to 1.3e9 x E* at 1); got {value!r}"
-        )
-    return amplitude
+    return signal_amplitude(
+        value,
+        below=f"below {low:g} float64 rounding over ε takes the reads' digits (deadline error D(T_s)/D(0) a few "
+        "1e-16 / ε: 9e-3 to 6e-2 at 1e-14, 1 to 6 at 1e-16 on a ring and a random digraph of 20 and paper_fig1) and "
+        "saves no energy",
+        above=f"above {high:g} the deadline error grows again like ε (rounding of the larger motions: 2e-9 to 6e-9 "
+        "at 1e4, 0.1 to 0.7 at 1e12 on a ring and a random digraph of 20 and paper_fig1) while the energy grows like "
+        "ε² (9e7 to 1.3e9 x E* at 1)",
+    )
 
 
 def _refuse_what_it_cannot_honour(config: Any, allow_limit: bool = False) -> None:

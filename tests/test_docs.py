@@ -73,3 +73,11 @@ def test_the_readme_is_a_short_entrance_whose_links_into_the_docs_resolve():
     assert sum(link.startswith("fxc_env/docs/") for link in links) >= 10
     for link in links:
         assert (ROOT / link).exists(), link
+
+
+def test_the_benchmarl_pages_say_benchmarl_writes_no_video_for_fxc_tasks():
+    """BenchMARL skips rendering, without a message, for a task whose ``has_render`` is False (fxc's): its default
+    ``render: true`` writes nothing, so the pages a BenchMARL user reads say so and where frames come from."""
+    for page in (DOCS / "tutorials" / "benchmarl.md", DOCS / "tasks" / "index.md"):
+        text = " ".join(page.read_text().split())
+        assert "writes no video" in text and "`render`" in text and "fxc simulate --video" in text, page

@@ -32,7 +32,14 @@ from fxc_env.config.scenarios import scenario_preset
 from fxc_env.core import validation
 from fxc_env.core.families import AnyFamily, is_family_spec, make_family
 from fxc_env.core.graphs import Topology, make_topology
-from fxc_env.core.linear import IntervalMaps, LinearModel, check_horizon, formation_offsets, model_matrices
+from fxc_env.core.linear import (
+    IntervalMaps,
+    LinearModel,
+    check_horizon,
+    formation_offsets,
+    model_matrices,
+    warn_if_unstable,
+)
 from fxc_env.core.models import FLAT_PARAMETERS, MODEL_PARAMETERS, model_spec
 from fxc_env.core.schedules import Schedule, make_schedule
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
@@ -354,6 +361,7 @@ def make_config(scenario: str | None = None, **kwargs: Unpack[EnvKwargs]) -> Env
     config = _validated(merged, arguments)
     if config.model is not None:
         _check_steering(config, merged)
+        warn_if_unstable(config.model, config.settling_time)
     return config
 
 

@@ -33,10 +33,12 @@ from fxc_env.core.interval_maps import PEAK_GRID_POINTS, IntervalMaps, apply_mat
 from fxc_env.core.models import CHAIN_ORDERS, DEFAULT_DAMPING, DEFAULT_FREQUENCY, MODEL_NAMES, model_matrices  # noqa: F401
 from fxc_env.core.validation import ArgumentError
 
-#: The largest ``growth_rate * T_s`` an episode may span: free motion grows by up to ``e^100 ~ 3e43``
-#: over the horizon, so states (<= 1e100 by the environment's own limit) stay finite and their
-#: energies (quadratic in the state) below float64's 1.8e308. Past it an episode cannot finish.
-MAX_HORIZON_GROWTH = 100.0
+#: The largest ``growth_rate * T_s`` an episode may span. The rounding of every step (1e-16 of the states) grows
+#: with the free motion like ``e^{growth_rate t}``: the exact reference law ends near ``1e-13 e^{growth_rate T_s}``
+#: (ring of 6, K = 200 uniform, A = [[0, 1], [0, g]] or [[g, 1], [0, 0]]: 3e-14 to 3e-13 x e^{g T_s}, so 6e-10 to
+#: 6e-9 at 10, 1.5e-5 to 1.2e-4 at 20, 0.35 to 2.7 at 30, 53 to 400 at 35). Past 30 no law can promise agreement:
+#: rounding alone is as large as the initial disagreement (and at 52 the states reach 5e22).
+MAX_HORIZON_GROWTH = 30.0
 
 
 # --------------------------------------------------------------------------- models
@@ -262,24 +264,60 @@ class LinearModel:
 
 
 def check_horizon(model: LinearModel, settling_time: float) -> None:
-    """Refuse a model whose free motion outgrows float64 within the horizon ``T_s`` (seconds).
+    """Refuse a model whose free motion outgrows what any law can agree on within the horizon ``T_s`` (seconds).
 
     Consensus does not stabilise the agents: for ``t >= T_s`` they follow ``e^{A t}`` of the
     weighted initial state (docs: agent-models.md, "Agent models and formations"), so an unstable ``A`` grows
-    like ``e^{growth_rate t}`` whatever the controller does. Up to :data:`MAX_HORIZON_GROWTH`
-    (``growth_rate * T_s``) every state and energy of an episode stays finite.
+    like ``e^{growth_rate t}`` whatever the controller does, and so does every step's rounding. Up to
+    :data:`MAX_HORIZON_GROWTH` (``growth_rate * T_s``) an exact law still agrees to
+    ``1e-13 e^{growth_rate T_s}`` or so (:func:`warn_if_unstable` says how far); past it, to nothing.
 
     Raises:
-        ArgumentError naming ``agent_model``, its growth rate and ``settling_time``.
+        ArgumentError naming ``agent_model``, its unstable eigenvalues, its growth rate and ``settling_time``.
     """
     growth = model.growth_rate * settling_time
     if growth > MAX_HORIZON_GROWTH:
         raise ArgumentError(
-            f"agent_model: its free motion grows like e^({model.growth_rate:g} t) (growth rate {model.growth_rate:g} 1/s, "
-            f"the largest real part of A's eigenvalues), so over settling_time = {settling_time:g} s it grows by "
-            f"e^{growth:.4g}, past float64's range for states and their energies; expected growth rate x "
-            f"settling_time <= {MAX_HORIZON_GROWTH:g} (a shorter settling_time, or a model that grows more slowly)"
+            f"agent_model: A has unstable eigenvalue(s) {_unstable_eigenvalues(model)} (1/s), so its free motion, and "
+            f"every step's rounding with it, grows like e^({model.growth_rate:g} t) (growth rate "
+            f"{model.growth_rate:g} 1/s): over settling_time = {settling_time:g} s by e^{growth:.4g}, and rounding "
+            f"alone outgrows the disagreement (the exact reference ends near 1e-13 x e^{growth:.4g}); expected growth "
+            f"rate x settling_time <= {MAX_HORIZON_GROWTH:g} (a shorter settling_time, or a model that grows more slowly)"
         )
+
+
+def _unstable_eigenvalues(model: LinearModel) -> str:
+    """A's eigenvalues with a positive real part, as text (``1.5, 0.2+1j``)."""
+    eigenvalues = np.linalg.eigvals(model.A)
+    unstable = [complex(mu) for mu in eigenvalues if mu.real > 0]
+    return ", ".join(f"{mu.real:.4g}" + (f"{mu.imag:+.4g}j" if mu.imag else "") for mu in unstable)
+
+
+class UnstableModelWarning(UserWarning):
+    """An agent model with unstable free motion: consensus laws agree, they do not stabilise (:func:`warn_if_unstable`)."""
+
+
+def warn_if_unstable(model: LinearModel, settling_time: float) -> None:
+    """Warn (:class:`UnstableModelWarning`) when ``A`` has eigenvalues with a positive real part, naming them.
+
+    The environment runs such a model (up to :data:`MAX_HORIZON_GROWTH`), as a control library simulates an
+    unstable plant: consensus is agreement, and an exact law (the reference) still lands every agent on one
+    trajectory by ``T_s``. But that trajectory follows ``e^{A t}`` of the team's weighted initial state, so the
+    states grow by up to ``e^{growth_rate T_s}`` whatever the controller does, the rounding with them (the
+    exact reference ends near ``1e-13 e^{growth_rate T_s}``), and ``energy_bound`` (E*, a Gramian over the
+    whole of ``T_s``) is NaN where that Gramian is singular in float64.
+    """
+    if model.growth_rate <= 0:
+        return
+    growth = model.growth_rate * settling_time
+    validation.warn_user(
+        f"agent_model: A has unstable eigenvalue(s) {_unstable_eigenvalues(model)} (1/s): consensus laws make the "
+        f"agents agree, they do not stabilise them; the agreed motion follows e^(A t) and grows by up to "
+        f"e^{growth:.3g} = {math.exp(growth):.3g} over settling_time = {settling_time:g} s, and every step's "
+        f"rounding with it (an exact law ends near {1e-13 * math.exp(growth):.1g} x D(0)); energy_bound is NaN "
+        "where E* over T_s has no float64 value. A stable A keeps the states bounded",
+        UnstableModelWarning,
+    )
 
 
 def _times(name: str, value: Any) -> np.ndarray:

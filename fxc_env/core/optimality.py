@@ -60,10 +60,15 @@ def energy_bound(x0: Any, v0: Any, settling_time: Any) -> np.ndarray:
 
     Returns:
         ``(...)`` float64: one bound per episode, summed over agents and axes; 0 for a team already in
-        exact consensus at any ``T_s``, and ``inf`` where ``E*`` is beyond float64 (its limit as
-        ``T_s -> 0`` with any disagreement, e.g. ``T_s = 1e-300``).
+        exact consensus at any ``T_s``.
 
-    The per-axis sum is evaluated as ``(12 s^2 + w^2) / T_s``, ``s = a / T_s + w / 2``, with ``a`` and ``w``
+    Raises:
+        ArgumentError naming ``settling_time`` (and the episodes) where a disagreeing team's ``E*`` has no
+        float64 value: above 1.8e308 (``T_s -> 0``, e.g. ``T_s = 1e-110`` on the paper's example) or below
+        2.2e-308, float64's smallest normal number (offsets of 1e-170 m at ``T_s = 1`` s), where it would
+        read as ``inf`` or as the 0 of a team in consensus (docs: bad-input.md, "Law parameters").
+
+    The per-axis sum is evaluated as ``12 (s / √T_s)² + (w / √T_s)²``, ``s = a / T_s + w / 2``, with ``a`` and ``w``
     the position and velocity offsets from the team's means (``d = a + T_s w`` expanded: a sum of squares,
     with no cancellation and no power of ``T_s`` that can underflow or overflow on its own).
     """
@@ -72,14 +77,41 @@ def energy_bound(x0: Any, v0: Any, settling_time: Any) -> np.ndarray:
     if x.shape != v.shape:
         raise ArgumentError(f"v0: expected the shape of x0 {x.shape}, got {v.shape}")
     T = validation.real("settling_time", settling_time, positive=True)
+    bound, beyond = _double_integrator_bound(x, v, T)
+    if np.any(beyond):
+        raise ArgumentError(f"settling_time: {_beyond_text(bound, beyond)} at T_s = {T:g} s")
+    return bound
+
+
+def _double_integrator_bound(x: np.ndarray, v: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`energy_bound`'s value ``(...)`` and where it has none in float64 ``(...)`` bool (no checks)."""
     if x.ndim == 1:
         x, v = x[:, None], v[:, None]
     a = x - x.mean(axis=-2, keepdims=True)
     w = v - v.mean(axis=-2, keepdims=True)
-    with np.errstate(over="ignore"):  # beyond float64 the bound is inf, which is its value to float64
-        s = a / T + w / 2.0
-        per_axis = (12.0 * s * s + w * w) / T
-    return per_axis.sum(axis=(-2, -1))
+    root = np.sqrt(T)
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        s = (a / T + w / 2.0) / root
+        scaled_w = w / root
+        bound = (12.0 * s * s + scaled_w * scaled_w).sum(axis=(-2, -1))
+    disagreeing = np.any((a != 0) | (w != 0), axis=(-2, -1))
+    return bound, _no_value(bound, disagreeing)
+
+
+def _no_value(bound: np.ndarray, disagreeing: np.ndarray) -> np.ndarray:
+    """Where a disagreeing team's bound is not a finite normal float64 (it overflowed or underflowed)."""
+    return disagreeing & ~((bound >= np.finfo(np.float64).tiny) & np.isfinite(bound))
+
+
+def _beyond_text(bound: np.ndarray, beyond: np.ndarray) -> str:
+    episodes = np.flatnonzero(np.ravel(beyond))
+    side = (
+        "above 1.8e308" if not np.all(np.ravel(bound)[episodes] < 1.0) else "below 2.2e-308 (not 0: the team disagrees)"
+    )
+    return (
+        f"E* of episode(s) {episodes[:8].tolist()}{' ...' if len(episodes) > 8 else ''} is {side}, beyond float64; "
+        "rescale the states or the deadline"
+    )
 
 
 def linear_energy_bound(model: LinearModel, z0: Any, settling_time: Any, offsets: Any = None) -> np.ndarray:
@@ -98,6 +130,10 @@ def linear_energy_bound(model: LinearModel, z0: Any, settling_time: Any, offsets
 
     Returns:
         ``(...)`` float64, in units of ``u^2 s``.
+
+    Raises:
+        ArgumentError naming ``settling_time`` where a disagreeing team's ``E*`` is beyond float64, as
+        :func:`energy_bound` does.
     """
     if not isinstance(model, LinearModel):
         raise ArgumentError(f"model: expected a fxc_env.core.linear.LinearModel, got {type(model).__name__}")
@@ -112,11 +148,21 @@ def linear_energy_bound(model: LinearModel, z0: Any, settling_time: Any, offsets
         z = z - h
     T = validation.real("settling_time", settling_time, positive=True)
     maps = model.interval_maps([T])
+    bound, beyond = _linear_bound(maps, z, T)
+    if np.any(beyond):
+        raise ArgumentError(f"settling_time: {_beyond_text(bound, beyond)} at T_s = {T:g} s")
+    return bound
+
+
+def _linear_bound(maps: Any, z: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`linear_energy_bound`'s value ``(...)`` and where it has none in float64 ``(...)`` bool (no checks)."""
     per_axis = np.swapaxes(z, -1, -2)  # (..., N, dim, n)
     predicted = maps.free_motion(0, per_axis)
     delta = predicted - predicted.mean(axis=-3, keepdims=True)
     _, y = maps._solve(0, delta)  # y = L^{-1} S D^{-1} delta: |y|^2 / T = delta^T G^{-1} delta
-    return np.einsum("...i,...i->...", y, y).sum(axis=(-2, -1)) / T
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        bound = np.einsum("...i,...i->...", y / np.sqrt(T), y / np.sqrt(T)).sum(axis=(-2, -1))
+    return bound, _no_value(bound, np.any(delta != 0, axis=(-3, -2, -1)))
 
 
 def episode_energy_bound(model: LinearModel | None, z0: Any, settling_time: Any) -> np.ndarray:
@@ -124,12 +170,21 @@ def episode_energy_bound(model: LinearModel | None, z0: Any, settling_time: Any)
 
     ``model`` None is the double integrator (``z = (x, v)``, :func:`energy_bound`'s closed form);
     otherwise :func:`linear_energy_bound` with that model's Gramian. With formation offsets ``z0``
-    is the formation error, so the bound is that of reaching the formation.
+    is the formation error, so the bound is that of reaching the formation. NaN for an episode whose
+    ``E*`` is beyond float64 (where :func:`energy_bound` raises), and for every episode where the Gramian over
+    ``T_s`` is singular in float64 (an unstable ``A`` over a long ``T_s``): a step's metrics have no answer there.
     """
     z = np.asarray(z0, dtype=np.float64)
+    T = float(settling_time)
     if model is None:
-        return np.asarray(energy_bound(z[:, :, 0], z[:, :, 1], settling_time), dtype=np.float64)
-    return np.asarray(linear_energy_bound(model, z, settling_time), dtype=np.float64)
+        bound, beyond = _double_integrator_bound(z[:, :, 0], z[:, :, 1], T)
+    else:
+        try:
+            maps = model.interval_maps([T])
+        except ArgumentError:  # the Gramian over T_s is singular in float64 (an unstable A over a long T_s)
+            return np.full(z.shape[0], np.nan)
+        bound, beyond = _linear_bound(maps, z, T)
+    return np.where(beyond, np.nan, bound)
 
 
 def root_set(topology: Topology) -> np.ndarray:

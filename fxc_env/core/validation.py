@@ -68,10 +68,15 @@ _PASS_OVER = frozenset({"fxc_env", "torchrl", "tensordict"})
 
 def deprecated(message: str) -> None:
     """A :class:`DeprecationWarning` pointed at the first caller outside the package (the user's line)."""
+    warn_user(message, DeprecationWarning)
+
+
+def warn_user(message: str, category: type[Warning]) -> None:
+    """A warning of ``category`` pointed at the first caller outside the package (the user's line)."""
     frame, level = sys._getframe(1), 2
     while frame.f_back is not None and str(frame.f_globals.get("__name__", "")).split(".")[0] in _PASS_OVER:
         frame, level = frame.f_back, level + 1
-    warnings.warn(message, DeprecationWarning, stacklevel=level)
+    warnings.warn(message, category, stacklevel=level)
 
 
 def _is_integer(value: Any) -> bool:
@@ -112,6 +117,40 @@ def real(
         or (maximum is not None and number > maximum)
     ):
         raise ArgumentError(f"{name}: expected {expected}, got {value!r}")
+    return number
+
+
+def in_range(
+    name: str,
+    value: Any,
+    low: float,
+    high: float,
+    *,
+    low_open: bool = False,
+    high_open: bool = False,
+    below: str = "",
+    above: str = "",
+) -> float:
+    """``value`` as a finite ``float`` in the range ``low <= value <= high`` (an end excluded with ``low_open`` or
+    ``high_open``): the one check of a law's parameter against the range where the law's promise holds.
+
+    Outside, :class:`ArgumentError` (:class:`ArgumentTypeError` for a non-number) names ``name`` and the range
+    (``amplitude: expected 1e-12 <= amplitude <= 1; ...``) and, after a semicolon, ``below`` or ``above``: what
+    breaks on that side, so a user learns why the range ends there.
+    """
+    low_text, high_text = (_number_text(end).replace("e+", "e") for end in (low, high))  # 1e12, not 1e+12
+    expected = f"{low_text} {'<' if low_open else '<='} {name} {'<' if high_open else '<='} {high_text}"
+    if isinstance(value, bool | np.bool_ | str | bytes):
+        raise ArgumentTypeError(f"{name}: expected a number, {expected}; got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise ArgumentTypeError(f"{name}: expected a number, {expected}; got {_short(value)}") from None
+    too_low = number < low or (low_open and number == low)
+    too_high = number > high or (high_open and number == high)
+    if too_low or too_high or not math.isfinite(number):
+        reason = below if too_low else above if too_high else ""
+        raise ArgumentError(f"{name}: expected {expected}; " + (f"{reason}; " if reason else "") + f"got {value!r}")
     return number
 
 

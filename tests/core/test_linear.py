@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from fractions import Fraction
 
 import numpy as np
@@ -15,6 +16,7 @@ from fxc_env.core.linear import (
     MODEL_NAMES,
     PEAK_GRID_POINTS,
     LinearModel,
+    UnstableModelWarning,
     final_value,
     formation_offsets,
     is_double_integrator,
@@ -497,7 +499,33 @@ def test_a_model_that_outgrows_float64_within_the_horizon_is_refused_at_construc
     unstable = ([[20.0, 1.0], [0.0, 20.0]], [[0.0], [1.0]])
     with pytest.raises(ArgumentError, match=r"agent_model: .*growth rate 20 1/s.*settling_time = 20 s.*e\^400"):
         fxc_env.make_config(agent_model=unstable)
-    # The same model over a horizon it can span runs, and a slowly growing one over the default horizon too.
-    assert fxc_env.make_config(agent_model=unstable, settling_time=4.0).model.growth_rate == pytest.approx(20.0)
-    slow = fxc_env.simulate(agent_model=([[0.2, 1.0], [0.0, 0.2]], [[0.0], [1.0]]), seed=0)
+    # The same model over a horizon it can span runs (with a warning), and a slowly growing one over the default
+    # horizon too.
+    with pytest.warns(UnstableModelWarning):
+        assert fxc_env.make_config(agent_model=unstable, settling_time=1.0).model.growth_rate == pytest.approx(20.0)
+    with pytest.warns(UnstableModelWarning):
+        slow = fxc_env.simulate(agent_model=([[0.2, 1.0], [0.0, 0.2]], [[0.0], [1.0]]), seed=0)
     assert slow.metrics.relative_deadline_error < 1e-6
+
+
+def test_an_unstable_model_is_run_with_a_warning_naming_its_eigenvalues_and_refused_where_rounding_outgrows_agreement():
+    import fxc_env
+    from fxc_env.engine import ConsensusEngine
+    from fxc_env.policies.reference import ReferencePolicy
+
+    # e^(2.6 x 20) = 4e22: the exact reference would end at D(T_s)/D(0) far above 1 (0.35 to 2.7 already at 30).
+    with pytest.raises(ArgumentError, match=r"^agent_model: A has unstable eigenvalue\(s\) 2.6 \(1/s\).*<= 30"):
+        fxc_env.make_config(agent_model=([[0.0, 1.0], [0.0, 2.6]], [[0.0], [1.0]]))
+    with pytest.warns(UnstableModelWarning, match=r"^agent_model: A has unstable eigenvalue\(s\) 1 \(1/s\).*e\^20"):
+        config = fxc_env.make_config(agent_model=([[0.0, 1.0], [0.0, 1.0]], [[0.0], [1.0]]), schedule="uniform")
+    # The episode finishes and reports what it can: no E* (its Gramian over T_s is singular in float64).
+    policy, engine = ReferencePolicy(config), ConsensusEngine(config, n_episodes=2)
+    engine.reset_from_draws([engine.draw_episode(np.random.default_rng(seed)) for seed in range(2)])
+    while not engine.done:
+        engine.step(np.asarray(policy(engine.observations()), dtype=np.float64))
+    metrics = engine.batch_metrics()
+    assert np.all(np.isnan(metrics["energy_bound"])) and np.all(metrics["relative_deadline_error"] < 1e-2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a stable or marginal model says nothing
+        fxc_env.make_config(agent_model={"name": "damped"})
+        fxc_env.make_config(agent_model={"name": "oscillator"})

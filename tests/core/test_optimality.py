@@ -19,6 +19,7 @@ from fxc_env.core.linear import LinearModel
 from fxc_env.core.optimality import (
     all_roots_bound,
     energy_bound,
+    episode_energy_bound,
     linear_energy_bound,
     propagation_bound,
     radius_bound,
@@ -43,20 +44,37 @@ def test_the_paper_example_needs_at_least_5_4597():
 
 
 @pytest.mark.parametrize("T", [1e-300, 1e-110, 1e200, 1e300])
-def test_at_extreme_settling_times_the_bound_is_its_limit_never_nan_nor_an_overflow_error(T):
-    """E* -> inf as T_s -> 0 with any disagreement, 0 for a team already in consensus, -> 0 as T_s -> inf."""
+def test_at_extreme_settling_times_the_bound_is_its_limit_or_refused_by_name_never_inf_nan_or_overflow(T):
+    """E* is beyond float64 as T_s -> 0 with any disagreement (refused naming settling_time, not inf), 0 for a
+    team already in consensus, -> 0 as T_s -> inf."""
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no RuntimeWarning from an intermediate 0 / 0 or inf - inf
-        disagreeing = float(energy_bound(PAPER_X0, PAPER_V0, T))
         agreed = float(energy_bound(np.full(6, 3.0), np.full(6, -1.0), T))
         moving_apart = float(energy_bound(np.zeros(6), PAPER_V0, T))  # one place, different speeds
+        if T < 1:
+            with pytest.raises(ArgumentError, match=r"^settling_time: E\* of episode\(s\) \[0\] is above 1.8e308"):
+                energy_bound(PAPER_X0, PAPER_V0, T)
+        else:
+            disagreeing = float(energy_bound(PAPER_X0, PAPER_V0, T))
     assert agreed == 0.0
     w = PAPER_V0 - PAPER_V0.mean()
-    if T < 1:
-        assert disagreeing == np.inf
-        assert moving_apart == pytest.approx(4.0 * np.sum(w * w) / T, rel=1e-12)  # 4 |w|² / T exactly
-    else:
-        assert 0.0 <= disagreeing == pytest.approx(4.0 * np.sum(w * w) / T, rel=1e-12)  # 12 s² -> 3 w²
+    assert moving_apart == pytest.approx(4.0 * np.sum(w * w) / T, rel=1e-12)  # 4 |w|² / T exactly
+    if T >= 1:
+        assert 0.0 < disagreeing == pytest.approx(4.0 * np.sum(w * w) / T, rel=1e-12)  # 12 s² -> 3 w²
+
+
+def test_a_disagreement_whose_bound_underflows_is_refused_not_read_as_consensus():
+    """Offsets of 1e-170 m at T_s = 1 s: E* ~ 1e-339 has no float64 value; 0.0 would say the team agrees."""
+    tiny = np.array([0.0, 1e-170, 0.0, 0.0])
+    with pytest.raises(ArgumentError, match=r"^settling_time: E\* of episode\(s\) \[1\] is below 2.2e-308"):
+        energy_bound(np.stack([np.ones(4), tiny])[..., None], np.zeros((2, 4, 1)), 1.0)
+    # Offsets that only underflow on the way (s² ~ 1e-320 at T_s = 1e-30 s) but whose bound is normal are computed.
+    assert float(energy_bound(np.array([0.0, 1e-190]), np.zeros(2), 1e-30)) == pytest.approx(6e-290, rel=1e-12, abs=0)
+    # The engine's metrics read such an episode as NaN (no answer), the others as their bound.
+    z0 = np.zeros((2, 4, 2, 1))
+    z0[0, :, 0, 0], z0[1, :, 0, 0] = [0.0, 1.0, 0.0, 0.0], tiny
+    bound = episode_energy_bound(None, z0, 1.0)
+    assert np.isnan(bound[1]) and bound[0] == pytest.approx(float(energy_bound(z0[0, :, 0], z0[0, :, 1], 1.0)))
 
 
 def test_the_bound_is_the_closed_form_at_the_mean_of_the_coasted_states_batched_in_the_plane():
