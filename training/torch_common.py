@@ -138,6 +138,8 @@ class TrainerFiles:
             weights=self.model.state_dict(),
             optimizers={"optimizer": self.optimizer.state_dict()},
         )
+        for group in self.optimizer.param_groups:  # this run's --hyperparams set the step size, as sb3's do
+            group["lr"] = self.settings.learning_rate
         self._reset()  # a resumed run starts fresh episodes
 
     def _restore_state(self, path: Path, record: Mapping[str, Any]) -> None:

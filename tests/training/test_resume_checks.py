@@ -12,9 +12,11 @@ import json
 import re
 import shutil
 import zipfile
+from pathlib import Path
 
 import pytest
 import torch
+import yaml
 from test_run_dir_trust import rewrite_zip, tiny_args, tiny_hyperparams
 
 from fxc_env.cli.main import main
@@ -166,3 +168,15 @@ def test_a_torch_run_refuses_a_diff_checkpoint_and_the_reverse(runs, tmp_path, c
     (run / "config.json").unlink()  # without the run's record, the checkpoint's own record of its back end
     error = refused(capsys, tmp_path, run, resumed, timesteps)
     assert error.startswith(f"resume: {checkpoint}: backend is '{wrote}', this run is --backend {resumed}"), error
+
+
+def test_a_resumed_torch_run_steps_with_its_own_hyperparameters_learning_rate(runs, tmp_path):
+    run, checkpoint = copy_run(runs, tmp_path, "torch")
+    assert torch.load(checkpoint, weights_only=True)["optimizer"]["param_groups"][0]["lr"] != 1.25e-4
+    changed = yaml.safe_load(Path(tiny_hyperparams(tmp_path)).read_text())
+    changed["paper_fig1"]["torch_ppo"]["learning_rate"] = 1.25e-4
+    hyperparams = tmp_path / "changed.yml"
+    hyperparams.write_text(yaml.safe_dump(changed))
+    train(tiny_args(tmp_path, run, backend="torch", timesteps=240, resume=True, hyperparams=str(hyperparams)))
+    resumed = torch.load(run / "checkpoints/model_240_steps.pt", weights_only=True)
+    assert resumed["optimizer"]["param_groups"][0]["lr"] == 1.25e-4, "the rate progress.csv logs is the one used"
