@@ -96,8 +96,9 @@ class RunDir:
     def resume_checkpoint(self, resume: bool, args: TrainArgs | None = None) -> Path | None:
         """The checkpoint a run goes on from: the newest with ``resume``, None without; ``resume`` and none is refused.
 
-        With ``args``, a resumed run must keep ``config.json``'s ``scenario`` and ``critic`` and reach beyond
-        the checkpoint's timesteps; an RLlib checkpoint is refused unless ``args.trust_policy_file``.
+        With ``args``, a resumed run must keep ``config.json``'s ``backend``, ``scenario`` and ``critic`` and
+        reach beyond the checkpoint's timesteps (what the checkpoint holds is checked as the back end reads it:
+        :mod:`fxc_env.training.checkpoint_checks`); an RLlib checkpoint is refused unless ``args.trust_policy_file``.
         """
         if not resume:
             return None
@@ -122,11 +123,12 @@ class RunDir:
             started = {}  # a damaged config.json: the checkpoint's own checks still apply
         if not isinstance(started, dict):
             started = {}
-        for field in ("scenario", "critic"):
+        for field in ("backend", "scenario", "critic"):
             before, now = started.get(field), getattr(args, field)
+            before = canonical_backend(before, warn=False) if field == "backend" else before
             if before is not None and before != now:
                 raise ArgumentError(
-                    f"{field}: the run in {self.path} was started with {field} {before!r}, "
+                    f"{field}: the run in {self.path} was started with {field} {before!r} ({config.name}), "
                     f"so --resume goes on with {before!r}, not {now!r}"
                 )
         steps = self.checkpoint_steps(checkpoint)

@@ -26,6 +26,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.policy_files import TRUST_HINT, read_sb3_zip, save_model
 from fxc_env.training.args import TrainArgs
+from fxc_env.training.checkpoint_checks import check_resumed_state
 from fxc_env.training.imitation import imitate_reference
 from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
 
@@ -225,6 +226,24 @@ def restore_checkpoint(model: Any, checkpoint: Path) -> Any:
     return model
 
 
+def check_resumed_model(model: Any, run: RunDir, checkpoint: Path, target: int) -> None:
+    """Refuse to go on from ``checkpoint`` (as ``resume``, naming it and the field) unless the SB3 ``model`` loaded
+    from it has finite weights and optimiser state and a step count in ``[0, target]`` equal to its name's
+    (:func:`~fxc_env.training.checkpoint_checks.check_resumed_state`)."""
+    from stable_baselines3.common.save_util import recursive_getattr
+
+    state_dicts, variables = model._get_torch_save_params()
+    check_resumed_state(
+        run,
+        checkpoint,
+        target,
+        steps=("num_timesteps", model.num_timesteps),
+        counters={"_n_updates": model._n_updates},
+        weights={**model.policy.state_dict(), **{name: recursive_getattr(model, name) for name in variables}},
+        optimizers={name: recursive_getattr(model, name).state_dict() for name in state_dicts if name != "policy"},
+    )
+
+
 class RolloutCheckpoint(BaseCallback):
     """Save a checkpoint every ``every`` timesteps, at the start of a rollout; after Ctrl-C, save there and stop.
 
@@ -269,6 +288,7 @@ def train_sb3(args: TrainArgs) -> Path:
     model = algo_class(policy, venv, seed=args.seed, device="cpu", verbose=0, **kwargs)
     if checkpoint is not None:
         model, venv = load_checkpoint(algo_class, checkpoint, venv, trusted=args.trust_policy_file, model=model)
+        check_resumed_model(model, run, checkpoint, args.timesteps)
         run.announce_resume(checkpoint, f"{model.num_timesteps} timesteps")
     else:
         record = {"args": dataclasses.asdict(args), "hyperparams": params, "num_envs": venv.num_envs}

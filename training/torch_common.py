@@ -30,6 +30,7 @@ from fxc_env.policies.records import file_tensor
 from fxc_env.policies.torch_memory import build_actor
 from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, is_torch_policy, load_torch_policy, one_line
 from fxc_env.training.args import TrainArgs
+from fxc_env.training.checkpoint_checks import check_resumed_state, check_written_by
 from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
 from fxc_env.training.settings import PPOSettings
 
@@ -74,6 +75,7 @@ class TrainerFiles:
         engine_rng = self.engine.rng.get_state() if isinstance(self.engine.rng, torch.Generator) else None
         record = {
             "format": CHECKPOINT_FORMAT,
+            "backend": self.args.backend,  # torch and diff share the name and format: resume checks which
             "timesteps": self.timesteps,
             "iterations": self.iterations,
             "n_updates": self.n_updates,
@@ -92,9 +94,10 @@ class TrainerFiles:
         partial.replace(path)  # a checkpoint is either whole or absent
         return path
 
-    def load_checkpoint(self, path: Path, *, trusted: bool = False) -> None:
-        """Go on from the checkpoint at ``path``: read with ``weights_only=True`` (tensors and plain values, no
-        code), or, with ``trusted`` (``--trust-policy-file``), unpickled (:mod:`fxc_env.training.run_dir`)."""
+    def load_checkpoint(self, path: Path, run: RunDir, *, trusted: bool = False) -> None:
+        """Go on from the checkpoint at ``path`` of ``run``: read with ``weights_only=True`` (tensors and plain values,
+        no code), or, with ``trusted`` (``--trust-policy-file``), unpickled (:mod:`fxc_env.training.run_dir`); what
+        it holds is checked (:mod:`fxc_env.training.checkpoint_checks`) before the run goes on."""
         try:
             record = torch.load(path, map_location="cpu", weights_only=not trusted)
         except pickle.UnpicklingError as exc:  # weights_only met a pickled object (a crafted file) or garbage
@@ -119,12 +122,30 @@ class TrainerFiles:
             raise ArgumentError(
                 f"resume: the checkpoint {str(path)!r} lacks {', '.join(missing)} (damaged, or another version's)"
             )
+        check_written_by(run, path, record.get("backend"))  # before its network meets this back end's
         try:
             self.model.load_state_dict(record["model"])
         except (RuntimeError, TypeError, AttributeError) as exc:  # missing, extra or misshapen weights
             raise ArgumentError(
                 f"resume: {str(path)!r} was trained with other network settings: {one_line(exc)}"
             ) from exc
+        self._restore_state(path, record)
+        check_resumed_state(
+            run,
+            path,
+            self.args.timesteps,
+            steps=("timesteps", self.timesteps),
+            counters={"iterations": self.iterations, "n_updates": self.n_updates},
+            weights=self.model.state_dict(),
+            optimizers={"optimizer": self.optimizer.state_dict()},
+        )
+        for group in self.optimizer.param_groups:  # this run's --hyperparams set the step size, as sb3's do
+            group["lr"] = self.settings.learning_rate
+        self._reset()  # a resumed run starts fresh episodes
+
+    def _restore_state(self, path: Path, record: Mapping[str, Any]) -> None:
+        """Adam's state, the counters and the generators of the checkpoint ``record`` read from ``path``."""
+        rng = record["rng"]
         try:
             self.optimizer.load_state_dict(record["optimizer"])
             for group in self.optimizer.param_groups:  # Adam's moments must fit the weights they follow
@@ -142,11 +163,10 @@ class TrainerFiles:
             if rng["engine"] is not None and isinstance(self.engine.rng, torch.Generator):
                 self.engine.rng.set_state(rng["engine"])
             self.host_rng.bit_generator.state = rng["host"]
-        except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as exc:
+        except (KeyError, RuntimeError, TypeError, ValueError, AttributeError, OverflowError) as exc:
             raise ArgumentError(
                 f"resume: the checkpoint {str(path)!r} holds a damaged optimizer, counter or generator state: {one_line(exc)}"
             ) from exc
-        self._reset()  # a resumed run starts fresh episodes
 
 
 LOG_2PI = math.log(2.0 * math.pi)
@@ -282,7 +302,7 @@ def drive(
     with checkpoints every ``args.checkpoint_every`` and on Ctrl-C, and writes ``policy.pt``.
     """
     if checkpoint is not None:
-        trainer.load_checkpoint(checkpoint, trusted=args.trust_policy_file)
+        trainer.load_checkpoint(checkpoint, run, trusted=args.trust_policy_file)
         run.announce_resume(checkpoint, f"{trainer.timesteps} timesteps")
     else:
         meta = {"n_envs": trainer.n_envs, "n_agents": trainer.n_agents}
