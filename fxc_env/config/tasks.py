@@ -110,7 +110,8 @@ def get_task(name: Any, argument: str = "task") -> NamedTask:
         key = name.removeprefix(f"{NAMESPACE}/")
         if key in TASKS:
             return TASKS[key]
-        versions = [task.id for task in TASKS.values() if task.name == key]
+        spelled = "full_id" if key != name else "id"  # the versions as the name was given: "fxc/..." or bare
+        versions = [getattr(task, spelled) for task in TASKS.values() if task.name == key]
         if versions:
             raise ArgumentError(
                 f"{argument}: a task name carries its version (its settings are frozen under it): "

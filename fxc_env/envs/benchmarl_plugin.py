@@ -2,11 +2,12 @@
 
 Hydra runs the code of a package it was not told about only through a plugin module in its
 ``hydra_plugins`` namespace. The wheel installs the one import name ``fxc_env``, so this module is
-not there: ``python -m fxc_env.envs.benchmarl_run --install-plugin`` copies it, verbatim, to
-``hydra_plugins/fxc_env_benchmarl.py`` in the interpreter's site-packages (``--uninstall-plugin``
-removes it). Then BenchMARL's command line runs the tasks as it is::
+not there: ``python -m fxc_env.envs.benchmarl_run --install-plugin`` copies it to
+``hydra_plugins/fxc_env_benchmarl.py`` in the interpreter's site-packages, with a last line holding
+the SHA-256 of the rest, so that a copy edited since is never replaced or removed (``--uninstall-plugin``
+removes an unedited one). Then BenchMARL's command line runs the tasks as it is::
 
-    python -m benchmarl.run algorithm=mappo task=fxc/rings20-v1
+    python -m benchmarl.run algorithm=mappo task=fxc/rings20-v1 "experiment.loggers=[csv]"
 
 Hydra imports every plugin module of every Hydra application, so this one imports nothing but
 Hydra at import time. When Hydra builds a config search path in a process that has imported

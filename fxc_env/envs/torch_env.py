@@ -301,6 +301,8 @@ class ConsensusTorchEnv(EnvBase):
                 "come from position_range / velocity_range or initial_state (the parallel env's reset takes "
                 "options={'x0': ..., 'v0': ...})"
             )
+        if tensordict is not None:
+            self._refuse_unread_entries(tensordict)
         engine = self.engine
         episodes = None
         if tensordict is not None and "_reset" in tensordict.keys():
@@ -366,6 +368,19 @@ class ConsensusTorchEnv(EnvBase):
         return out
 
     # ------------------------------------------------------------ helpers
+    def _refuse_unread_entries(self, tensordict: TensorDictBase) -> None:
+        """A reset TensorDict's root entries: ``"_reset"``, this env's own (a step's output), ``"next"``,
+        ``"collector"``; any other (``"X0"``, an intended initial state) is refused, never silently dropped."""
+        specs = (self.full_observation_spec, self.full_done_spec, self.full_reward_spec, self.full_action_spec)
+        known = {"_reset", "next", "collector"}.union(*(spec.keys() for spec in (*specs, self.full_state_spec)))
+        unknown = sorted(str(key) for key in tensordict.keys() if key not in known)
+        if unknown:
+            raise validation.ArgumentError(
+                f"tensordict: ConsensusTorchEnv.reset reads only its '_reset' mask, got unknown key(s) {unknown!r} "
+                "beside the env's own entries; initial states come from position_range / velocity_range or "
+                "initial_state (the parallel env's reset takes options={'x0': ..., 'v0': ...})"
+            )
+
     def _reset_mask(self, mask: Any) -> torch.Tensor:
         """TorchRL's ``"_reset"`` entry as a ``(B,)`` boolean mask, checked before anything changes."""
         b = self.batch_size[0]

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 import os
+import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -15,12 +17,13 @@ from benchmarl.environments import task_config_registry
 from benchmarl.experiment import ExperimentConfig
 from benchmarl.hydra_config import load_task_config_from_hydra
 from benchmarl.models import MlpConfig
+from docs_blocks import ROOT, pages
 from hydra import compose, initialize_config_module
 from hydra.core.global_hydra import GlobalHydra
 
 from fxc_env.config.tasks import TASKS
 from fxc_env.core.validation import ArgumentError
-from fxc_env.envs.benchmarl_run import PLUGIN_SOURCE, install_plugin, uninstall_plugin
+from fxc_env.envs.benchmarl_run import MARK, PLUGIN_SOURCE, install_plugin, main, plugin_text, uninstall_plugin
 from fxc_env.envs.benchmarl_task import BENCHMARL_SETTINGS, FxcTask, FxcTaskClass, register
 
 VERSIONED = [member for member in FxcTask if member.task_name in TASKS]
@@ -42,6 +45,24 @@ TINY = [
     "experiment.render=false",
     "experiment.checkpoint_at_end=false",
 ]
+
+
+#: A BenchMARL command line with a task as a page prints it: in an inline code span, or a bash line up to its comment.
+COMMAND = re.compile(r"python -m (?:benchmarl\.run|fxc_env\.envs\.benchmarl_run) [^`#\n]*task=[^`#\n]*")
+#: BenchMARL's default on-policy batch (``on_policy_collected_frames_per_batch``): the frame budget of one batch.
+DEFAULT_BATCH = 6_000
+
+
+def documented_commands() -> dict[str, list[str]]:
+    """Every BenchMARL command line that README.md and the docs pages print, with the pages that print it."""
+    found: dict[str, list[str]] = {}
+    for page in pages():
+        for match in COMMAND.finditer(page.read_text()):
+            found.setdefault(match.group().strip(), []).append(str(page.relative_to(ROOT)))
+    return found
+
+
+DOCUMENTED = documented_commands()
 
 
 def frames_logged(folder: Path) -> dict[str, float]:
@@ -78,7 +99,9 @@ def test_a_versioned_tasks_config_is_its_frozen_settings_with_benchmarls_float32
 def test_the_plugin_installs_into_hydras_namespace_and_uninstalls(tmp_path):
     path = install_plugin(tmp_path)
     assert path == tmp_path / "hydra_plugins" / "fxc_env_benchmarl.py"
-    assert path.read_text() == PLUGIN_SOURCE.read_text()
+    source = PLUGIN_SOURCE.read_text()
+    assert path.read_text() == plugin_text() and plugin_text().startswith(source)
+    assert plugin_text().removeprefix(source).startswith(MARK)  # then the SHA-256 of the source
     assert not (tmp_path / "hydra_plugins" / "__init__.py").exists()  # a namespace package, shared with other plugins
     assert install_plugin(tmp_path) == path  # again: an earlier copy is replaced
     assert uninstall_plugin(tmp_path) == path and not (tmp_path / "hydra_plugins").exists()
@@ -96,6 +119,51 @@ def test_the_plugin_installer_refuses_a_missing_folder_and_a_file_it_did_not_wri
     with pytest.raises(ArgumentError, match="is not fxc_env's BenchMARL plugin; nothing was removed"):
         uninstall_plugin(tmp_path)
     assert foreign.read_text() == "# someone else's plugin\n"
+
+
+def test_the_plugin_installer_refuses_a_copy_edited_since_by_name_and_leaves_it(tmp_path):
+    # Issue 33: the installer judged "our file" by its first line, so an edited copy was replaced or deleted.
+    path = install_plugin(tmp_path)
+    for edit in (plugin_text() + "print('mine')\n", plugin_text().replace("register()\n", "register()  # mine\n")):
+        path.write_text(edit)
+        with pytest.raises(ArgumentError, match=r"^target: .* edited since it was installed.*; nothing was written"):
+            install_plugin(tmp_path)
+        with pytest.raises(ArgumentError, match=r"^target: .* edited since it was installed.*; nothing was removed"):
+            uninstall_plugin(tmp_path)
+        assert path.read_text() == edit
+
+
+def test_the_plugin_installer_refuses_a_symbolic_link_and_writes_nothing_through_it(tmp_path):
+    link = tmp_path / "hydra_plugins" / "fxc_env_benchmarl.py"
+    link.parent.mkdir()
+    link.symlink_to(tmp_path / "elsewhere.py")  # dangling: the old installer wrote the plugin through it
+    with pytest.raises(ArgumentError, match=r"^target: .* is a symbolic link.*; nothing was written"):
+        install_plugin(tmp_path)
+    assert not (tmp_path / "elsewhere.py").exists()
+    (tmp_path / "elsewhere.py").write_text(plugin_text())
+    with pytest.raises(ArgumentError, match=r"^target: .* is a symbolic link.*; nothing was removed"):
+        uninstall_plugin(tmp_path)
+    assert link.is_symlink()
+
+
+def test_the_plugin_installer_refuses_an_empty_target(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)  # Path("") is the current folder, where the old installer wrote the plugin
+    assert main(["--install-plugin", "--target", ""]) == 2
+    assert capsys.readouterr().err == (
+        "error: target: expected an existing folder on sys.path (site-packages), got ''\n"
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_plugin_installer_says_the_tasks_are_found_only_for_a_target_on_sys_path(tmp_path, monkeypatch, capsys):
+    assert main(["--install-plugin", "--target", str(tmp_path)]) == 0
+    printed = capsys.readouterr()
+    assert "now finds the tasks" not in printed.out
+    assert printed.err.startswith(f"warning: target: {tmp_path} is not on this interpreter's sys.path")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert main(["--install-plugin", "--target", str(tmp_path)]) == 0
+    printed = capsys.readouterr()
+    assert "now finds the tasks" in printed.out and printed.err == ""
 
 
 def test_the_plugin_leaves_other_hydra_applications_alone(tmp_path):
@@ -122,6 +190,34 @@ def test_the_plugin_leaves_other_hydra_applications_alone(tmp_path):
 def _path_first(folder: Path) -> dict[str, str]:
     """This environment with ``folder`` first on ``sys.path``."""
     return {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(folder), os.environ.get("PYTHONPATH")]))}
+
+
+def test_the_readme_and_the_tutorial_print_benchmarls_command_line():
+    """The pages that the test below takes its commands from (so it never passes on none)."""
+    printing = {page for printed in DOCUMENTED.values() for page in printed}
+    assert {"README.md", "fxc_env/docs/tutorials/benchmarl.md"} <= printing
+    assert any(command.startswith("python -m benchmarl.run ") for command in DOCUMENTED)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", sorted(DOCUMENTED))
+def test_the_documented_command_line_runs_as_printed(command, tmp_path):
+    """Each command the README and the docs print, as printed with only a frame budget added (one default batch).
+
+    Everything else is BenchMARL's default experiment, its loggers included: issue 33 found the printed
+    command stopping at ``ImportError: wandb could not be imported``, where the other tests set the loggers.
+    """
+    argv = shlex.split(command)
+    site = tmp_path / "site"
+    site.mkdir()
+    if argv[2] == "benchmarl.run":  # after the tutorial's `--install-plugin`, here into a folder on PYTHONPATH
+        install = [sys.executable, "-m", "fxc_env.envs.benchmarl_run", "--install-plugin", "--target", str(site)]
+        subprocess.run(install, check=True, env=_path_first(site))
+    assert argv[:2] == ["python", "-m"]
+    run = [sys.executable, *argv[1:], f"experiment.max_n_frames={DEFAULT_BATCH}"]
+    result = subprocess.run(run, capture_output=True, text=True, cwd=tmp_path, env=_path_first(site), timeout=900)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert list(frames_logged(tmp_path).values()) == [DEFAULT_BATCH]
 
 
 @pytest.mark.slow

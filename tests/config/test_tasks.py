@@ -54,6 +54,20 @@ def test_pettingzoo_makes_every_task_by_its_id(api):
     assert env.unwrapped.config.n_intervals == 50
 
 
+@pytest.mark.parametrize("api", ["parallel", "aec"])
+def test_pettingzoo_refuses_a_task_id_without_its_version_as_get_task_does(api):
+    # Issue 33: PettingZoo resolves an unversioned id to the newest version, so "fxc/rings20" ran v1 silently.
+    for task in TASKS.values():
+        unversioned = f"fxc/{task.name}"
+        with pytest.raises(ArgumentError) as refusal:
+            pettingzoo.make(api, unversioned)
+        with pytest.raises(ArgumentError) as expected:
+            get_task(unversioned, argument="id")
+        message = str(refusal.value)
+        assert message == str(expected.value)
+        assert message.startswith("id: a task name carries its version") and repr(task.full_id) in message
+
+
 def test_the_same_settings_reach_the_parallel_env_by_keyword():
     env = fxc_env.parallel_env(**task_kwargs("fxc/rings20-v1"))
     assert env.possible_agents == [f"agent_{i}" for i in range(20)]

@@ -262,3 +262,20 @@ def test_reset_keywords_are_refused_by_name_and_nothing_changes(kwargs):
     with pytest.raises(ArgumentError, match=rf"^{name}: ConsensusTorchEnv.reset takes no keyword options"):
         env.reset(**kwargs)
     assert torch.equal(env.engine.state, state) and env.engine.k == k == 1
+
+
+@pytest.mark.parametrize("key", ["X0", "x0", "initial_state"])
+def test_a_reset_tensordict_with_an_entry_the_env_does_not_read_is_refused_by_name(key):
+    # Issue 33: reset(TensorDict({"X0": ...})) dropped the intended initial state silently, where the
+    # parallel env's reset refuses an unknown option key.
+    env = ConsensusTorchEnv(scenario="paper_fig1", batch_size=2, seed=0)
+    td = env.reset()
+    td.set((GROUP, "action"), torch.zeros((2, env.n_agents, 2), dtype=torch.float64))
+    td = env.step(td)  # a step's own output, "next" included, is a reset tensordict the env accepts
+    state, k = env.engine.state.clone(), env.engine.k
+    with pytest.raises(ArgumentError, match=rf"^tensordict: .*unknown key\(s\) \['{key}'\]"):
+        env.reset(TensorDict({key: torch.zeros((2, env.n_agents, 2))}, batch_size=[2]))
+    assert torch.equal(env.engine.state, state) and env.engine.k == k == 1
+    td.set("_reset", torch.tensor([[True], [False]]))
+    env.reset(td)
+    assert env._cycles.tolist() == [0, 1]  # the partial reset of a step's output still runs
