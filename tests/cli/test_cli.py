@@ -404,3 +404,21 @@ def test_simulate_out_that_cannot_be_created_is_a_usage_error(capsys):
     assert main(["simulate", "--out", "/proc/fxc-simulate/out"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("fxc simulate: error: --out: ") and "/proc" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    ("argv", "flag"),
+    [
+        (["evaluate", "--task", "rings20-v1", "--task", "paper_fig1-v1"], "--task"),
+        (["simulate", "--seed", "1", "--seed", "2"], "--seed"),
+        (["train", "--timesteps", "1000", "--timesteps", "2000"], "--timesteps"),
+        (["leaderboard", "--tasks", "rings20-v1", "--tasks", "saturated-v1"], "--tasks"),
+    ],
+)
+def test_a_flag_given_twice_is_refused_in_one_line_not_overridden_by_the_last(argv, flag, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"fxc {argv[0]}: error: {flag}: given twice (") and err.endswith("; give it once\n")
+    assert err.count("\n") == 1
