@@ -188,6 +188,7 @@ def test_module_entry_point_exits_non_zero_on_a_bad_value(tmp_path):
 # the other fixtures of ``placeholders``) and the flag the one-line message must name. Every
 # row runs in ``{tmp}`` and must leave it as it was: nothing is written before the checks pass.
 
+
 def _override(base, *row):
     """``base`` with ``row`` after it, less the flags (and their values) ``row`` gives again: a flag is given once."""
     kept, skip = [], False
