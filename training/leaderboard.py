@@ -133,25 +133,28 @@ def check_tasks(names: list[str]) -> list[NamedTask]:
     return list(tasks.values())
 
 
-def check_budget(args: argparse.Namespace, algorithms: list[str]) -> tuple[int, int]:
-    """``--frames`` and ``--seeds``, bounded; given with ``--algorithms none`` (which trains nothing), refused."""
-    given = getattr(args, "given_flags", set())
+def check_budget(args: argparse.Namespace) -> tuple[int, int]:
+    """``--frames`` and ``--seeds``, each bounded (:data:`MAX_FRAMES`, :data:`MAX_SEEDS`)."""
+    return integer("--frames", args.frames, 1, MAX_FRAMES), integer("--seeds", args.seeds, 1, MAX_SEEDS)
+
+
+def refuse_unread_budget(args: argparse.Namespace, algorithms: list[str]) -> None:
+    """``--frames`` or ``--seeds`` given with ``--algorithms none``, which trains nothing, is refused by name."""
     for flag in ("frames", "seeds"):
-        if not algorithms and flag in given:
+        if not algorithms and flag in getattr(args, "given_flags", set()):
             raise ArgumentError(
                 f"--{flag}: only BenchMARL's algorithms read it, and --algorithms none trains nothing; leave it out"
             )
-    return integer("--frames", args.frames, 1, MAX_FRAMES), integer("--seeds", args.seeds, 1, MAX_SEEDS)
 
 
 def leaderboard_command(args: argparse.Namespace) -> int:
     """Handler of ``fxc leaderboard``: every value and every file kept under ``--out`` is checked before any run
     starts (:mod:`fxc_env.training.leaderboard_files`)."""
-    integer("--frames", args.frames, 1, MAX_FRAMES), integer("--seeds", args.seeds, 1, MAX_SEEDS)
+    frames, seeds = check_budget(args)
     reps = integer("--bootstrap-reps", args.bootstrap_reps, 1)
     tasks = check_tasks(list(args.tasks))
     algorithms = check_algorithms(list(args.algorithms))
-    frames, seeds = check_budget(args, algorithms)
+    refuse_unread_budget(args, algorithms)
     out = output_directory("--out", args.out)
     contenders = [contender.name for contender in law_contenders()]
     rescore, train = plan_files(out, tasks, algorithms, seeds, frames, contenders)
