@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import subprocess
 import sys
@@ -436,3 +437,20 @@ def test_a_flag_given_twice_is_refused_in_one_line_not_overridden_by_the_last(ar
     err = capsys.readouterr().err
     assert err.startswith(f"fxc {argv[0]}: error: {flag}: given twice (") and err.endswith("; give it once\n")
     assert err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    ("module", "argv"),
+    [
+        ("fxc_env.speed.command", ["--rounds", "1", "--rounds", "2"]),
+        ("fxc_env.training.rings", ["--out", "a.npz", "--out", "b.npz"]),
+        ("fxc_env.training.agnostic", ["--out", "a.npz", "--out", "b.npz"]),
+        ("fxc_env.training.noise_gains", ["--sigma", "1e-3", "--sigma", "1e-2"]),
+    ],
+)
+def test_the_module_entry_points_refuse_a_flag_given_twice_too(module, argv, capsys):
+    with pytest.raises(SystemExit) as info:
+        importlib.import_module(module).main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"error: {argv[0]}: given twice (" in err and err.count("\n") == 1
