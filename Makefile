@@ -36,10 +36,14 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test]"
 	touch $(STAMP)
 
-# The tests need TorchRL (the native env), the bench contenders (MPE2, VMAS: fxc speed's tables) and
-# Tianshou (tests/test_clients.py).
+# The tests need TorchRL (the native env), the bench contenders (MPE2, VMAS: fxc speed's tables),
+# Tianshou (tests/test_clients.py) and marl-eval (tests/training/test_leaderboard_files.py loads and plots the
+# shipped marl_eval.json with it): id-marl-eval pins pandas 1.4.4 and pulls neptune and jax, so it goes in
+# without its dependencies, beside the few its loader and plots import.
 $(TORCHRL_STAMP): $(STAMP)
 	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test,torchrl,bench,tianshou]"
+	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt rliable seaborn colorcet colorama
+	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt --no-deps id-marl-eval
 	touch $(TORCHRL_STAMP)
 
 $(RLLIB_STAMP): pyproject.toml constraints-rllib.txt

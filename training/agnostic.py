@@ -5,7 +5,6 @@ More: docs: training.md, "fxc_env.training.agnostic".
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -15,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig, make_config
+from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
@@ -334,7 +334,7 @@ def evaluate_rings(policy: RegimeGainPolicy, sizes: Sequence[int], seeds: Sequen
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m fxc_env.training.agnostic", description=__doc__.splitlines()[0])
+    parser = FlagParser(prog="python -m fxc_env.training.agnostic", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=None, help="where to save the policy (.npz)")
     parser.add_argument("--quick", action="store_true", help="train for seconds (three small cases, one L-BFGS step)")
     parser.add_argument("--steps", type=int, default=None, help="L-BFGS steps of 20 iterations (default 20)")

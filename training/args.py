@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from fxc_env.config import make_config
+from fxc_env.config.argument_types import StoreOnce
 from fxc_env.core.validation import ArgumentError, choice, integer
 from fxc_env.training import registry
 from fxc_env.utils.cli_checks import output_directory, yaml_mapping_file
@@ -320,12 +321,9 @@ def add_train_parser(commands: argparse._SubParsersAction) -> argparse.ArgumentP
     return parser
 
 
-class RecordedFlag(argparse.Action):
-    """Store a flag's text and record its field in ``namespace.given_flags`` (``--seed`` with ``--seeds`` is refused)."""
-
-    def __call__(self, parser: Any, namespace: argparse.Namespace, values: Any, option_string: Any = None) -> None:
-        setattr(namespace, self.dest, values)
-        namespace.given_flags = {*getattr(namespace, "given_flags", ()), self.dest}
+class RecordedFlag(StoreOnce):
+    """Store a flag's text and record its field in ``namespace.given_flags`` (``--seed`` with ``--seeds`` is
+    refused); a flag given twice is refused (:class:`~fxc_env.config.argument_types.StoreOnce`)."""
 
 
 def args_from_namespace(namespace: argparse.Namespace) -> TrainArgs:

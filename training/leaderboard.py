@@ -13,8 +13,6 @@ import argparse
 import importlib
 import json
 import math
-import os
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -22,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.baselines import registry
-from fxc_env.baselines.benchmark import run_benchmark
+from fxc_env.baselines.benchmark import make_out, run_benchmark
 from fxc_env.baselines.suite import builtin_contenders, learned_contender
 from fxc_env.config import make_config
 from fxc_env.config.tasks import TASKS, NamedTask, get_task
@@ -32,7 +30,17 @@ from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.learned import SHIPPED
 from fxc_env.training.evaluate import scored_settings, task_suite
-from fxc_env.training.seed_evaluation import LOG_FLOOR, MARL_EVAL_ENV, _episode_metrics
+from fxc_env.training.leaderboard_files import (
+    laws_problem,
+    marl_eval_record,
+    profile_figure,
+    result_commits,
+    result_record,
+    run_problem,
+    versions,
+    write_json,
+)
+from fxc_env.training.seed_evaluation import LOG_FLOOR
 from fxc_env.utils.cli_checks import output_directory
 
 #: BenchMARL's algorithms in the table: (algorithm config, actor model). MADDPG is the deterministic one.
@@ -46,6 +54,10 @@ ALGORITHMS = {
 }
 #: The frame budget per run of the shipped table (fxc_env/assets/leaderboard/): the whole table took 11 CPU-minutes.
 SHIPPED_FRAMES = 1000
+#: Most frames per training run (at the shipped table's rate, about 9 CPU-seconds per 1,000 frames, some 11
+#: CPU-days a run) and most training seeds per algorithm.
+MAX_FRAMES = 10**8
+MAX_SEEDS = 100
 #: The analytic laws beside them (fxc_env.baselines).
 LAWS = tuple(name for name, law in registry.LAWS.items() if law.leaderboard)
 #: Every shipped learned policy (``pretrained`` is the generalist under another name).
@@ -110,44 +122,98 @@ def check_algorithms(names: list[str]) -> list[str]:
     return list(dict.fromkeys(names))
 
 
+def check_tasks(names: list[str]) -> list[NamedTask]:
+    """The named tasks, in order; a task named twice (``rings20-v1`` and ``fxc/rings20-v1`` alike) is refused."""
+    tasks: dict[str, NamedTask] = {}
+    for name in names:
+        task = get_task(name, "--tasks")
+        if task.id in tasks:
+            raise ArgumentError(f"--tasks: {task.id} is named twice; name each task once")
+        tasks[task.id] = task
+    return list(tasks.values())
+
+
+def check_budget(args: argparse.Namespace) -> tuple[int, int]:
+    """``--frames`` and ``--seeds``, each bounded (:data:`MAX_FRAMES`, :data:`MAX_SEEDS`)."""
+    return integer("--frames", args.frames, 1, MAX_FRAMES), integer("--seeds", args.seeds, 1, MAX_SEEDS)
+
+
+def refuse_unread_budget(args: argparse.Namespace, algorithms: list[str]) -> None:
+    """``--frames`` or ``--seeds`` given with ``--algorithms none``, which trains nothing, is refused by name."""
+    for flag in ("frames", "seeds"):
+        if not algorithms and flag in getattr(args, "given_flags", set()):
+            raise ArgumentError(
+                f"--{flag}: only BenchMARL's algorithms read it, and --algorithms none trains nothing; leave it out"
+            )
+
+
 def leaderboard_command(args: argparse.Namespace) -> int:
-    """Handler of ``fxc leaderboard``: every value is checked before any run starts."""
-    frames = integer("--frames", args.frames, 1)
-    seeds = integer("--seeds", args.seeds, 1)
+    """Handler of ``fxc leaderboard``: every value and every file kept under ``--out`` is checked before any run
+    starts (:mod:`fxc_env.training.leaderboard_files`)."""
+    frames, seeds = check_budget(args)
     reps = integer("--bootstrap-reps", args.bootstrap_reps, 1)
-    tasks = [get_task(name, "--tasks") for name in dict.fromkeys(args.tasks)]
+    tasks = check_tasks(list(args.tasks))
     algorithms = check_algorithms(list(args.algorithms))
+    refuse_unread_budget(args, algorithms)
     out = output_directory("--out", args.out)
+    contenders = [contender.name for contender in law_contenders()]
+    rescore, train = plan_files(out, tasks, algorithms, seeds, frames, contenders)
     for task in tasks:
-        folder = out / task.id
-        folder.mkdir(parents=True, exist_ok=True)
-        laws = folder / "laws.json"
-        if not laws.exists():
-            _write_json(laws, score_laws(task, folder / "benchmark"))
-        for algorithm in algorithms:
-            for seed in range(seeds):
-                path = folder / algorithm / f"seed{seed}.json"
-                if path.exists():
-                    recorded = json.loads(path.read_text())
-                    if recorded["frames"] != frames:
-                        raise ArgumentError(
-                            f"--frames: {path} was trained for {recorded['frames']} frames, not {frames}; "
-                            "give the same budget to resume, or another --out"
-                        )
-                    continue
-                print(f"fxc leaderboard: {task.id}: {algorithm}, seed {seed}, {frames} frames", flush=True)
-                _write_json(path, train_and_score(task, algorithm, seed, frames, folder / algorithm / f"seed{seed}"))
+        make_out(out / task.id)
+    for task in (task for task in tasks if task.id in rescore):
+        if rescore[task.id]:
+            print(f"fxc leaderboard: scoring {out / task.id / 'laws.json'} again: it {rescore[task.id]}", flush=True)
+        write_json(out / task.id / "laws.json", score_laws(task, out / task.id / "benchmark"))
+    for task, algorithm, seed in train:
+        print(f"fxc leaderboard: {task.id}: {algorithm}, seed {seed}, {frames} frames", flush=True)
+        folder = out / task.id / algorithm
+        write_json(folder / f"seed{seed}.json", train_and_score(task, algorithm, seed, frames, folder / f"seed{seed}"))
     table, files = write_leaderboard(out, tasks, algorithms, seeds, reps)
     print(table)
     print("wrote " + ", ".join(str(f) for f in files))
     return 0
 
 
+def plan_files(
+    out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int, frames: int, contenders: list[str]
+) -> tuple[dict[str, str], list[tuple[NamedTask, str, int]]]:
+    """What a run under ``out`` does: the tasks (ids) whose ``laws.json`` is (re)scored, with why ("" when there is
+    none yet), and the training runs still to do. A kept run that does not match the request is refused."""
+    rescore: dict[str, str] = {}
+    train = []
+    for task in tasks:
+        laws = out / task.id / "laws.json"
+        if not laws.exists():
+            rescore[task.id] = ""
+        elif why := laws_problem(laws, task, contenders):
+            rescore[task.id] = why
+        for algorithm in algorithms:
+            for seed in range(seeds):
+                path = out / task.id / algorithm / f"seed{seed}.json"
+                if not path.exists():
+                    train.append((task, algorithm, seed))
+                elif why := run_problem(path, task, algorithm, seed):
+                    raise ArgumentError(
+                        f"--out: {path} {why}; delete it to train and score that run again, or give another --out"
+                    )
+                elif (recorded := json.loads(path.read_text())["frames"]) != frames:
+                    raise ArgumentError(
+                        f"--frames: {path} was trained for {recorded} frames, not {frames}; "
+                        "give the same budget to resume, or another --out"
+                    )
+    return rescore, train
+
+
 # ------------------------------------------------------------------------------- scoring
+def law_contenders() -> list[Any]:
+    """The laws and the shipped policies, as the benchmark's contenders."""
+    return builtin_contenders(list(LAWS)) + [learned_contender(name, name=name) for name in SHIPPED_POLICIES]
+
+
 def score_laws(task: NamedTask, folder: Path) -> dict[str, Any]:
     """The laws' and the shipped policies' deadline errors and energies on the task's evaluation episodes."""
     suite, _ = task_suite(task)
-    contenders = builtin_contenders(list(LAWS)) + [learned_contender(name, name=name) for name in SHIPPED_POLICIES]
+    contenders = law_contenders()
     output = run_benchmark(suite, contenders, folder, workers=1, progress=False)
     scores: dict[str, Any] = {}
     for result in output.results:
@@ -159,8 +225,7 @@ def score_laws(task: NamedTask, folder: Path) -> dict[str, Any]:
                 "deadline_error": result.metrics["relative_deadline_error"].tolist(),
                 "energy": result.metrics["energy"].tolist(),
             }
-    return {"task": task.full_id, "seeds": list(task.eval_seeds), "contenders": [c.name for c in contenders],
-            "scores": scores}  # fmt: skip
+    return {**result_record(task), "contenders": [c.name for c in contenders], "scores": scores}
 
 
 def score_actor(task: NamedTask, act: Any) -> dict[str, list[float]]:
@@ -188,7 +253,7 @@ def train_and_score(task: NamedTask, algorithm: str, seed: int, frames: int, fol
     experiment, actor = build_experiment(task, algorithm, seed, frames, folder)
     experiment.run()
     hidden = (actor.n_layers, actor.hidden_size) if actor.is_rnn else None
-    return {"task": task.full_id, "algorithm": algorithm, "seed": seed, "frames": int(experiment.total_frames),
+    return {**result_record(task), "algorithm": algorithm, "seed": seed, "frames": int(experiment.total_frames),
             **score_actor(task, policy_actor(experiment.policy, hidden))}  # fmt: skip
 
 
@@ -299,8 +364,9 @@ def write_leaderboard(
         lines.append("| " + " | ".join(row) + " |")
     command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["leaderboard"] else None
     intro = (
-        f"Leaderboard: {len(algorithms)} BenchMARL algorithms x {seeds} training seeds, the laws and the shipped "
-        f"policies, on {', '.join(t.full_id for t in tasks)}; each scored on its task's evaluation seeds "
+        "Leaderboard: "
+        + (f"{len(algorithms)} BenchMARL algorithms x {seeds} training seeds, " if algorithms else "")
+        + f"the laws and the shipped policies, on {', '.join(t.full_id for t in tasks)}; each scored on its task's evaluation seeds "
         f"(95% stratified bootstrap, {reps} replicates; log10 floored at {LOG_FLOOR:g})."
         + (f"\nCommand: `{command}`" if command else "")
     )
@@ -308,9 +374,9 @@ def write_leaderboard(
     table = intro + "\n\n" + "\n".join(lines) + "\n" + ("\n" + "\n".join(headline) + "\n" if headline else "")
     files = [out / "table.md", out / "marl_eval.json", out / "performance_profile.png", out / "versions.json"]
     files[0].write_text(table)
-    _write_json(files[1], _marl_eval(scores, energies))
-    _profile(scores, files[2])
-    _write_json(files[3], versions())
+    write_json(files[1], marl_eval_record(scores, energies, [task.id for task in tasks], seeds if algorithms else 1))
+    profile_figure(scores, tuple(ALGORITHMS), files[2])
+    write_json(files[3], {**versions(), "result_commits": result_commits(out, tasks, algorithms, seeds)})
     return table, files
 
 
@@ -363,74 +429,5 @@ def headline_lines(
     return lines
 
 
-def versions() -> dict[str, str]:
-    """What made the table: Python, the libraries that train and score, and fxc_env's git commit where it has one
-    (``git describe --dirty``: a ``-dirty`` suffix when tracked files differ from it)."""
-    from importlib import metadata
-
-    found = {"python": sys.version.split()[0]}
-    for name in ("fxc_env", "numpy", "torch", "torchrl", "tensordict", "benchmarl", "torch_geometric"):
-        try:
-            found[name] = metadata.version(name.replace("_", "-") if name == "fxc_env" else name)
-        except metadata.PackageNotFoundError:
-            found[name] = "not installed"
-    try:
-        root = Path(__file__).resolve().parents[1]
-        commit = subprocess.run(
-            ["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=40"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-        )
-        found["fxc_env_commit"] = commit.stdout.strip() if commit.returncode == 0 else "not a git checkout"
-    except (OSError, subprocess.TimeoutExpired):
-        found["fxc_env_commit"] = "git not found"
-    return found
-
-
 def _number(value: float) -> str:
     return "∞" if math.isinf(value) else f"{value:.3g}"
-
-
-def _marl_eval(scores: dict[str, dict[str, np.ndarray]], energies: dict[str, dict[str, np.ndarray]]) -> dict:
-    """marl-eval's layout: env -> task -> algorithm -> seed_<k> -> step_0 / absolute_metrics (tasks every contender ran)."""
-    tasks: dict[str, Any] = {}
-    for name, by_task in scores.items():
-        for task, errors in by_task.items():
-            for k, (row, energy) in enumerate(zip(errors, energies[name][task], strict=True)):
-                metrics = _episode_metrics(row, energy)
-                record = {"step_0": {"step_count": 0, **metrics}, "absolute_metrics": metrics}
-                tasks.setdefault(task, {}).setdefault(name, {})[f"seed_{k}"] = record
-    return {MARL_EVAL_ENV: tasks}
-
-
-def _profile(scores: dict[str, dict[str, np.ndarray]], path: Path) -> None:
-    """The performance profile: per contender, the fraction of its episodes with log10 D(T_s)/D(0) <= tau."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    taus = np.linspace(math.log10(LOG_FLOOR), 1.0, 200)
-    figure, axes = plt.subplots(figsize=(9.5, 4.5))
-    colours = plt.get_cmap("tab20")  # its 10 dark hues first, then their light twins: neighbours differ in hue
-    for i, (name, by_task) in enumerate(scores.items()):
-        decades = np.concatenate([statistics.decades(errors, LOG_FLOOR).ravel() for errors in by_task.values()])
-        style = "--" if name in ALGORITHMS else "-"  # BenchMARL's algorithms dashed, laws and shipped policies solid
-        fraction = [(decades <= tau).mean() for tau in taus]
-        axes.step(taus, fraction, style, where="post", label=name, color=colours(2 * i % 20 + i // 10 % 2))
-    axes.set_xlabel("tau: log10 D(T_s)/D(0)")
-    axes.set_ylabel("fraction of episodes with log10 D(T_s)/D(0) <= tau")
-    axes.set_ylim(0, 1.02)
-    axes.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)  # beside the axes
-    figure.tight_layout()
-    figure.savefig(path, dpi=120, bbox_inches="tight")
-    plt.close(figure)
-
-
-def _write_json(path: Path, record: dict[str, Any]) -> None:
-    """Write ``record`` whole or not at all (a rename), so an interrupted run leaves no half file to resume from."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_suffix(".json.partial")
-    partial.write_text(json.dumps(record, indent=1) + "\n")
-    os.replace(partial, path)

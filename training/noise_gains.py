@@ -5,7 +5,6 @@ Law, source, proven graph class and refusals: docs: optimality.md, "Noise-fitted
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -14,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import make_config
+from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer, real
 from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
@@ -219,7 +219,7 @@ def measure(config: Any, policy: Any, seeds: Sequence[int] = tuple(range(20))) -
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m fxc_env.training.noise_gains", description=__doc__.splitlines()[0])
+    parser = FlagParser(prog="python -m fxc_env.training.noise_gains", description=__doc__.splitlines()[0])
     parser.add_argument("--sigma", type=float, default=1e-3, help="obs_noise (m, m/s)")
     parser.add_argument("--cap", type=float, default=1e3, help="energy budget, in units of E[E*]")
     parser.add_argument(

@@ -25,6 +25,7 @@ import torch
 
 from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.config import EnvConfig, make_config
+from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
@@ -263,9 +264,7 @@ def evaluate(policy: TorchPolicy, n_agents: int = 20, seeds: Sequence[int] = ran
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m fxc_env.training.recurrent_imitation", description=__doc__.splitlines()[0]
-    )
+    parser = FlagParser(prog="python -m fxc_env.training.recurrent_imitation", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=None, help="run directory to write policy.pt into")
     parser.add_argument("--sizes", default="20", help="comma-separated ring sizes to train on")
     parser.add_argument("--rounds", type=int, default=0, help="DAgger rounds after the teacher's")

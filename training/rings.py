@@ -5,7 +5,6 @@ More: docs: training.md, "fxc_env.training.rings".
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -16,6 +15,7 @@ import numpy as np
 
 from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.config import EnvConfig, make_config
+from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
@@ -238,7 +238,7 @@ def comparison_line(label: str, result: dict[str, float]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m fxc_env.training.rings", description=__doc__.splitlines()[0])
+    parser = FlagParser(prog="python -m fxc_env.training.rings", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=None, help="where to save the policy (.npz)")
     parser.add_argument("--episodes", type=int, default=8, help="demonstration episodes of the teacher")
     parser.add_argument("--refine-steps", type=int, default=0, help="direct-minimisation steps after the start")

@@ -5,7 +5,6 @@ More: docs: training.md, "fxc_env.training.rings_scratch".
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -14,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
@@ -208,9 +208,7 @@ def _train(episodes: int, steps: int, seed: int, free: bool) -> tuple[IntervalGa
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m fxc_env.training.rings_scratch", description=__doc__.splitlines()[0]
-    )
+    parser = FlagParser(prog="python -m fxc_env.training.rings_scratch", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=None, help="where to save the policy (.npz)")
     parser.add_argument("--quick", action="store_true", help="train for seconds (8 episodes, one L-BFGS step)")
     parser.add_argument("--episodes", type=int, default=None, help="training episodes (default 64, --quick 8)")

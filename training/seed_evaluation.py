@@ -24,6 +24,7 @@ from fxc_env.baselines.suite import Contender, learned_contender, model_path
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.policies.learned import SHIPPED, architecture_of, load_learned_policy
 from fxc_env.policies.policy_files import CHECKED_SETTINGS, read_metadata
+from fxc_env.training.args import canonical_backend
 from fxc_env.training.seed_scores import (  # noqa: F401
     LOG_FLOOR,
     MARL_EVAL_ENV,
@@ -53,7 +54,7 @@ _RUN_FILES = ("model.zip", "policy.pt", "config.json", "checkpoints")
 POLICY_SUFFIXES = (".zip", ".pt", ".npz")
 _NOT_A_RUN = "neither a saved policy (" + ", ".join(POLICY_SUFFIXES) + ") nor a run directory"
 #: What runs pooled as training seeds of one policy must share, in the order :func:`pooled_identity` compares them.
-POOLED_FIELDS = ("format", "algorithm", "architecture", "parameter shapes", "scenario", "settings")
+POOLED_FIELDS = ("format", "trainer", "algorithm", "architecture", "parameter shapes", "scenario", "settings")
 #: The step count in a checkpoint's name (``model_4000000_steps.zip``, ``rllib_4000_steps``).
 _CHECKPOINT_STEPS = re.compile(r"_(\d+)_steps")
 
@@ -142,7 +143,15 @@ def resolve_run(entry: str, name: str = "--runs") -> TrainedRun:
         raise ArgumentError(
             f"{name}: cannot tell the training seed of {entry!r} (no config.json from fxc train, no seed<k> in its name)"
         )
-    return TrainedRun(entry, spec, int(seed), _timesteps(spec, recorded))
+    return TrainedRun(entry, spec, int(seed), _timesteps(spec, recorded), _trainer(recorded))
+
+
+def _trainer(recorded: dict[str, Any]) -> str | None:
+    """``--backend B --algo A`` as a run's ``config.json`` records them (None when it records no back end)."""
+    backend, algo = recorded.get("backend"), recorded.get("algo")
+    if not isinstance(backend, str):
+        return None
+    return f"--backend {canonical_backend(backend, warn=False)}" + (f" --algo {algo}" if isinstance(algo, str) else "")
 
 
 def _read_config(path: Path) -> dict[str, Any]:
@@ -230,21 +239,25 @@ def seed_contenders(
     return contenders
 
 
-def pooled_identity(policy: Any) -> dict[str, Any]:
-    """What a loaded policy must share with the other seeds it is pooled with (:data:`POOLED_FIELDS`)."""
+def pooled_identity(policy: Any, run: TrainedRun | None = None) -> dict[str, Any]:
+    """What a loaded policy (of ``run``) must share with the other seeds it is pooled with (:data:`POOLED_FIELDS`).
+
+    ``trainer`` is the back end and algorithm the run's ``config.json`` records (a torch PPO run and an
+    analytic-gradient run save the same kind of file); ``algorithm`` what the policy file says of itself.
+    """
     model = getattr(policy, "model", None)
     kind = type(policy).__name__
     formats = {
         "LearnedPolicy": "an SB3 model",
-        "TorchPolicy": "a torch policy (fxc train --backend torch)",
+        "TorchPolicy": "a torch policy (fxc train --backend torch or diff)",
         "RLlibPolicy": "an RLlib checkpoint",
         "IntervalGainPolicy": "a gain schedule (.npz)",
         "RegimeGainPolicy": "a pair of gain schedules chosen by a probe (.npz)",
     }
     if model is not None:
         algorithm = getattr(model, "algorithm", None) or type(model).__name__
-    else:
-        algorithm = "PPO" if kind in ("TorchPolicy", "RLlibPolicy") else None
+    else:  # RLlib trains PPO; a torch file does not say (PPO or analytic gradients): its run's trainer does
+        algorithm = "PPO" if kind == "RLlibPolicy" else None
     module = getattr(policy, "module", None) or getattr(model, "policy", None)
     if hasattr(module, "state_dict"):
         shapes = [f"{key} {tuple(value.shape)}" for key, value in module.state_dict().items()]
@@ -253,6 +266,7 @@ def pooled_identity(policy: Any) -> dict[str, Any]:
     trained = getattr(policy, "training_settings", None) or {}
     return {
         "format": formats.get(kind, kind),
+        "trainer": None if run is None else run.trainer,
         "algorithm": algorithm,
         "architecture": architecture_of(policy)[0],
         "parameter shapes": shapes,
@@ -265,9 +279,9 @@ def check_pooled(runs: Sequence[TrainedRun], policies: Sequence[Any], name: str 
     """Refuse runs that are not training seeds of one policy: the first :data:`POOLED_FIELDS` entry that
     differs from the first run's is named, with both runs and both values. What a file does not
     record (a scenario, a setting an older file lacks) is not taken for a difference."""
-    first = pooled_identity(policies[0]) if policies else {}
+    first = pooled_identity(policies[0], runs[0]) if policies else {}
     for run, policy in zip(runs[1:], policies[1:], strict=True):
-        other = pooled_identity(policy)
+        other = pooled_identity(policy, run)
         for field in POOLED_FIELDS:
             ours, theirs, label = first[field], other[field], field
             if field == "settings":  # the settings both files record (an older file records fewer)

@@ -29,12 +29,15 @@ class TrainedRun:
             RLlib run directory itself; a file; a shipped name).
         seed: its training seed.
         timesteps: the agent-steps it was trained for (0 when nothing records them).
+        trainer: how it was trained, as its run's ``config.json`` records it (``--backend diff --algo apg``);
+            None when nothing records it (a bare policy file, a shipped policy).
     """
 
     entry: str
     spec: str
     seed: int
     timesteps: int
+    trainer: str | None = None
 
 
 #: Floor of the log column (the benchmark's ``log10(max(error, 1e-12))``).

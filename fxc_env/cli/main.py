@@ -18,6 +18,7 @@ from typing import Any
 
 from fxc_env.analysis.video import add_video_arguments
 from fxc_env.baselines.benchmark import add_benchmark_parser, make_out
+from fxc_env.config.argument_types import FlagParser
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.speed.command import add_arguments as speed_arguments
@@ -172,7 +173,7 @@ def train_command(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="fxc", description="Fixed-time consensus of double integrators (fxc_env).")
+    parser = FlagParser(prog="fxc", description="Fixed-time consensus of double integrators (fxc_env).")
     commands = parser.add_subparsers(dest="command", required=True)
     sim = commands.add_parser("simulate", help="run the reference policy on a scenario and write figures")
     add_env_arguments(sim)

@@ -3,6 +3,7 @@ checks a single value (:mod:`fxc_env.core.validation`'s helpers) and how a card 
 
 from __future__ import annotations
 
+import argparse
 import inspect
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -167,3 +168,29 @@ def with_arguments_table(doc: str | None, arguments: Sequence[Argument]) -> str:
     indent = line[: len(line) - len(line.lstrip())]
     table = [indent + row for row in arguments_table(arguments).split("\n")]
     return "\n".join([*lines[: marked[0]], *table, *lines[marked[0] + 1 :]])
+
+
+class StoreOnce(argparse._StoreAction):
+    """argparse's ``store`` that refuses a flag given twice (``--task A --task B`` would keep B in silence).
+
+    Every flag it stores is recorded in ``namespace.given_flags`` (its ``dest``), so a command can tell a
+    flag given from its default. The refusal is one line, ``fxc <command>: error: --flag: ...``, exit status 2.
+    """
+
+    def __call__(self, parser: Any, namespace: Any, values: Any, option_string: str | None = None) -> None:
+        given = set(getattr(namespace, "given_flags", ()))
+        if self.dest in given:
+            flag = option_string or self.dest
+            parser.exit(2, f"{parser.prog}: error: {flag}: given twice ({getattr(namespace, self.dest)!r}, then "
+                           f"{values!r}); give it once\n")  # fmt: skip
+        setattr(namespace, self.dest, values)
+        namespace.given_flags = given | {self.dest}
+
+
+class FlagParser(argparse.ArgumentParser):
+    """The ``fxc`` parser: a flag is stored by :class:`StoreOnce`, so a repeated one is refused."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.register("action", None, StoreOnce)
+        self.register("action", "store", StoreOnce)

@@ -10,6 +10,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import MAX_AGENTS, ArgumentError, integer
 from fxc_env.speed.scaling import SCALING_FIRST_N
 from fxc_env.speed.timing import importable, machine_description
@@ -234,7 +235,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import fxc_env.speed
 
     description = fxc_env.speed.__doc__.splitlines()[0]  # the package's: what fxc speed measures
-    parser = add_arguments(argparse.ArgumentParser(prog="fxc speed", description=description))
+    parser = add_arguments(FlagParser(prog="fxc speed", description=description))
     arguments = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(arguments)
     try:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import subprocess
 import sys
@@ -188,6 +189,20 @@ def test_module_entry_point_exits_non_zero_on_a_bad_value(tmp_path):
 # the other fixtures of ``placeholders``) and the flag the one-line message must name. Every
 # row runs in ``{tmp}`` and must leave it as it was: nothing is written before the checks pass.
 
+
+def _override(base, *row):
+    """``base`` with ``row`` after it, less the flags (and their values) ``row`` gives again: a flag is given once."""
+    kept, skip = [], False
+    for i, token in enumerate(base):
+        if skip:
+            skip = False
+        elif token.startswith("--") and token in row:
+            skip = i + 1 < len(base) and not base[i + 1].startswith("--")
+        else:
+            kept.append(token)
+    return [*kept, *row]
+
+
 TRAIN = ["train", "--run-dir", "{tmp}/run", "--no-progress-bar", "--timesteps", "100"]
 EVALUATE = ["evaluate", "--policy", "reference", "--no-progress", "--out", "{tmp}/eval"]
 BENCHMARK = ["benchmark", "--quick", "--no-progress", "--policies", "reference", "--out", "{tmp}/bench"]
@@ -206,57 +221,57 @@ USAGE_ERRORS = [
     (["speed", "--total-agents", "0"], "--total-agents"),
     (["speed", "--largest", "0"], "--largest"),
     # fxc train
-    ([*TRAIN, "--hyperparams", "{tmp}/missing.yml"], "--hyperparams"),
-    ([*TRAIN, "--hyperparams", "{bad_yaml}"], "--hyperparams"),
-    ([*TRAIN, "--hyperparams", "{list_yaml}"], "--hyperparams"),
-    ([*TRAIN, "--hyperparams", "{tmp}"], "--hyperparams"),
-    ([*TRAIN, "--torch-threads", "0"], "--torch-threads"),
-    ([*TRAIN, "--n-envs", "0"], "--n-envs"),
-    ([*TRAIN, "--checkpoint-every", "-1"], "--checkpoint-every"),
-    ([*TRAIN, "--checkpoint-every", "0"], "--checkpoint-every"),
-    ([*TRAIN, "--timesteps", "0"], "--timesteps"),
-    ([*TRAIN, "--seed", "-1"], "--seed"),
-    ([*TRAIN, "--algo", "dqn"], "--algo"),
-    ([*TRAIN, "--backend", "tf"], "--backend"),
-    ([*TRAIN, "--backend", "rllib", "--algo", "sac"], "--algo"),
-    ([*TRAIN, "--backend", "rllib", "--num-env-runners", "-1"], "--num-env-runners"),
-    ([*TRAIN, "--backend", "rllib", "--envs-per-runner", "0"], "--envs-per-runner"),
-    ([*TRAIN, "--scenario", "paper_fig9"], "--scenario"),
-    ([*TRAIN, "--run-dir", "{file}"], "--run-dir"),
-    ([*TRAIN, "--run-dir", "{file}/run"], "--run-dir"),
+    (_override(TRAIN, "--hyperparams", "{tmp}/missing.yml"), "--hyperparams"),
+    (_override(TRAIN, "--hyperparams", "{bad_yaml}"), "--hyperparams"),
+    (_override(TRAIN, "--hyperparams", "{list_yaml}"), "--hyperparams"),
+    (_override(TRAIN, "--hyperparams", "{tmp}"), "--hyperparams"),
+    (_override(TRAIN, "--torch-threads", "0"), "--torch-threads"),
+    (_override(TRAIN, "--n-envs", "0"), "--n-envs"),
+    (_override(TRAIN, "--checkpoint-every", "-1"), "--checkpoint-every"),
+    (_override(TRAIN, "--checkpoint-every", "0"), "--checkpoint-every"),
+    (_override(TRAIN, "--timesteps", "0"), "--timesteps"),
+    (_override(TRAIN, "--seed", "-1"), "--seed"),
+    (_override(TRAIN, "--algo", "dqn"), "--algo"),
+    (_override(TRAIN, "--backend", "tf"), "--backend"),
+    (_override(TRAIN, "--backend", "rllib", "--algo", "sac"), "--algo"),
+    (_override(TRAIN, "--backend", "rllib", "--num-env-runners", "-1"), "--num-env-runners"),
+    (_override(TRAIN, "--backend", "rllib", "--envs-per-runner", "0"), "--envs-per-runner"),
+    (_override(TRAIN, "--scenario", "paper_fig9"), "--scenario"),
+    (_override(TRAIN, "--run-dir", "{file}"), "--run-dir"),
+    (_override(TRAIN, "--run-dir", "{file}/run"), "--run-dir"),
     # fxc evaluate
-    ([*EVALUATE, "--budgets", "0"], "--budgets"),
-    ([*EVALUATE, "--budgets", "0,200"], "--budgets"),
-    ([*EVALUATE, "--budgets", "abc"], "--budgets"),
-    ([*EVALUATE, "--budgets", ""], "--budgets"),
-    ([*EVALUATE, "--budgets", "200,200"], "--budgets"),
-    ([*EVALUATE, "--seeds", "0"], "--seeds"),
-    ([*EVALUATE, "--workers", "0"], "--workers"),
-    ([*EVALUATE, "--out", "{file}"], "--out"),
-    ([*EVALUATE, "--out", "{file}/sub"], "--out"),
-    ([*EVALUATE, "--policy", "{tmp}/missing.zip"], "--policy"),
-    ([*EVALUATE, "--policy", "{empty_zip}"], "--policy"),
-    ([*EVALUATE, "--policy", "{text_zip}"], "--policy"),
-    ([*EVALUATE, "--policy", "{foreign_zip}"], "--policy"),
-    ([*EVALUATE, "--policy", "{truncated_zip}"], "--policy"),
-    ([*EVALUATE, "--policy", "{garbage_weights}"], "--policy"),
-    ([*EVALUATE, "--policy", "{half_weights}"], "--policy"),
-    ([*EVALUATE, "--policy", "{no_weights}"], "--policy"),
-    ([*EVALUATE, "--policy", "{bad_data}"], "--policy"),
-    ([*EVALUATE, "--policy", "{tmp}/empty_dir"], "--policy"),
+    (_override(EVALUATE, "--budgets", "0"), "--budgets"),
+    (_override(EVALUATE, "--budgets", "0,200"), "--budgets"),
+    (_override(EVALUATE, "--budgets", "abc"), "--budgets"),
+    (_override(EVALUATE, "--budgets", ""), "--budgets"),
+    (_override(EVALUATE, "--budgets", "200,200"), "--budgets"),
+    (_override(EVALUATE, "--seeds", "0"), "--seeds"),
+    (_override(EVALUATE, "--workers", "0"), "--workers"),
+    (_override(EVALUATE, "--out", "{file}"), "--out"),
+    (_override(EVALUATE, "--out", "{file}/sub"), "--out"),
+    (_override(EVALUATE, "--policy", "{tmp}/missing.zip"), "--policy"),
+    (_override(EVALUATE, "--policy", "{empty_zip}"), "--policy"),
+    (_override(EVALUATE, "--policy", "{text_zip}"), "--policy"),
+    (_override(EVALUATE, "--policy", "{foreign_zip}"), "--policy"),
+    (_override(EVALUATE, "--policy", "{truncated_zip}"), "--policy"),
+    (_override(EVALUATE, "--policy", "{garbage_weights}"), "--policy"),
+    (_override(EVALUATE, "--policy", "{half_weights}"), "--policy"),
+    (_override(EVALUATE, "--policy", "{no_weights}"), "--policy"),
+    (_override(EVALUATE, "--policy", "{bad_data}"), "--policy"),
+    (_override(EVALUATE, "--policy", "{tmp}/empty_dir"), "--policy"),
     # fxc benchmark
-    ([*BENCHMARK, "--seeds", "0"], "--seeds"),
-    ([*BENCHMARK, "--workers", "0"], "--workers"),
-    ([*BENCHMARK, "--fine-intervals", "0"], "--fine-intervals"),
-    ([*BENCHMARK, "--out", "{file}"], "--out"),
-    ([*BENCHMARK, "--out", "{file}/sub"], "--out"),
-    ([*BENCHMARK, "--policies", "oracle"], "--policies"),
-    ([*BENCHMARK, "--policies", ","], "--policies"),
-    ([*BENCHMARK, "--address", "auto"], "--address"),
-    ([*BENCHMARK, "--policy", "{tmp}/missing.zip"], "--policy"),
-    ([*BENCHMARK, "--policy", "{empty_zip}"], "--policy"),
-    ([*BENCHMARK, "--policy", "{text_zip}"], "--policy"),
-    ([*BENCHMARK, "--policy", "{foreign_zip}"], "--policy"),
+    (_override(BENCHMARK, "--seeds", "0"), "--seeds"),
+    (_override(BENCHMARK, "--workers", "0"), "--workers"),
+    (_override(BENCHMARK, "--fine-intervals", "0"), "--fine-intervals"),
+    (_override(BENCHMARK, "--out", "{file}"), "--out"),
+    (_override(BENCHMARK, "--out", "{file}/sub"), "--out"),
+    (_override(BENCHMARK, "--policies", "oracle"), "--policies"),
+    (_override(BENCHMARK, "--policies", ","), "--policies"),
+    (_override(BENCHMARK, "--address", "auto"), "--address"),
+    (_override(BENCHMARK, "--policy", "{tmp}/missing.zip"), "--policy"),
+    (_override(BENCHMARK, "--policy", "{empty_zip}"), "--policy"),
+    (_override(BENCHMARK, "--policy", "{text_zip}"), "--policy"),
+    (_override(BENCHMARK, "--policy", "{foreign_zip}"), "--policy"),
 ]
 
 
@@ -404,3 +419,38 @@ def test_simulate_out_that_cannot_be_created_is_a_usage_error(capsys):
     assert main(["simulate", "--out", "/proc/fxc-simulate/out"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("fxc simulate: error: --out: ") and "/proc" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    ("argv", "flag"),
+    [
+        (["evaluate", "--task", "rings20-v1", "--task", "paper_fig1-v1"], "--task"),
+        (["simulate", "--seed", "1", "--seed", "2"], "--seed"),
+        (["train", "--timesteps", "1000", "--timesteps", "2000"], "--timesteps"),
+        (["leaderboard", "--tasks", "rings20-v1", "--tasks", "saturated-v1"], "--tasks"),
+    ],
+)
+def test_a_flag_given_twice_is_refused_in_one_line_not_overridden_by_the_last(argv, flag, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"fxc {argv[0]}: error: {flag}: given twice (") and err.endswith("; give it once\n")
+    assert err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    ("module", "argv"),
+    [
+        ("fxc_env.speed.command", ["--rounds", "1", "--rounds", "2"]),
+        ("fxc_env.training.rings", ["--out", "a.npz", "--out", "b.npz"]),
+        ("fxc_env.training.agnostic", ["--out", "a.npz", "--out", "b.npz"]),
+        ("fxc_env.training.noise_gains", ["--sigma", "1e-3", "--sigma", "1e-2"]),
+    ],
+)
+def test_the_module_entry_points_refuse_a_flag_given_twice_too(module, argv, capsys):
+    with pytest.raises(SystemExit) as info:
+        importlib.import_module(module).main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"error: {argv[0]}: given twice (" in err and err.count("\n") == 1

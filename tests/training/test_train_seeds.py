@@ -220,3 +220,29 @@ def test_runs_pooled_as_seeds_must_be_one_policy_and_non_policy_files_are_not_ru
         (run / "config.json").write_text(json.dumps({"args": {"seed": seed}}))
         with pytest.raises(ArgumentError, match=r"^--runs: the seed in '.*r-seed1/config.json': expected an integer"):
             resolve_run(str(run))
+
+
+def test_a_torch_ppo_run_and_an_analytic_gradient_run_are_not_pooled_as_seeds_of_one_policy(tmp_path):
+    """Both save a torch policy file: the back end their run directories record is what tells them apart."""
+    from fxc_env.policies.learned import pretrained_path
+    from fxc_env.training.seed_evaluation import seed_contenders
+
+    for seed, backend, algo in ((0, "torch", "ppo"), (1, "diff", "apg")):
+        run = tmp_path / f"rings-seed{seed}"
+        run.mkdir()
+        (run / "policy.pt").write_bytes(pretrained_path("rings_gru").read_bytes())
+        (run / "config.json").write_text(json.dumps({"args": {"seed": seed, "backend": backend, "algo": algo}}))
+    runs = [resolve_run(entry) for entry in expand_runs([str(tmp_path)])]
+    assert [run.trainer for run in runs] == ["--backend torch --algo ppo", "--backend diff --algo apg"]
+    with pytest.raises(
+        ArgumentError,
+        match=r"^--runs: .* are not training seeds of one policy: trainer '--backend torch --algo ppo' vs "
+        r"'--backend diff --algo apg'",
+    ):
+        seed_contenders(runs, "rings")
+    # Two torch PPO runs of it pool.
+    config = json.loads((tmp_path / "rings-seed1" / "config.json").read_text())
+    config["args"].update(backend="torch", algo="ppo")
+    (tmp_path / "rings-seed1" / "config.json").write_text(json.dumps(config))
+    runs = [resolve_run(entry) for entry in expand_runs([str(tmp_path)])]
+    assert [c.name for c in seed_contenders(runs, "rings")] == ["learned:rings-seed0", "learned:rings-seed1"]

@@ -1,0 +1,215 @@
+"""The files ``fxc leaderboard`` keeps under ``--out``, what each records, and the checks a rerun makes of them.
+
+Every result file records what it was scored for: the task (``task``), its evaluation seeds (``seeds``),
+the episode count (``episodes``), fxc_env's version (``fxc_env``) and git commit (``fxc_env_commit``: the
+commits of a table's files are listed in its ``versions.json`` as ``result_commits``); a
+training run also its algorithm, training seed and frame budget. A rerun keeps a file only where its record
+matches the request and its scores are whole (one finite or ``inf`` deadline error and one energy per
+episode): ``<task>/laws.json`` that does not is scored again (a line names the file and why), a training run
+that does not is refused by name (only retraining could score it again). Docs: results.md, "MARL algorithms
+table".
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fxc_env.config.tasks import NamedTask
+from fxc_env.core import statistics
+from fxc_env.training.seed_evaluation import LOG_FLOOR, MARL_EVAL_ENV, _episode_metrics
+
+#: What a result file records besides its scores (see the module).
+RECORD_FIELDS = ("task", "seeds", "episodes", "fxc_env", "fxc_env_commit")
+
+
+def result_record(task: NamedTask) -> dict[str, Any]:
+    """The record every result file of ``task`` carries (:data:`RECORD_FIELDS`)."""
+    made = versions()
+    return {"task": task.full_id, "seeds": list(task.eval_seeds), "episodes": len(task.eval_seeds),
+            "fxc_env": made["fxc_env"], "fxc_env_commit": made["fxc_env_commit"]}  # fmt: skip
+
+
+def read_result(path: Path) -> tuple[dict[str, Any] | None, str]:
+    """The JSON object at ``path``, or None and why it cannot be read (damaged, not an object)."""
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        return None, f"cannot be read as JSON ({type(exc).__name__})"
+    if not isinstance(record, dict):
+        return None, f"holds a {type(record).__name__}, not a JSON object"
+    return record, ""
+
+
+def record_problem(record: dict[str, Any], task: NamedTask, expected: dict[str, Any]) -> str:
+    """Why ``record`` does not match ``task`` scored now plus ``expected``'s entries ("" when it does).
+
+    The commit is not compared (it changes with every commit of a checkout); the version is.
+    """
+    missing = [field for field in (*RECORD_FIELDS, *expected) if field not in record]
+    if missing:
+        return f"records no {', '.join(missing)} (written by hand or by an older fxc leaderboard)"
+    wanted = {**{k: v for k, v in result_record(task).items() if k != "fxc_env_commit"}, **expected}
+    for field, value in wanted.items():
+        if record[field] != value:
+            return f"records {field} {_short(record[field])}, not {_short(value)}"
+    return ""
+
+
+def scores_problem(record: Any, episodes: int) -> str:
+    """Why ``record`` is not one score per episode ("" when it is): ``deadline_error`` a list of ``episodes``
+    numbers >= 0 (``inf``: diverged), ``energy`` as many finite numbers >= 0."""
+    if not isinstance(record, dict):
+        return "holds no scores"
+    for key, allow_inf in (("deadline_error", True), ("energy", False)):
+        values = record.get(key)
+        if not isinstance(values, list) or len(values) != episodes:
+            return f"holds no {episodes} {key} values"
+        for value in values:
+            if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+                return f"holds a {key} of {value!r} (expected numbers >= 0)"
+            if math.isinf(value) and not allow_inf:
+                return f"holds an infinite {key}"
+    return ""
+
+
+def laws_problem(path: Path, task: NamedTask, contenders: list[str]) -> str:
+    """Why ``<task>/laws.json`` must be scored again ("" to keep it): unreadable, recorded for another
+    request (:func:`record_problem`; other ``contenders``), or a contender without a reason or whole scores."""
+    record, why = read_result(path)
+    if record is None:
+        return why
+    problem = record_problem(record, task, {"contenders": contenders})
+    if problem:
+        return problem
+    scores = record.get("scores")
+    if not isinstance(scores, dict) or set(scores) != set(contenders):
+        return "holds no scores for every contender"
+    for name, entry in scores.items():
+        if isinstance(entry, dict) and isinstance(entry.get("note"), str):
+            continue  # refused on this task: the reason
+        problem = scores_problem(entry, len(task.eval_seeds))
+        if problem:
+            return f"{problem} for {name}"
+    return ""
+
+
+def run_problem(path: Path, task: NamedTask, algorithm: str, seed: int) -> str:
+    """Why the training run at ``path`` cannot be kept ("" when it can): see :func:`laws_problem`."""
+    record, why = read_result(path)
+    if record is None:
+        return why
+    expected = {"algorithm": algorithm, "seed": seed}
+    frames = record.get("frames")
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        return "records no frame budget"
+    return record_problem(record, task, expected) or scores_problem(record, len(task.eval_seeds))
+
+
+def result_commits(out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int) -> list[str]:
+    """The fxc_env commits the table's result files under ``out`` record (a kept run may predate the table)."""
+    paths = [out / task.id / "laws.json" for task in tasks]
+    paths += [out / task.id / name / f"seed{k}.json" for task in tasks for name in algorithms for k in range(seeds)]
+    return sorted({str(json.loads(path.read_text())["fxc_env_commit"]) for path in paths})
+
+
+def versions() -> dict[str, str]:
+    """What made the table: Python, the libraries that train and score, and fxc_env's git commit where it has one
+    (``git describe --dirty``: a ``-dirty`` suffix when tracked files differ from it)."""
+    return dict(_versions())
+
+
+@functools.cache
+def _versions() -> tuple[tuple[str, str], ...]:
+    from importlib import metadata
+
+    found = {"python": sys.version.split()[0]}
+    for name in ("fxc_env", "numpy", "torch", "torchrl", "tensordict", "benchmarl", "torch_geometric"):
+        try:
+            found[name] = metadata.version(name.replace("_", "-") if name == "fxc_env" else name)
+        except metadata.PackageNotFoundError:
+            found[name] = "not installed"
+    try:
+        root = Path(__file__).resolve().parents[1]
+        commit = subprocess.run(
+            ["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=40"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+        found["fxc_env_commit"] = commit.stdout.strip() if commit.returncode == 0 else "not a git checkout"
+    except (OSError, subprocess.TimeoutExpired):
+        found["fxc_env_commit"] = "git not found"
+    return tuple(found.items())
+
+
+def marl_eval_record(
+    scores: dict[str, dict[str, np.ndarray]], energies: dict[str, dict[str, np.ndarray]], tasks: list[str], runs: int
+) -> dict[str, Any]:
+    """marl-eval's layout: env -> task -> algorithm -> seed_<k> -> step_0 / absolute_metrics.
+
+    ``scores`` and ``energies``: per contender and task id, the (runs, episodes) arrays of the table. marl-eval
+    needs every algorithm in every task, each with the same runs: only the contenders that scored every one of
+    ``tasks`` are listed, and a law or shipped policy (one deterministic row of scores) is listed under each of
+    the ``runs`` run keys of the trained algorithms (``seed_0`` .. ``seed_<runs-1>``) with the same scores.
+    """
+    out: dict[str, Any] = {task: {} for task in tasks}
+    for name, by_task in scores.items():
+        if not set(tasks) <= set(by_task):
+            continue  # refused on some task: in table.md and laws.json only
+        for task in tasks:
+            errors, energy = by_task[task], energies[name][task]
+            for k in range(runs):
+                row = k if len(errors) == runs else 0  # a deterministic contender's one row under every run key
+                metrics = _episode_metrics(errors[row], energy[row])
+                out[task].setdefault(name, {})[f"seed_{k}"] = {
+                    "step_0": {"step_count": 0, **metrics},
+                    "absolute_metrics": metrics,
+                }
+    return {MARL_EVAL_ENV: out}
+
+
+def profile_figure(scores: dict[str, dict[str, np.ndarray]], trained: tuple[str, ...], path: Path) -> None:
+    """The performance profile: per contender, the fraction of its episodes with log10 D(T_s)/D(0) <= tau
+    (``trained``: the BenchMARL algorithms, dashed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    taus = np.linspace(math.log10(LOG_FLOOR), 1.0, 200)
+    figure, axes = plt.subplots(figsize=(9.5, 4.5))
+    colours = plt.get_cmap("tab20")  # its 10 dark hues first, then their light twins: neighbours differ in hue
+    for i, (name, by_task) in enumerate(scores.items()):
+        decades = np.concatenate([statistics.decades(errors, LOG_FLOOR).ravel() for errors in by_task.values()])
+        style = "--" if name in trained else "-"  # BenchMARL's algorithms dashed, laws and shipped policies solid
+        fraction = [(decades <= tau).mean() for tau in taus]
+        axes.step(taus, fraction, style, where="post", label=name, color=colours(2 * i % 20 + i // 10 % 2))
+    axes.set_xlabel("tau: log10 D(T_s)/D(0)")
+    axes.set_ylabel("fraction of episodes with log10 D(T_s)/D(0) <= tau")
+    axes.set_ylim(0, 1.02)
+    axes.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)  # beside the axes
+    figure.tight_layout()
+    figure.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(figure)
+
+
+def write_json(path: Path, record: dict[str, Any]) -> None:
+    """Write ``record`` whole or not at all (a rename), so an interrupted run leaves no half file to resume from."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(".json.partial")
+    partial.write_text(json.dumps(record, indent=1) + "\n")
+    os.replace(partial, path)
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
