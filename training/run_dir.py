@@ -122,7 +122,7 @@ class RunDir:
             started = {}  # a damaged config.json: the checkpoint's own checks still apply
         if not isinstance(started, dict):
             started = {}
-        for field in ("scenario", "critic"):
+        for field in ("scenario", "task", "critic"):
             before, now = started.get(field), getattr(args, field)
             if before is not None and before != now:
                 raise ArgumentError(
