@@ -7,7 +7,7 @@ component alone, costs at most a factor of a few. :func:`noise_table` measures i
 zero action (coasting) and around the reference (paper eq. 11), and for uniform random actions
 over the box (docs: environment.md, "Conditioning of the action"):
 
-    .venv/bin/python -m fxc_env.analysis.conditioning
+    .venv/bin/python -m fxc_env.analysis.conditioning [generalist saturated]
 
 prints the table for the ``plan`` interface (``rings20-v1``, ``paper_fig1-v1``) beside ``plan_balanced``
 (``rings20-v2``, ``paper_fig1-v2``), each also at the other's K.
@@ -15,6 +15,7 @@ prints the table for the ``plan`` interface (``rings20-v1``, ``paper_fig1-v1``) 
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -150,10 +151,11 @@ def markdown(rows: Sequence[NoiseRow]) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    """Print :func:`noise_table` (20 episodes) as Markdown."""
+def main(argv: Sequence[str] | None = None) -> None:
+    """Print :func:`noise_table` (20 episodes) as Markdown for the task names given (default rings20 and paper_fig1)."""
+    names = list(sys.argv[1:] if argv is None else argv) or ["rings20", "paper_fig1"]
     print(f"median D(T_s)/D(0) over 20 evaluation seeds; σ = {NOISE_FRACTION:g} b on one component")
-    print(markdown(noise_table()))
+    print(markdown(noise_table(names)))
 
 
 if __name__ == "__main__":
