@@ -16,6 +16,8 @@ import torch
 import fxc_env
 from fxc_env import make_config
 from fxc_env.analysis.conditioning import NoiseRow, final_ratios
+from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
+from fxc_env.baselines.minimum_time import MinimumTimePolicy
 from fxc_env.config.tasks import task_kwargs
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
@@ -115,6 +117,12 @@ def test_plans_in_v1_units_are_not_so_conditioned():
     settings = {**task_kwargs("rings20-v1"), "n_intervals": 50}
     noisy = np.median(final_ratios(settings, "reference", 1, SEEDS))
     assert noisy > 10 * np.median(final_ratios(settings, "reference", None, SEEDS))
+
+
+@pytest.mark.parametrize("law", [MinimumTimePolicy, LeaderFollowerPolicy])
+def test_a_law_that_emits_plan_units_refuses_plan_balanced_by_name(law):
+    with pytest.raises(ArgumentError, match=r"action_mode: .* not 'plan_balanced' units"):
+        law(make_config(None, n_agents=6, topology="ring", action_mode="plan_balanced"))
 
 
 def test_plan_balanced_is_refused_for_agents_it_does_not_describe():
