@@ -119,7 +119,7 @@ class EnvConfig:
 
         What the local scale ``s_i = max(|x_j - x_i|, W |v_j - v_i|)``, the observation's
         velocity rows ``W (v_j - v_i) / s_i`` and the action's velocity unit ``s_i / W``
-        weigh velocities by (docs: environment.md, "Action space").
+        weigh velocities by (docs: environment.md, "Conditioning of the action").
         """
         return self.schedule.settling_time if self.action_mode == "plan_balanced" else None
 

@@ -103,7 +103,7 @@ _TASKS = (
 )
 
 #: The v2 tasks' interface: plans whose two parts move ``D(T_s)/D(0)`` alike per unit on every interval,
-#: in a box ``±1`` that holds the reference (docs: environment.md, "Action space"), at K = 50.
+#: in a box ``±1`` that holds the reference (docs: environment.md, "Conditioning of the action"), at K = 50.
 V2_SETTINGS = MappingProxyType({"action_mode": "plan_balanced", "action_bound": 1.0, "n_intervals": 50})
 
 _TASKS += tuple(
