@@ -124,7 +124,8 @@ class RunDir:
             started = {}
         for field in ("scenario", "task", "critic"):
             before, now = started.get(field), getattr(args, field)
-            if before is not None and before != now:
+            recorded = before is not None or (field == "task" and "scenario" in started)  # a task run records both
+            if recorded and before != now:
                 raise ArgumentError(
                     f"{field}: the run in {self.path} was started with {field} {before!r}, "
                     f"so --resume goes on with {before!r}, not {now!r}"

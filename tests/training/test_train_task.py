@@ -49,6 +49,14 @@ def test_analytic_gradients_train_on_the_task(tmp_path):
     _assert_trained_on_the_task(record)
 
 
+@pytest.mark.parametrize(("first", "then"), [(["--task", "rings20-v2"], []), ([], ["--task", "rings20-v2"])])
+def test_resume_keeps_the_task_the_run_started_with(first, then, tmp_path, capsys):
+    run = ["train", "--backend", "torch", "--n-envs", "1", "--run-dir", str(tmp_path / "run"), "--no-progress-bar"]
+    assert main([*run, *first, "--timesteps", "1", "--checkpoint-every", "1"]) == 0
+    assert main([*run, *then, "--timesteps", "100000", "--resume"]) == 2
+    assert "task: the run in" in capsys.readouterr().err
+
+
 def test_a_task_run_is_named_after_the_task_and_reads_the_tasks_hyperparameters():
     params = check_train_args(TrainArgs(task="fxc/paper_fig1-v2", backend="torch"))
     assert params["env"] == {"n_envs": 16, "scenario": "paper_fig1", **dict(TASKS["paper_fig1-v2"].settings),
