@@ -367,12 +367,12 @@ def refuse_what_a_graph_design_cannot_honour(
 
     Families (a graph drawn per episode), random switching, a switching period (unless ``periods``),
     ``u_max``, ``obs_noise`` (unless ``allow_noise``), ``link_dropout``, agent models other than the double
-    integrator, and ``action_mode="residual"`` (the law emits whole plans or inputs, not corrections).
+    integrator, ``action_mode="residual"`` (the law emits whole plans or inputs, not corrections) and
+    ``"plan_balanced"`` (its plans are in ``plan``'s units).
     """
-    if config.action_mode == "residual":
-        raise ArgumentError(
-            f"action_mode: {name} emits whole plans or inputs ('plan' or 'accel'), not 'residual' corrections"
-        )
+    if config.action_mode in ("residual", "plan_balanced"):
+        what = "'residual' corrections" if config.action_mode == "residual" else "'plan_balanced' units"
+        raise ArgumentError(f"action_mode: {name} emits whole plans or inputs ('plan' or 'accel'), not {what}")
     if config.family is not None:
         raise ArgumentError(
             f"topology: {name} designs its gains offline for one known graph; a family draws a new graph per episode"

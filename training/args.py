@@ -2,7 +2,8 @@
 
 :class:`TrainArgs` describes a run: each field declared once with its default and help text (:func:`arg`);
 ``fxc train``'s flags are built from the fields (:func:`add_train_parser`). Hyperparameters live in a YAML
-file keyed by scenario, then algorithm (``hyperparams.yml`` beside this module).
+file keyed by scenario, then algorithm (``hyperparams.yml`` beside this module). ``--task`` (a named task of
+:mod:`fxc_env.config.tasks`) sets the environment from the task instead (:func:`task_hyperparams`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 
 from fxc_env.config import make_config
 from fxc_env.config.argument_types import StoreOnce
+from fxc_env.config.tasks import NamedTask, get_task
 from fxc_env.core.validation import ArgumentError, choice, integer
 from fxc_env.training import registry
 from fxc_env.utils.cli_checks import output_directory, yaml_mapping_file
@@ -46,6 +48,13 @@ class TrainArgs:
 
     scenario: str = arg(
         "paper_fig1", "Named scenario of :data:`fxc_env.SCENARIOS`; also the key into the hyperparameter file."
+    )
+    task: str | None = arg(
+        None,
+        "A named task (``rings20-v2``, :data:`fxc_env.config.tasks.TASKS`): the environment is the task's as "
+        "``fxc evaluate --task`` scores it (its settings and K, initial states drawn per episode), in place of "
+        "``--scenario`` and the hyperparameter file's ``env`` (but ``n_envs``); hyperparameters from the file's "
+        "entry for the task's id, else its scenario's, else ``default``. Not with ``--scenario``.",
     )
     algo: str = arg("ppo", "``ppo`` or ``sac``.")
     timesteps: int = arg(2_000_000, "Total agent-steps (SB3 timesteps: one per agent per environment step).")
@@ -247,14 +256,19 @@ def _checked_hyperparams(args: TrainArgs, name: Any) -> dict[str, Any]:
     """The run's entry of the hyperparameter file, its environment and the back end's settings checked."""
     backend = registry.BACKENDS[args.backend]
     algo_key = backend.hyperparams_key.format(backend=args.backend, algo=args.algo)
-    params = load_hyperparams(args.hyperparams, args.scenario, algo_key, name=name("hyperparams"))
+    task = None if args.task is None else _task(args, name)
+    if task is None:
+        params = load_hyperparams(args.hyperparams, args.scenario, algo_key, name=name("hyperparams"))
+    else:
+        params = task_hyperparams(args.hyperparams, task, algo_key, name=name("hyperparams"))
     if args.backend == "rllib":
         batch = params["algo"].get("train_batch_size_per_learner")
         integer(f"{name('hyperparams')}: {algo_key}.train_batch_size_per_learner", batch, 1)
     try:
-        config = make_config(args.scenario, **{k: v for k, v in params["env"].items() if k != "n_envs"})
+        config = make_config(**env_settings(args, params))
     except ArgumentError as exc:
-        raise type(exc)(f"{name('scenario')} {args.scenario!r} with the env of {args.hyperparams}: {exc}") from exc
+        source = f"{name('scenario')} {args.scenario!r}" if task is None else f"{name('task')} {task.id!r}"
+        raise type(exc)(f"{source} with the env of {args.hyperparams}: {exc}") from exc
     if backend.settings is not None:
         from fxc_env.training import settings
 
@@ -262,15 +276,60 @@ def _checked_hyperparams(args: TrainArgs, name: Any) -> dict[str, Any]:
     return params
 
 
+def _task(args: TrainArgs, name: Any) -> NamedTask:
+    """The run's named task; a ``--scenario`` beside it is refused (the task fixes the environment)."""
+    task = get_task(args.task, name("task"))
+    if args.scenario != TrainArgs.__dataclass_fields__["scenario"].default:
+        raise ArgumentError(
+            f"{name('scenario')}: --task {task.id} sets the environment (its settings and K); "
+            f"leave out --scenario {args.scenario!r}"
+        )
+    return task
+
+
+def env_settings(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:
+    """The run's environment keywords: ``--scenario`` and the hyperparameter file's ``env`` (or the task's, whose
+    ``scenario`` replaces it: :func:`task_hyperparams`), without ``n_envs``."""
+    return {"scenario": args.scenario, **{k: v for k, v in params["env"].items() if k != "n_envs"}}
+
+
+def env_label(args: TrainArgs) -> str:
+    """What a run trains on, for its console lines: the task's id, or the scenario."""
+    return args.scenario if args.task is None else get_task(args.task, "task").id
+
+
+def task_hyperparams(path: str | Path, task: NamedTask, algo: str, *, name: str = "hyperparams") -> dict[str, Any]:
+    """A task's run: the file's entry for the task's id, else its scenario's, else ``default``; the env the task's.
+
+    The environment is the task's as ``fxc evaluate --task`` scores it: its settings (its scenario as the
+    ``scenario`` keyword, K included) with ``initial_state="random"`` (each episode draws its own), plus the
+    entry's ``n_envs``. An entry keyed by the task's id whose ``env`` holds more than ``n_envs`` is refused
+    naming ``name`` (the task fixes the rest); another entry's ``env`` is its scenario's and is not read.
+    """
+    table = yaml_mapping_file(name, path)
+    settings = task.kwargs()
+    key = task.id if task.id in table else settings.get("scenario") or "default"
+    params = load_hyperparams(path, key, algo, name=name)
+    extra = sorted(set(params["env"]) - {"n_envs"})
+    if key == task.id and extra:
+        raise ArgumentError(
+            f"{name}: the env of {task.id!r} in {path} sets {', '.join(extra)}; the task fixes its environment "
+            "(only n_envs may be given)"
+        )
+    counts = {"n_envs": params["env"]["n_envs"]} if "n_envs" in params["env"] else {}
+    env = {"scenario": settings.pop("scenario", None), **settings, "initial_state": "random"}
+    return {**params, "env": {**counts, **env}}
+
+
 def default_run_dir(args: TrainArgs) -> str:
-    """``runs/<scenario>-[<backend>-]<algo>-seed<seed>`` (no back-end part for sb3).
+    """``runs/<scenario>-[<backend>-]<algo>-seed<seed>`` (no back-end part for sb3; ``--task``: its id for the scenario).
 
     A torch run resumed without ``--run-dir`` goes on in ``runs/<scenario>-torchrl-...``, the
     default of the back end's old name, when only that one exists.
     """
     backend = canonical_backend(args.backend, warn=False)
     part = "" if backend == "sb3" else f"{backend}-"
-    path = f"runs/{args.scenario}-{part}{args.algo}-seed{args.seed}"
+    path = f"runs/{env_label(args)}-{part}{args.algo}-seed{args.seed}"
     if backend == "torch" and args.resume and not Path(path).exists():
         legacy = f"runs/{args.scenario}-torchrl-{args.algo}-seed{args.seed}"
         if Path(legacy).is_dir():
@@ -346,7 +405,8 @@ def args_from_namespace(namespace: argparse.Namespace) -> TrainArgs:
         new = BACKEND_ALIASES[values["backend"]]
         print(f"fxc train: --backend {values['backend']} is deprecated; use --backend {new}", file=sys.stderr)
         values["backend"] = new
+    given = getattr(namespace, "given_flags", set())
     backend = registry.BACKENDS.get(values["backend"])
-    if backend and values["algo"] not in backend.algorithms and "algo" not in getattr(namespace, "given_flags", set()):
+    if backend and values["algo"] not in backend.algorithms and "algo" not in given:
         values["algo"] = backend.algorithms[0]  # --backend diff alone trains its one algorithm
     return TrainArgs(**values)

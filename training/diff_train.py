@@ -24,7 +24,7 @@ from torch import nn
 
 from fxc_env.config import make_config
 from fxc_env.policies.torch_memory import interval_graph
-from fxc_env.training.args import TrainArgs
+from fxc_env.training.args import TrainArgs, env_label
 from fxc_env.training.settings import DiffSettings
 from fxc_env.training.torch_common import drive, prepare, run_config
 from fxc_env.training.torch_ppo import Trainer
@@ -144,7 +144,7 @@ def train_diff(args: TrainArgs) -> Path:
     per_batch = trainer.k_intervals * trainer.n_envs * trainer.n_agents
     record = {"diff_apg": dataclasses.asdict(settings), "timesteps_per_batch": per_batch}
     banner = (
-        f"fxc train: analytic policy gradients on {args.scenario} (N = {trainer.n_agents}, one shared policy) on "
+        f"fxc train: analytic policy gradients on {env_label(args)} (N = {trainer.n_agents}, one shared policy) on "
         f"{device}: {trainer.n_envs} episodes, {trainer.k_intervals // trainer.window} gradient steps, "
         f"{per_batch} timesteps per batch"
     )

@@ -60,6 +60,8 @@ MAX_FRAMES = 10**8
 MAX_SEEDS = 100
 #: The analytic laws beside them (fxc_env.baselines).
 LAWS = tuple(name for name, law in registry.LAWS.items() if law.leaderboard)
+#: The tasks of the shipped table (fxc_env/assets/leaderboard/), ``--tasks``' default: the v1 tasks.
+SHIPPED_TASKS = tuple(task.id for task in TASKS.values() if task.version == 1)
 #: Every shipped learned policy (``pretrained`` is the generalist under another name).
 SHIPPED_POLICIES = tuple(name for name in SHIPPED if name != "pretrained")
 
@@ -82,7 +84,12 @@ def add_leaderboard_parser(commands: argparse._SubParsersAction) -> argparse.Arg
         "training time grows linearly with it)",
     )
     parser.add_argument("--seeds", type=int, default=3, help="training seeds per algorithm (3: seeds 0, 1, 2)")
-    parser.add_argument("--tasks", nargs="+", default=list(TASKS), help=f"named tasks (all: {' '.join(TASKS)})")
+    parser.add_argument(
+        "--tasks",
+        nargs="+",
+        default=list(SHIPPED_TASKS),
+        help=f"named tasks (default: the v1 tasks, the shipped table's; all: {' '.join(TASKS)})",
+    )
     parser.add_argument(
         "--algorithms",
         nargs="+",

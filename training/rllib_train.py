@@ -23,7 +23,7 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 import fxc_env
 from fxc_env.policies.learned import RLLIB_MODULE
 from fxc_env.policies.saving import write_rllib_record
-from fxc_env.training.args import TrainArgs
+from fxc_env.training.args import TrainArgs, env_label, env_settings
 from fxc_env.training.run_dir import RunDir, begin_run
 from fxc_env.utils.cluster import ray_session
 
@@ -56,8 +56,7 @@ class ConsensusRLlibEnv(ParallelPettingZooEnv):
 
 def env_config(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:
     """Keyword arguments of the environment each env runner builds."""
-    kwargs = {key: value for key, value in params["env"].items() if key != "n_envs"}
-    return {"scenario": args.scenario, **kwargs}
+    return env_settings(args, params)
 
 
 def algorithm_config(args: TrainArgs, params: dict[str, Any]) -> Any:
@@ -115,7 +114,7 @@ def train_rllib(args: TrainArgs) -> Path:
             cpus = ray.cluster_resources().get("CPU")
             run.start({**record, "timesteps_per_iteration": per_iteration, "ray_cluster_cpus": cpus})
         print(
-            f"fxc train: RLlib PPO on {args.scenario} (N = {n_agents}, one shared module), "
+            f"fxc train: RLlib PPO on {env_label(args)} (N = {n_agents}, one shared module), "
             f"{args.num_env_runners} env runner(s) x {args.envs_per_runner} env(s), "
             f"{ray.cluster_resources().get('CPU', 0):g} CPUs in the Ray cluster; "
             f"{iterations} iteration(s) of {per_iteration} timesteps"

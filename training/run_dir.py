@@ -123,10 +123,11 @@ class RunDir:
             started = {}  # a damaged config.json: the checkpoint's own checks still apply
         if not isinstance(started, dict):
             started = {}
-        for field in ("backend", "scenario", "critic"):
+        for field in ("backend", "scenario", "task", "critic"):
             before, now = started.get(field), getattr(args, field)
             before = canonical_backend(before, warn=False) if field == "backend" else before
-            if before is not None and before != now:
+            recorded = before is not None or (field == "task" and "scenario" in started)  # a task run records both
+            if recorded and before != now:
                 raise ArgumentError(
                     f"{field}: the run in {self.path} was started with {field} {before!r} ({config.name}), "
                     f"so --resume goes on with {before!r}, not {now!r}"

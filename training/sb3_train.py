@@ -25,7 +25,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.policy_files import TRUST_HINT, read_sb3_zip, save_model
-from fxc_env.training.args import TrainArgs
+from fxc_env.training.args import TrainArgs, env_settings
 from fxc_env.training.checkpoint_checks import check_resumed_state
 from fxc_env.training.imitation import imitate_reference
 from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
@@ -42,10 +42,8 @@ def build_env(args: TrainArgs, params: dict[str, Any]):
 
     from fxc_env import ConsensusVecEnv
 
-    env_kwargs = dict(params["env"])
-    n_envs = args.n_envs or env_kwargs.pop("n_envs", 16)
-    env_kwargs.pop("n_envs", None)
-    venv = VecMonitor(ConsensusVecEnv(n_envs, scenario=args.scenario, **env_kwargs))
+    n_envs = args.n_envs or params["env"].get("n_envs", 16)
+    venv = VecMonitor(ConsensusVecEnv(n_envs, **env_settings(args, params)))
     venv.seed(args.seed)
     if params["normalize"]:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False)

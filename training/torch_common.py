@@ -29,7 +29,7 @@ from fxc_env.policies.networks import mlp
 from fxc_env.policies.records import file_tensor
 from fxc_env.policies.torch_memory import build_actor
 from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, is_torch_policy, load_torch_policy, one_line
-from fxc_env.training.args import TrainArgs
+from fxc_env.training.args import TrainArgs, env_settings
 from fxc_env.training.checkpoint_checks import check_resumed_state, check_written_by
 from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
 from fxc_env.training.settings import PPOSettings
@@ -331,8 +331,8 @@ def drive(
 
 
 def run_config(args: TrainArgs, params: dict[str, Any]) -> dict[str, Any]:
-    """The environment keywords of this run (the hyperparameter file's ``env``, ``scenario`` first)."""
-    kwargs = {key: value for key, value in params["env"].items() if key != "n_envs"}
+    """The environment keywords of this run (:func:`~fxc_env.training.args.env_settings`; a central critic's state)."""
+    kwargs = env_settings(args, params)
     if args.critic == "central":
         kwargs["global_state"] = "normalized"
-    return {"scenario": args.scenario, **kwargs}
+    return kwargs

@@ -19,7 +19,7 @@ from fxc_env.config import make_config
 from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.graph_tensors import edge_capacity
 from fxc_env.policies.torch_memory import interval_graph
-from fxc_env.training.args import TrainArgs
+from fxc_env.training.args import TrainArgs, env_label
 from fxc_env.training.settings import PPOSettings
 from fxc_env.training.torch_common import (  # noqa: F401
     ActorCritic,
@@ -340,7 +340,7 @@ def train_torch(args: TrainArgs) -> Path:
     per_rollout = settings.rollout_steps * trainer.n_envs * trainer.n_agents
     record = {"torch_ppo": dataclasses.asdict(settings), "timesteps_per_rollout": per_rollout}
     banner = (
-        f"fxc train: torch PPO on {args.scenario} (N = {trainer.n_agents}, one shared policy, {args.critic} critic) "
+        f"fxc train: torch PPO on {env_label(args)} (N = {trainer.n_agents}, one shared policy, {args.critic} critic) "
         f"on {device}: {trainer.n_envs} episodes, {per_rollout} timesteps per rollout"
     )
 

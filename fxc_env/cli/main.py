@@ -161,6 +161,8 @@ def train_command(args: argparse.Namespace) -> int:
     train_args = args_from_namespace(args)
     if train_args.seeds is not None and seed_flag_given(args):
         raise UsageError("--seeds: give one seed (--seed) or several (--seeds), not both")
+    if train_args.task is not None and "scenario" in getattr(args, "given_flags", ()):
+        raise UsageError(f"--scenario: --task {train_args.task} sets the environment; leave out --scenario")
     try:
         if train_args.seeds is not None:
             train_seeds(train_args, flags=True)  # every seed is checked before any trains

@@ -105,8 +105,10 @@ DEFAULT_ACTION_BOUNDS = {
     ("plan", "normalized"): 2.0,
     ("accel", "normalized"): 10.0,
     ("residual", "normalized"): 2.0,
+    ("plan_balanced", "normalized"): 1.0,
     ("plan", "raw"): 1.0e3,
     ("residual", "raw"): 1.0e3,
+    ("plan_balanced", "raw"): 1.0e3,
     ("accel", "raw"): 1.0e9,
 }
 
@@ -189,11 +191,12 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
     _env(
         "action_mode",
         "plan",
-        help="what an action is: a planned terminal change (plan, default), the input at both ends (accel) "
+        help="what an action is: a planned terminal change (plan, default; plan_balanced: its velocity in "
+        "units of s_i / T_s, both parts weighed as the deadline's D weighs them), the input at both ends (accel) "
         "or a correction added to the paper's plan (residual: the zero action is the reference)",
         card="meaning of an action (Action Space)",
         kind="choice",
-        choices=("plan", "accel", "residual"),
+        choices=("plan", "plan_balanced", "accel", "residual"),
         flag=Flag(),
     ),
     _env(

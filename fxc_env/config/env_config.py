@@ -106,16 +106,29 @@ class EnvConfig:
         """Per sampling instant, what each state component is multiplied by to read in position units: ``(K + 1, n)``.
 
         The double integrator: ``[1, T_{k+1}]`` (``x`` and ``T v``, the normalized units of
-        docs: environment.md, "Observation"). A general model: ``D_0 / D_l`` with the time-scaled frame ``D = h^levels``
+        docs: environment.md, "Observation"); with ``action_mode="plan_balanced"`` ``[1, T_s]``
+        (:attr:`velocity_weight`: velocities weighed as ``D = e_x + T_s e_v`` weighs them). A general model: ``D_0 / D_l`` with the time-scaled frame ``D = h^levels``
         (:mod:`fxc_env.core.linear`), e.g. ``[1, T, T^2]`` for a chain of order 3. The
         instant ``K`` repeats the last interval's row.
         """
         k_all = np.arange(self.n_intervals + 1)
         last = np.minimum(k_all, self.n_intervals - 1)
         if self.model is None:
-            return np.stack([np.ones(len(k_all)), self.schedule.intervals[last]], axis=1)
+            weight = self.velocity_weight
+            velocity = self.schedule.intervals[last] if weight is None else np.full(len(k_all), weight)
+            return np.stack([np.ones(len(k_all)), velocity], axis=1)
         scale = self.interval_maps.scale[last]
         return scale[:, :1] / scale
+
+    @property
+    def velocity_weight(self) -> float | None:
+        """``T_s`` (s) with ``action_mode="plan_balanced"``, else None (velocities weighed by the interval ``T_{k+1}``).
+
+        What the local scale ``s_i = max(|x_j - x_i|, W |v_j - v_i|)``, the observation's
+        velocity rows ``W (v_j - v_i) / s_i`` and the action's velocity unit ``s_i / W``
+        weigh velocities by (docs: environment.md, "Conditioning of the action").
+        """
+        return self.schedule.settling_time if self.action_mode == "plan_balanced" else None
 
     @cached_property
     def formation_motion(self) -> np.ndarray | None:

@@ -2,7 +2,9 @@
 
 A task is what a results table cites: ``fxc/rings20-v1`` is the directed ring of N = 20
 agents with ``T_s = 20`` s, K = 200 sampling intervals and evaluation seeds 1000 .. 1019.
-Its settings never change; a change of settings is a new version (``-v2``). The same names
+Its settings never change; a change of settings is a new version: ``fxc/rings20-v2`` is the
+same ring at K = 50 with ``action_mode="plan_balanced"`` (both action parts in the deadline
+metric's units, a ``±1`` box) for learning. The same names
 work in every front end, the ``fxc/`` prefix optional (docs: tasks/index.md, "Named tasks").
 """
 
@@ -98,6 +100,20 @@ _TASKS = (
         scenario="saturated",
         n_intervals=200,
     ),
+)
+
+#: The v2 tasks' interface: plans whose two parts move ``D(T_s)/D(0)`` alike per unit on every interval,
+#: in a box ``±1`` that holds the reference (docs: environment.md, "Conditioning of the action"), at K = 50.
+V2_SETTINGS = MappingProxyType({"action_mode": "plan_balanced", "action_bound": 1.0, "n_intervals": 50})
+
+_TASKS += tuple(
+    _task(
+        task.name,
+        2,
+        task.description.replace("K = 200", "K = 50, plan_balanced actions in a ±1 box"),
+        **{**task.settings, **V2_SETTINGS},
+    )
+    for task in _TASKS
 )
 
 #: Every task by id (``"rings20-v1"``), read-only.

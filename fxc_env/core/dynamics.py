@@ -73,13 +73,22 @@ def scaled_accel_ends(first: Any, second: Any, T: Any, s: Any) -> tuple[Any, Any
     return gain * first, gain * second
 
 
-def input_ends(plans: bool, normalized: bool) -> Callable[[Any, Any, Any, Any], tuple[Any, Any]]:
+def input_ends(
+    plans: bool, normalized: bool, velocity_weight: float | None = None
+) -> Callable[[Any, Any, Any, Any], tuple[Any, Any]]:
     """The map ``(first, second, T, s) -> (u(t_k+), u(t_{k+1}-))`` of an action mode, chosen once.
 
-    ``plans``: the action is a plan (``plan`` and ``residual`` modes) rather than the input's
-    ends; ``normalized``: it is in units of the local scale ``s``. Scalar-safe like
-    :func:`interval_increments`.
+    ``plans``: the action is a plan (``plan``, ``plan_balanced`` and ``residual`` modes) rather
+    than the input's ends; ``normalized``: it is in units of the local scale ``s``.
+    ``velocity_weight`` ``W`` (s; ``T_s`` for ``plan_balanced``, None otherwise): the plan's
+    velocity part is ``second / W`` (raw) or ``s second / W`` (normalized) instead of
+    ``second`` or ``s second / T``. Scalar-safe like :func:`interval_increments`.
     """
+    if plans and velocity_weight is not None:
+        per_weight = 1.0 / velocity_weight
+        if normalized:
+            return lambda first, second, T, s: input_from_plan(s * first, (s * per_weight) * second, T)
+        return lambda first, second, T, s: input_from_plan(first, per_weight * second, T)
     if plans:
         return scaled_plan_ends if normalized else input_from_plan
     return scaled_accel_ends if normalized else accel_ends

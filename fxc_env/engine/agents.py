@@ -100,9 +100,10 @@ class DoubleIntegratorAgents:
         self.backend = backend
         self.dim = config.dim
         self.normalized = config.obs_mode == "normalized"
-        self.plans = config.action_mode in ("plan", "residual")  # residual: the engine added the reference's plan
+        # residual: the engine added the reference's plan
+        self.plans = config.action_mode in ("plan", "plan_balanced", "residual")
         #: The action's input ends, chosen once (the small-N path plays the same map on floats).
-        self._ends = dynamics.input_ends(self.plans, self.normalized)
+        self._ends = dynamics.input_ends(self.plans, self.normalized, config.velocity_weight)
         #: Each episode's input limit ``u_max`` (m/s^2), ``(B,)``; None without a limit.
         self.u_max: Any = None
         self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))

@@ -89,6 +89,8 @@ class Observer:
             and config.link_dropout == 0
             and self.layout.slots
         )
+        #: What the local scale weighs velocities by: ``T_s`` (``plan_balanced``), else None (``T_{k+1}``).
+        self.velocity_weight = config.velocity_weight
         self._measured: tuple | None = None
         self._scale: Any = None
         self._buffers: tuple | None = None
@@ -145,7 +147,8 @@ class Observer:
                 largest = xp.max(xp.abs(rows), axis=(-3, -1))
             else:
                 largest = backend.zeros((*rows.shape[:-3], 2))
-            scale = xp.maximum(largest[..., 0], clock.interval(1) * largest[..., 1])
+            weight = clock.interval(1) if self.velocity_weight is None else self.velocity_weight
+            scale = xp.maximum(largest[..., 0], weight * largest[..., 1])
         self._measured = (rows, mask, scale)
         self._scale = scale
         return self._measured
@@ -229,7 +232,7 @@ class Observer:
         entry as the generic path, so the same values.
         """
         b, n = obs.shape[:2]
-        T = clock.interval()
+        T = clock.interval() if self.velocity_weight is None else self.velocity_weight  # the velocities' weight
         features = clock.per_instant(self.tables.features)
         pieces = graphs.blocks(graphs.graph, min(BLOCK_AGENTS, n))
         if self._buffers is None:
@@ -282,11 +285,11 @@ class _Block:
         np.maximum.reduce(self.absolute[:d], axis=(0, 1), out=self.largest[0])
         np.maximum.reduce(self.absolute[d:], axis=(0, 1), out=self.largest[1])
         np.multiply(T, self.largest[1], out=self.scale)
-        np.maximum(self.largest[0], self.scale, out=self.scale)  # s_i = max(|x_j - x_i|, T |v_j - v_i|)
+        np.maximum(self.largest[0], self.scale, out=self.scale)  # s_i = max(|x_j - x_i|, T |v_j - v_i|) (T: weight)
         if normalized:
             np.maximum(self.scale, TINY, out=self.floored)
             velocities = self.difference[d:]
-            np.multiply(velocities, T, out=velocities)  # the row factor T of velocities
+            np.multiply(velocities, T, out=velocities)  # the row factor of velocities (T_{k+1}, or T_s)
             np.divide(self.difference, self.floored, out=self.rows)
         else:
             np.copyto(self.rows, self.difference)

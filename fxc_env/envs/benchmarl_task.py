@@ -164,6 +164,11 @@ class FxcTask(Task):
     RINGS20_V1 = None
     GENERALIST_V1 = None
     SATURATED_V1 = None
+    # v2: the same settings at K = 50 with action_mode="plan_balanced" (docs: tasks/index.md, "Named tasks").
+    PAPER_FIG1_V2 = None
+    RINGS20_V2 = None
+    GENERALIST_V2 = None
+    SATURATED_V2 = None
 
     @staticmethod
     def associated_class() -> type[FxcTaskClass]:

@@ -67,6 +67,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     |-------------|------------|--------------------------------|------------------------------------|------|
     | plan        | normalized | ``(alpha_x, alpha_v)``          | ``a_x = s alpha_x``, ``a_v = s alpha_v / T`` | 2 |
     | plan        | raw        | ``(a_x, a_v)`` metres, m/s      | as given                           | 1e3  |
+    | plan_balanced | normalized | ``(alpha_x, alpha_v)``        | ``a_x = s alpha_x``, ``a_v = s alpha_v / T_s`` | 1 |
+    | plan_balanced | raw      | ``(a_x, T_s a_v)`` metres, metres | ``a_v`` = the second over ``T_s`` | 1e3 |
     | accel       | normalized | ``(alpha_0, alpha_1)``          | ``u = s alpha / T^2`` at both ends | 10   |
     | accel       | raw        | ``(u(t_k+), u(t_{k+1}-))`` m/s^2 | as given                          | 1e9  |
     | residual    | normalized | ``(alpha_x, alpha_v)``, a correction to eq. (11)'s plan | ``a_x`` + ``s alpha_x``, ``a_v`` + ``s alpha_v / T_s`` | 2 |
@@ -76,6 +78,11 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     (``x(t_{k+1}) = x + T v + a_x``, ``v(t_{k+1}) = v + a_v``), realised by the minimum-energy
     affine input; ``accel`` is the straight line between the two ends; ``residual`` is a
     correction to the paper's plan (docs: results.md, "What learning reached", on its units).
+    ``plan_balanced`` is ``plan`` in the deadline metric's units: one unit of either part moves
+    ``D = e_x + T_s e_v`` by about ``s`` on every interval (``plan``'s ``alpha_v`` moves it by
+    ``(T_s / T) s``, 1.6 to 330 times more on the paper's schedule), and its local scale weighs
+    velocities by ``T_s`` too; the reference's plans measured on the v2 tasks lie within ``±0.81``
+    (docs: environment.md, "Conditioning of the action").
     ``s = s_i`` is the agent's local scale below and ``T`` the coming interval. Actions outside
     the Box are applied as given (never clipped); the bounds hold the reference in normalised
     mode (``action_bound`` overrides them). A step whose energies would overflow float64 is
@@ -95,7 +102,8 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     ``d_max`` is the largest in-degree over the topology set, or ``obs_slots`` when that is
     larger. In ``normalized`` mode (default) rows are ``(x_j - x_i) / s_i`` and
     ``T (v_j - v_i) / s_i`` with the local scale ``s_i = max_j max(|x_j - x_i|, T |v_j - v_i|)``
-    (components), so they lie in [-1, 1]; ``obs_mode="raw"`` gives physical units;
+    (components), so they lie in [-1, 1] (``plan_balanced``: ``T_s`` in place of ``T``, in both);
+    ``obs_mode="raw"`` gives physical units;
     ``obs_format="dict"`` gives the parts as keys. No absolute position, no global information.
     Topology families draw a new graph set at every reset (``env.episode_edges()`` gives it).
     Docs: environment.md, "The environment" (the limit entry, families, float32 output).

@@ -85,7 +85,11 @@ class SmallInterval:
         self.size = config.layout.size
         self.normalized = config.obs_mode == "normalized" and self.slots > 0
         #: The action's input ends (:func:`fxc_env.core.dynamics.input_ends`), chosen as the engine's agents choose it.
-        self.ends = input_ends(config.action_mode == "plan", config.obs_mode == "normalized")
+        self.ends = input_ends(
+            config.action_mode in ("plan", "plan_balanced"), config.obs_mode == "normalized", config.velocity_weight
+        )
+        #: What velocities are weighed by in the local scale: ``T_s`` (``plan_balanced``), else None (``T_{k+1}``).
+        self.velocity_weight = config.velocity_weight
         self.n_intervals = config.schedule.n_intervals
         self.dtype = np.dtype(config.observation_dtype)
         tables = engine.tables
@@ -124,7 +128,7 @@ class SmallInterval:
         flat = engine.state.ravel().tolist()
         xs, vs = flat[0::2], flat[1::2]
         graph = k % len(self._neighbours)
-        T = self.next_interval[k]
+        T = self.next_interval[k] if self.velocity_weight is None else self.velocity_weight
         f_x, f_v = self.factors[k]
         features = self.features[k]
         normalized = self.normalized
@@ -147,7 +151,7 @@ class SmallInterval:
             return np.array(values, dtype=self.dtype).reshape(self.n, self.size)
         for neighbours, mask, x_i, v_i in zip(self._neighbours[graph], self._masks[graph], xs, vs, strict=True):
             # rows -= state[i]: x_j - x_i and v_j - v_i per slot (padded slots: i itself, exact zeros);
-            # s_i = max(max_slots |x_j - x_i|, T max_slots |v_j - v_i|), 0 without rows.
+            # s_i = max(max_slots |x_j - x_i|, T max_slots |v_j - v_i|), 0 without rows (T_s: plan_balanced).
             rows: list[float] = []
             largest_x = largest_v = 0.0
             for j in neighbours:
@@ -162,7 +166,7 @@ class SmallInterval:
                 scale = largest_x
             scales.append(scale)
             if normalized:
-                # (x part times 1, v part times T_{k+1}) over max(s_i, tiny), divided as the engine divides.
+                # (x part times 1, v part times T_{k+1} or T_s) over max(s_i, tiny), divided as the engine divides.
                 floor = scale if scale > _TINY else _TINY
                 for position in range(0, len(rows), 2):
                     values += (rows[position] * f_x / floor, rows[position + 1] * f_v / floor)

@@ -131,7 +131,7 @@ class ConsensusTorchEnv(EnvBase):
     | key | shape | meaning |
     |---|---|---|
     | ``("agents", "observation")`` | ``[B, N, obs_size]`` | each agent's local sampled observation (the parallel env's card), in ``obs_dtype`` |
-    | ``("agents", "action")`` | ``[B, N, 2 dim]`` | each agent's action (``plan`` or ``accel``), bounded by ``action_bound`` |
+    | ``("agents", "action")`` | ``[B, N, 2 dim]`` | each agent's action (``plan``, ``plan_balanced``, ``accel`` or ``residual``), bounded by ``action_bound`` |
     | ``("agents", "reward")`` | ``[B, N, 1]`` | the team reward ``log(D(t_k) + f) - log(D(t_{k+1}) + f)``, the same for every agent |
     | ``"done"``, ``"terminated"``, ``"truncated"`` | ``[B, 1]`` | the deadline ``T_s`` reached / ``max_cycles`` cut |
     | ``"state"`` | ``[B, N * 2 dim + 3]`` | with ``global_state="normalized"``: the scale-free global state (centralised critics) |

@@ -26,7 +26,7 @@ from fxc_env.core.dynamics import input_from_plan
 
 
 class ReferencePolicy:
-    """Eq. (11) for every action mode (``plan``, ``accel``; ``residual``: zeros, the environment adds eq. 11) and observation mode.
+    """Eq. (11) for every action mode (``plan``, ``plan_balanced``, ``accel``; ``residual``: zeros, the environment adds eq. 11) and observation mode.
 
     ``ReferencePolicy(env)(obs)`` maps one agent's observation ``(obs_size,)`` (or a dict
     observation) to its action ``(2 dim,)`` (``(n dim,)`` for a general linear agent: the
@@ -75,8 +75,15 @@ class ReferencePolicy:
             return self._general_plan(sums, obs)
         weight = 1.0 / (sums[..., 2 * dim] + 1.0)  # 1 / (d_i + 1)
         normalized = c.obs_mode == "normalized"
+        balanced = c.velocity_weight is not None
         # Rows are (x_j - x_i)/s and T (v_j - v_i)/s when normalized: the plan is scale-free.
-        T = None if normalized else obs[..., self.layout.mask_end + 1] * c.settling_time
+        # plan_balanced: rows (x_j - x_i)/s and T_s (v_j - v_i)/s, the plan (a_x / s, T_s a_v / s) (raw: (a_x, T_s a_v)).
+        clock_interval = obs[..., self.layout.mask_end + 1]  # T / T_s
+        if normalized:
+            drift = clock_interval if balanced else None  # what the v rows count for in a_x / s: T / T_s, or 1
+        else:
+            drift = clock_interval * c.settling_time  # T
+        velocity_unit = c.settling_time if balanced and not normalized else None
         rel_x, rel_v = sums[..., :dim], sums[..., dim : 2 * dim]
         if is_numpy(xp):
             # numpy fast path: one component at a time, each operation over all agents (a
@@ -84,19 +91,21 @@ class ReferencePolicy:
             plan = np.empty((*sums.shape[:-1], 2 * dim), dtype=sums.dtype)
             for component in range(dim):
                 x_part, v_part = rel_x[..., component], rel_v[..., component]
-                plan[..., component] = weight * (x_part + (v_part if normalized else T * v_part))
-                plan[..., dim + component] = weight * v_part
+                plan[..., component] = weight * (x_part + (v_part if drift is None else drift * v_part))
+                plan[..., dim + component] = (
+                    weight * v_part if velocity_unit is None else weight * v_part * velocity_unit
+                )
         else:
             column = weight[..., None]
-            plan = xp.concat(
-                [column * (rel_x + (rel_v if normalized else T[..., None] * rel_v)), column * rel_v], axis=-1
-            )
-        if c.action_mode == "plan":
+            moved = rel_v if drift is None else drift[..., None] * rel_v
+            velocity = column * rel_v if velocity_unit is None else column * rel_v * velocity_unit
+            plan = xp.concat([column * (rel_x + moved), velocity], axis=-1)
+        if c.action_mode in ("plan", "plan_balanced"):
             return plan
         if c.action_mode == "residual":  # the environment adds this very plan: no correction
             return xp.zeros_like(plan)
         # accel, normalized: u = (s / T^2) * alpha, with input_from_plan at T = 1 in these units.
-        interval = 1.0 if normalized else T[..., None]
+        interval = 1.0 if normalized else drift[..., None]
         return xp.concat(input_from_plan(plan[..., :dim], plan[..., dim:], interval), axis=-1)
 
     def _general_plan(self, sums: np.ndarray, obs: np.ndarray) -> np.ndarray:

@@ -129,7 +129,7 @@ def test_each_card_has_the_table_row_of_every_argument_it_takes(name):
 
 def test_card_rows_show_choices_and_bracket_the_scenario_s_values():
     assert ARGUMENTS["action_mode"].card_row.startswith(
-        '| ``action_mode`` | ``"plan" \\| "accel" \\| "residual"`` | ``"plan"`` |'
+        '| ``action_mode`` | ``"plan" \\| "plan_balanced" \\| "accel" \\| "residual"`` | ``"plan"`` |'
     )
     assert ARGUMENTS["settling_time"].card_row.startswith("| ``settling_time`` | ``float \\| None`` | [20.0] |")
     assert ARGUMENTS["render_mode"].card_row.startswith('| ``render_mode`` | ``None \\| "human" \\| "rgb_array"`` |')

@@ -19,6 +19,10 @@ V1 = {
     "saturated-v1": {"scenario": "saturated", "n_intervals": 200},
 }
 
+#: The v2 tasks as released: v1's settings at K = 50 with the plan_balanced interface in a ±1 box.
+V2_INTERFACE = {"action_mode": "plan_balanced", "action_bound": 1.0, "n_intervals": 50}
+V2 = {name.replace("-v1", "-v2"): {**settings, **V2_INTERFACE} for name, settings in V1.items()}
+
 #: What each v1 task resolves to (N, K, T_s, schedule, input limits, observation slots): the scenarios'
 #: presets it names must not drift under it either.
 RESOLVED = {
@@ -30,10 +34,18 @@ RESOLVED = {
 
 
 def test_the_v1_tasks_keep_their_settings_seeds_and_k():
-    assert {name: dict(task.settings) for name, task in TASKS.items()} == V1
+    assert {name: dict(task.settings) for name, task in TASKS.items() if task.version == 1} == V1
     for name, task in TASKS.items():
         assert task.eval_seeds == EVALUATION_SEEDS_V1 == tuple(range(1000, 1020))
-        assert task.full_id == f"fxc/{name}" and task.n_intervals == 200
+        assert task.full_id == f"fxc/{name}" and task.n_intervals == (200 if task.version == 1 else 50)
+
+
+def test_the_v2_tasks_are_the_v1_tasks_on_the_balanced_interface_at_k_50():
+    assert {name: dict(task.settings) for name, task in TASKS.items() if task.version == 2} == V2
+    assert set(TASKS) == set(V1) | set(V2)
+    for name in V2:
+        config = make_config(**task_kwargs(name))
+        assert (config.action_mode, config.action_bound, config.n_intervals) == ("plan_balanced", 1.0, 50)
 
 
 @pytest.mark.parametrize("name", sorted(RESOLVED))
@@ -49,7 +61,9 @@ def test_pettingzoo_makes_every_task_by_its_id(api):
     for task in TASKS.values():
         env = pettingzoo.make(api, task.full_id)
         config = env.unwrapped.config
-        assert (config.n_agents, config.n_intervals) == RESOLVED[task.id][:2]
+        n_agents, n_intervals = RESOLVED[task.id.replace("-v2", "-v1")][:2]
+        assert (config.n_agents, config.n_intervals) == (n_agents, n_intervals if task.version == 1 else 50)
+        assert config.action_mode == ("plan" if task.version == 1 else "plan_balanced")
     env = pettingzoo.make("parallel", "fxc/rings20-v1", n_intervals=50)  # a keyword overrides, as for any id
     assert env.unwrapped.config.n_intervals == 50
 

@@ -64,6 +64,9 @@ CASES = [
     {"topology": "random", "n_agents": 12, "mean_in_degree": 3.0, "topology_period": 2},
     {"topology": "ring", "n_agents": 5, "schedule": "uniform", "n_intervals": 30},
     {"topology": {"family": "ring"}, "n_agents": 4},
+    {"scenario": "paper_fig1", "action_mode": "plan_balanced", "n_intervals": 50},
+    {"scenario": "paper_fig1", "action_mode": "plan_balanced", "obs_mode": "raw"},
+    {"topology": "random", "n_agents": 12, "mean_in_degree": 3.0, "action_mode": "plan_balanced"},
 ]
 
 

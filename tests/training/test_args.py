@@ -65,6 +65,7 @@ def test_the_help_text_of_fxc_train_lists_every_flag(capsys):
 def test_a_command_line_reaches_every_field_with_its_type(parser):
     given = {
         "scenario": "ring_6",
+        "task": "rings20-v2",  # fxc train refuses it beside --scenario (tests/training/test_train_task.py)
         "algo": "sac",
         "timesteps": 1234,
         "seed": 7,
