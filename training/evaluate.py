@@ -14,6 +14,7 @@ from typing import Any
 from fxc_env.baselines.benchmark import add_policy_file_flags, make_out, refuse_unrun_policy, run_benchmark
 from fxc_env.baselines.suite import (
     BenchmarkCase,
+    Contender,
     Suite,
     builtin_contenders,
     generalisation_suite,
@@ -84,6 +85,14 @@ def task_suite(task: NamedTask) -> tuple[Suite, dict[str, Any]]:
         name=task.id,
     )
     return suite, learned
+
+
+def on_task_schedule(contenders: list[Contender], learned: dict[str, Any]) -> list[Contender]:
+    """``contenders`` as a task scores them: where the task fixes a schedule (``learned["schedule"]``, e.g. the
+    saturated tasks' uniform one), every contender runs on it, the reference included, since the task is one
+    environment; elsewhere each keeps its own."""
+    schedule = learned.get("schedule")
+    return contenders if schedule is None else [replace(c, schedule=schedule) for c in contenders]
 
 
 def add_evaluate_parser(commands: argparse._SubParsersAction) -> None:
@@ -176,6 +185,8 @@ def evaluate_command(args: argparse.Namespace) -> int:
     out = output_directory("--out", args.out)
     suite, learned = _evaluation_suite(args, task, seeds, budgets)
     contenders = builtin_contenders(None if args.baselines else ["reference"])
+    if task is not None:
+        contenders = on_task_schedule(contenders, learned)
     runs: list[Any] = []
     if args.runs is not None:
         runs = [seed_evaluation.resolve_run(entry) for entry in seed_evaluation.expand_runs(args.runs)]

@@ -29,7 +29,7 @@ from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.learned import SHIPPED
-from fxc_env.training.evaluate import scored_settings, task_suite
+from fxc_env.training.evaluate import on_task_schedule, scored_settings, task_suite
 from fxc_env.training.leaderboard_files import (
     laws_problem,
     marl_eval_record,
@@ -219,8 +219,8 @@ def law_contenders() -> list[Any]:
 
 def score_laws(task: NamedTask, folder: Path) -> dict[str, Any]:
     """The laws' and the shipped policies' deadline errors and energies on the task's evaluation episodes."""
-    suite, _ = task_suite(task)
-    contenders = law_contenders()
+    suite, learned = task_suite(task)
+    contenders = on_task_schedule(law_contenders(), learned)
     output = run_benchmark(suite, contenders, folder, workers=1, progress=False)
     scores: dict[str, Any] = {}
     for result in output.results:

@@ -156,3 +156,18 @@ def test_the_notes_name_the_learned_policys_format(tmp_path, capsys):
     assert cli.main([*argv, "--out", str(tmp_path), "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert "Law: a learned policy (gain schedule `" in out and "rings.npz`)" in out and "SB3 model" not in out
+
+
+def test_a_task_that_fixes_its_schedule_scores_every_contender_on_it():
+    """saturated-v1 is the uniform schedule: the reference is scored there, not on its own paper schedule
+    (which put 0.358 in the table for an environment the task is not); a task without one leaves each its own."""
+    from fxc_env.baselines.suite import builtin_contenders
+    from fxc_env.config.tasks import TASKS
+    from fxc_env.training.evaluate import on_task_schedule, task_suite
+
+    contenders = builtin_contenders(["reference", "minimum_time"])
+    assert [c.schedule for c in contenders] == ["paper", "uniform"]
+    _, learned = task_suite(TASKS["saturated-v1"])
+    assert [c.schedule for c in on_task_schedule(contenders, learned)] == ["uniform", "uniform"]
+    _, learned = task_suite(TASKS["rings20-v1"])
+    assert [c.schedule for c in on_task_schedule(contenders, learned)] == ["paper", "uniform"]
