@@ -38,9 +38,9 @@ LIMIT_RATIOS = (1.01, 1.1, 1.25, 1.3, 1.35, 1.5, 2.0)
 #: The ratio ``u_max / input_floor`` the law needs, as measured by :func:`errors_at_limit_ratios` (ring of 20).
 LIMIT_MARGIN = (
     "on a directed ring of 20 (K = 200 uniform, 20 seeds, each at its own input floor) no seed is exact at u_max = "
-    "1.01, 1.1, 1.2 or 1.25 x the floor (median D(T_s)/D(0) 0.35, 0.22, 0.078, 0.0077), 19 of 20 at 1.3 and every "
-    "seed from 1.35 on: the steer starts after the gathering (1.8 s there), and (20 / 18.2)² = 1.21 of the margin "
-    "is that shorter horizon alone, the rest the mid-range point in place of the best common one"
+    "1.01, 1.1 or 1.25 x the floor (median D(T_s)/D(0) 0.35, 0.22, 0.0077), 19 of 20 at 1.3 and every seed from "
+    "1.35 on: the steer starts after the gathering (1.8 s there), and (20 / 18.2)² = 1.21 of the margin is that "
+    "shorter horizon alone, the rest the mid-range point in place of the best common one"
 )
 
 
