@@ -77,8 +77,8 @@ class LeaderFollowerPolicy(LawPolicy):
 
     #: What one lost link costs the law (the refusal of ``link_dropout`` and :meth:`guarantee` say it).
     LOST_LINK: ClassVar[str] = (
-        "an agent whose row of its parent is lost on its last copy coasts off the centre's trajectory, and "
-        "every agent that follows it with it: worst D(T_s)/D(0) of 20 seeds on a ring of 20, 1.2 at p = 1e-3, "
+        "an agent whose row of its parent is lost on its last copy coasts off the centre's trajectory and takes "
+        "every agent that follows it along: worst D(T_s)/D(0) of 20 seeds on a ring of 20, 1.2 at p = 1e-3, "
         "1.8 at 1e-2"
     )
 
