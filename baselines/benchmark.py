@@ -18,7 +18,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from fxc_env.baselines import figures, report
+from fxc_env.baselines import dropout, figures, report
 from fxc_env.baselines.jobs import JobResult, make_jobs, run_job
 from fxc_env.baselines.registry import LAWS
 from fxc_env.baselines.suite import (
@@ -110,11 +110,15 @@ def run_benchmark(
     out.mkdir(parents=True, exist_ok=True)
     rows = report.aggregate(results)
     markdown = report.markdown_report(results, suite, contenders, seconds=seconds, command=command)
+    lost_links = suite.name.startswith("dropout")
+    if lost_links:  # the curve against p, before the notes
+        markdown = markdown.replace("### Notes", dropout.dropout_section(results, contenders) + "\n\n### Notes")
     files = [
         report.write_text(markdown, out / "table.md"),
         report.write_csv(rows, out / "results.csv"),
         report.write_csv(report.episode_rows(results), out / "episodes.csv"),
         *figures.write_figures(results, suite, contenders, out),
+        *([dropout.dropout_figure(results, contenders, out / "error_vs_dropout.png")] if lost_links else []),
     ]
     return BenchmarkOutput(markdown, files, results, seconds)
 
@@ -131,12 +135,14 @@ def add_benchmark_parser(subparsers: Any) -> argparse.ArgumentParser:
     parser.add_argument("--quick", action="store_true", help="a smaller suite that runs in under a minute")
     parser.add_argument(
         "--suite",
-        choices=("full", "realism", "models", "optimality"),
+        choices=("full", "realism", "models", "optimality", "dropout"),
         default="full",
         help="'full': topologies x sizes x budgets; 'realism': input limits, noise and dropout; 'models': every "
         "agent model (single, double, triple, quadruple integrators, damped, oscillator) at K = 200, 400; "
         "'optimality': error, energy / E* and intervals used against the radius and all-roots bounds (rings and random "
-        "digraphs N = 20, 100, paper_fig1, K = 200, reference, minimum_time and signalling on both schedules)",
+        "digraphs N = 20, 100, paper_fig1, K = 200, reference, minimum_time and signalling on both schedules); "
+        "'dropout': what a lost link costs the laws that claim exactness (their allow_dropout opt-ins and the reference "
+        "on a ring and a random digraph of 20 at link_dropout 1e-4 to 1e-1, K = 200)",
     )
     parser.add_argument("--out", default="out/benchmark", help="directory for table.md, CSVs and PNGs")
     parser.add_argument("--seeds", type=int, default=20, help="seeded initial states per case")
@@ -232,9 +238,11 @@ def benchmark_command(args: argparse.Namespace) -> int:
         raise ArgumentError("--workers: sets the cores of a local Ray; the cluster at --address has its own")
     out = output_directory("--out", args.out)
     names = _policy_names(args)
-    suites = {"full": full_suite, "realism": realism_suite, "models": models_suite, "optimality": optimality_suite}
+    suites = {"full": full_suite, "realism": realism_suite, "models": models_suite}
     if args.suite == "optimality":
         make_suite = quick_optimality_suite if args.quick else optimality_suite
+    elif args.suite == "dropout":
+        make_suite = dropout.quick_dropout_suite if args.quick else dropout.dropout_suite
     else:
         make_suite = quick_suite if args.quick else suites[args.suite]
     suite = make_suite(args.seeds, **({"fine_intervals": args.fine_intervals} if args.fine_intervals else {}))
@@ -242,6 +250,8 @@ def benchmark_command(args: argparse.Namespace) -> int:
         names = ["reference"]  # the analytic baselines are the double integrator's laws
     if names is None and args.suite == "optimality":
         contenders = optimality_contenders()  # the reference, minimum_time and signalling on both schedules
+    elif names is None and args.suite == "dropout":
+        contenders = dropout.dropout_contenders()  # the reference and every exact law's allow_dropout opt-in
     else:
         contenders = builtin_contenders(names)
     for spec in args.policy:

@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from fxc_env.baselines.policy import LawPolicy
+from fxc_env.baselines.policy import LawPolicy, refuse_lost_links
 from fxc_env.core import validation
 from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.graphs import Topology
@@ -225,16 +225,13 @@ def signal_amplitude(value: Any, below: str, above: str) -> float:
     return validation.in_range("amplitude", value, *AMPLITUDE_RANGE, below=below, above=above)
 
 
-def refuse_unless_exact_raw_rows(config: Any, name: str) -> None:
+def refuse_unless_exact_raw_rows(config: Any, name: str, allow_dropout: bool = False, lost_link: str = "") -> None:
     """Raise :class:`ArgumentError` naming what a law that reads numbers off motions cannot honour.
 
-    Lost links, agent models other than the double integrator, observations other than raw
+    Lost links (unless ``allow_dropout``; ``lost_link`` says what one costs the law), agent models other than the double integrator, observations other than raw
     (the coasting prediction is subtracted from physical rows) and actions other than plan/accel.
     """
-    if config.link_dropout != 0:
-        raise ArgumentError(
-            f"link_dropout: {name} reads numbers from every link of its graph; got link_dropout={config.link_dropout!r}"
-        )
+    refuse_lost_links(config, name, allow_dropout, lost_link or "it reads numbers from every link")
     if config.model is not None:
         raise ArgumentError(
             f"agent_model: {name} is designed for the double integrator; got agent_model={config.agent_model!r}"

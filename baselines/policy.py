@@ -40,6 +40,41 @@ def law_gain(name: str, value: Any, unit: str) -> float:
     )
 
 
+def refuse_lost_links(config: Any, name: str, allow_dropout: Any, lost_link: str) -> None:
+    """Refuse ``link_dropout`` unless ``allow_dropout``, saying what a lost link costs the law (``lost_link``).
+
+    Raises:
+        ArgumentError naming ``allow_dropout`` (not a bool) or ``link_dropout`` (on, not opted in).
+    """
+    if not isinstance(allow_dropout, bool):
+        raise ArgumentError(f"allow_dropout: expected True or False, got {allow_dropout!r}")
+    if config.link_dropout != 0 and not allow_dropout:
+        raise ArgumentError(
+            f"link_dropout: {name} needs every row it reads: {lost_link}; got link_dropout={config.link_dropout!r} "
+            '(allow_dropout=True runs it anyway; docs: optimality.md, "Lost links")'
+        )
+
+
+def rows_read(config: Any, intervals: int) -> int:
+    """The neighbour rows the team receives on intervals ``0 .. intervals - 1`` of the config's (periodic) graph."""
+    per_graph = config.topology.neighbour_mask.reshape(config.topology.period, -1).sum(axis=1)
+    return int(sum(per_graph[k % len(per_graph)] for k in range(intervals)))
+
+
+def lost_link_guarantee(config: Any, exact: str, reads: int, lost_link: str) -> str:
+    """A law's :meth:`guarantee`: ``exact`` without lost links; under ``link_dropout`` p (opted in) none, but the
+    chance ``(1 - p)^reads`` that none of the ``reads`` rows its exactness needs is lost (then the run is exact as
+    without lost links, so the share of exact seeds is at least that), and what a lost one costs (``lost_link``)."""
+    p = config.link_dropout
+    if p == 0:
+        return exact
+    return (
+        f"no exact guarantee under link_dropout = {p:g} (exact wherever none of the {reads} rows it needs is lost, "
+        f"probability (1 - p)^{reads} = {(1.0 - p) ** reads:.2g} per episode; {lost_link}); without lost links: "
+        f"{exact}"
+    )
+
+
 class LawPolicy:
     """Base class of every baseline: the law's description, and a call on flat or dict observations.
 

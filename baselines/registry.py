@@ -29,7 +29,8 @@ from fxc_env.policies.reference import ReferencePolicy
 
 @dataclass(frozen=True)
 class OptIn:
-    """A law run with ``options`` only where ``setting`` (``obs_noise`` or ``u_max``) is on, which it refuses by default."""
+    """A law run with ``options`` only where ``setting`` (``obs_noise``, ``u_max`` or ``link_dropout``) is on, which it
+    refuses by default. ``link_dropout`` variants run in the dropout suite (:func:`fxc_env.baselines.dropout.dropout_suite`)."""
 
     suffix: str
     options: Mapping[str, Any]
@@ -91,9 +92,15 @@ register(Law(FiniteTimePolicy.NAME, FiniteTimePolicy, False, "uniform", *ACCEL))
 register(Law(PrescribedTimePolicy.NAME, PrescribedTimePolicy, False, "uniform", *ACCEL))
 register(Law(SaturationAwarePolicy.NAME, SaturationAwarePolicy, True, "uniform", *ACCEL))
 noisy = OptIn("noisy", {"allow_noise": True}, "obs_noise")
-register(Law("minimum_time", MinimumTimePolicy, True, "uniform", *PLAN, ("paper",), (noisy,), leaderboard=True))
-register(Law(LeaderFollowerPolicy.NAME, LeaderFollowerPolicy, True, "uniform", *PLAN, leaderboard=True))
+#: Every law that claims exactness refuses lost links; this runs it anyway (docs: optimality.md, "Lost links").
+lossy = OptIn("lossy", {"allow_dropout": True}, "link_dropout")
+register(Law("minimum_time", MinimumTimePolicy, True, "uniform", *PLAN, ("paper",), (noisy, lossy), leaderboard=True))
+register(Law(LeaderFollowerPolicy.NAME, LeaderFollowerPolicy, True, "uniform", *PLAN, (), (lossy,), leaderboard=True))
 limited = OptIn("limited", {"allow_limit": True}, "u_max", ("uniform", "paper"))
-register(Law("signalling", SignallingPolicy, True, "uniform", "plan", "raw", ("paper",), (limited,), leaderboard=True))
-register(Law("graph_agnostic", GraphAgnosticPolicy, True, "uniform", "plan", "raw", ("paper",), leaderboard=True))
-register(Law(BoundedSteerPolicy.NAME, BoundedSteerPolicy, True, "uniform", "plan", "raw"))
+register(
+    Law("signalling", SignallingPolicy, True, "uniform", "plan", "raw", ("paper",), (limited, lossy), leaderboard=True)
+)
+register(
+    Law("graph_agnostic", GraphAgnosticPolicy, True, "uniform", "plan", "raw", ("paper",), (lossy,), leaderboard=True)
+)
+register(Law(BoundedSteerPolicy.NAME, BoundedSteerPolicy, True, "uniform", "plan", "raw", opt_ins=(lossy,)))

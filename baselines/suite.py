@@ -403,14 +403,20 @@ OPT_IN = {
 }
 
 
+def optimality_variants(law: Any, dropout: bool = False) -> list[tuple[str, str, str]]:
+    """``law.variants()`` but those opted in under ``link_dropout`` (with ``dropout``: only those), which the
+    optimality suite has no case for (:mod:`fxc_env.baselines.dropout` runs them)."""
+    return [v for v in law.variants() if (OPT_IN.get(v[1], ("", {}, ""))[2] == "link_dropout") == dropout]
+
+
 def optimality_contenders() -> list[Contender]:
     """Every registered law (:data:`~fxc_env.baselines.registry.LAWS`): those with further schedules or opt-ins
     (:data:`OPT_IN`, run only where their setting is on) first, with every variant, then the others."""
-    laws = sorted(LAWS.values(), key=lambda law: not (law.also_on or law.opt_ins))
+    laws = sorted(LAWS.values(), key=lambda law: len(optimality_variants(law)) == 1)
     return [
         Contender(name, spec, law.sampled, schedule, law.action_mode, law.obs_mode)
         for law in laws
-        for name, spec, schedule in law.variants()
+        for name, spec, schedule in optimality_variants(law)
     ]
 
 
@@ -439,7 +445,8 @@ def load_policy(spec: str, config: EnvConfig, trusted: bool = False, allow_out_o
         return LAWS[spec].policy(config)
     if spec in OPT_IN:
         name, options, setting = OPT_IN[spec]
-        if (config.obs_noise == 0) if setting == "obs_noise" else (config.u_max_choices is None):
+        off = {"obs_noise": config.obs_noise == 0, "u_max": config.u_max_choices is None}
+        if off.get(setting, config.link_dropout == 0):
             raise ArgumentError(f"{setting}: {spec} is {name} opted in under {setting}; without it it is {name} itself")
         return LAWS[name].policy(config, **options)
     path = model_path(spec)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fxc_env import BoundedSteerPolicy
-from fxc_env.baselines.bounded_steer import flooding_schedule, least_peak_inputs
+from fxc_env.baselines.bounded_steer import errors_at_limit_ratios, flooding_schedule, least_peak_inputs
 from fxc_env.baselines.suite import BASELINES, builtin_contenders, load_policy
 from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError
@@ -71,6 +71,14 @@ def test_the_goal_under_u_max_0_3_on_the_ring_of_20():
     errors = metrics["relative_deadline_error"]
     assert np.median(errors) <= 1e-6
     assert np.all(errors[[0, 2, 4]] <= 1e-8) and np.all(errors[[1, 3]] > 1e-3)
+
+
+def test_it_needs_u_max_a_third_above_the_input_floor_on_the_ring_of_20():
+    # docs: optimality.md, "Under an input limit (`bounded_steer`)" and LIMIT_MARGIN: each seed at its own input floor
+    # times the ratio: none exact at 1.25 (the steer's horizon starts after the 1.8 s gathering), every one at 1.35.
+    errors = errors_at_limit_ratios((1.25, 1.35), seeds=range(3))
+    assert np.all(errors[1.25] > 1e-3) and np.all(errors[1.35] <= 1e-9)
+    assert "1.35" in BoundedSteerPolicy(make_config(**SETTINGS, topology="ring", n_agents=20, u_max=1.0)).guarantee()
 
 
 def test_it_stays_within_the_limit_where_the_least_peak_fits():
