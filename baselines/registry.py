@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from fxc_env.baselines.bounded_steer import BoundedSteerPolicy
+from fxc_env.baselines.filtering import FilteringPolicy
 from fxc_env.baselines.finite_time import FiniteTimePolicy
 from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
 from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
@@ -97,3 +98,6 @@ limited = OptIn("limited", {"allow_limit": True}, "u_max", ("uniform", "paper"))
 register(Law("signalling", SignallingPolicy, True, "uniform", "plan", "raw", ("paper",), (limited,), leaderboard=True))
 register(Law("graph_agnostic", GraphAgnosticPolicy, True, "uniform", "plan", "raw", ("paper",), leaderboard=True))
 register(Law(BoundedSteerPolicy.NAME, BoundedSteerPolicy, True, "uniform", "plan", "raw"))
+# Designed for obs_noise (no opt-in); off the leaderboard: its noise-free tasks are refused (switching, families,
+# u_max) but rings20, where minimum_time is exact already at less energy.
+register(Law(FilteringPolicy.NAME, FilteringPolicy, True, "uniform", "plan", "raw"))
