@@ -63,7 +63,7 @@ class FilteringPolicy(SignalPolicy):
             spanning tree, ideal double-integrator agents, ``obs_mode="raw"``, any schedule and ``obs_noise``.
         block: intervals per factor (an int >= ``spread + 1``); None: ``(K - spread) // F``, F the blocks the
             factors need (``N - 1`` on a directed ring).
-        spread: intervals over which each prediction move is spread (int >= 1, default 1): a longer move
+        spread: intervals over which each prediction move is spread (int >= 1, default 2): a longer move
             costs less energy and leaves fewer rows to read.
 
     Raises:
@@ -83,7 +83,7 @@ class FilteringPolicy(SignalPolicy):
         "noise each factor reads the mean of a block of rows"
     )
 
-    def __init__(self, env: Any, block: int | None = None, spread: int = 1) -> None:
+    def __init__(self, env: Any, block: int | None = None, spread: int = 2) -> None:
         config = config_of(env, type(self).__name__)
         refuse_what_a_graph_design_cannot_honour(config, type(self).__name__, allow_noise=True)
         refuse_unless_exact_raw_rows(config, type(self).__name__)
@@ -163,3 +163,34 @@ class FilteringPolicy(SignalPolicy):
             f"exact in exact arithmetic after {len(self.gains)} blocks of {self.block} intervals without noise; under "
             f"obs_noise each factor reads the least-squares mean of {self.block - self.spread + 1} rows"
         )
+
+
+#: The goal cases of the docs' table: the directed ring of 20 and the optimality suite's random digraph of 20.
+GOAL_CASES = {
+    "ring": {"topology": "ring", "n_agents": 20},
+    "random": {"topology": "random", "n_agents": 20, "mean_in_degree": 2.0, "topology_seed": 0},
+}
+
+
+def goal_table(sigma: float = 1e-3, seeds: tuple[int, ...] = tuple(range(20)), **policy_kwargs: Any) -> str:
+    """Medians over ``seeds`` (uniform K = 200, T_s = 20 s, ``obs_noise = sigma``) of ``D(T_s)/D(0)``, the noise
+    floor and energy / E*, one line per :data:`GOAL_CASES` case (docs: optimality.md, "Filtered dead-beat")."""
+    from fxc_env.config import make_config
+    from fxc_env.engine import ConsensusEngine
+
+    lines = ["case: error, noise floor, error / floor, energy / E*"]
+    for name, graph in GOAL_CASES.items():
+        config = make_config(
+            **graph, n_intervals=200, schedule="uniform", obs_noise=sigma, action_mode="plan", obs_mode="raw"
+        )
+        policy = FilteringPolicy(config, **policy_kwargs)
+        engine = ConsensusEngine(config, n_episodes=len(seeds))
+        draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
+        engine.reset(np.stack([d.x0 for d in draws]), np.stack([d.v0 for d in draws]))
+        while not engine.done:
+            engine.step(np.asarray(policy(engine.observations()), dtype=np.float64))
+        metrics = engine.batch_metrics()
+        error, floor = np.median(metrics["relative_deadline_error"]), np.median(metrics["noise_floor"])
+        energy = np.median(metrics["energy_ratio"])
+        lines.append(f"{name}: {error:.3g}, {floor:.3g}, {error / floor:.3g}, {energy:.3g}")
+    return "\n".join(lines)
