@@ -63,7 +63,7 @@ class FilteringPolicy(SignalPolicy):
             spanning tree, ideal double-integrator agents, ``obs_mode="raw"``, any schedule and ``obs_noise``.
         block: intervals per factor (an int >= ``spread + 1``); None: ``(K - spread) // F``, F the blocks the
             factors need (``N - 1`` on a directed ring).
-        spread: intervals over which each prediction move is spread (int >= 1, default 2): a longer move
+        spread: intervals over which each prediction move is spread (int >= 1, default 4): a longer move
             costs less energy and leaves fewer rows to read.
 
     Raises:
@@ -83,7 +83,7 @@ class FilteringPolicy(SignalPolicy):
         "noise each factor reads the mean of a block of rows"
     )
 
-    def __init__(self, env: Any, block: int | None = None, spread: int = 2) -> None:
+    def __init__(self, env: Any, block: int | None = None, spread: int = 4) -> None:
         config = config_of(env, type(self).__name__)
         refuse_what_a_graph_design_cannot_honour(config, type(self).__name__, allow_noise=True)
         refuse_unless_exact_raw_rows(config, type(self).__name__)
@@ -165,32 +165,20 @@ class FilteringPolicy(SignalPolicy):
         )
 
 
-#: The goal cases of the docs' table: the directed ring of 20 and the optimality suite's random digraph of 20.
-GOAL_CASES = {
-    "ring": {"topology": "ring", "n_agents": 20},
-    "random": {"topology": "random", "n_agents": 20, "mean_in_degree": 2.0, "topology_seed": 0},
-}
+def goal_table(sigma: float = 1e-3, seeds: tuple[int, ...] = tuple(range(20))) -> str:
+    """Medians over ``seeds`` of ``D(T_s)/D(0)``, the noise floor and energy / E* on the optimality suite's directed
+    ring and random digraph of 20 at ``obs_noise = sigma`` (uniform K = 200, T_s = 20 s), run as ``fxc benchmark``
+    runs them (same seeds and noise streams; docs: optimality.md, "Filtered dead-beat (`filtering`)")."""
+    from fxc_env.baselines.jobs import Job, run_job
+    from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders
 
-
-def goal_table(sigma: float = 1e-3, seeds: tuple[int, ...] = tuple(range(20)), **policy_kwargs: Any) -> str:
-    """Medians over ``seeds`` (uniform K = 200, T_s = 20 s, ``obs_noise = sigma``) of ``D(T_s)/D(0)``, the noise
-    floor and energy / E*, one line per :data:`GOAL_CASES` case (docs: optimality.md, "Filtered dead-beat")."""
-    from fxc_env.config import make_config
-    from fxc_env.engine import ConsensusEngine
-
+    contender = builtin_contenders([FilteringPolicy.NAME])[0]
     lines = ["case: error, noise floor, error / floor, energy / E*"]
-    for name, graph in GOAL_CASES.items():
-        config = make_config(
-            **graph, n_intervals=200, schedule="uniform", obs_noise=sigma, action_mode="plan", obs_mode="raw"
-        )
-        policy = FilteringPolicy(config, **policy_kwargs)
-        engine = ConsensusEngine(config, n_episodes=len(seeds))
-        draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
-        engine.reset(np.stack([d.x0 for d in draws]), np.stack([d.v0 for d in draws]))
-        while not engine.done:
-            engine.step(np.asarray(policy(engine.observations()), dtype=np.float64))
-        metrics = engine.batch_metrics()
+    for family in ("ring", "random"):
+        case = BenchmarkCase(family, 20, conditions=(("obs_noise", sigma),))
+        metrics = run_job(Job(contender, case, 200, tuple(seeds), 20.0, False)).metrics
         error, floor = np.median(metrics["relative_deadline_error"]), np.median(metrics["noise_floor"])
-        energy = np.median(metrics["energy_ratio"])
-        lines.append(f"{name}: {error:.3g}, {floor:.3g}, {error / floor:.3g}, {energy:.3g}")
+        lines.append(
+            f"{family}: {error:.3g}, {floor:.3g}, {error / floor:.3g}, {np.median(metrics['energy_ratio']):.3g}"
+        )
     return "\n".join(lines)
