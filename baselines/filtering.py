@@ -11,7 +11,8 @@ prediction by ``G ρ̂_i`` (``G = I/μ`` for a real eigenvalue μ of ``(D + I)�
 blocks for a complex pair, as in ``minimum_time``), spread over ``spread`` intervals with the least energy.
 On predictions the factors commute with coasting, so any gap between them is harmless: in exact arithmetic
 the law is exact after the factors, like ``minimum_time``, and under noise each factor reads an average of
-``block - spread + 1`` rows instead of one.
+``block - spread + 1`` rows instead of one. After the factors, ``damping`` blocks move the prediction by
+``ρ̂_i / 2``: nothing once the agents agree, a damped average of what the factors' noise left otherwise.
 """
 
 from __future__ import annotations
@@ -61,21 +62,25 @@ class FilteringPolicy(SignalPolicy):
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with a directed
             spanning tree, ideal double-integrator agents, ``obs_mode="raw"``, any schedule and ``obs_noise``.
-        block: intervals per factor (an int >= ``spread + 1``); None: ``(K - spread) // F``, F the blocks the
+        block: intervals per factor (an int >= ``spread + 1``); None: ``(K - spread) // (F + damping)``, F the blocks the
             factors need (``N - 1`` on a directed ring).
         spread: intervals over which each prediction move is spread (int >= 1, default 4): a longer move
             costs less energy and leaves fewer rows to read.
+        damping: blocks after the factors that move the prediction by ``ρ̂_i / 2`` (int >= 0, default 8): they
+            change nothing once the agents agree and average down what the factors' noise left.
 
     Raises:
         ArgumentError naming ``topology``, ``switching``, ``u_max``, ``link_dropout``, ``agent_model``,
-        ``obs_mode``, ``action_mode``, ``n_intervals``, ``block`` or ``spread`` for what it cannot honour.
+        ``obs_mode``, ``action_mode``, ``n_intervals``, ``block``, ``spread`` or ``damping`` for what it cannot
+        honour.
     """
 
     NAME: ClassVar[str] = "filtering"
     TITLE: ClassVar[str] = "the filtering law"
     LAW: ClassVar[str] = (
         "coast a block, estimate the aggregated relative prediction ρ_i by least squares over the block's rows, "
-        "move the own prediction by G ρ̂_i (G = I/μ, or R then Rᵀ per complex pair of (D+I)⁻¹L, Leja order)"
+        "move the own prediction by G ρ̂_i (G = I/μ, or R then Rᵀ per complex pair of (D+I)⁻¹L, Leja order; "
+        "then G = I/2 for the damping blocks)"
     )
     SOURCE: ClassVar[str] = "this project (least-squares filtered dead-beat factors on free-motion predictions)"
     GRAPH_CLASS: ClassVar[str] = (
@@ -83,12 +88,15 @@ class FilteringPolicy(SignalPolicy):
         "noise each factor reads the mean of a block of rows"
     )
 
-    def __init__(self, env: Any, block: int | None = None, spread: int = 4) -> None:
+    def __init__(self, env: Any, block: int | None = None, spread: int = 4, damping: int = 8) -> None:
         config = config_of(env, type(self).__name__)
         refuse_what_a_graph_design_cannot_honour(config, type(self).__name__, allow_noise=True)
         refuse_unless_exact_raw_rows(config, type(self).__name__)
         self.spread = validation.integer("spread", spread, 1)
-        self.gains = prediction_gains(design_eigenvalues(config.topology), config.settling_time)
+        self.damping = validation.integer("damping", damping, 0)
+        factors = prediction_gains(design_eigenvalues(config.topology), config.settling_time)
+        #: ``(F + damping, 2, 2)``: the gain on ``ρ̂_i`` of each block, the factors then ``I / 2``.
+        self.gains = np.concatenate([factors, np.repeat(np.eye(2)[None] / 2.0, self.damping, axis=0)])
         n_blocks, K = len(self.gains), config.n_intervals
         if n_blocks and (K - self.spread) // n_blocks < self.spread + 1:
             raise ArgumentError(
@@ -156,11 +164,16 @@ class FilteringPolicy(SignalPolicy):
 
     def parameters(self) -> dict[str, float]:
         """The design: the blocks (factors), their length and the move's spread, in intervals."""
-        return {"blocks": float(len(self.gains)), "block": float(self.block), "spread": float(self.spread)}
+        return {
+            "blocks": float(len(self.gains)),
+            "damping": float(self.damping),
+            "block": float(self.block),
+            "spread": float(self.spread),
+        }
 
     def guarantee(self) -> str:
         return (
-            f"exact in exact arithmetic after {len(self.gains)} blocks of {self.block} intervals without noise; under "
+            f"exact in exact arithmetic after {len(self.gains) - self.damping} blocks of {self.block} intervals without noise; under "
             f"obs_noise each factor reads the least-squares mean of {self.block - self.spread + 1} rows"
         )
 
