@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fxc_env.baselines import FilteringPolicy
-from fxc_env.baselines.filtering import goal_table
+from fxc_env.baselines.filtering_goals import goal_table
 from fxc_env.baselines.jobs import Job, run_job
 from fxc_env.baselines.registry import LAWS
 from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, load_policy, optimality_contenders
