@@ -51,6 +51,43 @@ def prediction_gains(eigenvalues: np.ndarray, settling_time: float) -> np.ndarra
     return np.array(gains).reshape(-1, 2, 2)
 
 
+#: Default move spread (intervals) and damping blocks, where K holds them (:func:`block_sizes`).
+SPREAD, DAMPING = 4, 8
+
+
+def block_sizes(
+    n_factors: int, n_intervals: int, block: int | None, spread: int | None, damping: int | None
+) -> tuple[int, int, int]:
+    """``(block, spread, damping)`` in intervals, intervals and blocks: the given values, checked, or the defaults.
+
+    Default ``spread``: :data:`SPREAD`, less where K cannot hold ``n_factors`` blocks of ``spread + 1`` intervals
+    and a last move; default ``damping``: :data:`DAMPING`, fewer where K cannot hold them at that length; default
+    ``block``: the longest that fits, ``(K - spread) // (n_factors + damping)``. Raises ArgumentError naming
+    ``spread``, ``damping``, ``block`` or ``n_intervals`` (even one-interval moves do not fit).
+    """
+    K = n_intervals
+    if spread is None:
+        spread = max([s for s in range(1, SPREAD + 1) if n_factors * (s + 1) + s <= K], default=1)
+    spread = validation.integer("spread", spread, 1)
+    if damping is None:
+        damping = min(DAMPING, max(0, (K - spread) // (spread + 1) - n_factors))
+    damping = validation.integer("damping", damping, 0)
+    n_blocks = n_factors + damping
+    largest = (K - spread) // max(n_blocks, 1)
+    if largest < spread + 1:
+        raise ArgumentError(
+            f"n_intervals: the filtering law needs {n_blocks} blocks of at least spread + 1 = {spread + 1} "
+            f"intervals, then {spread} to move, at least {n_blocks * (spread + 1) + spread}; got {K}"
+        )
+    block = largest if block is None else validation.integer("block", block, spread + 1)
+    if block > largest:
+        raise ArgumentError(
+            f"block: {n_blocks} blocks of {block} intervals and a last move of {spread} exceed K = {K}; "
+            f"expected at most {largest}"
+        )
+    return block, spread, damping
+
+
 class FilteringPolicy(SignalPolicy):
     """The filtered dead-beat law on the local observation: raw rows, ``plan`` or ``accel`` actions.
 
@@ -62,12 +99,13 @@ class FilteringPolicy(SignalPolicy):
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed digraph with a directed
             spanning tree, ideal double-integrator agents, ``obs_mode="raw"``, any schedule and ``obs_noise``.
-        block: intervals per factor (an int >= ``spread + 1``); None: ``(K - spread) // (F + damping)``, F the blocks the
-            factors need (``N - 1`` on a directed ring).
-        spread: intervals over which each prediction move is spread (int >= 1, default 4): a longer move
-            costs less energy and leaves fewer rows to read.
-        damping: blocks after the factors that move the prediction by ``ρ̂_i / 2`` (int >= 0, default 8): they
-            change nothing once the agents agree and average down what the factors' noise left.
+        block: intervals per block (an int >= ``spread + 1``); None: the longest that fits,
+            ``(K - spread) // (F + damping)``, F the blocks the factors need (``N - 1`` on a directed ring).
+        spread: intervals over which each prediction move is spread (int >= 1; None: 4, or less where K is short):
+            a longer move costs less energy and leaves fewer rows to read.
+        damping: blocks after the factors that move the prediction by ``ρ̂_i / 2`` (int >= 0; None: 8, or fewer
+            where K is short): they change nothing once the agents agree and average down what the factors' noise
+            left (:func:`block_sizes`).
 
     Raises:
         ArgumentError naming ``topology``, ``switching``, ``u_max``, ``link_dropout``, ``agent_model``,
@@ -88,28 +126,16 @@ class FilteringPolicy(SignalPolicy):
         "noise each factor reads the mean of a block of rows"
     )
 
-    def __init__(self, env: Any, block: int | None = None, spread: int = 4, damping: int = 8) -> None:
+    def __init__(
+        self, env: Any, block: int | None = None, spread: int | None = None, damping: int | None = None
+    ) -> None:
         config = config_of(env, type(self).__name__)
         refuse_what_a_graph_design_cannot_honour(config, type(self).__name__, allow_noise=True)
         refuse_unless_exact_raw_rows(config, type(self).__name__)
-        self.spread = validation.integer("spread", spread, 1)
-        self.damping = validation.integer("damping", damping, 0)
         factors = prediction_gains(design_eigenvalues(config.topology), config.settling_time)
+        self.block, self.spread, self.damping = block_sizes(len(factors), config.n_intervals, block, spread, damping)
         #: ``(F + damping, 2, 2)``: the gain on ``ρ̂_i`` of each block, the factors then ``I / 2``.
         self.gains = np.concatenate([factors, np.repeat(np.eye(2)[None] / 2.0, self.damping, axis=0)])
-        n_blocks, K = len(self.gains), config.n_intervals
-        if n_blocks and (K - self.spread) // n_blocks < self.spread + 1:
-            raise ArgumentError(
-                f"n_intervals: the filtering law needs {n_blocks} blocks of at least spread + 1 = {self.spread + 1} "
-                f"intervals, then {self.spread} to move, at least {n_blocks * (self.spread + 1) + self.spread}; got {K}"
-            )
-        largest = (K - self.spread) // max(n_blocks, 1)
-        self.block = largest if block is None else validation.integer("block", block, self.spread + 1)
-        if self.block > largest:
-            raise ArgumentError(
-                f"block: {n_blocks} blocks of {self.block} intervals and a last move of {self.spread} exceed "
-                f"K = {K}; expected at most {largest}"
-            )
         self.config = config
         self.layout = config.layout
         self._times = np.asarray(config.schedule.times, dtype=np.float64)
@@ -172,7 +198,8 @@ class FilteringPolicy(SignalPolicy):
         }
 
     def guarantee(self) -> str:
+        factors = len(self.gains) - self.damping
         return (
-            f"exact in exact arithmetic after {len(self.gains) - self.damping} blocks of {self.block} intervals without noise; under "
+            f"exact in exact arithmetic after {factors} blocks of {self.block} intervals without noise; under "
             f"obs_noise each factor reads the least-squares mean of {self.block - self.spread + 1} rows"
         )
