@@ -14,6 +14,7 @@ against the bounds of :mod:`fxc_env.core.optimality` (docs: benchmark.md, "Basel
 from __future__ import annotations
 
 from fxc_env.baselines.bounded_steer import BoundedSteerPolicy
+from fxc_env.baselines.filtering import FilteringPolicy
 from fxc_env.baselines.finite_time import FiniteTimePolicy
 from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
 from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
@@ -27,6 +28,7 @@ from fxc_env.baselines.suite import load_policy
 
 __all__ = [
     "BoundedSteerPolicy",
+    "FilteringPolicy",
     "FiniteTimePolicy",
     "GraphAgnosticPolicy",
     "LeaderFollowerPolicy",

@@ -38,9 +38,10 @@ COLOURS = (
     "#c49c94",
     "#f7b6d2",
     "#dbdb8d",
+    "#393b79",
 )
 #: One marker per policy where points of several policies may coincide (the optimality figure).
-#: Eighteen markers and eighteen colours: the first eighteen contenders differ in both, later ones repeat.
+#: Nineteen markers and nineteen colours: the first nineteen contenders differ in both, later ones repeat.
 MARKERS = (
     "o",
     "^",
@@ -60,6 +61,7 @@ MARKERS = (
     "$\\triangle$",
     "$\\diamond$",
     "$\\star$",
+    "$\\odot$",
 )
 
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from fxc_env.baselines.bounded_steer import BoundedSteerPolicy
+from fxc_env.baselines.filtering import FilteringPolicy
 from fxc_env.baselines.finite_time import FiniteTimePolicy
 from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
 from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
@@ -104,3 +105,6 @@ register(
     Law("graph_agnostic", GraphAgnosticPolicy, True, "uniform", "plan", "raw", ("paper",), (lossy,), leaderboard=True)
 )
 register(Law(BoundedSteerPolicy.NAME, BoundedSteerPolicy, True, "uniform", "plan", "raw", opt_ins=(lossy,)))
+# Designed for obs_noise (no opt-in); off the leaderboard: its noise-free tasks are refused (switching, families,
+# u_max) but rings20, where minimum_time is exact already at less energy.
+register(Law(FilteringPolicy.NAME, FilteringPolicy, True, "uniform", "plan", "raw"))
