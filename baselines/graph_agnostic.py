@@ -12,6 +12,7 @@ import numpy as np
 from fxc_env.baselines.motion_signals import (
     SignalPolicy,
     advance,
+    cycling_outside_roots,
     deviation_of,
     initial_offset,
     predicted_register,
@@ -59,30 +60,62 @@ DEFAULT_ANNOUNCE = 10
 #: The amplitude η of the announcement: the deviation ``η (Re a, Im a / T_s)`` at ``t_{k_a + 1}`` carries ``a_i``.
 ANNOUNCE = 1e-5
 
-#: The grid of the pre-steer aims (m): ``2^-24`` m, far above the announcement's reading error
-#: (``1e-16 |z| / η``, ~1e-10 m), so every reader rounds to the very aim the agent chose.
-AIM_GRID = 2.0**-24
+#: Bits of an announced aim below its sender's loudness ``|c_i(k_a)|``: the aim is rounded to the power-of-two grid
+#: ``2^(ceil(log2 |c_i(k_a)|) - AIM_BITS + 1)``, a reader rounds to ``2^(ceil(log2 |ĉ_i(k_a)|) - AIM_BITS)`` from its own
+#: read of the loudness. The reader's grid divides the sender's wherever the read is within a factor 2, so it holds the
+#: very aim chosen, and it is ``2^-13 |c_i(k_a)|`` or coarser, far above the announcement's reading error
+#: (``1e-16 |z| / η``, about 1e-10 of the state's scale). Every quantity is relative to the state: the law is
+#: scale-free (the same D(T_s)/D(0) for ``x(0), v(0) -> c x(0), c v(0)``).
+AIM_BITS = 12
+
+#: A reader takes an in-neighbour for silent (aim 0) where the register it heard at ``k_a`` is below this fraction of
+#: the reader's own register spread ``max_j |w_j(0) - w_i(0)|``: an agent with no in-neighbour never moves, and what
+#: its readers hear of it is rounding (about 1e-9 of the state's scale), which no relative grid rounds away.
+SILENT = 2.0**-16
 
 #: The pre-steer trusts the iterate only when its latest changes are below this fraction of it
 #: (weight ``1 - change / (RHO |c|)``, none above): on a ring the iterate wanders and nobody pre-steers.
 RHO = 0.2
 
 
+def on_aim_grid(aim: np.ndarray, loudness: np.ndarray, coarser: int) -> np.ndarray:
+    """``aim`` ``(..., dim)`` rounded to the grid ``2^(ceil(log2 loudness) - AIM_BITS + coarser)`` of its sender's
+    loudness ``(...)`` (zero where the loudness is zero)."""
+    with np.errstate(divide="ignore"):
+        exponent = np.ceil(np.log2(np.where(loudness > 0, loudness, 1.0))) - AIM_BITS + coarser
+    grid = np.ldexp(1.0, exponent.astype(np.int64))[..., None]
+    rounded = grid * (np.round(aim.real / grid) + 1j * np.round(aim.imag / grid))
+    return np.where(loudness[..., None] > 0, rounded, 0.0)
+
+
 def presteer_aim(values: np.ndarray) -> np.ndarray:
-    """The aim ``a_i`` ``(..., dim)`` from the latest three values ``c_i`` ``(..., 3, dim)``: the iterate weighted
-    by how settled it looks, on :data:`AIM_GRID`."""
+    """The aim ``a_i`` ``(..., dim)`` from the latest three values ``c_i(k_a - 1 .. k_a + 1)`` ``(..., 3, dim)``: the
+    iterate weighted by how settled it looks (at most ``1.25 |c_i(k_a)|``), on the grid of its loudness
+    ``|c_i(k_a)|`` one step coarser than its readers' (:data:`AIM_BITS`)."""
     change = np.max(np.sqrt(np.sum(np.abs(np.diff(values, axis=-2)) ** 2, axis=-1)), axis=-1)  # (...)
     size = np.sqrt(np.sum(np.abs(values[..., -1, :]) ** 2, axis=-1))
     weight = np.clip(1.0 - change / np.maximum(RHO * size, 1e-300), 0.0, 1.0)
-    aim = weight[..., None] * values[..., -1, :]
-    return AIM_GRID * (np.round(aim.real / AIM_GRID) + 1j * np.round(aim.imag / AIM_GRID))
+    loudness = np.sqrt(np.sum(np.abs(values[..., -2, :]) ** 2, axis=-1))
+    return on_aim_grid(weight[..., None] * values[..., -1, :], loudness, 1)
 
 
-def heard_aim(deviation: np.ndarray, heard: np.ndarray, amplitude: float, settling_time: float) -> np.ndarray:
+def heard_aim(
+    deviation: np.ndarray, heard: np.ndarray, spread: np.ndarray, amplitude: float, settling_time: float
+) -> np.ndarray:
     """The neighbours' aims ``(..., slots, dim)`` from their deviations at ``t_{k_a + 1}``, ``η a_j + ε c_j(k_a)``
-    with ``c_j(k_a)`` already ``heard``: rounded to :data:`AIM_GRID`, exactly the aims they chose."""
+    with ``c_j(k_a)`` already ``heard``: on the grid of the heard loudness ``|c_j(k_a)|`` (:data:`AIM_BITS`), exactly
+    the aims they chose; zero for a neighbour heard below :data:`SILENT` times the reader's register ``spread``
+    ``(...)``."""
     aim = register_of(deviation - deviation_of(heard, amplitude, settling_time), ANNOUNCE, settling_time)
-    return AIM_GRID * (np.round(aim.real / AIM_GRID) + 1j * np.round(aim.imag / AIM_GRID))
+    loudness = np.sqrt(np.sum(np.abs(heard) ** 2, axis=-1))  # (..., slots)
+    loudness = np.where(loudness > SILENT * spread[..., None], loudness, 0.0)
+    return on_aim_grid(aim, loudness, 0)
+
+
+def register_spread(base: np.ndarray, mask: np.ndarray, settling_time: float) -> np.ndarray:
+    """An agent's register spread ``max_j |w_j(0) - w_i(0)|`` ``(...)`` over its in-neighbours, from its first rows."""
+    difference = np.sqrt(np.sum(np.abs(predicted_register(base, settling_time)) ** 2, axis=-1))  # (..., slots)
+    return np.max(np.where(mask, difference, 0.0), axis=-1, initial=0.0)
 
 
 def presteer_path(aim: np.ndarray, start: float, t: float, settling_time: float) -> np.ndarray:
@@ -204,14 +237,16 @@ class GraphAgnosticPolicy(SignalPolicy):
         "virtual iteration w <- D⁻¹A w on registers w_i = p_i, carried at amplitude ε by motions read from own rows; "
         "each agent's shortest recurrence of its own differences (block Hankel rank test over its register parts, "
         "about 1.5 max_agents values) "
-        "gives the limit; a pre-steer toward the settled iterate, announced on a grid; then one minimum-energy steer"
+        "gives the limit; a pre-steer toward the settled iterate, announced on a grid relative to its loudness; then one "
+        "minimum-energy steer"
     )
     SOURCE: ClassVar[str] = (
         "Yuan, Stan, Shi, Barahona & Gonçalves 2013 (decentralised minimum-time consensus), carried by this "
         "project's signalling through small motions"
     )
     GRAPH_CLASS: ClassVar[str] = (
-        "fixed digraph with a directed spanning tree and at most max_agents agents, ideal agents, graph unknown: "
+        "fixed digraph with a directed spanning tree whose cycles all lie in its root set (strongly connected, or "
+        "an acyclic rest) and at most max_agents agents, ideal agents, graph unknown: "
         "exact up to rounding / ε at ξᵀ p (the mean prediction where ξ is uniform)"
     )
     #: What one lost link costs the law (the refusal of ``link_dropout`` and :meth:`guarantee` say it).
@@ -305,7 +340,8 @@ class GraphAgnosticPolicy(SignalPolicy):
                 memory["base"] = initial_offset(rows, t)
             deviation = read_deviation(rows, memory["base"], d[..., None, :, :], t)
             if k_a is not None and k == k_a + 1:  # the held interval: η a_j + ε c_j(k_a), a_j on the grid
-                memory["heard_aim"] = heard_aim(deviation, memory["heard"], eps, T_s)
+                spread = register_spread(memory["base"], mask, T_s)
+                memory["heard_aim"] = heard_aim(deviation, memory["heard"], spread, eps, T_s)
             else:
                 if k_a is not None and k > k_a:
                     deviation = deviation - presteer_path(memory["heard_aim"], self._times[k_a + 1], t, T_s)
@@ -412,6 +448,15 @@ def _refuse_what_it_cannot_honour(config: Any, allow_dropout: bool = False) -> N
             f"got obs_noise={config.obs_noise!r}"
         )
     refuse_unless_exact_raw_rows(config, name, allow_dropout, GraphAgnosticPolicy.LOST_LINK)
+    cycling = cycling_outside_roots(config.topology)
+    if len(cycling):
+        listed = ", ".join(str(int(i)) for i in cycling[:8]) + (", ..." if len(cycling) > 8 else "")
+        raise ArgumentError(
+            f"topology: {name} is exact where every cycle of the graph lies in its root set (strongly connected, or "
+            f"the rest acyclic: trees, paths, stars); agents [{listed}] lie on a cycle outside it, whose slowly "
+            "decaying modes its rank test cannot tell from reading errors (single-root N = 40: D(T_s)/D(0) up to "
+            "1.8e-6)"
+        )
 
 
 def _amplitude(value: Any) -> float:

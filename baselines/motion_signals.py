@@ -204,6 +204,19 @@ def leja_order(eigenvalues: np.ndarray) -> np.ndarray:
     return np.array(order, dtype=complex)
 
 
+def cycling_outside_roots(topology: Topology) -> np.ndarray:
+    """The agents outside the root set that lie on a cycle of the (union) graph, sorted ``(M,)``.
+
+    None where the graph is strongly connected, or where its agents outside the root set form no cycle (trees,
+    paths, stars). Where some do, the virtual iteration ``w <- D^-1 A w`` has decaying modes of that cycle's leaky
+    block, slow ones among them.
+    """
+    _, labels = csgraph.connected_components(union_graph(topology), directed=True, connection="strong")
+    on_cycle = np.bincount(labels)[labels] > 1
+    on_cycle[root_set(topology)] = False
+    return np.flatnonzero(on_cycle)
+
+
 def union_graph(topology: Topology) -> sp.csr_array:
     """0/1 adjacency of the union of the period's graphs, sparse ``(N, N)``."""
     union = sp.csr_array(topology.union())

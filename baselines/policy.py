@@ -75,6 +75,19 @@ def lost_link_guarantee(config: Any, exact: str, reads: int, lost_link: str) -> 
     )
 
 
+#: The phrases with which a law's ``guarantee()`` claims exact consensus at ``T_s`` on its configuration, rounding
+#: aside ("no exact guarantee", "not exact where ..." deny it). A law that claims it keeps it in any units: its
+#: D(T_s)/D(0) does not depend on the scale of the initial state (tests/baselines/test_scale_free.py).
+EXACT_CLAIMS = ("exact in exact arithmetic", "exact (rounding / ε aside)")
+
+
+def claims_exactness(policy: Any) -> bool:
+    """Whether ``policy.guarantee()`` (none: no) claims exact consensus at ``T_s`` (:data:`EXACT_CLAIMS`)."""
+    guarantee = getattr(policy, "guarantee", None)
+    text = guarantee() if callable(guarantee) else ""
+    return any(claim in text for claim in EXACT_CLAIMS)
+
+
 class LawPolicy:
     """Base class of every baseline: the law's description, and a call on flat or dict observations.
 

@@ -223,7 +223,12 @@ class SignallingPolicy(SignalPolicy):
         bound = (self.config.settling_time / (self.config.settling_time - t_c)) ** 3
         exact = (
             f"agreement after {self.agreement_intervals} intervals (t_c = {t_c:.3g} s), then one minimum-energy steer "
-            f"over T_s - t_c (about E* x {bound:.3g}) plus signalling; error set by rounding / ε"
+            f"over T_s - t_c (about E* x {bound:.3g}) plus signalling; "
+            + (
+                "exact (rounding / ε aside)"
+                if self.config.u_max_choices is None
+                else "exact only where every input stays within u_max (error set by rounding / ε there)"
+            )
         )
         reads = rows_read(self.config, self.agreement_intervals + 1)  # from t_0 to the last update
         return lost_link_guarantee(self.config, exact, reads, self.LOST_LINK)
