@@ -49,7 +49,14 @@ EXACT_LAWS = [name for name in LAWS if claims_exactness(LAWS[name].policy(law_co
 
 
 def test_the_laws_that_claim_exactness_are_the_ones_the_scale_test_covers():
-    assert set(EXACT_LAWS) == {"minimum_time", "leader_follower", "signalling", "graph_agnostic", "bounded_steer"}
+    assert set(EXACT_LAWS) == {
+        "minimum_time",
+        "leader_follower",
+        "signalling",
+        "graph_agnostic",
+        "bounded_steer",
+        "filtering",
+    }
 
 
 @pytest.mark.parametrize("graph", sorted(GRAPHS))
