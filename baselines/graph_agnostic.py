@@ -190,7 +190,7 @@ class GraphAgnosticPolicy(SignalPolicy):
             :data:`DEFAULT_ANNOUNCE` or ``L - 4`` if earlier, none where K has no room for the held interval).
 
     Raises:
-        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``,
+        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``obs_resolution``, ``link_dropout``,
         ``agent_model``, ``obs_mode``, ``action_mode``, ``max_agents``, ``n_intervals``, ``amplitude``,
         ``rank_tolerance`` or ``announce_at`` for what the law cannot honour.
     """

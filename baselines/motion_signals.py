@@ -228,9 +228,15 @@ def signal_amplitude(value: Any, below: str, above: str) -> float:
 def refuse_unless_exact_raw_rows(config: Any, name: str) -> None:
     """Raise :class:`ArgumentError` naming what a law that reads numbers off motions cannot honour.
 
-    Lost links, agent models other than the double integrator, observations other than raw
-    (the coasting prediction is subtracted from physical rows) and actions other than plan/accel.
+    Lost links, rows rounded to a quantum (a signal far below it reads as 0), agent models other
+    than the double integrator, observations other than raw (the coasting prediction is subtracted
+    from physical rows) and actions other than plan/accel.
     """
+    if config.obs_resolution != 0:
+        raise ArgumentError(
+            f"obs_resolution: {name} reads numbers off motions far below any quantum of the rows; "
+            f"got obs_resolution={config.obs_resolution!r}"
+        )
     if config.link_dropout != 0:
         raise ArgumentError(
             f"link_dropout: {name} reads numbers from every link of its graph; got link_dropout={config.link_dropout!r}"

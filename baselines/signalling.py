@@ -53,7 +53,7 @@ class SignallingPolicy(SignalPolicy):
             limit, the clip breaks the landing elsewhere (docs: optimality.md, "How far from optimal").
 
     Raises:
-        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``, ``agent_model``,
+        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``obs_resolution``, ``link_dropout``, ``agent_model``,
         ``obs_mode``, ``n_intervals`` or ``amplitude`` for what the design cannot honour.
     """
 
