@@ -386,7 +386,9 @@ def _condition_sections(results: list[JobResult], suite: Suite, contenders: list
             realism_table(results, suite, contenders),
             "",
             "Floor: what no controller, centralised or not, beats under the condition (medians over seeds): the "
-            "least expected D(T_s)/D(0) under measurement noise, and the least u_max of exact consensus at T_s.",
+            "least expected D(T_s)/D(0) under measurement noise, and the least u_max of exact consensus at T_s; "
+            "under obs_resolution, the worst D(T_s)/D(0) of the states that read all zeros, which no law that "
+            "applies no input on zero readings beats.",
             "",
         ]
     if suite.name.startswith("optimality"):
