@@ -21,6 +21,7 @@ from typing import Any
 from fxc_env.baselines import dropout, figures, report
 from fxc_env.baselines.jobs import JobResult, make_jobs, run_job
 from fxc_env.baselines.registry import LAWS
+from fxc_env.baselines.resolution import with_resolution
 from fxc_env.baselines.suite import (
     Contender,
     Suite,
@@ -168,6 +169,12 @@ def _add_contender_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fine-intervals", type=int, help="K of continuous laws (default 4000; 1000 with --quick)")
     parser.add_argument("--policies", help="comma-separated built-in policies (default: reference and every baseline)")
     parser.add_argument(
+        "--obs-resolution",
+        type=float,
+        help="also run every case without conditions with rows rounded to this quantum (m, m/s), beside its "
+        "resolution floor",
+    )
+    parser.add_argument(
         "--policy",
         action="append",
         default=[],
@@ -246,6 +253,7 @@ def benchmark_command(args: argparse.Namespace) -> int:
     else:
         make_suite = quick_suite if args.quick else suites[args.suite]
     suite = make_suite(args.seeds, **({"fine_intervals": args.fine_intervals} if args.fine_intervals else {}))
+    suite = with_resolution(suite, args.obs_resolution)
     if names is None and args.suite == "models":
         names = ["reference"]  # the analytic baselines are the double integrator's laws
     if names is None and args.suite == "optimality":

@@ -122,7 +122,7 @@ class BoundedSteerPolicy(SignalPolicy):
             costs; docs: optimality.md, "Lost links").
 
     Raises:
-        ArgumentError naming ``topology``, ``switching``, ``obs_noise``, ``link_dropout``, ``agent_model``,
+        ArgumentError naming ``topology``, ``switching``, ``obs_noise``, ``obs_resolution``, ``link_dropout``, ``agent_model``,
         ``obs_mode``, ``action_mode``, ``n_intervals`` or ``amplitude`` for what the law cannot honour.
     """
 

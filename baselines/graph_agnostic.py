@@ -226,7 +226,7 @@ class GraphAgnosticPolicy(SignalPolicy):
             costs; docs: optimality.md, "Lost links").
 
     Raises:
-        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``,
+        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``obs_resolution``, ``link_dropout``,
         ``agent_model``, ``obs_mode``, ``action_mode``, ``max_agents``, ``n_intervals``, ``amplitude``,
         ``rank_tolerance`` or ``announce_at`` for what the law cannot honour.
     """

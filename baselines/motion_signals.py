@@ -241,9 +241,15 @@ def signal_amplitude(value: Any, below: str, above: str) -> float:
 def refuse_unless_exact_raw_rows(config: Any, name: str, allow_dropout: bool = False, lost_link: str = "") -> None:
     """Raise :class:`ArgumentError` naming what a law that reads numbers off motions cannot honour.
 
-    Lost links (unless ``allow_dropout``; ``lost_link`` says what one costs the law), agent models other than the double integrator, observations other than raw
-    (the coasting prediction is subtracted from physical rows) and actions other than plan/accel.
+    Lost links (unless ``allow_dropout``; ``lost_link`` says what one costs the law), rows rounded to a quantum
+    (a signal far below it reads as 0), agent models other than the double integrator, observations other than
+    raw (the coasting prediction is subtracted from physical rows) and actions other than plan/accel.
     """
+    if config.obs_resolution != 0:
+        raise ArgumentError(
+            f"obs_resolution: {name} reads numbers off motions far below any quantum of the rows; "
+            f"got obs_resolution={config.obs_resolution!r}"
+        )
     refuse_lost_links(config, name, allow_dropout, lost_link or "it reads numbers from every link")
     if config.model is not None:
         raise ArgumentError(

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from fxc_env.baselines.resolution import resolution_section
 from fxc_env.core.metrics import EpisodeMetrics
 
 if TYPE_CHECKING:
@@ -226,7 +227,8 @@ def case_table(results: list[JobResult], suite: Suite, contenders: list[Contende
 
 
 def floor_text(metrics: dict[str, np.ndarray]) -> str:
-    """The floors of one job's episodes (medians): ``noise ≥ …`` on D(T_s)/D(0), ``u_max ≥ …`` (m/s²); ``—`` without either."""
+    """The floors of one job's episodes (medians): ``noise ≥ …`` on D(T_s)/D(0), ``u_max ≥ …`` (m/s²), ``worst D/D(0) ≥ …``
+    under ``obs_resolution``; ``—`` without any."""
     parts = []
     noise = quantiles(np.asarray(metrics.get("noise_floor", [np.nan]), dtype=float))[0]
     if not math.isnan(noise):
@@ -234,6 +236,9 @@ def floor_text(metrics: dict[str, np.ndarray]) -> str:
     limit = quantiles(np.asarray(metrics.get("input_floor", [np.nan]), dtype=float))[0]
     if not math.isnan(limit):
         parts.append(f"u_max ≥ {number_text(limit)}")
+    resolution = quantiles(np.asarray(metrics.get("resolution_floor", [np.nan]), dtype=float))[0]
+    if not math.isnan(resolution):  # a worst case over the states that read all zeros (resolution.py)
+        parts.append(f"worst D/D(0) ≥ {number_text(resolution)}")
     return ", ".join(parts) or "—"
 
 
@@ -410,7 +415,9 @@ def _condition_sections(results: list[JobResult], suite: Suite, contenders: list
             realism_table(results, suite, contenders),
             "",
             "Floor: what no controller, centralised or not, beats under the condition (medians over seeds): the "
-            "least expected D(T_s)/D(0) under measurement noise, and the least u_max of exact consensus at T_s.",
+            "least expected D(T_s)/D(0) under measurement noise, and the least u_max of exact consensus at T_s; "
+            "under obs_resolution, the worst D(T_s)/D(0) of the states that read all zeros, which no law that "
+            "applies no input on zero readings beats.",
             "",
         ]
     if suite.name.startswith("optimality"):
@@ -467,6 +474,7 @@ def markdown_report(
         "",
     ]
     parts += _condition_sections(results, suite, contenders)
+    parts += resolution_section(results)
     parts += [
         "### Relative deadline error against the communication budget K (all cases pooled)",
         "",

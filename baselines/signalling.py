@@ -56,7 +56,7 @@ class SignallingPolicy(SignalPolicy):
             costs; docs: optimality.md, "Lost links").
 
     Raises:
-        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``link_dropout``, ``agent_model``,
+        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``obs_noise``, ``obs_resolution``, ``link_dropout``, ``agent_model``,
         ``obs_mode``, ``n_intervals`` or ``amplitude`` for what the design cannot honour.
     """
 

@@ -133,6 +133,8 @@ def _print_simulation(trajectory: Any, scenario: str | None, xi: Any) -> None:
     ]
     if m.noise_floor == m.noise_floor:  # under obs_noise (NaN otherwise)
         bounds.append(("D(T_s)/D(0) under the noise", m.noise_floor, m.relative_deadline_error))
+    if m.resolution_floor == m.resolution_floor:  # under obs_resolution: the worst case of states reading 0
+        bounds.append(("D(T_s)/D(0), worst silent state", m.resolution_floor, m.relative_deadline_error))
     if m.input_floor == m.input_floor:  # under u_max: the least limit of exact consensus, beside the limit run
         bounds.append(("u_max of exact consensus (m/s²)", m.input_floor, f"u_max = {trajectory.u_max:g}"))
     _table(("how far from optimal", "lower bound", "reference"), bounds)

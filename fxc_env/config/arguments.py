@@ -80,6 +80,7 @@ class EnvKwargs(TypedDict, total=False):
     obs_slots: int | None
     u_max: float | Sequence[float] | None
     obs_noise: float
+    obs_resolution: float | None
     link_dropout: float
     switching: str
     agent_model: Any
@@ -333,6 +334,18 @@ ENV_ARGUMENTS: tuple[Argument, ...] = (
         kind="real",
         minimum=0.0,
         maximum=validation.STATE_LIMIT,
+        flag=Flag("float"),
+    ),
+    _env(
+        "obs_resolution",
+        None,
+        help="measurement quantum (m, m/s): each row is rounded to a multiple of it (default: exact)",
+        card="quantum (m, m/s) each relative measurement is rounded to (after noise); ``None`` or 0: exact rows. "
+        "Infos report the resolution floor (docs: optimality.md)",
+        kind="real",
+        minimum=0.0,
+        maximum=validation.STATE_LIMIT,
+        card_type="``float \\| None``",
         flag=Flag("float"),
     ),
     _env(

@@ -85,6 +85,8 @@ class EnvConfig:
     agent_model: str = "double_integrator"
     #: Formation offsets ``h_i`` as full states ``(N, n, dim)``, or None (plain consensus).
     formation: np.ndarray | None = None
+    #: The measurement quantum (m, m/s) rows are rounded to; 0: exact rows (``obs_resolution=None``).
+    obs_resolution: float = 0.0
 
     @property
     def n_states(self) -> int:
@@ -282,11 +284,11 @@ def _scale_range(name: str, value: Any, limit: float = validation.STATE_LIMIT) -
     return number, number
 
 
-def _noise(value: float, limit: float) -> float:
-    """``obs_noise``, at most ``limit`` (with raw float32 observations, noise beyond float32's range would observe as inf)."""
+def _noise(value: float, limit: float, name: str = "obs_noise") -> float:
+    """``obs_noise`` (or ``obs_resolution``), at most ``limit`` (with raw float32 observations, a row beyond float32's range would observe as inf)."""
     if value > limit:
         raise ArgumentError(
-            f'obs_noise: expected a number in [0, {limit:g}] (float32 range with obs_dtype="float32", obs_mode="raw"), '
+            f'{name}: expected a number in [0, {limit:g}] (float32 range with obs_dtype="float32", obs_mode="raw"), '
             f"got {value!r}"
         )
     return value
@@ -417,6 +419,7 @@ def _validated(merged: dict[str, Any], arguments: dict[str, Any]) -> EnvConfig:
         velocity_range=_scale_range("velocity_range", merged["velocity_range"], limit),
         u_max_choices=u_max_choices,
         obs_noise=_noise(checked("obs_noise"), limit),
+        obs_resolution=_noise(checked("obs_resolution") or 0.0, limit, "obs_resolution"),
         link_dropout=checked("link_dropout"),
         switching=checked("switching"),
         scenario=arguments["scenario"],

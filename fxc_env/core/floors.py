@@ -1,9 +1,12 @@
 """Floors under measurement noise and input limits: what no controller, centralised or not, can beat.
 
-Two settings of the environment change what is reachable at ``T_s``: measurement noise
-(:func:`noise_floor`, linear in ``sigma``, the mean over :data:`NOISE_DRAWS` fixed draws) and an
+Three settings of the environment change what is reachable at ``T_s``: measurement noise
+(:func:`noise_floor`, linear in ``sigma``, the mean over :data:`NOISE_DRAWS` fixed draws), an
 input limit (:func:`input_floor`, :func:`input_floor_bounds`, a linear programme over
-:data:`INPUT_FACETS` facets); each floor holds for every law (docs: optimality.md, "The floors,
+:data:`INPUT_FACETS` facets) and a measurement quantum (:func:`resolution_floor`,
+:func:`resolution_floor_bounds`, linear in the quantum, small linear programmes); each floor holds
+for every law (the resolution floor: for every law that applies no input while it reads only
+zeros, which every policy does under ``obs_mode="normalized"``; docs: optimality.md, "The floors,
 derived").
 
 Pure numpy/scipy: no environment, no torch.
@@ -23,7 +26,17 @@ from fxc_env.core.graphs import Topology
 from fxc_env.core.metrics import spread
 from fxc_env.core.validation import ArgumentError
 
-__all__ = ["INPUT_FACETS", "NOISE_DRAWS", "NOISE_LIMIT", "input_floor", "input_floor_bounds", "noise_floor"]
+__all__ = [
+    "INPUT_FACETS",
+    "NOISE_DRAWS",
+    "NOISE_LIMIT",
+    "input_floor",
+    "input_floor_bounds",
+    "noise_floor",
+    "resolution_floor",
+    "resolution_floor_bounds",
+    "resolution_worst_state",
+]
 
 #: Draws of the least-squares error whose mean disagreement is the noise floor (fixed generator, seed 0).
 NOISE_DRAWS = 4096
@@ -183,3 +196,161 @@ def input_floor_bounds(x0: Any, v0: Any, settling_time: Any, facets: int = INPUT
 def input_floor(x0: Any, v0: Any, settling_time: Any) -> float:
     """The least ``u_max`` (m/s²) for which any controller reaches exact consensus at ``T_s`` (the lower bound of :func:`input_floor_bounds`)."""
     return input_floor_bounds(x0, v0, settling_time)[0]
+
+
+def _silent_rows(topology: Topology, instants: np.ndarray) -> np.ndarray:
+    """The rows ``a`` of ``|a . z| <= 1/2`` that keep every reading 0 under free motion, ``(M, 2N)``, ``z = (x, v)``.
+
+    Per measured edge ``(j, i)`` of graph ``g``: the velocity row, and the position row at the
+    first and the last instant ``t_k`` (``k = g mod period``) it is measured (``x_j - x_i + t (v_j - v_i)``
+    is affine in ``t``, so bounded at both ends means bounded at every instant between).
+    """
+    n, period = topology.n_agents, topology.period
+    rows = []
+    for g in range(period):
+        measured = instants[g::period]
+        if len(measured) == 0:
+            continue
+        for j, i in topology.edges[g]:
+            for t in dict.fromkeys((measured[0], measured[-1])):
+                row = np.zeros(2 * n)
+                row[[j, i, n + j, n + i]] = [1.0, -1.0, t, -t]
+                rows.append(row)
+            row = np.zeros(2 * n)
+            row[[n + j, n + i]] = [1.0, -1.0]
+            rows.append(row)
+    return np.array(rows).reshape(-1, 2 * n)
+
+
+def _free_disagreement(states: np.ndarray, settling_time: float) -> np.ndarray:
+    """``D(T_s)`` of free motion from states ``(S, 2N)`` (1-D), ``(S,)``."""
+    n = states.shape[-1] // 2
+    x, v = states[..., :n], states[..., n:]
+    return np.ptp(x + settling_time * v, axis=-1) + settling_time * np.ptp(v, axis=-1)
+
+
+def _maximise(rows: np.ndarray, objective: np.ndarray) -> tuple[float, np.ndarray]:
+    """``max objective . z`` over ``|rows @ z| <= 1/2`` with agent 0 at ``x = v = 0`` (the gauge); value and maximiser."""
+    size = rows.shape[1]
+    n = size // 2
+    free = np.ones(size, dtype=bool)
+    free[[0, n]] = False
+    result = linprog(
+        c=-objective[free],
+        A_ub=np.concatenate([rows[:, free], -rows[:, free]]),
+        b_ub=np.full(2 * len(rows), 0.5),
+        bounds=[(None, None)] * int(free.sum()),
+        method="highs",
+    )
+    if result.status != 0:
+        raise ArithmeticError(f"resolution floor: the linear programme did not solve ({result.message})")
+    state = np.zeros(size)
+    state[free] = result.x
+    return float(-result.fun), state
+
+
+def _pair_objective(n: int, settling_time: float, high: tuple[int, int], low: tuple[int, int]) -> np.ndarray:
+    """``x_a(T) - x_b(T) + T (v_c - v_d)`` as a vector over ``z = (x, v)``; ``high = (a, c)``, ``low = (b, d)``."""
+    objective = np.zeros(2 * n)
+    (a, c), (b, d) = high, low
+    objective[[a, n + a]] += [1.0, settling_time]
+    objective[[b, n + b]] -= [1.0, settling_time]
+    objective[n + c] += settling_time
+    objective[n + d] -= settling_time
+    return objective
+
+
+def _checked_instants(topology: Any, times: Any) -> np.ndarray:
+    """``times`` checked as ``t_0 = 0 < ... < t_K`` (seconds), for a :class:`Topology`."""
+    if not isinstance(topology, Topology):
+        raise ArgumentError(f"topology: expected a fxc_env.core.graphs.Topology, got {type(topology).__name__}")
+    instants = validation.real_array("times", times, "the sampling instants t_0 .. t_K (seconds)")
+    if instants.ndim != 1 or len(instants) < 2 or not np.all(np.diff(instants) > 0) or instants[0] != 0:
+        raise ArgumentError(f"times: expected increasing instants t_0 = 0 .. t_K = T_s, got shape {instants.shape}")
+    return instants
+
+
+def resolution_worst_state(topology: Topology, times: Any, refinements: int = 8) -> tuple[np.ndarray, float]:
+    """An initial state no reading of which leaves 0 at quantum 1, and its free ``D(T_s)``: ``((2, N), float)``.
+
+    The state (rows ``x``, ``v``; 1-D, agent 0 at rest at 0) keeps every relative row
+    ``|x_j - x_i|``, ``|v_j - v_i|`` measured at ``t_0 .. t_{K-1}`` within 1/2 while it coasts, so
+    with quantum ``q`` the state times ``q`` reads all zeros. Found by linear programmes over that
+    polytope: each agent's ``x_i + 2 T_s v_i`` against agent 0's, then the extreme pairs of the best
+    state found (``refinements`` rounds). Any state of the polytope gives a true floor; this one makes it large.
+    """
+    instants = _checked_instants(topology, times)
+    n, settling_time = topology.n_agents, float(instants[-1])
+    if n == 1:
+        return np.zeros((2, 1)), 0.0
+    rows = _silent_rows(topology, instants[:-1])
+    best, best_value = np.zeros(2 * n), 0.0
+    for i in range(1, n):
+        state = _maximise(rows, _pair_objective(n, settling_time, (i, i), (0, 0)))[1]
+        value = float(_free_disagreement(state, settling_time))
+        if value > best_value:
+            best, best_value = state, value
+    for _ in range(refinements):
+        final, velocity = best[:n] + settling_time * best[n:], best[n:]
+        high, low = (int(np.argmax(final)), int(np.argmax(velocity))), (int(np.argmin(final)), int(np.argmin(velocity)))
+        state = _maximise(rows, _pair_objective(n, settling_time, high, low))[1]
+        value = float(_free_disagreement(state, settling_time))
+        if value <= best_value * (1 + 1e-12):
+            break
+        best, best_value = state, value
+    return best.reshape(2, n), best_value
+
+
+def resolution_floor_bounds(topology: Topology, times: Any, dim: int = 1) -> tuple[float, float]:
+    """``(lower, upper)`` on the worst free ``D(T_s)`` over the states that read all zeros, per metre of quantum.
+
+    ``lower`` is :func:`resolution_worst_state`'s value; ``upper`` bounds every such state's
+    ``e_x(T_s) + T_s e_v`` by the largest ``x_i(T_s) - x_j(T_s)`` plus ``T_s`` times the largest
+    ``v_i - v_j`` over the polytope (a linear programme per pair; it is symmetric). Both times
+    ``sqrt(dim)`` (the same state on every axis; and no axis does better). ``lower = upper``
+    would mean the floor is the exact worst case of a law that applies no input on zero readings.
+    """
+    instants = _checked_instants(topology, times)
+    dim = validation.integer("dim", dim, 1)
+    n, settling_time = topology.n_agents, float(instants[-1])
+    if n == 1:
+        return 0.0, 0.0
+    lower = resolution_worst_state(topology, instants)[1]
+    rows = _silent_rows(topology, instants[:-1])
+    positions, velocities = [], []
+    for i in range(n):
+        for j in range(i + 1, n):
+            position, velocity = np.zeros(2 * n), np.zeros(2 * n)
+            position[[i, j, n + i, n + j]] = [1.0, -1.0, settling_time, -settling_time]  # x_i(T) - x_j(T)
+            velocity[[n + i, n + j]] = [1.0, -1.0]
+            positions.append(_maximise(rows, position)[0])
+            velocities.append(_maximise(rows, velocity)[0])
+    upper = max(positions) + settling_time * max(velocities)
+    return float(np.sqrt(dim) * lower), float(np.sqrt(dim) * upper)
+
+
+def resolution_floor(topology: Topology, times: Any, quantum: Any, dim: int = 1) -> np.ndarray:
+    """The worst ``D(T_s)`` (metres) of an initial state whose every reading is 0 at quantum ``q``: a floor per ``q``.
+
+    With rows rounded to ``q`` (``obs_resolution``), the states ``q z`` with ``z`` in the polytope of
+    :func:`resolution_worst_state` read all zeros at every instant, so a law that applies no input
+    while it reads only zeros (every policy under ``obs_mode="normalized"``, where the environment
+    multiplies each plan by the local scale, 0 then; every law of ``fxc_env.baselines``) lets
+    them coast: no such law ends below this ``D(T_s)`` on all of them (docs: optimality.md,
+    "The floors, derived"). A worst case over a set of initial states, not a bound on every episode.
+
+    Args:
+        topology: the graph (or switching period); interval k uses graph ``k mod period``.
+        times: the sampling instants ``t_0 .. t_K`` (seconds, ``times[-1] = T_s``).
+        quantum: ``obs_resolution`` (m, m/s), >= 0: a number or an array (e.g. one per episode).
+        dim: the space dimension.
+
+    Returns:
+        ``sqrt(dim) c q`` in metres, of ``quantum``'s shape (``c``: :func:`resolution_worst_state`'s value).
+    """
+    quanta = validation.real_array("quantum", quantum, "obs_resolution values (m, m/s)")
+    if not (np.all(np.isfinite(quanta)) and np.all(quanta >= 0)):
+        raise ArgumentError(f"quantum: expected finite numbers >= 0, got {quantum!r}")
+    dim = validation.integer("dim", dim, 1)
+    unit = resolution_worst_state(topology, times)[1]
+    return np.sqrt(dim) * unit * quanta

@@ -404,7 +404,10 @@ class EpisodeMetrics:
     random switching and above 2000 agents; ``propagation_bound`` is its deprecated copy);
     ``noise_floor`` (``D(T_s) / D(0)``) and ``input_floor`` (m/s²) are the floors of
     :mod:`fxc_env.core.floors`, NaN when their setting is off, for other agent models, and
-    ``noise_floor`` also with random switching and above 200 agents.
+    ``noise_floor`` also with random switching and above 200 agents. ``resolution_floor``
+    (``D(T_s) / D(0)``, under ``obs_resolution``) is the worst case of a law that applies no input
+    while it reads only zeros, over the initial states whose every reading is 0 (not a bound on each
+    episode); NaN without a quantum, under noise, with random switching and for other models.
     """
 
     final_position_spread: float
@@ -428,6 +431,7 @@ class EpisodeMetrics:
     propagation_bound: float
     noise_floor: float = math.nan
     input_floor: float = math.nan
+    resolution_floor: float = math.nan
 
     def as_dict(self) -> dict[str, float | int | None]:
         """Plain dict for JSON (non-finite values become ``None``)."""

@@ -60,7 +60,7 @@ class ConsensusEngine:
         if (config.obs_dtype, config.obs_mode) == ("float32", "raw"):
             # A raw row is a difference of two states: one beyond float32's range would observe as inf.
             backend.limit_rows(
-                validation.float32_row_limit(config.obs_noise),
+                validation.float32_row_limit(config.obs_noise) - config.obs_resolution,
                 [config.settling_time**level for level in range(config.n_states)],
             )
         shape = (b, config.n_agents, config.n_states, config.dim)

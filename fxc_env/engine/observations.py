@@ -86,6 +86,7 @@ class Observer:
             and config.n_agents >= BLOCKED_FROM
             and config.model is None
             and config.obs_noise == 0
+            and config.obs_resolution == 0
             and config.link_dropout == 0
             and self.layout.slots
         )
@@ -117,8 +118,8 @@ class Observer:
         """Rows ``(B, N, slots, n, dim)``, mask ``(B, N, slots)`` or ``(N, slots)``, local scale ``(B, N)``.
 
         Rows are ``[z_j - z_i]`` per in-neighbour slot (padded slots point at i itself and
-        hold exact zeros), with noise (``normal``) and dropout (``uniform``); the mask is 1 for
-        a row received; the scale is in metres.
+        hold exact zeros), with noise (``normal``) and dropout (``uniform``), rounded to
+        ``obs_resolution``; the mask is 1 for a row received; the scale is in metres.
         """
         if self._measured is not None:
             return self._measured
@@ -132,6 +133,8 @@ class Observer:
             rows = rows * mask[..., None, None]
         if c.obs_noise > 0:
             rows = rows + (c.obs_noise * mask[..., None, None]) * normal(tuple(rows.shape))
+        if c.obs_resolution > 0:  # rounded to the quantum (half to even: |row| <= q / 2 reads 0)
+            rows = c.obs_resolution * xp.round(rows / c.obs_resolution)
         if c.model is not None:
             # General agents: the largest |z_j - z_i| per component in position units (row_scales).
             largest = (

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig
-from fxc_env.core.floors import input_floor, noise_floor
+from fxc_env.core.floors import input_floor, noise_floor, resolution_floor
 from fxc_env.core.graphs import DENSE_LIMIT
 from fxc_env.core.linear import LinearModel, final_value, model_matrices
 from fxc_env.core.metrics import TRACKED_THRESHOLDS, reward_floor, spread, spread_any
@@ -51,7 +51,7 @@ class EpisodeTrackers:
         #: ``(topology, (radius_bound, all_roots_bound))`` by the topology's id (a graph's bounds are computed once).
         self._bounds_cache: dict[int, tuple[Any, tuple[float, float]]] = {}
         #: ``(topology, noise floor at sigma = 1 in metres)`` by the topology's id, likewise.
-        self._noise: dict[int, tuple[Any, float]] = {}
+        self._noise: dict[tuple[str, int], tuple[Any, float]] = {}
         #: The initial states (host) the input floors were computed for, and the floors (m/s^2), ``(B,)``.
         self._input_floor: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -226,6 +226,7 @@ class EpisodeTrackers:
             "energy_ratio": ratio,
             "settled_interval": settled,
             "noise_floor": self._noise_floor(topologies),
+            "resolution_floor": self._resolution_floor(topologies),
             "input_floor": self._input_floors(),
         }
         bounds = np.array([self._intervals_bounds(topology) for topology in topologies]).reshape(-1, 2)
@@ -241,16 +242,34 @@ class EpisodeTrackers:
         c = self.config
         if c.obs_noise == 0 or c.model is not None or c.switching != "periodic":
             return np.full(len(topologies), np.nan)
-        floors = []
-        for topology in topologies:
-            cached = self._noise.get(id(topology))
-            if cached is None or cached[0] is not topology:
-                if len(self._noise) >= 64:
-                    self._noise.clear()
-                cached = self._noise[id(topology)] = (topology, noise_floor(topology, c.schedule.times, 1.0, c.dim))
-            floors.append(cached[1])
+        floors = [self._per_topology("noise", topology, noise_floor) for topology in topologies]
         with np.errstate(invalid="ignore"):
             return c.obs_noise * np.array(floors) * to_host(self.inverse_d0)
+
+    def _resolution_floor(self, topologies: list) -> np.ndarray:
+        """``resolution_floor``: the worst ``D(T_s)`` over the states that read all zeros at ``obs_resolution``, over ``D(0)``.
+
+        :func:`fxc_env.core.floors.resolution_floor` (metres) over each episode's ``D(0)``: a
+        worst case over a set of initial states (docs: optimality.md, "The floors, derived"), not a
+        bound on each episode. NaN without a quantum, under ``obs_noise``, for other agent models
+        and with random switching; cached per topology (at quantum 1).
+        """
+        c = self.config
+        if c.obs_resolution == 0 or c.obs_noise != 0 or c.model is not None or c.switching != "periodic":
+            return np.full(len(topologies), np.nan)
+        floors = [self._per_topology("resolution", topology, resolution_floor) for topology in topologies]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return c.obs_resolution * np.array(floors) * to_host(self.inverse_d0)
+
+    def _per_topology(self, kind: str, topology: Any, floor: Any) -> float:
+        """``floor(topology, times, 1.0, dim)`` cached per topology object (64 at most)."""
+        cached = self._noise.get((kind, id(topology)))
+        if cached is None or cached[0] is not topology:
+            if len(self._noise) >= 64:
+                self._noise.clear()
+            value = float(floor(topology, self.config.schedule.times, 1.0, self.config.dim))
+            cached = self._noise[(kind, id(topology))] = (topology, value)
+        return cached[1]
 
     def _input_floors(self) -> np.ndarray:
         """``input_floor``: the least ``u_max`` (m/s^2) of exact consensus (:func:`fxc_env.core.floors.input_floor`).

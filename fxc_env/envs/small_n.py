@@ -56,6 +56,7 @@ def applies(config: EnvConfig, engine: Any) -> bool:
         and config.model is None
         and config.u_max_choices is None
         and config.obs_noise == 0
+        and config.obs_resolution == 0
         and config.link_dropout == 0
         and config.switching == "periodic"
         and config.action_mode != "residual"

@@ -64,6 +64,7 @@ DOCUMENTED_FLAGS = {
     "--velocity-range",
     "--u-max",
     "--obs-noise",
+    "--obs-resolution",
     "--link-dropout",
     "--switching",
     "--agent-model",
