@@ -574,7 +574,7 @@ POLICY_DAMAGE = [
     ("an extra weight", lambda r: _shape_of(r["actor"], "9.weight", (2, 2)), r"does not load .*9\.weight"),
     ("a misshapen weight", lambda r: _shape_of(r["actor"], "0.weight", (3, 3)), r"does not load .*0\.weight"),
     ("a missing weight", lambda r: r["actor"].pop("4.bias"), r"does not load .*4\.bias"),
-    ("a size that is text", lambda r: r.update(obs_size="wide"), r"does not load"),
+    ("a size that is text", lambda r: r.update(obs_size="wide"), r"obs_size: expected an integer >= 1, got .wide."),
 ]
 
 
