@@ -108,9 +108,9 @@ class FilteringPolicy(SignalPolicy):
             left (:func:`block_sizes`).
 
     Raises:
-        ArgumentError naming ``topology``, ``switching``, ``u_max``, ``link_dropout``, ``agent_model``,
-        ``obs_mode``, ``action_mode``, ``n_intervals``, ``block``, ``spread`` or ``damping`` for what it cannot
-        honour.
+        ArgumentError: naming ``topology``, ``switching``, ``u_max``, ``link_dropout``, ``agent_model``,
+            ``obs_mode``, ``action_mode``, ``n_intervals``, ``block``, ``spread`` or ``damping`` for what it
+            cannot honour.
     """
 
     NAME: ClassVar[str] = "filtering"
