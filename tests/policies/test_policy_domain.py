@@ -142,6 +142,10 @@ OUTSIDE = {
         {"scenario": None, **TASKS["rings20-v2"].settings, "n_intervals": 200},
         ["n_intervals: trained on 50, this environment has 200"],
     ),
+    "diff_rings20": (  # a ring of 24
+        {"scenario": None, **TASKS["rings20-v2"].settings, "n_agents": 24},
+        ["n_agents: trained on 20, this environment has 24"],
+    ),
 }
 
 
@@ -176,6 +180,7 @@ INSIDE = {
     "rings_scratch": {"scenario": None, "topology": "ring", "n_agents": 20},
     "agnostic": {"scenario": None, "topology": "ring", "n_agents": 24},  # a ring size it never met
     "ppo_rings20": {"scenario": None, **TASKS["rings20-v2"].settings},  # the task it was trained on
+    "diff_rings20": {"scenario": None, **TASKS["rings20-v2"].settings},
 }
 
 
