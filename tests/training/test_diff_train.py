@@ -267,3 +267,10 @@ def test_the_readme_hyperparameter_files_check(tmp_path, name, backend):
     path = Path(__file__).parents[2] / "training" / name
     run_args = args(tmp_path, hyperparams=str(path), backend=backend, algo="apg" if backend == "diff" else "ppo")
     assert check_train_args(run_args)["env"]["n_intervals"] == 50
+
+
+def test_an_entry_that_leaves_a_setting_out_gets_the_diff_back_ends_default_not_ppos():
+    config = make_config("paper_fig1")
+    assert DiffSettings.from_mapping({}, config) == DiffSettings()  # n_envs 64, max_grad_norm 1.0
+    partial = DiffSettings.from_mapping({"learning_rate": 3.0e-4}, config)
+    assert (partial.n_envs, partial.max_grad_norm, partial.learning_rate) == (64, 1.0, 3.0e-4)
