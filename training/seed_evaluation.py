@@ -45,6 +45,8 @@ SHIPPED_SEEDS = {
     "rings_gru": 0,
     "rings_scratch": 0,
     "agnostic": 0,
+    "ppo_rings20": 0,
+    "diff_rings20": 0,
 }
 #: A run directory or file named ``...seed<k>...`` was trained with seed k.
 _SEED_IN_NAME = re.compile(r"seed(\d+)")

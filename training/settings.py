@@ -142,8 +142,9 @@ class DiffSettings:
                     f"{name}: diff_apg.window: expected K = {k_intervals} or a divisor of it (or null), got {window}"
                 )
         loss = validation.choice(f"{name}: diff_apg.loss", entry.get("loss", cls.loss), LOSSES)
+        defaults = {field.name: field.default for field in dataclasses.fields(cls)}  # this class's, not PPO's
         shared = PPOSettings.from_mapping(
-            {key: entry[key] for key in cls.SHARED if key in entry} | {"rollout_steps": window or k_intervals},
+            {key: entry.get(key, defaults[key]) for key in cls.SHARED} | {"rollout_steps": window or k_intervals},
             config,
             name=name,
             section="diff_apg",

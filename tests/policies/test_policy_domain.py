@@ -23,6 +23,7 @@ from fxc_env import cli
 from fxc_env.baselines.jobs import Job, run_job
 from fxc_env.baselines.suite import BenchmarkCase, learned_contender
 from fxc_env.config import make_config
+from fxc_env.config.tasks import TASKS
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import OutOfDomainWarning, check_domain, domain_differences, training_domain
@@ -137,6 +138,14 @@ OUTSIDE = {
         {"scenario": None, "topology": "ring", "n_agents": 100},
         ["n_agents: trained on 12 to 40, this environment has 100"],
     ),
+    "ppo_rings20": (  # the same ring at K = 200
+        {"scenario": None, **TASKS["rings20-v2"].settings, "n_intervals": 200},
+        ["n_intervals: trained on 50, this environment has 200"],
+    ),
+    "diff_rings20": (  # a ring of 24
+        {"scenario": None, **TASKS["rings20-v2"].settings, "n_agents": 24},
+        ["n_agents: trained on 20, this environment has 24"],
+    ),
 }
 
 
@@ -170,6 +179,8 @@ INSIDE = {
     "rings_gru": {"scenario": None, "topology": "ring", "n_agents": 20, "switching": "random"},  # one graph: no switch
     "rings_scratch": {"scenario": None, "topology": "ring", "n_agents": 20},
     "agnostic": {"scenario": None, "topology": "ring", "n_agents": 24},  # a ring size it never met
+    "ppo_rings20": {"scenario": None, **TASKS["rings20-v2"].settings},  # the task it was trained on
+    "diff_rings20": {"scenario": None, **TASKS["rings20-v2"].settings},
 }
 
 

@@ -301,3 +301,10 @@ def test_init_from_refuses_a_missing_misshapen_or_non_finite_log_std_by_name(tmp
     """Before: a missing or misshapen log_std raised KeyError/RuntimeError tracebacks; a NaN one was copied silently."""
     with pytest.raises(ArgumentError, match=message):
         diff_trainer(rings_args(tmp_path, init_from=shipped_gru_with(tmp_path, change)))
+
+
+def test_an_entry_that_leaves_a_setting_out_gets_the_diff_back_ends_default_not_ppos():
+    config = make_config("paper_fig1")
+    assert DiffSettings.from_mapping({}, config) == DiffSettings()  # n_envs 64, max_grad_norm 1.0
+    partial = DiffSettings.from_mapping({"learning_rate": 3.0e-4}, config)
+    assert (partial.n_envs, partial.max_grad_norm, partial.learning_rate) == (64, 1.0, 3.0e-4)
