@@ -38,11 +38,12 @@ CURVE_POINTS = 8
 #: The seed of the uniform random actions of the ``random`` row.
 RANDOM_SEED = 0
 #: BenchMARL's experiment settings per task version, the same for every algorithm of a kind. Version 1 (the
-#: shipped v1 table): BenchMARL's defaults with batches shrunk to the budget. Version 2: one batch is 64 whole
-#: episodes (64 K frames: 3,200 at K = 50); on-policy algorithms take 4 passes over it in minibatches of 400
-#: frames, off-policy ones 200 gradient steps of 256 frames from the replay buffer; Adam at 3e-4 and no
-#: discount (the rewards telescope to ln D(0)/D(T_s) over the episode: docs environment.md, "Rewards"); actor
-#: and critic BenchMARL's default MLP (two tanh layers of 256).
+#: shipped v1 table): BenchMARL's defaults with batches shrunk to the budget. Version 2 (lean, so that the whole
+#: v2 table trains on two CPU cores in about an hour): one batch is 64 whole episodes (64 K frames: 3,200 at
+#: K = 50); on-policy algorithms take 4 passes over it in minibatches of 400 frames, off-policy ones 50 gradient
+#: steps of 256 frames from the replay buffer (BenchMARL's default is 1,000 per 6,000 frames: 533 per batch);
+#: Adam at 3e-4 and no discount (the rewards telescope to ln D(0)/D(T_s) over the episode: docs
+#: environment.md); actor and critic MLPs of two tanh layers of 64 (BenchMARL's default: 256).
 SETTINGS: dict[int, dict[str, Any]] = {
     1: {},
     2: {
@@ -51,8 +52,9 @@ SETTINGS: dict[int, dict[str, Any]] = {
         "episodes_per_batch": 64,
         "on_policy_n_minibatch_iters": 4,
         "on_policy_minibatch_size": 400,
-        "off_policy_n_optimizer_steps": 200,
+        "off_policy_n_optimizer_steps": 50,
         "off_policy_train_batch_size": 256,
+        "num_cells": (64, 64),
     },
 }
 
@@ -201,17 +203,25 @@ def build_experiment(task: NamedTask, algorithm: str, seed: int, frames: int, fo
     elif model == "gru":
         actor = GruConfig.get_from_yaml()  # BenchMARL's GRU (128 hidden units, one layer) and its MLP head
     else:
-        actor = MlpConfig.get_from_yaml()
+        actor = _mlp(MlpConfig, task)
     member = FxcTask[task.id.replace("-", "_").upper()]
     experiment = Experiment(
         task=member.get_from_yaml(),
         algorithm_config=getattr(benchmarl_algorithms, algorithm_config).get_from_yaml(),
         model_config=actor,
-        critic_model_config=MlpConfig.get_from_yaml(),
+        critic_model_config=_mlp(MlpConfig, task),
         seed=seed,
         config=experiment_config(task, frames, folder),
     )
     return experiment, actor
+
+
+def _mlp(mlp_config: Any, task: NamedTask) -> Any:
+    """BenchMARL's MLP config with the task version's ``num_cells`` (its layer sizes) where :data:`SETTINGS` sets them."""
+    config = mlp_config.get_from_yaml()
+    if "num_cells" in SETTINGS[task.version]:
+        config.num_cells = list(SETTINGS[task.version]["num_cells"])
+    return config
 
 
 def experiment_config(task: NamedTask, frames: int, folder: Path) -> Any:
@@ -222,7 +232,7 @@ def experiment_config(task: NamedTask, frames: int, folder: Path) -> Any:
     config = ExperimentConfig.get_from_yaml()
     config.sampling_device = config.train_device = config.buffer_device = "cpu"
     config.max_n_frames = frames
-    settings = dict(SETTINGS[task.version])
+    settings = {name: value for name, value in SETTINGS[task.version].items() if name != "num_cells"}
     if "episodes_per_batch" in settings:
         episodes = settings.pop("episodes_per_batch")
         config.on_policy_n_envs_per_worker = config.off_policy_n_envs_per_worker = episodes
