@@ -41,7 +41,9 @@ def test_the_zero_and_random_rows_are_the_documented_floors_of_the_task():
     rows = untrained_rows(TASK)
     zero = np.median(rows["zero"]["deadline_error"])
     assert f"{zero:.3g}" == "1.78"
-    np.testing.assert_allclose(rows["zero"]["deadline_error"], final_ratios(TASK.settings, "zero", None, TASK.eval_seeds))
+    np.testing.assert_allclose(
+        rows["zero"]["deadline_error"], final_ratios(TASK.settings, "zero", None, TASK.eval_seeds)
+    )
     assert np.median(rows["random"]["deadline_error"]) > 1e6
     assert untrained_rows(TASK)["random"] == rows["random"]  # seeded: the same row every time
 
