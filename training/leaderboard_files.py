@@ -294,8 +294,12 @@ def curve_figure(
         axes.plot(frames, np.median(medians, axis=0), "o-", color=colours(i), label=algorithm, markersize=3)
         axes.fill_between(frames, medians.min(axis=0), medians.max(axis=0), color=colours(i), alpha=0.2)
     for j, (name, errors) in enumerate(baselines.items()):
-        axes.axhline(float(np.median(errors)), color="k", linestyle=("--", ":", "-.")[j % 3], label=name)
+        level = float(np.median(errors))
+        axes.axhline(level, color="k", linestyle=("--", ":", "-.")[j % 3], label=f"{name} ({level:.3g})")
     axes.set_yscale("log")
+    levels = [float(np.median(errors)) for errors in baselines.values()]
+    low, high = axes.get_ylim()
+    axes.set_ylim(min([low, *(level / 3 for level in levels if level > 0)]), max([high, *levels]))
     axes.set_xlabel("frames (environment steps of all agents)")
     axes.set_ylabel("median D(T_s)/D(0), deterministic actor")
     axes.set_title(f"{task_id}: median and range over training seeds")

@@ -5,6 +5,7 @@ tests/benchmarl/test_leaderboard.py)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 
@@ -65,3 +66,20 @@ def test_the_table_puts_each_algorithm_at_0_frames_beside_its_trained_self_with_
     assert (tmp_path / "curves_rings20-v2.png").stat().st_size > 0
     marl_eval = json.loads((tmp_path / "marl_eval.json").read_text())["fxc_env"]["rings20-v2"]
     assert marl_eval["ippo@0"]["seed_1"]["absolute_metrics"]["deadline_error"] == [101.0] * EPISODES
+
+
+def test_the_shipped_v2_table_lists_every_v2_task_with_each_algorithm_beside_its_untrained_self():
+    """fxc_env/assets/leaderboard-v2: MAPPO, IPPO, MASAC and MADDPG x 3 training seeds on every v2 task, each run's
+    curve from 0 frames to its budget, and the zero, random and reference rows (its RUN.md: the command)."""
+    shipped = Path(__file__).resolve().parents[2] / "fxc_env" / "assets" / "leaderboard-v2"
+    runs = json.loads((shipped / "marl_eval.json").read_text())["fxc_env"]
+    v2 = [task.id for task in TASKS.values() if task.version == 2]
+    assert sorted(runs) == sorted(v2)
+    for task in v2:
+        for name in ("mappo", "ippo", "masac", "maddpg", "mappo@0", "ippo@0", "masac@0", "maddpg@0"):
+            assert sorted(runs[task][name]) == ["seed_0", "seed_1", "seed_2"]
+        assert {"zero", "random", "reference"} <= set(runs[task])
+        assert (shipped / f"curves_{task}.png").stat().st_size > 0
+    table = (shipped / "table.md").read_text()
+    assert "Command: `fxc leaderboard --tasks rings20-v2 paper_fig1-v2 generalist-v2 saturated-v2" in table
+    assert "| rings20-v2 | mappo | 64000 |" in table  # the cost table: every run at the budget of the command
