@@ -74,7 +74,9 @@ def add_leaderboard_parser(commands: argparse._SubParsersAction) -> argparse.Arg
         help="BenchMARL's algorithms beside the analytic laws and shipped policies on the named tasks",
         description="Train BenchMARL's MAPPO, IPPO, MASAC, MADDPG (MLP) and MAPPO with a GNN and a GRU on the named tasks "
         "(same frame budget, several training seeds), score them with the laws and shipped policies on each "
-        "task's evaluation seeds by D(T_s)/D(0), and write table.md, marl_eval.json, performance_profile.png and versions.json. "
+        "task's evaluation seeds by D(T_s)/D(0) beside the zero action, uniform random actions and each algorithm untrained "
+        "(<algorithm>@0), and write table.md (with each algorithm's training cost), marl_eval.json, "
+        "performance_profile.png, curves_<task>.png (learning curves) and versions.json. "
         "Finished runs are kept under --out: a rerun resumes.",
     )
     parser.add_argument(
