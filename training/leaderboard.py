@@ -22,15 +22,15 @@ import numpy as np
 from fxc_env.baselines import registry
 from fxc_env.baselines.benchmark import make_out, run_benchmark
 from fxc_env.baselines.suite import builtin_contenders, learned_contender
-from fxc_env.config import make_config
 from fxc_env.config.tasks import TASKS, NamedTask, get_task
 from fxc_env.core import statistics
 from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
 from fxc_env.core.validation import ArgumentError, integer
-from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.learned import SHIPPED
-from fxc_env.training.evaluate import on_task_schedule, scored_settings, task_suite
+from fxc_env.training.evaluate import on_task_schedule, task_suite
 from fxc_env.training.leaderboard_files import (
+    cost_lines,
+    curve_figure,
     laws_problem,
     marl_eval_record,
     profile_figure,
@@ -40,18 +40,17 @@ from fxc_env.training.leaderboard_files import (
     versions,
     write_json,
 )
+from fxc_env.training.leaderboard_runs import (  # noqa: F401  (build_experiment, policy_actor, score_actor: the API)
+    ALGORITHMS,
+    build_experiment,
+    policy_actor,
+    score_actor,
+    train_and_score,
+    untrained_rows,
+)
 from fxc_env.training.seed_evaluation import LOG_FLOOR
 from fxc_env.utils.cli_checks import output_directory
 
-#: BenchMARL's algorithms in the table: (algorithm config, actor model). MADDPG is the deterministic one.
-ALGORITHMS = {
-    "mappo": ("MappoConfig", "mlp"),
-    "ippo": ("IppoConfig", "mlp"),
-    "masac": ("MasacConfig", "mlp"),
-    "maddpg": ("MaddpgConfig", "mlp"),
-    "mappo_gnn": ("MappoConfig", "gnn"),
-    "mappo_gru": ("MappoConfig", "gru"),
-}
 #: The frame budget per run of the shipped table (fxc_env/assets/leaderboard/): the whole table took 11 CPU-minutes.
 SHIPPED_FRAMES = 1000
 #: Most frames per training run (at the shipped table's rate, about 9 CPU-seconds per 1,000 frames, some 11
@@ -62,6 +61,8 @@ MAX_SEEDS = 100
 LAWS = tuple(name for name, law in registry.LAWS.items() if law.leaderboard)
 #: The tasks of the shipped table (fxc_env/assets/leaderboard/), ``--tasks``' default: the v1 tasks.
 SHIPPED_TASKS = tuple(task.id for task in TASKS.values() if task.version == 1)
+#: The rows that need no training: the zero action and uniform random actions over the box (seeded).
+UNTRAINED = ("zero", "random")
 #: Every shipped learned policy (``pretrained`` is the generalist under another name).
 SHIPPED_POLICIES = tuple(name for name in SHIPPED if name != "pretrained")
 
@@ -73,7 +74,9 @@ def add_leaderboard_parser(commands: argparse._SubParsersAction) -> argparse.Arg
         help="BenchMARL's algorithms beside the analytic laws and shipped policies on the named tasks",
         description="Train BenchMARL's MAPPO, IPPO, MASAC, MADDPG (MLP) and MAPPO with a GNN and a GRU on the named tasks "
         "(same frame budget, several training seeds), score them with the laws and shipped policies on each "
-        "task's evaluation seeds by D(T_s)/D(0), and write table.md, marl_eval.json, performance_profile.png and versions.json. "
+        "task's evaluation seeds by D(T_s)/D(0) beside the zero action, uniform random actions and each algorithm untrained "
+        "(<algorithm>@0), and write table.md (with each algorithm's training cost), marl_eval.json, "
+        "performance_profile.png, curves_<task>.png (learning curves) and versions.json. "
         "Finished runs are kept under --out: a rerun resumes.",
     )
     parser.add_argument(
@@ -163,7 +166,7 @@ def leaderboard_command(args: argparse.Namespace) -> int:
     algorithms = check_algorithms(list(args.algorithms))
     refuse_unread_budget(args, algorithms)
     out = output_directory("--out", args.out)
-    contenders = [contender.name for contender in law_contenders()]
+    contenders = scored_names()
     rescore, train = plan_files(out, tasks, algorithms, seeds, frames, contenders)
     for task in tasks:
         make_out(out / task.id)
@@ -217,12 +220,18 @@ def law_contenders() -> list[Any]:
     return builtin_contenders(list(LAWS)) + [learned_contender(name, name=name) for name in SHIPPED_POLICIES]
 
 
+def scored_names() -> list[str]:
+    """What ``<task>/laws.json`` scores: the zero action, uniform random actions, the laws and the shipped policies."""
+    return [*UNTRAINED, *(contender.name for contender in law_contenders())]
+
+
 def score_laws(task: NamedTask, folder: Path) -> dict[str, Any]:
-    """The laws' and the shipped policies' deadline errors and energies on the task's evaluation episodes."""
+    """The deadline errors and energies on the task's evaluation episodes of the zero action and uniform random
+    actions (:func:`~fxc_env.training.leaderboard_runs.untrained_rows`), the laws and the shipped policies."""
     suite, learned = task_suite(task)
     contenders = on_task_schedule(law_contenders(), learned)
     output = run_benchmark(suite, contenders, folder, workers=1, progress=False)
-    scores: dict[str, Any] = {}
+    scores: dict[str, Any] = untrained_rows(task)
     for result in output.results:
         name = result.job.contender.name
         if result.error is not None:
@@ -232,127 +241,52 @@ def score_laws(task: NamedTask, folder: Path) -> dict[str, Any]:
                 "deadline_error": result.metrics["relative_deadline_error"].tolist(),
                 "energy": result.metrics["energy"].tolist(),
             }
-    return {**result_record(task), "contenders": [c.name for c in contenders], "scores": scores}
-
-
-def score_actor(task: NamedTask, act: Any) -> dict[str, list[float]]:
-    """``act`` (``(S, N, obs) -> (S, N, action)`` arrays) on the task's evaluation episodes, as the suite plays them."""
-    config = make_config(**scored_settings(task))
-    seeds = task.eval_seeds
-    engine = ConsensusEngine(config, n_episodes=len(seeds))
-    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
-    engine.reset_from_draws(draws, rng=np.random.default_rng([*seeds, config.n_intervals]))  # the suite's stream
-    obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
-    with np.errstate(all="ignore"):
-        while not engine.done:
-            engine.observations(out=obs)
-            engine.step(np.asarray(act(obs), dtype=np.float64))
-        metrics = engine.batch_metrics()
-    errors = metrics["relative_deadline_error"]
-    return {
-        "deadline_error": np.where(np.isfinite(errors), errors, np.inf).tolist(),
-        "energy": metrics["energy"].tolist(),
-    }
-
-
-def train_and_score(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path) -> dict[str, Any]:
-    """One BenchMARL run of ``algorithm`` on ``task`` for ``frames`` frames, scored by :func:`score_actor`."""
-    experiment, actor = build_experiment(task, algorithm, seed, frames, folder)
-    experiment.run()
-    hidden = (actor.n_layers, actor.hidden_size) if actor.is_rnn else None
-    return {**result_record(task), "algorithm": algorithm, "seed": seed, "frames": int(experiment.total_frames),
-            **score_actor(task, policy_actor(experiment.policy, hidden))}  # fmt: skip
-
-
-def policy_actor(policy: Any, hidden: tuple[int, int] | None = None) -> Any:
-    """A trained BenchMARL policy as ``act(obs)`` for :func:`score_actor`, deterministic.
-
-    A recurrent actor (``is_init`` and ``("agents", "_hidden_gru_0")`` in its ``in_keys``) carries its hidden
-    state from step to step, from zeros with ``is_init`` true at the first, as BenchMARL's collector does.
-    """
-    import torch
-    from tensordict import TensorDict
-    from torchrl.envs.utils import ExplorationType, set_exploration_type
-
-    hidden_keys = [key for key in policy.in_keys if hidden and isinstance(key, tuple) and key[-1].startswith("_hidden")]
-    carried: dict[Any, Any] = {}
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        b, n = obs.shape[:2]
-        observation = torch.as_tensor(obs, dtype=torch.float32)
-        td = TensorDict({"agents": TensorDict({"observation": observation}, batch_size=(b, n))}, batch_size=(b,))
-        if hidden_keys:
-            td.set("is_init", torch.full((b, 1), not carried, dtype=torch.bool))
-            for key in hidden_keys:
-                td.set(key, carried.get(key, torch.zeros((b, n, *hidden))))
-        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-            out = policy(td)
-        for key in hidden_keys:
-            carried[key] = out.get(("next", *key))
-        return out.get(("agents", "action")).double().numpy()
-
-    return act
-
-
-def build_experiment(task: NamedTask, algorithm: str, seed: int, frames: int, folder: Path) -> tuple[Any, Any]:
-    """BenchMARL's ``Experiment`` of ``algorithm`` on ``task`` (not yet run) and its actor's model config."""
-    from benchmarl import algorithms as benchmarl_algorithms
-    from benchmarl.experiment import Experiment
-    from benchmarl.models import GnnConfig, GruConfig, MlpConfig
-
-    from fxc_env.envs.benchmarl_task import FxcTask
-
-    algorithm_config, model = ALGORITHMS[algorithm]
-    if model == "gnn":
-        import torch_geometric
-
-        actor = GnnConfig(topology="full", self_loops=False, gnn_class=torch_geometric.nn.conv.GATv2Conv, gnn_kwargs={})
-    elif model == "gru":
-        actor = GruConfig.get_from_yaml()  # BenchMARL's GRU (128 hidden units, one layer) and its MLP head
-    else:
-        actor = MlpConfig.get_from_yaml()
-    member = FxcTask[task.id.replace("-", "_").upper()]
-    experiment = Experiment(
-        task=member.get_from_yaml(),
-        algorithm_config=getattr(benchmarl_algorithms, algorithm_config).get_from_yaml(),
-        model_config=actor,
-        critic_model_config=MlpConfig.get_from_yaml(),
-        seed=seed,
-        config=_experiment_config(task, frames, folder),
-    )
-    return experiment, actor
-
-
-def _experiment_config(task: NamedTask, frames: int, folder: Path) -> Any:
-    """BenchMARL's default experiment config on the CPU for ``frames`` frames: batches no larger than the budget."""
-    from benchmarl.experiment import ExperimentConfig
-
-    config = ExperimentConfig.get_from_yaml()
-    config.sampling_device = config.train_device = config.buffer_device = "cpu"
-    config.max_n_frames = frames
-    envs = max(1, min(config.on_policy_n_envs_per_worker, frames // task.n_intervals))
-    batch = max(envs, min(config.on_policy_collected_frames_per_batch, frames) // envs * envs)
-    # A smaller batch keeps BenchMARL's off-policy updates per frame (1000 optimizer steps per 6000 frames).
-    steps_per_frame = config.off_policy_n_optimizer_steps / config.off_policy_collected_frames_per_batch
-    config.off_policy_n_optimizer_steps = max(1, round(steps_per_frame * batch))
-    config.on_policy_n_envs_per_worker = config.off_policy_n_envs_per_worker = envs
-    config.on_policy_collected_frames_per_batch = config.off_policy_collected_frames_per_batch = batch
-    config.on_policy_minibatch_size = min(config.on_policy_minibatch_size, batch)
-    config.off_policy_train_batch_size = min(config.off_policy_train_batch_size, batch)
-    config.off_policy_init_random_frames = min(config.off_policy_init_random_frames, frames // 2)
-    config.evaluation = config.create_json = config.render = config.checkpoint_at_end = False
-    config.loggers = []
-    folder.mkdir(parents=True, exist_ok=True)
-    config.save_folder = str(folder)
-    return config
+    return {**result_record(task), "contenders": scored_names(), "scores": scores}
 
 
 # ------------------------------------------------------------------------------- the table
 def write_leaderboard(
     out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int, reps: int
 ) -> tuple[str, list[Path]]:
-    """``table.md``, ``marl_eval.json``, ``performance_profile.png`` and ``versions.json`` from the files under ``out``."""
-    names, scores, energies = _collect(out, tasks, algorithms, seeds)
+    """``table.md`` (the scores, then each algorithm's training cost), ``marl_eval.json``,
+    ``performance_profile.png``, ``versions.json`` and one ``curves_<task>.png`` per task (with algorithms) from
+    the files under ``out``."""
+    names, scores, energies, runs = _collect(out, tasks, algorithms, seeds)
+    lines = _score_lines(names, scores, tasks, reps)
+    command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["leaderboard"] else None
+    intro = (
+        "Leaderboard: "
+        + (
+            f"{len(algorithms)} BenchMARL algorithms x {seeds} training seeds (`<algorithm>@0`: the same actors "
+            "untrained), "
+            if algorithms
+            else ""
+        )
+        + f"the zero action, uniform random actions, the laws and the shipped policies, on "
+        f"{', '.join(t.full_id for t in tasks)}; each scored on its task's evaluation seeds "
+        f"(95% stratified bootstrap, {reps} replicates; log10 floored at {LOG_FLOOR:g})."
+        + (f"\nCommand: `{command}`" if command else "")
+    )
+    headline = headline_lines(tasks, algorithms, scores)
+    table = intro + "\n\n" + "\n".join(lines) + "\n" + ("\n" + "\n".join(headline) + "\n" if headline else "")
+    if algorithms:
+        table += "\n" + "\n".join(cost_lines(runs)) + "\n"
+    files = [out / "table.md", out / "marl_eval.json", out / "performance_profile.png", out / "versions.json"]
+    files[0].write_text(table)
+    write_json(files[1], marl_eval_record(scores, energies, [task.id for task in tasks], seeds if algorithms else 1))
+    profile_figure(scores, tuple(ALGORITHMS) + tuple(f"{name}@0" for name in ALGORITHMS), files[2])
+    write_json(files[3], {**versions(), "result_commits": result_commits(out, tasks, algorithms, seeds)})
+    for task in tasks if algorithms else []:
+        files.append(out / f"curves_{task.id}.png")
+        baselines = {name: scores[name][task.id] for name in ("zero", "reference") if task.id in scores.get(name, {})}
+        curve_figure(task.id, runs[task.id], baselines, files[-1])
+    return table, files
+
+
+def _score_lines(
+    names: list[str], scores: dict[str, dict[str, np.ndarray]], tasks: list[NamedTask], reps: int
+) -> list[str]:
+    """The score table's markdown lines: per contender and task, the median and the IQM of log10 with intervals."""
     header = ["contender"] + [f"{task.id}: median D(T_s)/D(0) [95% CI] / IQM log10 [95% CI]" for task in tasks]
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     for name in names:
@@ -369,31 +303,18 @@ def write_leaderboard(
             row.append(f"{_number(median.estimate)} [{_number(median.low)}, {_number(median.high)}] / "
                        f"{iqm.estimate:.2f} [{iqm.low:.2f}, {iqm.high:.2f}]")  # fmt: skip
         lines.append("| " + " | ".join(row) + " |")
-    command = "fxc " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["leaderboard"] else None
-    intro = (
-        "Leaderboard: "
-        + (f"{len(algorithms)} BenchMARL algorithms x {seeds} training seeds, " if algorithms else "")
-        + f"the laws and the shipped policies, on {', '.join(t.full_id for t in tasks)}; each scored on its task's evaluation seeds "
-        f"(95% stratified bootstrap, {reps} replicates; log10 floored at {LOG_FLOOR:g})."
-        + (f"\nCommand: `{command}`" if command else "")
-    )
-    headline = headline_lines(tasks, algorithms, scores)
-    table = intro + "\n\n" + "\n".join(lines) + "\n" + ("\n" + "\n".join(headline) + "\n" if headline else "")
-    files = [out / "table.md", out / "marl_eval.json", out / "performance_profile.png", out / "versions.json"]
-    files[0].write_text(table)
-    write_json(files[1], marl_eval_record(scores, energies, [task.id for task in tasks], seeds if algorithms else 1))
-    profile_figure(scores, tuple(ALGORITHMS), files[2])
-    write_json(files[3], {**versions(), "result_commits": result_commits(out, tasks, algorithms, seeds)})
-    return table, files
+    return lines
 
 
-def _collect(
-    out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int
-) -> tuple[list[str], dict[str, dict[str, np.ndarray]], dict[str, dict[str, np.ndarray]]]:
-    """The contenders in table order, and per contender and task the (runs, episodes) errors and energies."""
+def _collect(out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int) -> tuple[
+    list[str], dict[str, dict[str, np.ndarray]], dict[str, dict[str, np.ndarray]], dict[str, dict[str, list[Any]]]
+]:  # fmt: skip
+    """The contenders in table order; per contender and task the (runs, episodes) errors and energies; per task and
+    algorithm the training runs' records (seed order). ``<algorithm>@0``: the first point of each run's curve."""
     scores: dict[str, dict[str, np.ndarray]] = {}
     energies: dict[str, dict[str, np.ndarray]] = {}
-    names = list(algorithms)
+    records: dict[str, dict[str, list[Any]]] = {}
+    names = list(algorithms) + [f"{algorithm}@0" for algorithm in algorithms]
     for task in tasks:
         laws = json.loads((out / task.id / "laws.json").read_text())
         names += [name for name in laws["contenders"] if name not in names]
@@ -403,9 +324,11 @@ def _collect(
                 energies.setdefault(name, {})[task.id] = np.array([record["energy"]])
         for algorithm in algorithms:
             runs = [json.loads((out / task.id / algorithm / f"seed{k}.json").read_text()) for k in range(seeds)]
-            scores.setdefault(algorithm, {})[task.id] = np.array([run["deadline_error"] for run in runs])
-            energies.setdefault(algorithm, {})[task.id] = np.array([run["energy"] for run in runs])
-    return names, {name: scores[name] for name in names if name in scores}, energies  # table order: the legend's
+            records.setdefault(task.id, {})[algorithm] = runs
+            for name, points in ((algorithm, runs), (f"{algorithm}@0", [run["curve"][0] for run in runs])):
+                scores.setdefault(name, {})[task.id] = np.array([point["deadline_error"] for point in points])
+                energies.setdefault(name, {})[task.id] = np.array([point["energy"] for point in points])
+    return names, {name: scores[name] for name in names if name in scores}, energies, records  # table order
 
 
 def headline_lines(
@@ -432,7 +355,8 @@ def headline_lines(
         overall = {name: float(np.median(by_task[task.id])) for name, by_task in scores.items() if task.id in by_task}
         top = min(overall, key=overall.__getitem__)
         lines.append(f"- {task.id}: best algorithm {best} {_number(medians[best])} vs the paper's law (reference) "
-                     f"{_number(float(np.median(reference)))}: {verdict} (best of all: {top} {_number(overall[top])})")  # fmt: skip
+                     f"{_number(float(np.median(reference)))}: {verdict} (best of all: {top} {_number(overall[top])})"
+                     + "".join(f"; {name} {_number(overall[name])}" for name in (f"{best}@0", "zero") if name in overall))  # fmt: skip
     return lines
 
 

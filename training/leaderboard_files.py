@@ -27,6 +27,9 @@ from fxc_env.config.tasks import NamedTask
 from fxc_env.core import statistics
 from fxc_env.training.seed_evaluation import LOG_FLOOR, MARL_EVAL_ENV, _episode_metrics
 
+#: A training run's timers (``seconds``): collecting batches, updating the networks, scoring its learning curve
+#: (not training), and ``Experiment.run``'s wall time (all three and BenchMARL's own bookkeeping).
+TIMERS = ("collection", "update", "evaluation", "wall")
 #: What a result file records besides its scores (see the module).
 RECORD_FIELDS = ("task", "seeds", "episodes", "fxc_env", "fxc_env_commit")
 
@@ -111,7 +114,40 @@ def run_problem(path: Path, task: NamedTask, algorithm: str, seed: int) -> str:
     frames = record.get("frames")
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
         return "records no frame budget"
-    return record_problem(record, task, expected) or scores_problem(record, len(task.eval_seeds))
+    return (
+        record_problem(record, task, expected)
+        or scores_problem(record, len(task.eval_seeds))
+        or curve_problem(record, len(task.eval_seeds))
+    )
+
+
+def curve_problem(record: dict[str, Any], episodes: int) -> str:
+    """Why a training run's learning curve and cost are not whole ("" when they are): ``curve`` a list of points
+    (``frames`` from 0 up, whole scores each, the last the run's own), ``seconds`` and ``frames_per_second``."""
+    curve = record.get("curve")
+    if not isinstance(curve, list) or not curve or not all(isinstance(point, dict) for point in curve):
+        return "records no learning curve (written by an older fxc leaderboard)"
+    frames = [point.get("frames") for point in curve]
+    if frames[0] != 0 or not all(isinstance(f, int) and not isinstance(f, bool) for f in frames):
+        return "holds a learning curve that does not start at 0 frames"
+    if frames != sorted(frames) or curve[-1]["frames"] != record["frames"]:
+        return f"holds a learning curve whose frames {_short(frames)} do not rise to its {record['frames']}"
+    for point in curve:
+        if problem := scores_problem(point, episodes):
+            return f"{problem} at {point['frames']} frames of its learning curve"
+    if curve[-1]["deadline_error"] != record["deadline_error"]:
+        return "holds scores other than its learning curve's last"
+    seconds = record.get("seconds")
+    if (
+        not isinstance(seconds, dict)
+        or set(seconds) != set(TIMERS)
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) and v >= 0 for v in seconds.values())
+    ):
+        return f"records no seconds {TIMERS}"
+    rate = record.get("frames_per_second")
+    if isinstance(rate, bool) or not isinstance(rate, int | float) or not rate > 0:
+        return "records no frames_per_second"
+    return ""
 
 
 def result_commits(out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int) -> list[str]:
@@ -213,3 +249,61 @@ def write_json(path: Path, record: dict[str, Any]) -> None:
 def _short(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+def cost_lines(runs: dict[str, dict[str, list[dict[str, Any]]]]) -> list[str]:
+    """The training-cost table's markdown lines: per task and algorithm, the medians over its training seeds of the
+    frames, the seconds collecting and updating, the share of those in updates and the frames per second."""
+    lines = [
+        "Training cost (median over training seeds; seconds of one run; frames per second = frames / "
+        "(collection + update); scoring the learning curve is not counted):",
+        "",
+        "| task | algorithm | frames | collection s | update s | update share | frames/s | wall s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for task_id, by_algorithm in runs.items():
+        for algorithm, records in by_algorithm.items():
+            seconds = {key: float(np.median([r["seconds"][key] for r in records])) for key in TIMERS}
+            share = np.median([r["seconds"]["update"] / max(r["seconds"]["collection"] + r["seconds"]["update"], 1e-9)
+                               for r in records])  # fmt: skip
+            rate = float(np.median([r["frames_per_second"] for r in records]))
+            frames = int(np.median([r["frames"] for r in records]))
+            lines.append(f"| {task_id} | {algorithm} | {frames} | {seconds['collection']:.1f} | "
+                         f"{seconds['update']:.1f} | {share:.0%} | {rate:.0f} | {seconds['wall']:.1f} |")  # fmt: skip
+    return lines
+
+
+def curve_figure(
+    task_id: str, runs: dict[str, list[dict[str, Any]]], baselines: dict[str, np.ndarray], path: Path
+) -> None:
+    """One task's learning curves: frames against the deterministic actor's median D(T_s)/D(0) over the evaluation
+    seeds, per algorithm the median over its training seeds (line) and their range (band); ``baselines``
+    (name -> scores, e.g. the zero action and the reference) as horizontal lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(figsize=(7.5, 4.5))
+    colours = plt.get_cmap("tab10")
+    for i, (algorithm, records) in enumerate(runs.items()):
+        frames = [point["frames"] for point in records[0]["curve"]]
+        medians = np.array([[np.median(point["deadline_error"]) for point in r["curve"]] for r in records])
+        if any(len(row) != len(frames) for row in medians):
+            continue  # seeds evaluated at other frames: not drawn as one band
+        axes.plot(frames, np.median(medians, axis=0), "o-", color=colours(i), label=algorithm, markersize=3)
+        axes.fill_between(frames, medians.min(axis=0), medians.max(axis=0), color=colours(i), alpha=0.2)
+    for j, (name, errors) in enumerate(baselines.items()):
+        level = float(np.median(errors))
+        axes.axhline(level, color="k", linestyle=("--", ":", "-.")[j % 3], label=f"{name} ({level:.3g})")
+    axes.set_yscale("log")
+    levels = [float(np.median(errors)) for errors in baselines.values()]
+    low, high = axes.get_ylim()
+    axes.set_ylim(min([low, *(level / 3 for level in levels if level > 0)]), max([high, *levels]))
+    axes.set_xlabel("frames (environment steps of all agents)")
+    axes.set_ylabel("median D(T_s)/D(0), deterministic actor")
+    axes.set_title(f"{task_id}: median and range over training seeds")
+    axes.legend(fontsize=8)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)

@@ -10,7 +10,15 @@ import pytest
 
 from fxc_env.cli.main import build_parser, main
 from fxc_env.config.tasks import TASKS
-from fxc_env.training.leaderboard import ALGORITHMS, SHIPPED_TASKS, build_experiment, headline_lines, policy_actor
+from fxc_env.training.leaderboard import (
+    ALGORITHMS,
+    SHIPPED_TASKS,
+    build_experiment,
+    headline_lines,
+    policy_actor,
+    score_actor,
+)
+from fxc_env.training.leaderboard_runs import CURVE_POINTS
 
 FRAMES = 400  # two environments x one episode of K = 200 steps: one BenchMARL batch
 ARGV = ["leaderboard", "--frames", str(FRAMES), "--seeds", "1", "--tasks", "rings20-v1", "--algorithms", "mappo"]
@@ -45,6 +53,24 @@ def test_every_contender_is_scored_on_the_tasks_evaluation_seeds(board):
     assert len(marl_eval["reference"]["seed_0"]["absolute_metrics"]["deadline_error"]) == n_seeds
     laws = json.loads((board / "rings20-v1" / "laws.json").read_text())
     assert laws["seeds"] == list(range(1000, 1020))
+
+
+@pytest.mark.slow
+def test_each_run_records_its_curve_from_the_untrained_actor_to_the_trained_one_and_its_cost(board, tmp_path):
+    run = json.loads((board / "rings20-v1" / "mappo" / "seed0.json").read_text())
+    frames = [point["frames"] for point in run["curve"]]
+    assert frames[0] == 0 and frames[-1] == run["frames"] and len(frames) <= CURVE_POINTS + 1
+    assert run["curve"][-1]["deadline_error"] == run["deadline_error"]  # the table's score: the curve's end
+    experiment, _ = build_experiment(TASKS["rings20-v1"], "mappo", 0, FRAMES, tmp_path)  # the same seed, untrained
+    assert (
+        run["curve"][0]["deadline_error"]
+        == score_actor(TASKS["rings20-v1"], policy_actor(experiment.policy))["deadline_error"]
+    )
+    assert run["frames_per_second"] > 0 and run["seconds"]["update"] > 0
+    table = (board / "table.md").read_text()
+    assert "| mappo@0 | " in table and "| zero | " in table and "| random | " in table
+    assert "| rings20-v1 | mappo | 400 |" in table  # the cost table
+    assert (board / "curves_rings20-v1.png").stat().st_size > 0
 
 
 @pytest.mark.slow

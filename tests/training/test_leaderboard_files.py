@@ -28,6 +28,9 @@ def _run(**changes):
     """A training run's file as ``fxc leaderboard`` writes it, with ``changes``."""
     record = {**result_record(TASK), "algorithm": "mappo", "seed": 0, "frames": 1000}
     record.update(deadline_error=[0.5] * EPISODES, energy=[1.0] * EPISODES)
+    start = {"frames": 0, "deadline_error": [9.0] * EPISODES, "energy": [1.0] * EPISODES}
+    record.update(curve=[start, {"frames": 1000, "deadline_error": [0.5] * EPISODES, "energy": [1.0] * EPISODES}])
+    record.update(seconds={"collection": 1.0, "update": 3.0, "evaluation": 0.5, "wall": 4.6}, frames_per_second=250.0)
     return {**record, **changes}
 
 
@@ -36,7 +39,7 @@ def _fake_laws(calls):
 
     def score(task, folder):
         calls.append(task.id)
-        names = [contender.name for contender in law_contenders()]
+        names = leaderboard.scored_names()
         scores = {name: {"deadline_error": [1e-9] * EPISODES, "energy": [2.0] * EPISODES} for name in names}
         return {**result_record(task), "contenders": names, "scores": scores}
 
@@ -54,6 +57,12 @@ def _fake_laws(calls):
         (_run(deadline_error=[0.5] * (EPISODES - 1)), f"holds no {EPISODES} deadline_error values"),
         (_run(energy=[-1.0] * EPISODES), "holds a energy of -1.0"),
         (_run(frames="1000"), "records no frame budget"),
+        ({k: v for k, v in _run().items() if k != "curve"}, "records no learning curve (written by an older"),
+        (_run(curve=_run()["curve"][1:]), "holds a learning curve that does not start at 0 frames"),
+        (_run(frames=2000), "holds a learning curve whose frames [0, 1000] do not rise to its 2000"),
+        (_run(deadline_error=[0.4] * EPISODES), "holds scores other than its learning curve's last"),
+        (_run(seconds={"wall": 4.0}), "records no seconds ('collection', 'update', 'evaluation', 'wall')"),
+        (_run(frames_per_second=0), "records no frames_per_second"),
         ("{", "cannot be read as JSON (JSONDecodeError)"),
         ([1, 2], "holds a list, not a JSON object"),
     ],
