@@ -215,9 +215,13 @@ def plan_files(
 
 
 # ------------------------------------------------------------------------------- scoring
-def law_contenders() -> list[Any]:
-    """The laws and the shipped policies, as the benchmark's contenders."""
-    return builtin_contenders(list(LAWS)) + [learned_contender(name, name=name) for name in SHIPPED_POLICIES]
+def law_contenders(learned: dict[str, Any] | None = None) -> list[Any]:
+    """The laws and the shipped policies, as the benchmark's contenders; on a task, ``learned`` (the task's
+    schedule and modes, :func:`~fxc_env.training.evaluate.task_suite`) is what the shipped policies run with, as
+    ``fxc evaluate --task`` runs them, and a schedule it fixes is every law's too."""
+    learned = learned or {}
+    laws = on_task_schedule(builtin_contenders(list(LAWS)), learned)
+    return laws + [learned_contender(name, name=name, **learned) for name in SHIPPED_POLICIES]
 
 
 def scored_names() -> list[str]:
@@ -229,7 +233,7 @@ def score_laws(task: NamedTask, folder: Path) -> dict[str, Any]:
     """The deadline errors and energies on the task's evaluation episodes of the zero action and uniform random
     actions (:func:`~fxc_env.training.leaderboard_runs.untrained_rows`), the laws and the shipped policies."""
     suite, learned = task_suite(task)
-    contenders = on_task_schedule(law_contenders(), learned)
+    contenders = law_contenders(learned)
     output = run_benchmark(suite, contenders, folder, workers=1, progress=False)
     scores: dict[str, Any] = untrained_rows(task)
     for result in output.results:

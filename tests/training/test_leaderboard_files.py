@@ -189,3 +189,15 @@ def test_marl_eval_loads_and_plots_the_shipped_table(tmp_path, capsys):
         axes.figure.savefig(tmp_path / f"{task}.png")  # marl-eval 0.0.4 returns the axes, not the figure
         pyplot.close(axes.figure)
     assert all((tmp_path / f"{task}.png").stat().st_size > 0 for task in tasks)
+
+
+def test_on_a_task_the_shipped_policies_run_with_its_action_mode_and_the_laws_on_the_schedule_it_fixes():
+    """rings20-v2's shipped PPO was refused in the v2 table ("trained with plan_balanced, this environment has
+    plan"), and saturated's reference ran on its own paper schedule: a task is one environment for every row."""
+    from fxc_env.training.evaluate import task_suite
+
+    _, learned = task_suite(TASKS["rings20-v2"])
+    shipped = {c.name: c for c in law_contenders(learned)}
+    assert shipped["learned:ppo_rings20"].action_mode == "plan_balanced"
+    _, learned = task_suite(TASKS["saturated-v1"])
+    assert {c.schedule for c in law_contenders(learned) if not c.name.startswith("learned:")} == {"uniform"}
