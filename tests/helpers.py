@@ -123,3 +123,25 @@ def torch_mlp_policy_file(folder, env: dict, seed: int | None = None):
     path = folder / "policy.pt"
     torch.save(record, path)
     return path
+
+
+def recorded_observations(policy_class, config, seed: int = 0) -> np.ndarray:
+    """The observation stream ``(K, N, obs_size)`` of one episode that ``policy_class(config)`` itself drives
+    (for the scramble tests of the laws that read only their own rows)."""
+    from fxc_env.engine import ConsensusEngine
+
+    policy = policy_class(config)
+    engine = ConsensusEngine(config, n_episodes=1)
+    draw = engine.draw_episode(np.random.default_rng(seed))
+    engine.reset(draw.x0[None], draw.v0[None])
+    stream = []
+    while not engine.done:
+        obs = engine.observations()[0]
+        stream.append(obs)
+        engine.step(np.asarray(policy(obs[None]), dtype=np.float64))
+    return np.stack(stream)
+
+
+def stream_actions(policy, stream) -> np.ndarray:
+    """``policy``'s actions on each instant of a recorded stream, in order (its memory carried along)."""
+    return np.stack([policy(obs) for obs in stream])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import recorded_observations, stream_actions
 
 from fxc_env.baselines import FilteringPolicy
 from fxc_env.baselines.filtering_goals import goal_table
@@ -64,42 +65,24 @@ def test_the_goal_figures_at_sigma_1e_3():
         assert energy <= energy_bound
 
 
-def recorded_observations(config, seed=0):
-    """The observation stream ``(K, N, obs_size)`` of one episode the law itself drives."""
-    policy = FilteringPolicy(config)
-    engine = ConsensusEngine(config, n_episodes=1)
-    draw = engine.draw_episode(np.random.default_rng(seed))
-    engine.reset(draw.x0[None], draw.v0[None])
-    stream = []
-    while not engine.done:
-        obs = engine.observations()[0]
-        stream.append(obs)
-        engine.step(np.asarray(policy(obs[None]), dtype=np.float64))
-    return np.stack(stream)
-
-
-def actions(policy, stream):
-    return np.stack([policy(obs) for obs in stream])
-
-
 def test_agent_i_acts_on_its_own_rows_only_and_the_graph_relabelled_changes_nothing():
     config = make_config(**SETTINGS, topology="ring", n_agents=6, n_intervals=100, obs_noise=1e-3)
-    stream = recorded_observations(config)
-    reference = actions(FilteringPolicy(config), stream)
+    stream = recorded_observations(FilteringPolicy, config)
+    reference = stream_actions(FilteringPolicy(config), stream)
     rng = np.random.default_rng(3)
     rows_part = slice(0, config.layout.size - 3)
     for i in range(config.n_agents):
         scrambled = stream.copy()
         others = np.arange(config.n_agents) != i
         scrambled[:, others, rows_part] = rng.normal(size=scrambled[:, others, rows_part].shape)
-        changed = actions(FilteringPolicy(config), scrambled)
+        changed = stream_actions(FilteringPolicy(config), scrambled)
         np.testing.assert_array_equal(changed[:, i], reference[:, i])
         assert not np.allclose(changed[:, others], reference[:, others])
     # Built on the same ring with its agents relabelled (a permutation), it acts alike on the same stream.
     order = np.random.default_rng(0).permutation(6)
     edges = [(int(order[j]), int(order[(j + 1) % 6])) for j in range(6)]
     relabelled = make_config(**SETTINGS, topology=edges, n_agents=6, n_intervals=100, obs_noise=1e-3)
-    np.testing.assert_array_equal(actions(FilteringPolicy(relabelled), stream), reference)
+    np.testing.assert_array_equal(stream_actions(FilteringPolicy(relabelled), stream), reference)
 
 
 @pytest.mark.parametrize(

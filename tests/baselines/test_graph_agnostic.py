@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import recorded_observations, stream_actions
 
 from fxc_env.baselines import GraphAgnosticPolicy
 from fxc_env.baselines.graph_agnostic import listening_values, recurrence_limit
@@ -104,28 +105,10 @@ def test_each_agent_reads_the_limit_of_the_iteration_off_its_own_shortest_recurr
     assert not np.allclose(xi, 1 / 8)  # a weighted limit, not the mean
 
 
-def recorded_observations(config, seed=0):
-    """The observation stream ``(K, N, obs_size)`` of one episode the law itself drives."""
-    policy = GraphAgnosticPolicy(config)
-    engine = ConsensusEngine(config, n_episodes=1)
-    draw = engine.draw_episode(np.random.default_rng(seed))
-    engine.reset(draw.x0[None], draw.v0[None])
-    stream = []
-    while not engine.done:
-        obs = engine.observations()[0]
-        stream.append(obs)
-        engine.step(np.asarray(policy(obs[None]), dtype=np.float64))
-    return np.stack(stream)
-
-
-def actions(policy, stream):
-    return np.stack([policy(obs) for obs in stream])
-
-
 def test_agent_i_acts_on_its_own_rows_only_and_never_on_the_graph():
     config = make_config(**SETTINGS, **RANDOM_8, n_intervals=60)
-    stream = recorded_observations(config)
-    reference = actions(GraphAgnosticPolicy(config), stream)
+    stream = recorded_observations(GraphAgnosticPolicy, config)
+    reference = stream_actions(GraphAgnosticPolicy(config), stream)
     rng = np.random.default_rng(3)
     layout = config.layout
     for i in range(config.n_agents):
@@ -134,14 +117,14 @@ def test_agent_i_acts_on_its_own_rows_only_and_never_on_the_graph():
         # Every other agent's rows (relative states and mask) replaced by noise; the clock kept (shared).
         rows_part = slice(0, layout.size - 3)
         scrambled[:, others, rows_part] = rng.normal(size=scrambled[:, others, rows_part].shape)
-        changed = actions(GraphAgnosticPolicy(config), scrambled)
+        changed = stream_actions(GraphAgnosticPolicy(config), scrambled)
         np.testing.assert_array_equal(changed[:, i], reference[:, i])
         assert not np.allclose(changed[:, others], reference[:, others])
     # The graph it is built with never enters its actions: built on another digraph with the same
     # observation layout (a directed ring of the same N, in-degree padded to the same slots), same actions.
     other = make_config(**SETTINGS, topology="ring", n_agents=8, n_intervals=60, obs_slots=layout.slots)
     assert other.layout.size == layout.size
-    np.testing.assert_array_equal(actions(GraphAgnosticPolicy(other), stream), reference)
+    np.testing.assert_array_equal(stream_actions(GraphAgnosticPolicy(other), stream), reference)
 
 
 @pytest.mark.parametrize(
