@@ -231,9 +231,8 @@ def refuse_unrun_policy(flag: str, contender: str, results: list[Any]) -> None:
         raise ArgumentError(f"{flag}: {contender} could not run on any case of the suite ({own[0].error})")
 
 
-def benchmark_command(args: argparse.Namespace) -> int:
-    """Handler of ``fxc benchmark``: run, print the Markdown report, list the files."""
-    # Every value is checked (and every learned policy loaded) before the first job runs.
+def _checked_out(args: argparse.Namespace) -> Any:
+    """``fxc benchmark``'s numeric and Ray flags checked (one-line errors naming each); its ``--out`` folder."""
     integer("--seeds", args.seeds, 1)
     if args.workers is not None:
         integer("--workers", args.workers, 1)
@@ -243,7 +242,13 @@ def benchmark_command(args: argparse.Namespace) -> int:
         raise ArgumentError("--address: joins a Ray cluster for --ray; add --ray")
     if args.address is not None and args.workers is not None:
         raise ArgumentError("--workers: sets the cores of a local Ray; the cluster at --address has its own")
-    out = output_directory("--out", args.out)
+    return output_directory("--out", args.out)
+
+
+def benchmark_command(args: argparse.Namespace) -> int:
+    """Handler of ``fxc benchmark``: run, print the Markdown report, list the files."""
+    # Every value is checked (and every learned policy loaded) before the first job runs.
+    out = _checked_out(args)
     names = _policy_names(args)
     suites = {"full": full_suite, "realism": realism_suite, "models": models_suite}
     if args.suite == "optimality":

@@ -39,6 +39,7 @@ __all__ = [
     "ConsensusTorchEnv",
     "ConsensusVecEnv",
     "EnvConfig",
+    "FilteringPolicy",
     "FiniteTimePolicy",
     "GraphAgnosticPolicy",
     "LeaderFollowerPolicy",
@@ -74,6 +75,7 @@ _LAZY = {
     "ReferenceModule": "fxc_env.policies.torchrl_reference",
     # The baselines sit above the environments in the layer order: imported on first use, never by fxc_env itself.
     "BoundedSteerPolicy": "fxc_env.baselines",
+    "FilteringPolicy": "fxc_env.baselines",
     "FiniteTimePolicy": "fxc_env.baselines",
     "GraphAgnosticPolicy": "fxc_env.baselines",
     "LeaderFollowerPolicy": "fxc_env.baselines",

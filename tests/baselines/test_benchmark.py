@@ -44,8 +44,14 @@ def test_quick_run_writes_table_csv_and_plots_and_the_reference_meets_the_deadli
     # Every policy ran every quick case with the settings and notes the benchmark table of docs: benchmark.md lists.
     suite = quick_suite()
     assert len(rows) == len(make_jobs(suite, builtin_contenders()))
-    refusing = ("minimum_time", "signalling", "graph_agnostic", "bounded_steer")
+    refusing = ("minimum_time", "signalling", "graph_agnostic", "bounded_steer", "filtering")
     assert all(r["error"] == "" for r in rows if r["policy"] not in refusing)
+    # The filtering law is designed for one fixed graph and its blocks: refusals by name.
+    assert all(
+        r["error"].startswith(("topology:", "switching:", "n_intervals:"))
+        for r in rows
+        if r["error"] and r["policy"] == "filtering"
+    )
     # The minimum-time law is designed for one fixed graph: it refuses the switching cases, by name.
     refused = {r["case"] for r in rows if r["error"] and r["policy"] == "minimum_time"}
     assert refused == {"paper_fig1 N=6", "random (switching) N=6", "random (switching) N=20"}
