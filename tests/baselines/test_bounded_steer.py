@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import recorded_observations, stream_actions
 
 from fxc_env import BoundedSteerPolicy
 from fxc_env.baselines.bounded_steer import errors_at_limit_ratios, flooding_schedule, least_peak_inputs
@@ -86,30 +87,17 @@ def test_it_stays_within_the_limit_where_the_least_peak_fits():
     assert np.max(metrics["relative_deadline_error"]) <= 1e-8
 
 
-def recorded(config, seed=0):
-    policy = BoundedSteerPolicy(config)
-    engine = ConsensusEngine(config, n_episodes=1)
-    draw = engine.draw_episode(np.random.default_rng(seed))
-    engine.reset(draw.x0[None], draw.v0[None])
-    stream = []
-    while not engine.done:
-        obs = engine.observations()[0]
-        stream.append(obs)
-        engine.step(np.asarray(policy(obs[None]), dtype=np.float64))
-    return np.stack(stream)
-
-
 def test_agent_i_acts_on_its_own_rows_only():
     config = make_config(**SETTINGS, topology="random", n_agents=8, topology_seed=1, n_intervals=40)
-    stream = recorded(config)
-    reference = np.stack([a for a in map(BoundedSteerPolicy(config), stream)])
+    stream = recorded_observations(BoundedSteerPolicy, config)
+    reference = stream_actions(BoundedSteerPolicy(config), stream)
     layout, rng = config.layout, np.random.default_rng(3)
     for i in range(config.n_agents):
         scrambled = stream.copy()
         others = np.arange(config.n_agents) != i
         part = slice(0, layout.size - 3)
         scrambled[:, others, part] = rng.normal(size=scrambled[:, others, part].shape)
-        changed = np.stack([a for a in map(BoundedSteerPolicy(config), scrambled)])
+        changed = stream_actions(BoundedSteerPolicy(config), scrambled)
         np.testing.assert_array_equal(changed[:, i], reference[:, i])
 
 
