@@ -81,10 +81,12 @@ def add_leaderboard_parser(commands: argparse._SubParsersAction) -> argparse.Arg
     )
     parser.add_argument(
         "--frames",
-        type=int,
-        default=SHIPPED_FRAMES,
-        help=f"frames per training run ({SHIPPED_FRAMES}: the shipped table, about 11 CPU-minutes in all; "
-        "training time grows linearly with it)",
+        nargs="+",
+        default=[str(SHIPPED_FRAMES)],
+        metavar="FRAMES [ALGORITHM=FRAMES]",
+        help=f"frames per training run ({SHIPPED_FRAMES}: the shipped v1 table, about 11 CPU-minutes in all; "
+        "training time grows linearly with it), then ALGORITHM=FRAMES for an algorithm that differs "
+        "(the shipped v2 table: 1024000 masac=64000 maddpg=64000)",
     )
     parser.add_argument("--seeds", type=int, default=3, help="training seeds per algorithm (3: seeds 0, 1, 2)")
     parser.add_argument(
@@ -143,9 +145,26 @@ def check_tasks(names: list[str]) -> list[NamedTask]:
     return list(tasks.values())
 
 
-def check_budget(args: argparse.Namespace) -> tuple[int, int]:
-    """``--frames`` and ``--seeds``, each bounded (:data:`MAX_FRAMES`, :data:`MAX_SEEDS`)."""
-    return integer("--frames", args.frames, 1, MAX_FRAMES), integer("--seeds", args.seeds, 1, MAX_SEEDS)
+def check_budget(args: argparse.Namespace, algorithms: list[str]) -> tuple[dict[str, int], int]:
+    """``--frames`` (one budget, then ``ALGORITHM=FRAMES`` for an algorithm of ``algorithms`` that differs) as
+    each algorithm's budget, and ``--seeds``, each bounded (:data:`MAX_FRAMES`, :data:`MAX_SEEDS`)."""
+    values = args.frames if isinstance(args.frames, list) else [args.frames]
+    budget = {"": _frames(values[0])}
+    for value in values[1:]:
+        algorithm, equals, frames = str(value).partition("=")
+        if not equals or algorithm not in algorithms or algorithm in budget:
+            raise ArgumentError(
+                f"--frames: after the budget, expected ALGORITHM=FRAMES, once each, for one of --algorithms "
+                f"{tuple(algorithms)}, got {value!r}"
+            )
+        budget[algorithm] = _frames(frames)
+    frames = {algorithm: budget.get(algorithm, budget[""]) for algorithm in algorithms}
+    return frames, integer("--seeds", args.seeds, 1, MAX_SEEDS)
+
+
+def _frames(text: Any) -> int:
+    """One ``--frames`` number (digits as given on the command line, or an int)."""
+    return integer("--frames", int(text) if isinstance(text, str) and text.isdigit() else text, 1, MAX_FRAMES)
 
 
 def refuse_unread_budget(args: argparse.Namespace, algorithms: list[str]) -> None:
@@ -160,11 +179,11 @@ def refuse_unread_budget(args: argparse.Namespace, algorithms: list[str]) -> Non
 def leaderboard_command(args: argparse.Namespace) -> int:
     """Handler of ``fxc leaderboard``: every value and every file kept under ``--out`` is checked before any run
     starts (:mod:`fxc_env.training.leaderboard_files`)."""
-    frames, seeds = check_budget(args)
-    reps = integer("--bootstrap-reps", args.bootstrap_reps, 1)
-    tasks = check_tasks(list(args.tasks))
     algorithms = check_algorithms(list(args.algorithms))
     refuse_unread_budget(args, algorithms)
+    frames, seeds = check_budget(args, algorithms)
+    reps = integer("--bootstrap-reps", args.bootstrap_reps, 1)
+    tasks = check_tasks(list(args.tasks))
     out = output_directory("--out", args.out)
     contenders = scored_names()
     rescore, train = plan_files(out, tasks, algorithms, seeds, frames, contenders)
@@ -175,9 +194,10 @@ def leaderboard_command(args: argparse.Namespace) -> int:
             print(f"fxc leaderboard: scoring {out / task.id / 'laws.json'} again: it {rescore[task.id]}", flush=True)
         write_json(out / task.id / "laws.json", score_laws(task, out / task.id / "benchmark"))
     for task, algorithm, seed in train:
-        print(f"fxc leaderboard: {task.id}: {algorithm}, seed {seed}, {frames} frames", flush=True)
+        print(f"fxc leaderboard: {task.id}: {algorithm}, seed {seed}, {frames[algorithm]} frames", flush=True)
         folder = out / task.id / algorithm
-        write_json(folder / f"seed{seed}.json", train_and_score(task, algorithm, seed, frames, folder / f"seed{seed}"))
+        run = train_and_score(task, algorithm, seed, frames[algorithm], folder / f"seed{seed}")
+        write_json(folder / f"seed{seed}.json", run)
     table, files = write_leaderboard(out, tasks, algorithms, seeds, reps)
     print(table)
     print("wrote " + ", ".join(str(f) for f in files))
@@ -185,10 +205,11 @@ def leaderboard_command(args: argparse.Namespace) -> int:
 
 
 def plan_files(
-    out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int, frames: int, contenders: list[str]
+    out: Path, tasks: list[NamedTask], algorithms: list[str], seeds: int, frames: dict[str, int], contenders: list[str]
 ) -> tuple[dict[str, str], list[tuple[NamedTask, str, int]]]:
     """What a run under ``out`` does: the tasks (ids) whose ``laws.json`` is (re)scored, with why ("" when there is
-    none yet), and the training runs still to do. A kept run that does not match the request is refused."""
+    none yet), and the training runs still to do (``frames``: each algorithm's budget). A kept run that does not
+    match the request is refused."""
     rescore: dict[str, str] = {}
     train = []
     for task in tasks:
@@ -206,9 +227,9 @@ def plan_files(
                     raise ArgumentError(
                         f"--out: {path} {why}; delete it to train and score that run again, or give another --out"
                     )
-                elif (recorded := json.loads(path.read_text())["frames"]) != frames:
+                elif (recorded := json.loads(path.read_text())["frames"]) != frames[algorithm]:
                     raise ArgumentError(
-                        f"--frames: {path} was trained for {recorded} frames, not {frames}; "
+                        f"--frames: {path} was trained for {recorded} frames, not {frames[algorithm]}; "
                         "give the same budget to resume, or another --out"
                     )
     return rescore, train

@@ -297,6 +297,11 @@ def curve_figure(
         level = float(np.median(errors))
         axes.axhline(level, color="k", linestyle=("--", ":", "-.")[j % 3], label=f"{name} ({level:.3g})")
     axes.set_yscale("log")
+    starts = [
+        record["curve"][1]["frames"] for records in runs.values() for record in records if len(record["curve"]) > 1
+    ]
+    if starts and max(r[0]["frames"] for r in runs.values()) > 4 * min(r[0]["frames"] for r in runs.values()):
+        axes.set_xscale("symlog", linthresh=min(starts))  # budgets that differ (on- and off-policy): all legible
     levels = [float(np.median(errors)) for errors in baselines.values()]
     low, high = axes.get_ylim()
     axes.set_ylim(min([low, *(level / 3 for level in levels if level > 0)]), max([high, *levels]))

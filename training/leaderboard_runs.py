@@ -33,21 +33,27 @@ ALGORITHMS = {
     "mappo_gnn": ("MappoConfig", "gnn"),
     "mappo_gru": ("MappoConfig", "gru"),
 }
-#: Evaluations of the deterministic actor during a run besides the one at 0 frames (evenly spaced in frames).
-CURVE_POINTS = 8
+#: Evaluations of the deterministic actor during a run besides the one at 0 frames (evenly spaced in frames): 16,
+#: so that a run of 1,024k frames is scored at 64k (where the goal "below the zero action within 100k" is read).
+CURVE_POINTS = 16
 #: The seed of the uniform random actions of the ``random`` row.
 RANDOM_SEED = 0
+#: BenchMARL's algorithms that learn from a replay buffer (the rest learn on-policy).
+OFF_POLICY = frozenset({"masac", "maddpg"})
 #: BenchMARL's experiment settings per task version, the same for every algorithm of a kind. Version 1 (the
 #: shipped v1 table): BenchMARL's defaults with batches shrunk to the budget. Version 2 (lean, so that the whole
-#: v2 table trains on two CPU cores in about an hour): one batch is 64 whole episodes (64 K frames: 3,200 at
+#: v2 table trains on two CPU cores within two hours): one batch is 64 whole episodes (64 K frames: 3,200 at
 #: K = 50); on-policy algorithms take 4 passes over it in minibatches of 400 frames, off-policy ones 50 gradient
-#: steps of 256 frames from the replay buffer (BenchMARL's default is 1,000 per 6,000 frames: 533 per batch);
-#: Adam at 3e-4 and no discount (the rewards telescope to ln D(0)/D(T_s) over the episode: docs
-#: environment.md); actor and critic MLPs of two tanh layers of 64 (BenchMARL's default: 256).
+#: steps of 256 frames from the replay buffer (BenchMARL's default is 1,000 per 6,000 frames: 533 per batch); no
+#: discount (the rewards telescope to ln D(0)/D(T_s) over the episode: docs environment.md); actor and critic
+#: MLPs of two tanh layers of 64 (BenchMARL's default: 256). Per kind (``on_policy``/``off_policy``): Adam's
+#: ``lr`` and the algorithm config's fields. On-policy: lr 1e-3 and ``scale_mapping`` "biased_softplus_0.22_0.1",
+#: the Gaussian's scale softplus(x + b) + 0.1 with b such that the untrained output x = 0 gives 0.22 (BenchMARL's
+#: default "biased_softplus_1.0": 1 at x = 0, floor 0.01): the floor keeps exploring where the default's scale
+#: collapses and the curve flattens at the reference (docs results.md, "What was tried"). Off-policy: lr 3e-4.
 SETTINGS: dict[int, dict[str, Any]] = {
     1: {},
     2: {
-        "lr": 3e-4,
         "gamma": 1.0,
         "episodes_per_batch": 64,
         "on_policy_n_minibatch_iters": 4,
@@ -55,8 +61,17 @@ SETTINGS: dict[int, dict[str, Any]] = {
         "off_policy_n_optimizer_steps": 50,
         "off_policy_train_batch_size": 256,
         "num_cells": (64, 64),
+        "on_policy": {"lr": 1e-3, "algorithm": {"scale_mapping": "biased_softplus_0.22_0.1"}},
+        "off_policy": {"lr": 3e-4, "algorithm": {}},
     },
 }
+#: The keys of a version's :data:`SETTINGS` that are not fields of BenchMARL's ``ExperimentConfig``.
+_NOT_EXPERIMENT_FIELDS = ("num_cells", "on_policy", "off_policy", "episodes_per_batch")
+
+
+def kind_settings(task: NamedTask, algorithm: str) -> dict[str, Any]:
+    """The task version's settings of ``algorithm``'s kind (``lr``, ``algorithm``: config fields); {} for v1."""
+    return SETTINGS[task.version].get("off_policy" if algorithm in OFF_POLICY else "on_policy", {})
 
 
 def score_actor(task: NamedTask, act: Any) -> dict[str, list[float]]:
@@ -196,6 +211,9 @@ def build_experiment(task: NamedTask, algorithm: str, seed: int, frames: int, fo
     from fxc_env.envs.benchmarl_task import FxcTask
 
     algorithm_config, model = ALGORITHMS[algorithm]
+    algorithm_settings = getattr(benchmarl_algorithms, algorithm_config).get_from_yaml()
+    for name, value in kind_settings(task, algorithm).get("algorithm", {}).items():
+        setattr(algorithm_settings, name, value)
     if model == "gnn":
         import torch_geometric
 
@@ -207,11 +225,11 @@ def build_experiment(task: NamedTask, algorithm: str, seed: int, frames: int, fo
     member = FxcTask[task.id.replace("-", "_").upper()]
     experiment = Experiment(
         task=member.get_from_yaml(),
-        algorithm_config=getattr(benchmarl_algorithms, algorithm_config).get_from_yaml(),
+        algorithm_config=algorithm_settings,
         model_config=actor,
         critic_model_config=_mlp(MlpConfig, task),
         seed=seed,
-        config=experiment_config(task, frames, folder),
+        config=experiment_config(task, algorithm, frames, folder),
     )
     return experiment, actor
 
@@ -224,17 +242,20 @@ def _mlp(mlp_config: Any, task: NamedTask) -> Any:
     return config
 
 
-def experiment_config(task: NamedTask, frames: int, folder: Path) -> Any:
-    """BenchMARL's experiment config on the CPU for ``frames`` frames with the task version's :data:`SETTINGS`;
-    batches no larger than the budget."""
+def experiment_config(task: NamedTask, algorithm: str, frames: int, folder: Path) -> Any:
+    """BenchMARL's experiment config on the CPU for ``frames`` frames with the task version's :data:`SETTINGS`
+    (and ``lr`` of ``algorithm``'s kind); batches no larger than the budget."""
     from benchmarl.experiment import ExperimentConfig
 
     config = ExperimentConfig.get_from_yaml()
     config.sampling_device = config.train_device = config.buffer_device = "cpu"
     config.max_n_frames = frames
-    settings = {name: value for name, value in SETTINGS[task.version].items() if name != "num_cells"}
-    if "episodes_per_batch" in settings:
-        episodes = settings.pop("episodes_per_batch")
+    version = SETTINGS[task.version]
+    settings = {name: value for name, value in version.items() if name not in _NOT_EXPERIMENT_FIELDS}
+    if "lr" in kind_settings(task, algorithm):
+        settings["lr"] = kind_settings(task, algorithm)["lr"]
+    if "episodes_per_batch" in version:
+        episodes = version["episodes_per_batch"]
         config.on_policy_n_envs_per_worker = config.off_policy_n_envs_per_worker = episodes
         config.on_policy_collected_frames_per_batch = episodes * task.n_intervals
         config.off_policy_collected_frames_per_batch = episodes * task.n_intervals

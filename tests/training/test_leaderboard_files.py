@@ -72,12 +72,12 @@ def test_a_kept_training_run_that_is_hand_made_foreign_or_damaged_is_refused_by_
     path.parent.mkdir(parents=True)
     path.write_text(change if isinstance(change, str) else json.dumps(change))
     with pytest.raises(ArgumentError) as info:
-        plan_files(tmp_path, [TASK], ["mappo"], 1, 1000, [c.name for c in law_contenders()])
+        plan_files(tmp_path, [TASK], ["mappo"], 1, {"mappo": 1000}, [c.name for c in law_contenders()])
     message = str(info.value)
     assert message.startswith(f"--out: {path} {why}") and "delete it to train and score that run again" in message
     # A run recorded as fxc leaderboard writes it is kept; the other seed is still to train.
     path.write_text(json.dumps(_run()))
-    rescore, train = plan_files(tmp_path, [TASK], ["mappo"], 2, 1000, [c.name for c in law_contenders()])
+    rescore, train = plan_files(tmp_path, [TASK], ["mappo"], 2, {"mappo": 1000}, [c.name for c in law_contenders()])
     assert rescore == {"rings20-v1": ""} and train == [(TASK, "mappo", 1)]
 
 
@@ -141,7 +141,19 @@ def test_the_training_budget_is_bounded(flag, value):
     namespace = leaderboard.argparse.Namespace(frames=1000, seeds=3)
     setattr(namespace, flag[2:], value)
     with pytest.raises(ArgumentError, match=f"^{flag}: expected an integer"):
-        leaderboard.check_budget(namespace)
+        leaderboard.check_budget(namespace, ["mappo"])
+
+
+def test_frames_give_one_budget_then_one_per_algorithm_that_differs():
+    namespace = leaderboard.argparse.Namespace(frames=["1024000", "masac=64000"], seeds=3)
+    assert leaderboard.check_budget(namespace, ["mappo", "masac"]) == ({"mappo": 1024000, "masac": 64000}, 3)
+
+
+@pytest.mark.parametrize("frames", [["1000", "maddpg=10"], ["1000", "masac"], ["1000", "masac=1", "masac=2"]])
+def test_a_budget_for_an_algorithm_not_trained_or_named_twice_is_refused(frames):
+    namespace = leaderboard.argparse.Namespace(frames=frames, seeds=3)
+    with pytest.raises(ArgumentError, match=r"^--frames: after the budget, expected ALGORITHM=FRAMES"):
+        leaderboard.check_budget(namespace, ["mappo", "masac"])
 
 
 def test_every_algorithm_of_a_task_lists_the_same_runs_and_a_law_its_one_row_under_each():
