@@ -112,7 +112,11 @@ def call_policy(policy: Any, observation: Any, act: Callable[[Any], Any], conver
     if agents is not None:
         if not agents:
             return {}
-        stacked = np.stack([np.asarray(flat_observation(obs), dtype=np.float64) for obs in agents.values()])
+        rows = [np.asarray(flat_observation(obs), dtype=np.float64) for obs in agents.values()]
+        if len({row.shape for row in rows}) > 1:
+            shapes = {agent: row.shape for agent, row in zip(agents, rows, strict=True)}
+            raise ArgumentError(f"observations: every agent's observation must have one shape, got {shapes}")
+        stacked = np.stack(rows)
         return dict(zip(agents, act(stacked), strict=True))
     obs = flat_observation(observation) if isinstance(observation, Mapping) else observation
     obs = np.asarray(obs, dtype=np.float64) if convert or not hasattr(obs, "shape") else obs

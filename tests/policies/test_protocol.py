@@ -117,6 +117,14 @@ def test_dict_format_observations_are_told_from_the_team_dict(name):
         assert np.array_equal(policy(observations["agent_0"]), policy(observations)["agent_0"])
 
 
+def test_a_team_dict_of_unequal_observations_is_refused_by_name():
+    env, policy = _reference()
+    observations, _ = env.reset(seed=0)
+    observations["agent_1"] = observations["agent_1"][:-1]
+    with pytest.raises(ArgumentError, match=r"^observations: every agent's observation must have one shape"):
+        policy(observations)
+
+
 def test_rollout_plays_one_episode_and_returns_the_env_s_episode_infos_and_trajectory():
     env = fxc_env.parallel_env(scenario="paper_fig1")
     policy = fxc_env.ReferencePolicy(env)
