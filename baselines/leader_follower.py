@@ -75,6 +75,10 @@ class LeaderFollowerPolicy(LawPolicy):
         "the radius"
     )
 
+    #: Each agent follows its own row of the tree, found by its place in the team: one agent's observation alone
+    #: is refused (:mod:`fxc_env.policies.protocol`).
+    needs_team: ClassVar[bool] = True
+
     #: What one lost link costs the law (the refusal of ``link_dropout`` and :meth:`guarantee` say it).
     LOST_LINK: ClassVar[str] = (
         "an agent whose row of its parent is lost on its last copy coasts off the centre's trajectory and takes "

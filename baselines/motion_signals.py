@@ -114,7 +114,8 @@ def plan_action(plan: np.ndarray, config: Any, interval: float) -> np.ndarray:
 
 class SignalPolicy(LawPolicy):
     """A law with memory (its own first measurements and plans): called with every agent's observation at once,
-    ``(..., N, obs_size)`` in agent order, one instant after the other from ``k = 0`` (which starts an episode).
+    the parallel env's dict or ``(..., N, obs_size)`` in agent order, one instant after the other from ``k = 0``
+    (which starts an episode; :meth:`reset` forgets the episodes under way).
 
     Subclasses set :attr:`TITLE`, ``config``, ``_intervals``, ``_memory`` (None, or holding the own deviation
     ``"d"`` ``(..., N, 2, dim)``) and ``_next_instant = 0``, and implement ``_reset`` and ``_plan``.
@@ -122,6 +123,8 @@ class SignalPolicy(LawPolicy):
 
     #: How messages name the law (``"the signalling law"``).
     TITLE: ClassVar[str] = ""
+    #: Its memory is per agent: one agent's observation alone is refused (:mod:`fxc_env.policies.protocol`).
+    needs_team: ClassVar[bool] = True
     config: Any
     _intervals: np.ndarray
     _memory: dict[str, np.ndarray] | None
@@ -137,6 +140,11 @@ class SignalPolicy(LawPolicy):
         plan = self._plan(k, rows, obs)
         self._next_instant = k + 1
         return plan_action(plan, self.config, self._intervals[k])
+
+    def reset(self) -> None:
+        """Forget the episodes under way (the next call must be at ``k = 0``, which also starts a new memory)."""
+        self._memory = None
+        self._next_instant = 0
 
     def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:
         """A new episode's memory for the lead shape ``(..., N)``, from the rows at ``t_0``."""

@@ -10,7 +10,6 @@ action is ``(u, u)``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -19,6 +18,7 @@ from fxc_env.config import config_of
 from fxc_env.config.layout import ObservationLayout
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.protocol import Policy
 
 #: Largest gain or time constant of a classical law (``g`` in 1/s², ``γ`` in s, the finite-time gain): with
 #: states within ±1e100 (:data:`~fxc_env.core.validation.STATE_LIMIT`) and up to 1e8 neighbours, a held input
@@ -88,8 +88,10 @@ def claims_exactness(policy: Any) -> bool:
     return any(claim in text for claim in EXACT_CLAIMS)
 
 
-class LawPolicy:
-    """Base class of every baseline: the law's description, and a call on flat or dict observations.
+class LawPolicy(Policy):
+    """Base class of every baseline: the law's description, called as every policy is
+    (:mod:`fxc_env.policies.protocol`: the parallel env's dict, an array ``(..., N, obs_size)``, or one
+    agent's observation for a law without memory).
 
     Subclasses set :attr:`NAME`, :attr:`LAW`, :attr:`SOURCE`, :attr:`GRAPH_CLASS` and ``self.layout``, and
     implement :meth:`act`.
@@ -104,13 +106,6 @@ class LawPolicy:
     #: The graphs for which the source proves convergence.
     GRAPH_CLASS: ClassVar[str] = ""
     layout: ObservationLayout
-
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Action(s) ``(..., 2 dim)`` for observation(s) ``(..., obs_size)`` (flat or dict)."""
-        return self.act(self.layout.flat(observation))
-
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
 
     def parameters(self) -> dict[str, float]:
         """The law's parameters as used (after any offline design)."""

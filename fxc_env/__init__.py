@@ -7,6 +7,7 @@ dynamics, the paper's controller (eq. 11) as :class:`ReferencePolicy`, and the e
     >>> import fxc_env
     >>> env = fxc_env.parallel_env(scenario="paper_fig1")
     >>> policy = fxc_env.ReferencePolicy(env)
+    >>> episode = fxc_env.rollout(env, policy, seed=0)  # policy(observations) each step: {agent: action}
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from fxc_env.envs import fxc_consensus_v0  # the versioned module, as PettingZoo
 from fxc_env.envs.fxc_consensus_v0 import env, parallel_env, raw_env
 from fxc_env.envs.registration import ENV_ID, register_environments
 from fxc_env.policies.learned import load_learned_policy
+from fxc_env.policies.protocol import rollout
 from fxc_env.policies.reference import ReferencePolicy
 
 register_environments()
@@ -63,6 +65,7 @@ __all__ = [
     "parallel_env",
     "raw_env",
     "reference_policy",
+    "rollout",
     "simulate",
 ]
 

@@ -11,6 +11,8 @@ import itertools
 import numpy as np
 import pytest
 
+from fxc_env.config.tasks import TASKS
+
 # The paper's example (Section 5).
 PAPER_X0 = np.array([1.0, -1.0, 2.0, 4.0, -4.0, -2.0])
 PAPER_V0 = np.array([1.0, 2.0, 3.0, -3.0, -2.0, 0.0])
@@ -145,3 +147,18 @@ def recorded_observations(policy_class, config, seed: int = 0) -> np.ndarray:
 def stream_actions(policy, stream) -> np.ndarray:
     """``policy``'s actions on each instant of a recorded stream, in order (its memory carried along)."""
     return np.stack([policy(obs) for obs in stream])
+
+
+#: Per shipped policy (``fxc_env.policies.learned.SHIPPED``), the keywords of an environment inside its training
+#: domain (other than the training one): it loads there without a warning.
+SHIPPED_INSIDE = {
+    "generalist": {"scenario": None, "topology": {"family": "path"}, "n_agents": 20},
+    "saturated": {"scenario": "paper_fig1", "schedule": "uniform", "u_max": 100.0},  # a ring of 6, period 3
+    "paper_fig1": {"scenario": "paper_fig1"},
+    "rings": {"scenario": None, "topology": "ring", "n_agents": 20},
+    "rings_gru": {"scenario": None, "topology": "ring", "n_agents": 20, "switching": "random"},  # one graph: no switch
+    "rings_scratch": {"scenario": None, "topology": "ring", "n_agents": 20},
+    "agnostic": {"scenario": None, "topology": "ring", "n_agents": 24},  # a ring size it never met
+    "ppo_rings20": {"scenario": None, **TASKS["rings20-v2"].settings},  # the task it was trained on
+    "diff_rings20": {"scenario": None, **TASKS["rings20-v2"].settings},
+}

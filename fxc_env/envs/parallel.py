@@ -58,7 +58,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
 
         env = fxc_env.parallel_env(topology="ring", n_agents=20)  # obs_slots 1, the ring's in-degree
         policy = load_learned_policy("generalist", env)  # trained with 4 slots: same actions as there
-        actions = {agent: policy(obs) for agent, obs in env.reset(seed=0)[0].items()}
+        actions = policy(env.reset(seed=0)[0])  # {agent: action}, as every policy answers the env's dict
 
     ## Action Space
     ``Box(-b, b, (2 dim,), float64)`` per agent:

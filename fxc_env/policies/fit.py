@@ -24,6 +24,7 @@ from fxc_env.config import config_of, make_config
 from fxc_env.config.layout import CLOCK_SIZE, ObservationLayout
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import check_domain
+from fxc_env.policies.protocol import Policy, reset_policy
 
 #: The settings of the training environment a loaded policy must meet (docs: training.md, "Training learned
 #: policies"): the meaning of its inputs and outputs (action and observation modes, whether the
@@ -230,7 +231,7 @@ def check_width(policy: Any, env: Any, source: Any) -> None:
     )
 
 
-class SlotAdaptedPolicy:
+class SlotAdaptedPolicy(Policy):
     """A policy trained on ``W`` neighbour slots acting on an environment's observations of ``S`` slots.
 
     The observation (:class:`fxc_env.config.layout.ObservationLayout`) is rebuilt in the trained
@@ -302,25 +303,17 @@ class SlotAdaptedPolicy:
         out[beyond] = picked
         return out
 
-    def __call__(self, observation: Any) -> Any:
-        """Actions ``(..., action_size)`` for observations ``(..., obs_size)`` of the environment's layout.
-
-        A mapping ``{agent: observation}`` (a PettingZoo env's observations) gives ``{agent: action}``,
-        the agents acting as one batch.
-        """
-        agents = agent_observations(observation)
-        if agents is not None:
-            return dict(zip(agents, self(np.stack([self.layout.flat(agents[a]) for a in agents])), strict=True))
-        return np.asarray(self.policy(self.trained_observation(observation)), dtype=np.float64)
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Actions ``(..., action_size)`` for flat observations ``(..., obs_size)`` of the environment's layout
+        (called as every policy is: :mod:`fxc_env.policies.protocol`)."""
+        return np.asarray(self.policy(self.trained_observation(obs)), dtype=np.float64)
 
     def reset(self) -> None:
         """The wrapped policy's ``reset`` (a torch GRU actor's memory), where it has one."""
-        reset = getattr(self.policy, "reset", None)
-        if callable(reset):
-            reset()
+        reset_policy(self.policy)
 
 
-class PerAxisPolicy:
+class PerAxisPolicy(Policy):
     """A policy trained in one dimension acting on each axis of a ``dim``-dimensional environment.
 
     The paper's controller (eq. 11) acts on every axis alone, and so can a learned policy:
@@ -347,24 +340,15 @@ class PerAxisPolicy:
             setattr(self, key, getattr(policy, key, None))
         self.adaptation = f"trained in dim 1, acting per axis in dim {config.dim}"
 
-    def __call__(self, observation: Any) -> Any:
-        """Actions ``(..., 2 dim)`` for observations ``(..., obs_size)`` (flat or dict), or ``{agent: action}``
-        for ``{agent: observation}``.
+    def reset(self) -> None:
+        """The wrapped policy's ``reset`` (a torch GRU actor's memory), where it has one."""
+        reset_policy(self.policy)
 
-        A policy with a memory (a torch ``gru``) keeps one per agent and axis: it is refused one
-        agent's observation alone (called agent by agent, every agent would run through one memory).
-        """
-        agents = agent_observations(observation)
-        if agents is not None:
-            return dict(zip(agents, self(np.stack([self.layout.flat(agents[a]) for a in agents])), strict=True))
-        obs = self.layout.flat(observation)
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Actions ``(..., 2 dim)`` for flat observations ``(..., obs_size)`` (called as every policy is:
+        :mod:`fxc_env.policies.protocol`; a wrapped policy with a memory, a torch ``gru``, keeps one per agent
+        and axis, and one agent's observation alone is refused)."""
         lead, dim = obs.shape[:-1], self.config.dim
-        if not lead and has_memory(self.policy):
-            raise ArgumentError(
-                f"observations: this policy keeps a memory per agent and axis ({self.adaptation}); pass every "
-                f"agent's observations at once, [N, {self.obs_size}] or a dict agent -> observation, not one "
-                f"agent's ({self.obs_size},)"
-            )
         rows, mask, clock = self.layout.split(obs)  # rows (..., slots, 2, dim)
         sigma = np.max(np.abs(rows), axis=(-3, -2))  # (..., dim)
         scaled = rows / np.where(sigma > 0, sigma, 1.0)[..., None, None, :]
@@ -425,26 +409,6 @@ def adapt_slots(
             stacklevel=3,
         )
     return adapted
-
-
-def agent_observations(observation: Any) -> dict[Any, Any] | None:
-    """``observation`` when it maps agents to observations (a PettingZoo env's), else None.
-
-    A dict observation of one agent (``obs_format="dict"``: ``neighbours``, ``mask``, ``clock``
-    [, ``input_limit``]) is not one: it is the agent's observation.
-    """
-    if isinstance(observation, Mapping) and "neighbours" not in observation:
-        return dict(observation)
-    return None
-
-
-def has_memory(policy: Any) -> bool:
-    """Whether ``policy`` (or the policy it wraps) carries a memory from call to call (a torch ``gru``)."""
-    while policy is not None:
-        if getattr(policy, "arch", None) == "gru":
-            return True
-        policy = getattr(policy, "policy", None)
-    return False
 
 
 class PolicyAdaptedWarning(UserWarning):

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from fxc_env.core.validation import ArgumentError
+from fxc_env.policies.protocol import Policy
 
 #: The ``format`` entry of a gain-schedule file's header.
 FORMAT = "fxc_env.interval_gains/1"
@@ -32,7 +33,7 @@ MATCHED_SETTINGS = {
 }
 
 
-class IntervalGainPolicy:
+class IntervalGainPolicy(Policy):
     """The plan ``G_k r_i`` of a learned ``(K, 2, 2)`` gain table, every agent alike, deterministic.
 
     Args:
@@ -116,9 +117,8 @@ class IntervalGainPolicy:
         self.obs_size = self.layout.size
         self.action_size = 2 * dim
 
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Plans ``(..., 2 dim)`` (``alpha_x`` then ``alpha_v``) for observations ``(..., obs_size)`` (flat or dict)."""
-        obs = self.layout.flat(observation)
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Plans ``(..., 2 dim)`` (``alpha_x`` then ``alpha_v``) for flat observations ``(..., obs_size)``."""
         if obs.shape[-1] != self.obs_size:
             raise ArgumentError(f"observations: expected shape (..., {self.obs_size}), got {obs.shape}")
         rows, mask, clock = self.layout.split(obs)  # rows (..., slots, 2, dim)

@@ -49,6 +49,7 @@ from fxc_env.policies.policy_files import (
     read_sb3_zip,
     summary,
 )
+from fxc_env.policies.protocol import Policy
 from fxc_env.policies.records import checked_domain
 from fxc_env.policies.saving import METADATA_MEMBER, RLLIB_RECORD_FORMAT, innermost
 
@@ -101,7 +102,7 @@ def load_model(path: str | Path, *, trusted: bool = False) -> Any:
     raise ArgumentError(f"policy: {path} is neither a PPO nor a SAC model ({'; '.join(errors)})")
 
 
-class LearnedPolicy:
+class LearnedPolicy(Policy):
     """A trained SB3 model acting for every agent (parameter sharing), deterministically.
 
     Args:
@@ -163,9 +164,8 @@ class LearnedPolicy:
         if env is not None:
             check_fit(self, env, "LearnedPolicy", allow_out_of_domain=allow_out_of_domain)
 
-    def __call__(self, observation: np.ndarray) -> np.ndarray:
-        """Actions ``(..., action_size)`` for observations ``(..., obs_size)``."""
-        obs = np.asarray(observation, dtype=np.float64)
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Actions ``(..., action_size)`` for flat observations ``(..., obs_size)``."""
         lead = obs.shape[:-1]
         flat = obs.reshape(-1, self.obs_size)
         if self._stats is not None:
@@ -298,7 +298,7 @@ def rllib_checkpoint(path: str | Path) -> Path | None:
     return max(found)[1] if found else None
 
 
-class RLlibPolicy:
+class RLlibPolicy(Policy):
     """A trained RLlib module acting for every agent (parameter sharing), deterministically.
 
     Loads only the module (``learner_group/learner/rl_module/<module_id>`` of an algorithm
@@ -376,11 +376,11 @@ class RLlibPolicy:
         if env is not None:
             check_fit(self, env, "RLlibPolicy", allow_out_of_domain=allow_out_of_domain)
 
-    def __call__(self, observation: np.ndarray) -> np.ndarray:
-        """Actions ``(..., action_size)`` for observations ``(..., obs_size)``."""
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Actions ``(..., action_size)`` for flat observations ``(..., obs_size)``."""
         import torch
 
-        obs = np.asarray(observation, dtype=np.float32)
+        obs = np.asarray(obs, dtype=np.float32)
         lead = obs.shape[:-1]
         with torch.no_grad():
             out = self.module.forward_inference({"obs": torch.as_tensor(obs.reshape(-1, self.obs_size))})

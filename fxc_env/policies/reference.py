@@ -15,7 +15,6 @@ environment's settings (``T_s``, modes, layout): no state, no global information
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -23,13 +22,15 @@ import numpy as np
 from fxc_env.config import config_of
 from fxc_env.core.arrays import is_numpy, namespace
 from fxc_env.core.dynamics import input_from_plan
+from fxc_env.policies.protocol import Policy
 
 
-class ReferencePolicy:
+class ReferencePolicy(Policy):
     """Eq. (11) for every action mode (``plan``, ``plan_balanced``, ``accel``; ``residual``: zeros, the environment adds eq. 11) and observation mode.
 
-    ``ReferencePolicy(env)(obs)`` maps one agent's observation ``(obs_size,)`` (or a dict
-    observation) to its action ``(2 dim,)`` (``(n dim,)`` for a general linear agent: the
+    ``ReferencePolicy(env)(observations)`` maps the parallel env's ``{agent: observation}`` to
+    ``{agent: action}`` (:mod:`fxc_env.policies.protocol`), one agent's observation ``(obs_size,)``
+    (or a dict observation) to its action ``(2 dim,)`` (``(n dim,)`` for a general linear agent: the
     plan ``e^{A T} e_i``, the generalised eq. (11)); an array with leading dimensions
     ``(..., obs_size)`` maps to ``(..., 2 dim)`` in one vectorised call. :meth:`act` takes
     numpy arrays or torch tensors (on any device) alike; :class:`fxc_env.policies.torchrl_reference.ReferenceModule`
@@ -60,11 +61,6 @@ class ReferencePolicy:
                 motion = scales[:, :, None] * motion / scales[:, None, :]
             self._motion = motion
         self._summation = summation
-
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Action(s) for observation(s); see the class docstring for shapes."""
-        obs = self.layout.flat(observation)
-        return self.act(obs)
 
     def act(self, obs: Any) -> Any:
         """Eq. (11) from flat observations ``(..., obs_size)``: actions ``(..., 2 dim)`` (numpy or torch)."""

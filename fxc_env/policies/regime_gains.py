@@ -30,6 +30,9 @@ class RegimeGainPolicy(IntervalGainPolicy):
         source: where it was read from, for messages.
     """
 
+    #: Its probe remembers every agent's previous rows: one agent's observation alone is refused
+    #: (:mod:`fxc_env.policies.protocol`).
+    needs_team = True
     #: The table is linear in the rows: ``dim`` is not matched (every axis is planned alike, exactly).
     matched_settings = {key: value for key, value in MATCHED_SETTINGS.items() if key != "dim"}
 
@@ -64,9 +67,8 @@ class RegimeGainPolicy(IntervalGainPolicy):
         """Forget every episode under way (the next call must be at ``k = 0``)."""
         self._memory = None
 
-    def __call__(self, observation: np.ndarray | Mapping[str, np.ndarray]) -> np.ndarray:
-        """Plans ``(..., 2 dim)`` for every agent's observation ``(..., obs_size)`` at one instant (see the module)."""
-        obs = self.layout.flat(observation)
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Plans ``(..., 2 dim)`` for every agent's flat observation ``(..., N, obs_size)`` at one instant (see the module)."""
         if obs.shape[-1] != self.obs_size:
             raise ArgumentError(f"observations: expected shape (..., {self.obs_size}), got {obs.shape}")
         rows, mask, clock = self.layout.split(obs)

@@ -23,11 +23,11 @@ import numpy as np
 import torch
 
 from fxc_env.config import make_config
-from fxc_env.config.layout import ObservationLayout
 from fxc_env.core.validation import FLOAT32_MAX, ArgumentError
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.fit import check_fit, check_width, settings_from_env_kwargs
 from fxc_env.policies.networks import ACTIVATIONS, mlp  # noqa: F401  (their public path before networks.py)
+from fxc_env.policies.protocol import Policy, call_policy
 from fxc_env.policies.records import checked_domain, file_number, file_tensor
 from fxc_env.policies.torch_memory import build_actor
 
@@ -36,7 +36,7 @@ POLICY_FORMAT = "fxc_env.torch_ppo.policy/1"
 CHECKPOINT_FORMAT = "fxc_env.torch_ppo.checkpoint/1"
 
 
-class TorchPolicy:
+class TorchPolicy(Policy):
     """A trained policy, deterministic: observations ``[..., obs_size]`` to actions ``[..., action_size]``.
 
     The action is the Gaussian's mean clipped to ``±action_bound`` (training clips its
@@ -83,6 +83,11 @@ class TorchPolicy:
                 return None
         return self._domain
 
+    @property
+    def needs_team(self) -> bool:  # type: ignore[override]
+        """A ``gru`` keeps a memory per agent: one agent's observation alone is refused (:mod:`fxc_env.policies.protocol`)."""
+        return self.arch == "gru"
+
     def reset(self) -> None:
         """Forget the memory (``gru``); an episode's first observation (clock ``k/K = 0``) also resets it."""
         self._hidden = None
@@ -94,29 +99,19 @@ class TorchPolicy:
         observations of the same leading shape and reset per episode (clock ``k/K = 0``), or
         when the shape changes, or by :meth:`reset`. ``gnn``: ``observations`` ``[..., N,
         obs_size]`` and ``graph``, the interval graph's ``(edge_index, edge_mask)`` ``[..., 2, E]``,
-        ``[..., E]`` (:func:`fxc_env.policies.torch_memory.interval_graph`). A mapping
-        ``{agent: observation}`` (a PettingZoo env's observations) gives ``{agent: action}``, the
-        agents acting as one batch; a ``gru`` refuses one agent's observation alone (its memory
-        is per agent: calling it agent by agent would run one memory through every agent's rows).
-        Dict observations (``obs_format="dict"``: ``neighbours``, ``mask``, ``clock`` [,
-        ``input_limit``]) are read as their flat form, alone or as the values of such a mapping.
+        ``[..., E]`` (:func:`fxc_env.policies.torch_memory.interval_graph`). The parallel env's
+        ``{agent: observation}`` gives ``{agent: action}``, the agents acting as one batch; a ``gru``
+        refuses one agent's observation alone (:mod:`fxc_env.policies.protocol`: its memory is per
+        agent). Dict observations (``obs_format="dict"``) are read as their flat form.
         """
-        if isinstance(observations, Mapping):
-            if "neighbours" in observations:  # one dict observation (obs_format="dict")
-                return self(flat_observation(observations), graph)
-            agents = list(observations)
-            rows = [flat_observation(observations[agent]) for agent in agents]
-            stacked = np.stack(rows) if agents else np.zeros((0,))
-            return dict(zip(agents, self(stacked, graph), strict=True))
+        return call_policy(self, observations, lambda obs: self.act(obs, graph), convert=False)
+
+    def act(self, observations: Any, graph: tuple[Any, Any] | None = None) -> Any:
+        """Actions ``[..., action_size]`` for flat observations ``[..., obs_size]`` (numpy or torch; see :meth:`__call__`)."""
         numpy_in = not isinstance(observations, torch.Tensor)
         x = torch.as_tensor(np.asarray(observations) if numpy_in else observations)
         if x.ndim < 1 or x.shape[-1] != self.obs_size:
             raise ArgumentError(f"observations: expected shape [..., {self.obs_size}], got {tuple(x.shape)}")
-        if self.arch == "gru" and x.ndim == 1:
-            raise ArgumentError(
-                f"observations: a 'gru' policy keeps a memory per agent; pass every agent's observations at "
-                f"once, [N, {self.obs_size}] or a dict agent -> observation, not one agent's ({self.obs_size},)"
-            )
         if self.arch == "gnn" and graph is None:
             raise ArgumentError(
                 "graph: a 'gnn' policy passes messages along the interval graph; call it with "
@@ -177,24 +172,6 @@ def checked_numbers(record: Mapping[str, Any], source: Any) -> tuple[int, int, f
     if "log_std" in record:
         file_tensor(source, "log_std", record["log_std"], (action_size,))
     return obs_size, action_size, bound
-
-
-def flat_observation(observation: Any) -> np.ndarray:
-    """A flat observation ``(..., obs_size)`` from a flat one or a dict one (``obs_format="dict"``).
-
-    The dict's ``neighbours`` ``(..., slots, row)``, ``mask``, ``clock`` and ``input_limit`` (when
-    present) in the flat layout's order (:meth:`fxc_env.config.layout.ObservationLayout.flat`).
-    """
-    if not isinstance(observation, Mapping):
-        return np.asarray(observation)
-    missing = [key for key in ("neighbours", "mask", "clock") if key not in observation]
-    if missing:
-        raise ArgumentError(
-            f"observations: a dict observation needs 'neighbours', 'mask' and 'clock' (obs_format='dict'); "
-            f"missing {missing}"
-        )
-    layout = ObservationLayout(1, 1, limit_feature="input_limit" in observation)
-    return layout.flat(observation)
 
 
 def load_torch_policy(path: str | Path, env: Any = None, *, allow_out_of_domain: bool = False) -> TorchPolicy:

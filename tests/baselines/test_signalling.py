@@ -136,7 +136,9 @@ def test_its_memory_needs_every_agent_at_once_from_the_first_instant():
     engine = ConsensusEngine(config, n_episodes=1)
     engine.reset(np.arange(6.0)[None, :, None], np.zeros((1, 6, 1)))
     obs = engine.observations()
-    with pytest.raises(ArgumentError, match=r"^observation:"):
+    with pytest.raises(
+        ArgumentError, match=r"^observations: SignallingPolicy \(signalling\) acts for every agent at once"
+    ):
         policy(obs[0, 0])  # one agent alone
     engine.step(policy(obs))
     with pytest.raises(ArgumentError, match=r"^observation:"):

@@ -124,11 +124,9 @@ def test_the_policy_refuses_calls_that_break_its_memory_by_name():
     with pytest.raises(ArgumentError, match=r"^observations: .*skipped or repeated"):
         policy(obs[2])
     policy.reset()
-    policy(obs[0][0])  # agent by agent: every agent would run through one memory
-    policy(obs[0][1])  # (at k = 0 each call starts an episode)
-    policy(obs[1][0])
-    with pytest.raises(ArgumentError, match=r"^observations: .*skipped or repeated"):
-        policy(obs[1][1])
+    # Agent by agent (AEC style) every agent would run through one memory: refused at once, naming the policy.
+    with pytest.raises(ArgumentError, match=r"^observations: RegimeGainPolicy from .*agnostic.npz acts for every"):
+        policy(obs[0][0])
 
 
 def test_the_agnostic_file_records_a_training_without_teacher_over_graph_families():

@@ -17,6 +17,7 @@ import zipfile
 import numpy as np
 import pytest
 import torch
+from helpers import SHIPPED_INSIDE as INSIDE
 
 import fxc_env
 from fxc_env import cli
@@ -170,20 +171,6 @@ def test_every_shipped_policy_refuses_an_environment_outside_its_domain_by_name_
     assert actions.shape == (env.unwrapped.config.n_agents, 2) and np.all(np.isfinite(actions))
 
 
-#: Per shipped policy, an environment inside its domain (other than the training one).
-INSIDE = {
-    "generalist": {"scenario": None, "topology": {"family": "path"}, "n_agents": 20},
-    "saturated": {"scenario": "paper_fig1", "schedule": "uniform", "u_max": 100.0},  # a ring of 6, period 3
-    "paper_fig1": {"scenario": "paper_fig1"},
-    "rings": {"scenario": None, "topology": "ring", "n_agents": 20},
-    "rings_gru": {"scenario": None, "topology": "ring", "n_agents": 20, "switching": "random"},  # one graph: no switch
-    "rings_scratch": {"scenario": None, "topology": "ring", "n_agents": 20},
-    "agnostic": {"scenario": None, "topology": "ring", "n_agents": 24},  # a ring size it never met
-    "ppo_rings20": {"scenario": None, **TASKS["rings20-v2"].settings},  # the task it was trained on
-    "diff_rings20": {"scenario": None, **TASKS["rings20-v2"].settings},
-}
-
-
 def test_every_shipped_name_has_its_domain_tests():
     shipped = set(SHIPPED) - {"pretrained"}  # "pretrained" is generalist's older name
     assert set(OUTSIDE) == shipped and set(INSIDE) == shipped
@@ -240,7 +227,9 @@ def test_a_recurrent_policy_in_the_plane_refuses_one_agents_observation_and_acts
     with pytest.warns(UserWarning, match="acting per axis in dim 2"):
         mapped = load_learned_policy("rings_gru", env)
     obs, _ = env.reset(seed=0)
-    message = r"^observations: this policy keeps a memory per agent and axis .* not one agent's \(8,\)"
+    message = (
+        r"^observations: PerAxisPolicy from .*rings_gru.pt acts for every agent at once.* an array \(\.\.\., N, 8\)"
+    )
     for _ in range(5):
         with pytest.raises(ArgumentError, match=message):
             batched(obs["agent_0"])
@@ -260,5 +249,7 @@ def test_a_recurrent_policy_reads_dict_observations_as_the_flat_ones():
         for agent in flat.agents:
             np.testing.assert_array_equal(actions[agent], expected[agent])
         obs_flat, obs_nested = flat.step(expected)[0], nested.step(actions)[0]
-    with pytest.raises(ArgumentError, match=r"^observations: a 'gru' policy keeps a memory per agent"):
+    with pytest.raises(
+        ArgumentError, match=r"^observations: TorchPolicy from .*rings_gru.pt acts for every agent at once"
+    ):
         policies[1](obs_nested["agent_0"])
