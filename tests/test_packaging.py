@@ -39,7 +39,8 @@ def test_the_wheel_installs_fxc_env_as_its_only_top_level_name(wheel):
     tops = {name.split("/")[0] for name in names if not name.split("/")[0].endswith(".dist-info")}
     assert tops == {"fxc_env"}
     for module in (
-        "fxc_env/baselines/benchmark.py",
+        "fxc_env/baselines/harness/benchmark.py",
+        "fxc_env/baselines/laws/linear.py",
         "fxc_env/training/sb3_train.py",
         "fxc_env/training/hyperparams.yml",
     ):

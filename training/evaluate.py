@@ -1,7 +1,7 @@
 """``fxc evaluate``: a learned policy next to the reference on the deadline benchmark.
 
 The suite: the paper's example plus directed ``ring``, ``path`` and ``random`` at N = 20, 20 seeded initial
-states each, at K = 200; tables and plots are the benchmark's (:mod:`fxc_env.baselines.benchmark`).
+states each, at K = 200; tables and plots are the benchmark's (:mod:`fxc_env.baselines.harness.benchmark`).
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import sys
 from dataclasses import replace
 from typing import Any
 
-from fxc_env.baselines.benchmark import add_policy_file_flags, make_out, refuse_unrun_policy, run_benchmark
-from fxc_env.baselines.suite import (
+from fxc_env.baselines.harness.benchmark import add_policy_file_flags, make_out, refuse_unrun_policy, run_benchmark
+from fxc_env.baselines.harness.suite import (
     BenchmarkCase,
     Contender,
     Suite,

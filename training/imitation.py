@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
+from fxc_env.baselines.laws.saturation_aware import SaturationAwarePolicy
 from fxc_env.config import config_of
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.reference import ReferencePolicy

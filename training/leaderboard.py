@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from fxc_env.baselines import registry
-from fxc_env.baselines.benchmark import make_out, run_benchmark
-from fxc_env.baselines.suite import builtin_contenders, learned_contender
+from fxc_env.baselines.harness.benchmark import make_out, run_benchmark
+from fxc_env.baselines.harness.suite import builtin_contenders, learned_contender
 from fxc_env.config.tasks import TASKS, NamedTask, get_task
 from fxc_env.core import statistics
 from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS

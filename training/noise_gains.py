@@ -100,7 +100,7 @@ def start_table(config: Any, start: str) -> np.ndarray:
             raise ArgumentError(f"start: {start} holds no finite ({config.n_intervals}, 2, 2) table")
         return gains
     if start == "deadbeat":
-        from fxc_env.baselines.minimum_time import MinimumTimePolicy
+        from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
 
         return MinimumTimePolicy(config, allow_noise=config.obs_noise > 0).gains.copy()
     if start == "accel":
@@ -199,7 +199,7 @@ def measure(config: Any, policy: Any, seeds: Sequence[int] = tuple(range(20))) -
     """Medians of ``D(T_s)/D(0)`` and energy / E* of ``policy`` on ``seeds``, as the optimality suite scores a law.
 
     The initial states come from ``np.random.default_rng(seed)`` and the noise from
-    ``np.random.default_rng([*seeds, K])``, as in :func:`fxc_env.baselines.jobs.run_job`.
+    ``np.random.default_rng([*seeds, K])``, as in :func:`fxc_env.baselines.harness.jobs.run_job`.
     """
     if not callable(policy):
         raise ArgumentError(f"policy: expected a callable of observations, got {type(policy).__name__}")

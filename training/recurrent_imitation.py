@@ -1,7 +1,7 @@
 """Behaviour cloning (DAgger) of the minimum-time law into a recurrent policy for directed rings.
 
 The task is :mod:`fxc_env.training.rings`'s with ``action_bound = 20`` (the teacher's plans reach 14.2).
-**Teacher:** the minimum-time law (:mod:`fxc_env.baselines.minimum_time`), designed per episode from the drawn
+**Teacher:** the minimum-time law (:mod:`fxc_env.baselines.laws.minimum_time`), designed per episode from the drawn
 ring. **Student:** the ``gru`` actor (:class:`fxc_env.policies.torch_memory.RecurrentActor`); with
 ``gru_input="schedule"`` (the default) the GRU reads ``[mask, t_k/T_s, T_{k+1}/T_s, k/K]`` and the plan is
 linear in the measured row, ``mu_k = A(h_k) [(x_j - x_i)/s_i, T_{k+1} (v_j - v_i)/s_i]``; it is not told N or
@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from fxc_env.baselines.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.families import TopologyFamily

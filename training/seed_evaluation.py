@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.suite import Contender, learned_contender, model_path
+from fxc_env.baselines.harness.suite import Contender, learned_contender, model_path
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.policies.learned import SHIPPED, architecture_of, load_learned_policy
 from fxc_env.policies.policy_files import CHECKED_SETTINGS, read_metadata

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.report import number_text
-from fxc_env.baselines.suite import Contender, Suite
+from fxc_env.baselines.harness.report import number_text
+from fxc_env.baselines.harness.suite import Contender, Suite
 from fxc_env.core import statistics
 
 

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from fxc_env.analysis.video import add_video_arguments
-from fxc_env.baselines.benchmark import add_benchmark_parser, make_out
+from fxc_env.baselines.harness.benchmark import add_benchmark_parser, make_out
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.core.validation import ArgumentError, integer, optional_seed

@@ -389,7 +389,7 @@ def test_output_directory_helper(tmp_path):
 def test_benchmark_of_a_policy_refused_on_every_case_exits_2_naming_it(tmp_path, capsys, monkeypatch):
     from types import SimpleNamespace
 
-    import fxc_env.baselines.benchmark as benchmark
+    import fxc_env.baselines.harness.benchmark as benchmark
 
     def every_case_refused(suite, contenders, out, **kwargs):
         results = [

@@ -13,9 +13,9 @@ import torch
 
 import fxc_env
 from fxc_env import make_config
-from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
-from fxc_env.baselines.minimum_time import MinimumTimePolicy
-from fxc_env.baselines.policy import HoldPolicy
+from fxc_env.baselines.laws.leader_follower import LeaderFollowerPolicy
+from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.laws.policy import HoldPolicy
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 from fxc_env.envs.torch_env import ConsensusTorchEnv

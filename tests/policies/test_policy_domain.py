@@ -20,8 +20,8 @@ import torch
 
 import fxc_env
 from fxc_env import cli
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import BenchmarkCase, learned_contender
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, learned_contender
 from fxc_env.config import make_config
 from fxc_env.config.tasks import TASKS
 from fxc_env.core.families import TopologyFamily

@@ -126,7 +126,7 @@ def test_environment_flags_carry_the_agent_model_into_the_case_and_refuse_format
 
 
 def test_a_policy_named_twice_in_policies_is_refused_before_anything_runs(tmp_path, capsys, monkeypatch):
-    import fxc_env.baselines.benchmark as benchmark
+    import fxc_env.baselines.harness.benchmark as benchmark
 
     def no_run(*args, **kwargs):
         raise AssertionError("the benchmark ran before the arguments were checked")
@@ -161,7 +161,7 @@ def test_the_notes_name_the_learned_policys_format(tmp_path, capsys):
 def test_a_task_that_fixes_its_schedule_scores_every_contender_on_it():
     """saturated-v1 is the uniform schedule: the reference is scored there, not on its own paper schedule
     (which put 0.358 in the table for an environment the task is not); a task without one leaves each its own."""
-    from fxc_env.baselines.suite import builtin_contenders
+    from fxc_env.baselines.harness.suite import builtin_contenders
     from fxc_env.config.tasks import TASKS
     from fxc_env.training.evaluate import on_task_schedule, task_suite
 

@@ -9,7 +9,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecMonitor
 
 from fxc_env import ConsensusVecEnv
-from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
+from fxc_env.baselines.laws.saturation_aware import SaturationAwarePolicy
 from fxc_env.config import config_of
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.reference import ReferencePolicy

@@ -22,8 +22,8 @@ import yaml
 
 import fxc_env
 from fxc_env import cli
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import builtin_contenders, learned_contender
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import builtin_contenders, learned_contender
 from fxc_env.config.tasks import TASKS
 from fxc_env.policies.learned import load_learned_policy, pretrained_path
 from fxc_env.policies.torch_policy import TorchPolicy

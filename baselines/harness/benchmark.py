@@ -1,9 +1,9 @@
 """``fxc benchmark``: every policy on the same cases, scored at the deadline ``T_s``.
 
-Each job (:mod:`fxc_env.baselines.jobs`) runs all seeded initial states of the suite as one batch on a
+Each job (:mod:`fxc_env.baselines.harness.jobs`) runs all seeded initial states of the suite as one batch on a
 :class:`ConsensusEngine`; jobs are spread over the machine's cores (one BLAS thread each) or, with ``--ray``,
-over a Ray cluster (:mod:`fxc_env.baselines.ray_jobs`); :mod:`fxc_env.baselines.report` and
-:mod:`fxc_env.baselines.figures` are built from the results. ``--quick`` runs a smaller suite.
+over a Ray cluster (:mod:`fxc_env.baselines.harness.ray_jobs`); :mod:`fxc_env.baselines.harness.report` and
+:mod:`fxc_env.baselines.harness.figures` are built from the results. ``--quick`` runs a smaller suite.
 """
 
 from __future__ import annotations
@@ -18,11 +18,10 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from fxc_env.baselines import dropout, figures, report
-from fxc_env.baselines.jobs import JobResult, make_jobs, run_job
-from fxc_env.baselines.registry import LAWS
-from fxc_env.baselines.resolution import with_resolution
-from fxc_env.baselines.suite import (
+from fxc_env.baselines.harness import dropout, figures, report
+from fxc_env.baselines.harness.jobs import JobResult, make_jobs, run_job
+from fxc_env.baselines.harness.resolution import with_resolution
+from fxc_env.baselines.harness.suite import (
     Contender,
     Suite,
     builtin_contenders,
@@ -35,6 +34,7 @@ from fxc_env.baselines.suite import (
     quick_suite,
     realism_suite,
 )
+from fxc_env.baselines.registry import LAWS
 from fxc_env.core.validation import MAX_INTERVALS, ArgumentError, integer
 from fxc_env.utils.cli_checks import output_directory
 from fxc_env.utils.threads import single_threaded_children
@@ -62,7 +62,7 @@ def run_suite(
     bar = tqdm(total=len(jobs), desc=f"fxc benchmark ({suite.name})", unit="job", disable=not progress)
     with bar:
         if ray:
-            from fxc_env.baselines.ray_jobs import run_jobs_on_ray
+            from fxc_env.baselines.harness.ray_jobs import run_jobs_on_ray
 
             results = run_jobs_on_ray(longest_first, address=address, num_cpus=workers, on_done=bar.update)
             for result, job in zip(results, longest_first, strict=True):

@@ -1,8 +1,8 @@
 """Numbers carried by small motions: what every law that signals through its motion shares
-(:mod:`fxc_env.baselines.signalling`, :mod:`fxc_env.baselines.graph_agnostic`).
+(:mod:`fxc_env.baselines.laws.signalling`, :mod:`fxc_env.baselines.laws.graph_agnostic`).
 
 Arrays end in ``(2, dim)``: position and velocity parts. The derivation is
-:mod:`fxc_env.baselines.signalling`'s docstring (steps 1 to 4).
+:mod:`fxc_env.baselines.laws.signalling`'s docstring (steps 1 to 4).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from fxc_env.baselines.policy import LawPolicy, refuse_lost_links
+from fxc_env.baselines.laws.policy import LawPolicy, refuse_lost_links
 from fxc_env.core import validation
 from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.graphs import Topology

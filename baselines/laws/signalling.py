@@ -9,7 +9,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines.motion_signals import (
+from fxc_env.baselines.laws.motion_signals import (
     AMPLITUDE_RANGE,
     SignalPolicy,
     advance,
@@ -27,7 +27,7 @@ from fxc_env.baselines.motion_signals import (
     steer_plan,
     union_graph,
 )
-from fxc_env.baselines.policy import lost_link_guarantee, rows_read
+from fxc_env.baselines.laws.policy import lost_link_guarantee, rows_read
 from fxc_env.config import config_of
 from fxc_env.core.optimality import root_set
 from fxc_env.core.validation import ArgumentError
@@ -40,7 +40,7 @@ DEFAULT_AMPLITUDE = 1e-6
 class SignallingPolicy(SignalPolicy):
     """The signalling law on the local observation, raw rows, ``plan`` or ``accel`` actions.
 
-    It has memory, so it is called as :class:`~fxc_env.baselines.motion_signals.SignalPolicy` says; agent i's
+    It has memory, so it is called as :class:`~fxc_env.baselines.laws.motion_signals.SignalPolicy` says; agent i's
     action depends only on its own observations and memory.
 
     Args:

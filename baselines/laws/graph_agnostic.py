@@ -9,7 +9,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines.motion_signals import (
+from fxc_env.baselines.laws.motion_signals import (
     SignalPolicy,
     advance,
     cycling_outside_roots,
@@ -23,7 +23,7 @@ from fxc_env.baselines.motion_signals import (
     signal_plan,
     steer_plan,
 )
-from fxc_env.baselines.policy import lost_link_guarantee, rows_read
+from fxc_env.baselines.laws.policy import lost_link_guarantee, rows_read
 from fxc_env.config import config_of
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
@@ -208,7 +208,7 @@ def recurrence_limit(
 class GraphAgnosticPolicy(SignalPolicy):
     """The graph-agnostic law on the local observation, raw rows, ``plan`` or ``accel`` actions.
 
-    It has memory, so it is called as :class:`~fxc_env.baselines.motion_signals.SignalPolicy` says; agent i's
+    It has memory, so it is called as :class:`~fxc_env.baselines.laws.motion_signals.SignalPolicy` says; agent i's
     action depends only on its own observations and memory.
 
     Args:
@@ -217,7 +217,7 @@ class GraphAgnosticPolicy(SignalPolicy):
         max_agents: an upper bound on N, the law's one prior (None: the environment's N). It sets the
             listening window (:func:`listening_values`; ``2 max_agents + 2`` values where the register parts are dependent).
         amplitude: the signalling amplitude ε (dimensionless, ``1e-12 <= ε <= 1``,
-            :data:`~fxc_env.baselines.motion_signals.AMPLITUDE_RANGE`; None: :data:`DEFAULT_AMPLITUDE`).
+            :data:`~fxc_env.baselines.laws.motion_signals.AMPLITUDE_RANGE`; None: :data:`DEFAULT_AMPLITUDE`).
         rank_tolerance: the rank test's relative tolerance (``1e-16 <= tol <= 1e-6``, :data:`RANK_TOLERANCE_RANGE`;
             None: :data:`DEFAULT_RANK_TOLERANCE`).
         announce_at: the instant ``k_a`` of the pre-steer announcement, in ``[2, L - 4]``, or 0 for none (None:

@@ -9,9 +9,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines import design
-from fxc_env.baselines.finite_time import is_undirected
-from fxc_env.baselines.policy import LinearRowPolicy
+from fxc_env.baselines.laws import design
+from fxc_env.baselines.laws.finite_time import is_undirected
+from fxc_env.baselines.laws.policy import LinearRowPolicy
 from fxc_env.core import validation
 
 #: Largest ratio of the sampling period to the fastest closed-loop time constant at the cut-off.

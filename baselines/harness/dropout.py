@@ -16,13 +16,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from fxc_env.analysis.plots import new_figure
-from fxc_env.baselines.figures import DISPLAY_FLOOR, optimality_style
+from fxc_env.baselines.harness.figures import DISPLAY_FLOOR, optimality_style
+from fxc_env.baselines.harness.report import EXACT_THRESHOLD, _table, exact_share, number_text, quantiles
+from fxc_env.baselines.harness.suite import BenchmarkCase, Contender, Suite, builtin_contenders, optimality_variants
 from fxc_env.baselines.registry import LAWS
-from fxc_env.baselines.report import EXACT_THRESHOLD, _table, exact_share, number_text, quantiles
-from fxc_env.baselines.suite import BenchmarkCase, Contender, Suite, builtin_contenders, optimality_variants
 
 if TYPE_CHECKING:
-    from fxc_env.baselines.jobs import JobResult
+    from fxc_env.baselines.harness.jobs import JobResult
 
 #: Probabilities that a link is lost on an interval (``link_dropout``), one case per level and graph.
 DROPOUT_LEVELS = (1e-4, 1e-3, 1e-2, 1e-1)

@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from fxc_env.baselines.resolution import resolution_section
+from fxc_env.baselines.harness.resolution import resolution_section
 from fxc_env.core.metrics import EpisodeMetrics
 
 if TYPE_CHECKING:
-    from fxc_env.baselines.jobs import JobResult
-    from fxc_env.baselines.suite import Contender, Suite
+    from fxc_env.baselines.harness.jobs import JobResult
+    from fxc_env.baselines.harness.suite import Contender, Suite
 
 #: Deadline error below which an episode counts as having met the deadline.
 MET_THRESHOLD = 1e-6

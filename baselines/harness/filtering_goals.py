@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from fxc_env.baselines.filtering import FilteringPolicy
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, builtin_contenders
+from fxc_env.baselines.laws.filtering import FilteringPolicy
 
 
 def goal_table(sigma: float = 1e-3, seeds: tuple[int, ...] = tuple(range(20))) -> str:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from fxc_env.baselines.jobs import Job, JobResult, run_job
+from fxc_env.baselines.harness.jobs import Job, JobResult, run_job
 from fxc_env.utils.cluster import ray_session
 from fxc_env.utils.threads import single_thread_environment
 

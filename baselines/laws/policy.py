@@ -4,7 +4,7 @@ A baseline is built from an environment (parallel, AEC, VecEnv) or an :class:`~f
 observations ``(..., obs_size)`` to actions ``(..., 2 dim)`` in one vectorised call. It reads only the
 observation (its in-neighbours' rows ``[x_j - x_i, v_j - v_i]`` at ``t_k``, their mask, the clock) and the
 environment's settings; gains the papers choose from the graph are chosen once, offline
-(:mod:`fxc_env.baselines.design`). The classical laws act in ``accel`` mode with a zero-order hold: the
+(:mod:`fxc_env.baselines.laws.design`). The classical laws act in ``accel`` mode with a zero-order hold: the
 action is ``(u, u)``.
 """
 

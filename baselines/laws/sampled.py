@@ -1,14 +1,14 @@
 """Sampled-data linear consensus (Cao & Ren 2010): the linear law held over a uniform period.
 
-More: docs: optimality.md, "fxc_env.baselines.sampled".
+More: docs: optimality.md, "fxc_env.baselines.laws.sampled".
 """
 
 from __future__ import annotations
 
 from typing import Any, ClassVar
 
-from fxc_env.baselines import design
-from fxc_env.baselines.linear import LinearConsensusPolicy
+from fxc_env.baselines.laws import design
+from fxc_env.baselines.laws.linear import LinearConsensusPolicy
 from fxc_env.core.validation import ArgumentError
 
 
@@ -19,7 +19,7 @@ class SampledLinearPolicy(LinearConsensusPolicy):
         env: an fxc_env environment or config, ``action_mode="accel"``; its schedule's longest
             interval is the sampling period h the design uses (``T_s / K`` when uniform).
         gamma, gain: explicit gains (``γ`` in s, ``g`` in 1/s², each ``0 < value <= 1e12``,
-            :data:`~fxc_env.baselines.policy.MAX_GAIN`); both None (the default) designs both for h. A ``gain``
+            :data:`~fxc_env.baselines.laws.policy.MAX_GAIN`); both None (the default) designs both for h. A ``gain``
             without ``gamma`` is refused by name: the design chooses the gain too, so it would be ignored.
     """
 

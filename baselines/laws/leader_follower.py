@@ -9,9 +9,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines.minimum_time import refuse_what_a_graph_design_cannot_honour
-from fxc_env.baselines.motion_signals import plan_action
-from fxc_env.baselines.policy import LawPolicy, lost_link_guarantee
+from fxc_env.baselines.laws.minimum_time import refuse_what_a_graph_design_cannot_honour
+from fxc_env.baselines.laws.motion_signals import plan_action
+from fxc_env.baselines.laws.policy import LawPolicy, lost_link_guarantee
 from fxc_env.config import config_of
 from fxc_env.core.graphs import Topology
 from fxc_env.core.optimality import radius_centre, reach_intervals

@@ -1,6 +1,6 @@
 """Finite-time second-order consensus (Wang & Hong 2008 family).
 
-More: docs: optimality.md, "fxc_env.baselines.finite_time".
+More: docs: optimality.md, "fxc_env.baselines.laws.finite_time".
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines.policy import HoldPolicy, law_gain
+from fxc_env.baselines.laws.policy import HoldPolicy, law_gain
 from fxc_env.core import validation
 
 
@@ -34,7 +34,7 @@ class FiniteTimePolicy(HoldPolicy):
         env: an fxc_env environment or config (``action_mode="accel"``, ``obs_mode="raw"``).
         alpha: a1, ``0 < a1 < 1`` (the theorem's range: a1 = 1 is the linear law, which converges only
             asymptotically); a2 = 2 a1 / (1 + a1).
-        gain: g in 1/s², ``0 < g <= 1e12`` (:data:`~fxc_env.baselines.policy.MAX_GAIN`).
+        gain: g in 1/s², ``0 < g <= 1e12`` (:data:`~fxc_env.baselines.laws.policy.MAX_GAIN`).
     """
 
     NAME: ClassVar[str] = "finite_time"

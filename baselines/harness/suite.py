@@ -405,7 +405,7 @@ OPT_IN = {
 
 def optimality_variants(law: Any, dropout: bool = False) -> list[tuple[str, str, str]]:
     """``law.variants()`` but those opted in under ``link_dropout`` (with ``dropout``: only those), which the
-    optimality suite has no case for (:mod:`fxc_env.baselines.dropout` runs them)."""
+    optimality suite has no case for (:mod:`fxc_env.baselines.harness.dropout` runs them)."""
     return [v for v in law.variants() if (OPT_IN.get(v[1], ("", {}, ""))[2] == "link_dropout") == dropout]
 
 

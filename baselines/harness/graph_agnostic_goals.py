@@ -1,6 +1,6 @@
 """The graph-agnostic law's goal table (docs: optimality.md, "Exact consensus without knowing the graph").
 
-``python -c "from fxc_env.baselines.graph_agnostic_goals import goal_table; print(goal_table())"`` prints it:
+``python -c "from fxc_env.baselines.harness.graph_agnostic_goals import goal_table; print(goal_table())"`` prints it:
 uniform K = 200, T_s = 20 s, raw plans, medians over 20 seeded initial states, ``max_agents = N`` and ``2N``.
 """
 
@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
+from fxc_env.baselines.laws.graph_agnostic import GraphAgnosticPolicy
 from fxc_env.core.validation import ArgumentError
 
 __all__ = ["goal_row", "goal_table", "strongly_connected_random"]

@@ -1,6 +1,6 @@
 """A saturation-aware law: the paper's plan where it fits under the input limit, a held linear law where it does not.
 
-More: docs: optimality.md, "fxc_env.baselines.saturation_aware".
+More: docs: optimality.md, "fxc_env.baselines.laws.saturation_aware".
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines.policy import HoldPolicy, law_gain
+from fxc_env.baselines.laws.policy import HoldPolicy, law_gain
 from fxc_env.config import config_of
 from fxc_env.core.dynamics import input_from_plan
 from fxc_env.core.validation import ArgumentError
@@ -29,7 +29,7 @@ class SaturationAwarePolicy(HoldPolicy):
     Args:
         env: an fxc_env environment or config (``accel`` actions on raw rows, or ``plan`` on normalized rows).
         gain, gamma: the held linear law's ``g`` (1/s²) and ``γ`` (s), each ``0 < value <= 1e12``
-            (:data:`~fxc_env.baselines.policy.MAX_GAIN`).
+            (:data:`~fxc_env.baselines.laws.policy.MAX_GAIN`).
     """
 
     NAME: ClassVar[str] = "saturation_aware"

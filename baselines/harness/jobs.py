@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fxc_env.baselines.suite import BenchmarkCase, Contender, Suite, contender_config, load_policy
+from fxc_env.baselines.harness.suite import BenchmarkCase, Contender, Suite, contender_config, load_policy
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 

@@ -3,7 +3,7 @@
 The floor (:func:`fxc_env.core.floors.resolution_floor`) is the worst ``D(T_s)`` over the initial states
 whose every reading is 0 at quantum ``q``: a law that applies no input while it reads only zeros lets
 them coast (docs: optimality.md, "The floors, derived"). :func:`resolution_section` puts each case's floor,
-its best law and the ratio in ``fxc benchmark``'s report; ``python -m fxc_env.baselines.resolution`` runs
+its best law and the ratio in ``fxc benchmark``'s report; ``python -m fxc_env.baselines.harness.resolution`` runs
 every registered law on :func:`resolution_suite`, prints that table and writes the frontier figure.
 """
 
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.suite import BenchmarkCase, Suite
+from fxc_env.baselines.harness.suite import BenchmarkCase, Suite
 
 __all__ = [
     "FRONTIER_CASES",
@@ -160,11 +160,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
-    from fxc_env.baselines.jobs import make_jobs, run_job
-    from fxc_env.baselines.suite import builtin_contenders
+    from fxc_env.baselines.harness.jobs import make_jobs, run_job
+    from fxc_env.baselines.harness.suite import builtin_contenders
     from fxc_env.utils.threads import single_threaded_children
 
-    parser = argparse.ArgumentParser(prog="python -m fxc_env.baselines.resolution", description=main.__doc__)
+    parser = argparse.ArgumentParser(prog="python -m fxc_env.baselines.harness.resolution", description=main.__doc__)
     parser.add_argument("--seeds", type=int, default=5, help="seeded initial states per case")
     parser.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     parser.add_argument("--out", default="out/resolution_frontier.png", help="the figure's path")

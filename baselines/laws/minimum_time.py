@@ -14,8 +14,8 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from fxc_env.baselines.motion_signals import plan_action
-from fxc_env.baselines.policy import LawPolicy, lost_link_guarantee, refuse_lost_links, rows_read
+from fxc_env.baselines.laws.motion_signals import plan_action
+from fxc_env.baselines.laws.policy import LawPolicy, lost_link_guarantee, refuse_lost_links, rows_read
 from fxc_env.config import config_of
 from fxc_env.core.graphs import DENSE_LIMIT, Topology
 from fxc_env.core.validation import ArgumentError

@@ -1,6 +1,6 @@
 """Linear second-order consensus (Ren & Atkins 2007), with Yu, Chen & Cao's exact gain test.
 
-More: docs: optimality.md, "fxc_env.baselines.linear".
+More: docs: optimality.md, "fxc_env.baselines.laws.linear".
 """
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines import design
-from fxc_env.baselines.policy import LinearRowPolicy, law_gain
+from fxc_env.baselines.laws import design
+from fxc_env.baselines.laws.policy import LinearRowPolicy, law_gain
 
 
 class LinearConsensusPolicy(LinearRowPolicy):
@@ -19,7 +19,7 @@ class LinearConsensusPolicy(LinearRowPolicy):
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` (``action_mode="accel"``,
             ``obs_mode`` ``"raw"`` or ``"normalized"``).
-        gamma: velocity-to-position weight in seconds, ``0 < γ <= 1e12`` (:data:`~fxc_env.baselines.policy.MAX_GAIN`);
+        gamma: velocity-to-position weight in seconds, ``0 < γ <= 1e12`` (:data:`~fxc_env.baselines.laws.policy.MAX_GAIN`);
             None designs it from the graph.
         gain: overall gain ``g`` in 1/s^2, ``0 < g <= 1e12``.
     """

@@ -11,11 +11,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from fxc_env.analysis.plots import new_figure, save_figure
-from fxc_env.baselines.report import quantiles
+from fxc_env.baselines.harness.report import quantiles
 
 if TYPE_CHECKING:
-    from fxc_env.baselines.jobs import JobResult
-    from fxc_env.baselines.suite import Contender, Suite
+    from fxc_env.baselines.harness.jobs import JobResult
+    from fxc_env.baselines.harness.suite import Contender, Suite
 
 #: Values below this (exact agreement, round-off) are drawn at it on log axes.
 DISPLAY_FLOOR = 1e-18

@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy.sparse import csgraph
 
-from fxc_env.baselines.motion_signals import (
+from fxc_env.baselines.laws.motion_signals import (
     SignalPolicy,
     advance,
     deviation_of,
@@ -22,7 +22,7 @@ from fxc_env.baselines.motion_signals import (
     signal_amplitude,
     signal_plan,
 )
-from fxc_env.baselines.policy import lost_link_guarantee, rows_read
+from fxc_env.baselines.laws.policy import lost_link_guarantee, rows_read
 from fxc_env.config import config_of, make_config
 from fxc_env.core.floors import input_floor
 from fxc_env.core.validation import ArgumentError
@@ -108,14 +108,14 @@ def least_peak_inputs(need_x: np.ndarray, need_v: np.ndarray, times: np.ndarray,
 class BoundedSteerPolicy(SignalPolicy):
     """The gathering law with the least-peak steer, on raw rows, ``plan`` or ``accel`` actions.
 
-    It has memory, so it is called as :class:`~fxc_env.baselines.motion_signals.SignalPolicy` says; agent i's
+    It has memory, so it is called as :class:`~fxc_env.baselines.laws.motion_signals.SignalPolicy` says; agent i's
     action depends only on its own rows, clock and memory, and the offline schedule of the known graph.
 
     Args:
         env: an fxc_env environment or an :class:`~fxc_env.EnvConfig` on a fixed strongly connected digraph with
             ideal double-integrator agents and ``obs_mode="raw"`` (``u_max`` allowed: that is its purpose).
         amplitude: the signalling amplitude ε (dimensionless, ``1e-12 <= ε <= 1``,
-            :data:`~fxc_env.baselines.motion_signals.AMPLITUDE_RANGE`; None: :data:`DEFAULT_AMPLITUDE`). Under
+            :data:`~fxc_env.baselines.laws.motion_signals.AMPLITUDE_RANGE`; None: :data:`DEFAULT_AMPLITUDE`). Under
             ``u_max`` the gathering's own inputs grow like ε (:meth:`gathering_peak`): :meth:`guarantee` says
             whether they stay within the limit for initial states of the configuration's ranges.
         allow_dropout: run under ``link_dropout`` too (off by default: :attr:`LOST_LINK` says what a lost link

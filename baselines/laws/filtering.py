@@ -21,12 +21,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fxc_env.baselines.minimum_time import (
+from fxc_env.baselines.laws.minimum_time import (
     design_eigenvalues,
     leja_factors,
     refuse_what_a_graph_design_cannot_honour,
 )
-from fxc_env.baselines.motion_signals import SignalPolicy, advance, refuse_unless_exact_raw_rows, steer_plan
+from fxc_env.baselines.laws.motion_signals import SignalPolicy, advance, refuse_unless_exact_raw_rows, steer_plan
 from fxc_env.config import config_of
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
@@ -92,7 +92,7 @@ class FilteringPolicy(SignalPolicy):
     """The filtered dead-beat law on the local observation: raw rows, ``plan`` or ``accel`` actions.
 
     It has memory (its own plans and the block's running sums), so it is called as
-    :class:`~fxc_env.baselines.motion_signals.SignalPolicy` says; agent i's action depends only on its own rows,
+    :class:`~fxc_env.baselines.laws.motion_signals.SignalPolicy` says; agent i's action depends only on its own rows,
     the clock and its memory. Its one design input is the spectrum of ``(D + I)⁻¹ L``, which no relabelling of
     the agents changes.
 

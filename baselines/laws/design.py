@@ -1,6 +1,6 @@
 """Offline gain design from the graph: Laplacian spectra, the gain tests, and the ZOH map.
 
-More: docs: optimality.md, "fxc_env.baselines.design".
+More: docs: optimality.md, "fxc_env.baselines.laws.design".
 """
 
 from __future__ import annotations
