@@ -38,7 +38,7 @@ OLD_TO_NEW = {
     "fxc_env.torch_policy": ["fxc_env.policies.torch_policy"],
     "fxc_env.torchrl_env": ["fxc_env.envs.torch_env", "fxc_env.policies.torchrl_reference"],
     "fxc_env.vec_env": ["fxc_env.envs.vec_env"],
-    "fxc_env.training.train": ["fxc_env.training.sb3_train"],
+    "fxc_env.training.train": ["fxc_env.training.backends.sb3_train"],
 }
 
 #: Names the previous release's README imported from the old paths.

@@ -41,7 +41,9 @@ def test_the_wheel_installs_fxc_env_as_its_only_top_level_name(wheel):
     for module in (
         "fxc_env/baselines/harness/benchmark.py",
         "fxc_env/baselines/laws/linear.py",
-        "fxc_env/training/sb3_train.py",
+        "fxc_env/training/backends/sb3_train.py",
+        "fxc_env/training/evaluation/statistics.py",
+        "fxc_env/training/recipes/rings.py",
         "fxc_env/training/hyperparams.yml",
     ):
         assert module in names

@@ -98,7 +98,7 @@ class RunDir:
 
         With ``args``, a resumed run must keep ``config.json``'s ``backend``, ``scenario`` and ``critic`` and
         reach beyond the checkpoint's timesteps (what the checkpoint holds is checked as the back end reads it:
-        :mod:`fxc_env.training.checkpoint_checks`); an RLlib checkpoint is refused unless ``args.trust_policy_file``.
+        :mod:`fxc_env.training.backends.checkpoint_checks`); an RLlib checkpoint is refused unless ``args.trust_policy_file``.
         """
         if not resume:
             return None

@@ -116,7 +116,7 @@ def test_residual_is_refused_where_it_cannot_be_honoured() -> None:
 
 def test_ppo_can_start_as_the_reference_in_residual_mode() -> None:
     """``actor_out_gain: 0`` starts the actor's output at exactly zero: the untrained policy is eq. (11)."""
-    from fxc_env.training.torch_ppo import ActorCritic, PPOSettings
+    from fxc_env.training.backends.torch_ppo import ActorCritic, PPOSettings
 
     config = make_config(None, action_mode="residual", **RING)
     settings = PPOSettings.from_mapping({"actor_out_gain": 0.0}, config)

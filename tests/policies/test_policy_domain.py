@@ -29,7 +29,7 @@ from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import OutOfDomainWarning, check_domain, domain_differences, training_domain
 from fxc_env.policies.learned import SHIPPED, load_learned_policy, pretrained_path
 from fxc_env.policies.policy_files import METADATA_MEMBER
-from fxc_env.training.rings import task_config
+from fxc_env.training.recipes.rings import task_config
 
 #: The environment each shipped policy was trained on (fxc_env/pretrained/README.md).
 TRAINED = {

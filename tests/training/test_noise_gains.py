@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from fxc_env.core.validation import ArgumentError
-from fxc_env.training import noise_gains
+from fxc_env.training.recipes import noise_gains
 
 torch = pytest.importorskip("torch")
 

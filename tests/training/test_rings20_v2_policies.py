@@ -27,7 +27,7 @@ from fxc_env.baselines.harness.suite import builtin_contenders, learned_contende
 from fxc_env.config.tasks import TASKS
 from fxc_env.policies.learned import load_learned_policy, pretrained_path
 from fxc_env.policies.torch_policy import TorchPolicy
-from fxc_env.training.evaluate import task_suite
+from fxc_env.training.evaluation.evaluate import task_suite
 
 ROOT = Path(__file__).resolve().parents[2]
 TASK = TASKS["rings20-v2"]

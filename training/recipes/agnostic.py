@@ -1,6 +1,6 @@
 """Train the shipped ``agnostic`` policy: gain schedules for every graph, learned without being told the graph.
 
-More: docs: training.md, "fxc_env.training.agnostic".
+More: docs: training.md, "fxc_env.training.recipes.agnostic".
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from fxc_env.policies.interval_gains import load_interval_gains
 from fxc_env.policies.policy_files import training_settings
 from fxc_env.policies.reference import ReferencePolicy
 from fxc_env.policies.regime_gains import RegimeGainPolicy
-from fxc_env.training.rings import TASK, comparison, physical_map, run_episodes, task_config
-from fxc_env.training.rings_scratch import factor_table, minimise
+from fxc_env.training.recipes.rings import TASK, comparison, physical_map, run_episodes, task_config
+from fxc_env.training.recipes.rings_scratch import factor_table, minimise
 
 #: Training episodes are drawn from ``np.random.default_rng(TRAINING_SEED + seed)``; evaluation's from seeds 0 ...
 TRAINING_SEED = 3_000
@@ -138,7 +138,7 @@ def draw_cases(cases: Sequence[tuple[dict[str, Any], int, int]], seed: int) -> d
 def log_errors(config: EnvConfig, tables: tuple[Any, Any], batch: dict[str, Any]) -> Any:
     """``log D(T_s)/D(0)`` ``(B,)`` of the two tables through the exact interval map, interval k on its own graph.
 
-    :func:`fxc_env.training.rings_scratch.log_errors` with ``Ŵ`` per episode and interval, agent i playing
+    :func:`fxc_env.training.recipes.rings_scratch.log_errors` with ``Ŵ`` per episode and interval, agent i playing
     ``tables[0]`` (fixed) or ``tables[1]`` (switching) as ``batch["fixed"]`` says, padded agents masked out.
     """
     import torch
@@ -334,7 +334,7 @@ def evaluate_rings(policy: RegimeGainPolicy, sizes: Sequence[int], seeds: Sequen
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = FlagParser(prog="python -m fxc_env.training.agnostic", description=__doc__.splitlines()[0])
+    parser = FlagParser(prog="python -m fxc_env.training.recipes.agnostic", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=None, help="where to save the policy (.npz)")
     parser.add_argument("--quick", action="store_true", help="train for seconds (three small cases, one L-BFGS step)")
     parser.add_argument("--steps", type=int, default=None, help="L-BFGS steps of 20 iterations (default 20)")
@@ -361,7 +361,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             policy, record = train(steps, args.seed, args.quick, args.init, progress=True)
         except ArgumentError as exc:
             parser.error(str(exc))
-        policy.header["training"]["command"] = "python -m fxc_env.training.agnostic " + " ".join(
+        policy.header["training"]["command"] = "python -m fxc_env.training.recipes.agnostic " + " ".join(
             sys.argv[1:] if argv is None else argv
         )
         policy.header["training"]["training_seed"] = args.seed

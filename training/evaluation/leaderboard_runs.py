@@ -21,8 +21,8 @@ import numpy as np
 from fxc_env.config import make_config
 from fxc_env.config.tasks import NamedTask
 from fxc_env.engine import ConsensusEngine
-from fxc_env.training.evaluate import scored_settings
-from fxc_env.training.leaderboard_files import result_record
+from fxc_env.training.evaluation.evaluate import scored_settings
+from fxc_env.training.evaluation.leaderboard_files import result_record
 
 #: BenchMARL's algorithms in the table: (algorithm config, actor model). MADDPG is the deterministic one.
 ALGORITHMS = {

@@ -219,7 +219,7 @@ def measure(config: Any, policy: Any, seeds: Sequence[int] = tuple(range(20))) -
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = FlagParser(prog="python -m fxc_env.training.noise_gains", description=__doc__.splitlines()[0])
+    parser = FlagParser(prog="python -m fxc_env.training.recipes.noise_gains", description=__doc__.splitlines()[0])
     parser.add_argument("--sigma", type=float, default=1e-3, help="obs_noise (m, m/s)")
     parser.add_argument("--cap", type=float, default=1e3, help="energy budget, in units of E[E*]")
     parser.add_argument(

@@ -26,9 +26,9 @@ from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.config.scenarios import scenario_preset
 from fxc_env.config.tasks import TASKS, NamedTask, get_task
 from fxc_env.core.models import MODEL_PARAMETERS
-from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
-from fxc_env.training import seed_evaluation
+from fxc_env.training.evaluation import seed_evaluation
+from fxc_env.training.evaluation.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
 from fxc_env.utils.cli_checks import budgets as parse_budgets
 from fxc_env.utils.cli_checks import output_directory
 

@@ -1,6 +1,6 @@
 """``fxc train --backend torch``: a lean PPO loop on the batched engine, on a torch device.
 
-More: docs: training.md, "fxc_env.training.torch_ppo".
+More: docs: training.md, "fxc_env.training.backends.torch_ppo".
 """
 
 from __future__ import annotations
@@ -20,8 +20,7 @@ from fxc_env.engine import ConsensusEngine
 from fxc_env.engine.graph_tensors import edge_capacity
 from fxc_env.policies.torch_memory import interval_graph
 from fxc_env.training.args import TrainArgs, env_label
-from fxc_env.training.settings import PPOSettings
-from fxc_env.training.torch_common import (  # noqa: F401
+from fxc_env.training.backends.torch_common import (  # noqa: F401
     ActorCritic,
     TrainerFiles,
     adam,
@@ -31,6 +30,7 @@ from fxc_env.training.torch_common import (  # noqa: F401
     prepare,
     run_config,
 )
+from fxc_env.training.settings import PPOSettings
 
 #: Columns of ``progress.csv`` (SB3's names where they mean the same, so one curve plotter serves all).
 PROGRESS_COLUMNS = (

@@ -1,6 +1,6 @@
 """Train the shipped ``rings_scratch`` policy: a gain schedule for directed rings of 20, learned from scratch.
 
-More: docs: training.md, "fxc_env.training.rings_scratch".
+More: docs: training.md, "fxc_env.training.recipes.rings_scratch".
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum
 from fxc_env.policies.policy_files import training_settings
-from fxc_env.training.rings import EVALUATION_SEED, TASK, evaluate, physical_map, spectrum_matrix, task_config
+from fxc_env.training.recipes.rings import EVALUATION_SEED, TASK, evaluate, physical_map, spectrum_matrix, task_config
 
 #: Training episodes are drawn from ``np.random.default_rng(TRAINING_SEED + seed)``; the evaluation's from seeds 0 ...
 TRAINING_SEED = 2_000
@@ -34,7 +34,7 @@ def factor_table(config: Any, q: Any) -> Any:
     """The ``(K, 2, 2)`` table in normalized units (torch float64) of the factors ``q`` ``(ceil(K / 2), 2)``.
 
     Pairs as in the module; an odd K's last interval is the real factor ``G = a P``; normalized units are
-    the inverse of :func:`fxc_env.training.rings.physical_map`.
+    the inverse of :func:`fxc_env.training.recipes.rings.physical_map`.
     """
     import torch
 
@@ -57,7 +57,7 @@ def factor_table(config: Any, q: Any) -> Any:
 
 
 def log_errors(config: Any, gains: Any, x0: np.ndarray, v0: np.ndarray, w_hat: np.ndarray) -> Any:
-    """``log D(T_s)/D(0)`` ``(B,)`` of the table ``gains``, as :func:`fxc_env.training.rings.episode_log_errors`, in any range.
+    """``log D(T_s)/D(0)`` ``(B,)`` of the table ``gains``, as :func:`fxc_env.training.recipes.rings.episode_log_errors`, in any range.
 
     Each episode's state is rescaled to unit size after every interval and the logarithms of the scales
     summed (D is homogeneous of degree one), so a table that grows the state by 1e400 scores a finite loss.
@@ -208,7 +208,7 @@ def _train(episodes: int, steps: int, seed: int, free: bool) -> tuple[IntervalGa
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = FlagParser(prog="python -m fxc_env.training.rings_scratch", description=__doc__.splitlines()[0])
+    parser = FlagParser(prog="python -m fxc_env.training.recipes.rings_scratch", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=None, help="where to save the policy (.npz)")
     parser.add_argument("--quick", action="store_true", help="train for seconds (8 episodes, one L-BFGS step)")
     parser.add_argument("--episodes", type=int, default=None, help="training episodes (default 64, --quick 8)")
@@ -230,7 +230,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             policy, record = train(episodes, steps, args.seed, args.free)
         except ArgumentError as exc:
             parser.error(str(exc))
-        policy.header["training"]["command"] = "python -m fxc_env.training.rings_scratch " + " ".join(
+        policy.header["training"]["command"] = "python -m fxc_env.training.recipes.rings_scratch " + " ".join(
             sys.argv[1:] if argv is None else argv
         )
         policy.header["training"]["training_seed"] = args.seed

@@ -1,6 +1,6 @@
 """Train the shipped ``rings`` policy: a learned gain schedule for directed rings of 20 agents.
 
-More: docs: training.md, "fxc_env.training.rings".
+More: docs: training.md, "fxc_env.training.recipes.rings".
 """
 
 from __future__ import annotations
@@ -238,7 +238,7 @@ def comparison_line(label: str, result: dict[str, float]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = FlagParser(prog="python -m fxc_env.training.rings", description=__doc__.splitlines()[0])
+    parser = FlagParser(prog="python -m fxc_env.training.recipes.rings", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=None, help="where to save the policy (.npz)")
     parser.add_argument("--episodes", type=int, default=8, help="demonstration episodes of the teacher")
     parser.add_argument("--refine-steps", type=int, default=0, help="direct-minimisation steps after the start")
@@ -259,7 +259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         first = DEMONSTRATION_SEED + args.seed * args.episodes  # seed 0: the shipped file's episodes
         policy, record = train(args.episodes, args.refine_steps, args.init, seed=first, lr=args.lr)
-        policy.header["training"]["command"] = "python -m fxc_env.training.rings " + " ".join(sys.argv[1:])
+        policy.header["training"]["command"] = "python -m fxc_env.training.recipes.rings " + " ".join(sys.argv[1:])
         policy.header["training"]["training_seed"] = args.seed
         print("trained:", json.dumps(record))
         if args.out:

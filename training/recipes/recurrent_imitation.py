@@ -1,6 +1,6 @@
 """Behaviour cloning (DAgger) of the minimum-time law into a recurrent policy for directed rings.
 
-The task is :mod:`fxc_env.training.rings`'s with ``action_bound = 20`` (the teacher's plans reach 14.2).
+The task is :mod:`fxc_env.training.recipes.rings`'s with ``action_bound = 20`` (the teacher's plans reach 14.2).
 **Teacher:** the minimum-time law (:mod:`fxc_env.baselines.laws.minimum_time`), designed per episode from the drawn
 ring. **Student:** the ``gru`` actor (:class:`fxc_env.policies.torch_memory.RecurrentActor`); with
 ``gru_input="schedule"`` (the default) the GRU reads ``[mask, t_k/T_s, T_{k+1}/T_s, k/K]`` and the plan is
@@ -32,7 +32,7 @@ from fxc_env.policies.domain import training_domain
 from fxc_env.policies.reference import ReferencePolicy
 from fxc_env.policies.torch_memory import RecurrentActor
 from fxc_env.policies.torch_policy import POLICY_FORMAT, TorchPolicy, load_torch_policy
-from fxc_env.training import rings
+from fxc_env.training.recipes import rings
 
 #: The task (keywords of :func:`fxc_env.make_config`, ``n_agents`` and ``topology`` aside).
 TASK: dict[str, Any] = {**rings.TASK, "action_bound": 20.0}
@@ -264,7 +264,9 @@ def evaluate(policy: TorchPolicy, n_agents: int = 20, seeds: Sequence[int] = ran
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = FlagParser(prog="python -m fxc_env.training.recurrent_imitation", description=__doc__.splitlines()[0])
+    parser = FlagParser(
+        prog="python -m fxc_env.training.recipes.recurrent_imitation", description=__doc__.splitlines()[0]
+    )
     parser.add_argument("--out", default=None, help="run directory to write policy.pt into")
     parser.add_argument("--sizes", default="20", help="comma-separated ring sizes to train on")
     parser.add_argument("--rounds", type=int, default=0, help="DAgger rounds after the teacher's")
@@ -303,7 +305,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         settings = ("rounds", "episodes", "steps", "batch", "lr", "gru_size", "seed", "gru_input")
         record_policy, _ = train(sizes, **{name: getattr(args, name) for name in settings})
         info = json.loads(record_policy["imitation"])
-        info["command"] = "python -m fxc_env.training.recurrent_imitation " + " ".join(sys.argv[1:])
+        info["command"] = "python -m fxc_env.training.recipes.recurrent_imitation " + " ".join(sys.argv[1:])
         record_policy["imitation"] = json.dumps(info)
         if args.out:
             out = Path(args.out)

@@ -25,9 +25,9 @@ from torch import nn
 from fxc_env.config import make_config
 from fxc_env.policies.torch_memory import interval_graph
 from fxc_env.training.args import TrainArgs, env_label
+from fxc_env.training.backends.torch_common import drive, prepare, run_config
+from fxc_env.training.backends.torch_ppo import Trainer
 from fxc_env.training.settings import DiffSettings
-from fxc_env.training.torch_common import drive, prepare, run_config
-from fxc_env.training.torch_ppo import Trainer
 
 #: Columns of ``progress.csv``, SB3's names where they mean the same.
 PROGRESS_COLUMNS = (

@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config.tasks import NamedTask
-from fxc_env.core import statistics
-from fxc_env.training.seed_evaluation import LOG_FLOOR, MARL_EVAL_ENV, _episode_metrics
+from fxc_env.training.evaluation import statistics
+from fxc_env.training.evaluation.seed_evaluation import LOG_FLOOR, MARL_EVAL_ENV, _episode_metrics
 
 #: A training run's timers (``seconds``): collecting batches, updating the networks, scoring its learning curve
 #: (not training), and ``Experiment.run``'s wall time (all three and BenchMARL's own bookkeeping).

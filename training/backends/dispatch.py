@@ -25,4 +25,4 @@ def train(args: TrainArgs) -> Path:
         RunDir.of(args).resume_checkpoint(args.resume, args)  # an RLlib checkpoint needs the trust flag, Ray or not
         import_ray("--backend rllib")
     module, function = registry.BACKENDS[backend].trainer.split(":")
-    return getattr(importlib.import_module(f"fxc_env.training.{module}"), function)(args)
+    return getattr(importlib.import_module(f"fxc_env.training.backends.{module}"), function)(args)

@@ -1,10 +1,10 @@
 """``fxc evaluate --runs``: one policy trained with several seeds, scored with confidence intervals.
 
 Each run (a training seed) plays the suite's seeded initial states next to the reference; per case the
-deadline errors form a ``(R, S)`` matrix and :mod:`fxc_env.core.statistics` gives the **median** of
+deadline errors form a ``(R, S)`` matrix and :mod:`fxc_env.training.evaluation.statistics` gives the **median** of
 ``D(T_s)/D(0)`` and the **IQM** of ``log10(max(D(T_s)/D(0), 1e-12))``, each with a 95 % stratified bootstrap
 interval (fixed bootstrap seed; the reference resamples initial states only). The scores and files are
-:mod:`fxc_env.training.seed_scores`'s.
+:mod:`fxc_env.training.evaluation.seed_scores`'s.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.policies.learned import SHIPPED, architecture_of, load_learned_policy
 from fxc_env.policies.policy_files import CHECKED_SETTINGS, read_metadata
 from fxc_env.training.args import canonical_backend
-from fxc_env.training.seed_scores import (  # noqa: F401
+from fxc_env.training.evaluation.seed_scores import (  # noqa: F401
     LOG_FLOOR,
     MARL_EVAL_ENV,
     TrainedRun,
@@ -35,7 +35,7 @@ from fxc_env.training.seed_scores import (  # noqa: F401
 )
 
 #: Training seed of each shipped policy (its recipe in ``fxc_env/pretrained/README.md``: ``--seed 0``;
-#: ``rings``: ``python -m fxc_env.training.rings --seed 0``, the default).
+#: ``rings``: ``python -m fxc_env.training.recipes.rings --seed 0``, the default).
 SHIPPED_SEEDS = {
     "pretrained": 0,
     "generalist": 0,

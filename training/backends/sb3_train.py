@@ -26,8 +26,8 @@ from stable_baselines3.common.vec_env import VecNormalize
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.policy_files import TRUST_HINT, read_sb3_zip, save_model
 from fxc_env.training.args import TrainArgs, env_settings
-from fxc_env.training.checkpoint_checks import check_resumed_state
-from fxc_env.training.imitation import imitate_reference
+from fxc_env.training.backends.checkpoint_checks import check_resumed_state
+from fxc_env.training.backends.imitation import imitate_reference
 from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
 
 #: The format of the plain-JSON VecNormalize record beside each checkpoint, and its float settings.
@@ -227,7 +227,7 @@ def restore_checkpoint(model: Any, checkpoint: Path) -> Any:
 def check_resumed_model(model: Any, run: RunDir, checkpoint: Path, target: int) -> None:
     """Refuse to go on from ``checkpoint`` (as ``resume``, naming it and the field) unless the SB3 ``model`` loaded
     from it has finite weights and optimiser state and a step count in ``[0, target]`` equal to its name's
-    (:func:`~fxc_env.training.checkpoint_checks.check_resumed_state`)."""
+    (:func:`~fxc_env.training.backends.checkpoint_checks.check_resumed_state`)."""
     from stable_baselines3.common.save_util import recursive_getattr
 
     state_dicts, variables = model._get_torch_save_params()

@@ -1,6 +1,6 @@
-"""The scores of several training seeds (:mod:`fxc_env.training.seed_evaluation`) and the files they go to.
+"""The scores of several training seeds (:mod:`fxc_env.training.evaluation.seed_evaluation`) and the files they go to.
 
-More: docs: training.md, "fxc_env.training.seed_scores".
+More: docs: training.md, "fxc_env.training.evaluation.seed_scores".
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 
 from fxc_env.baselines.harness.report import number_text
 from fxc_env.baselines.harness.suite import Contender, Suite
-from fxc_env.core import statistics
+from fxc_env.training.evaluation import statistics
 
 
 @dataclass(frozen=True)

@@ -23,12 +23,11 @@ from fxc_env.baselines import registry
 from fxc_env.baselines.harness.benchmark import make_out, run_benchmark
 from fxc_env.baselines.harness.suite import builtin_contenders, learned_contender
 from fxc_env.config.tasks import TASKS, NamedTask, get_task
-from fxc_env.core import statistics
-from fxc_env.core.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.policies.learned import SHIPPED
-from fxc_env.training.evaluate import on_task_schedule, task_suite
-from fxc_env.training.leaderboard_files import (
+from fxc_env.training.evaluation import statistics
+from fxc_env.training.evaluation.evaluate import on_task_schedule, task_suite
+from fxc_env.training.evaluation.leaderboard_files import (
     cost_lines,
     curve_figure,
     laws_problem,
@@ -40,7 +39,7 @@ from fxc_env.training.leaderboard_files import (
     versions,
     write_json,
 )
-from fxc_env.training.leaderboard_runs import (  # noqa: F401  (build_experiment, policy_actor, score_actor: the API)
+from fxc_env.training.evaluation.leaderboard_runs import (  # noqa: F401  (build_experiment, policy_actor, score_actor: the API)
     ALGORITHMS,
     build_experiment,
     policy_actor,
@@ -48,7 +47,8 @@ from fxc_env.training.leaderboard_runs import (  # noqa: F401  (build_experiment
     train_and_score,
     untrained_rows,
 )
-from fxc_env.training.seed_evaluation import LOG_FLOOR
+from fxc_env.training.evaluation.seed_evaluation import LOG_FLOOR
+from fxc_env.training.evaluation.statistics import DEFAULT_BOOTSTRAP_SEED, DEFAULT_REPS
 from fxc_env.utils.cli_checks import output_directory
 
 #: The frame budget per run of the shipped table (fxc_env/assets/leaderboard/): the whole table took 11 CPU-minutes.
@@ -159,7 +159,7 @@ def refuse_unread_budget(args: argparse.Namespace, algorithms: list[str]) -> Non
 
 def leaderboard_command(args: argparse.Namespace) -> int:
     """Handler of ``fxc leaderboard``: every value and every file kept under ``--out`` is checked before any run
-    starts (:mod:`fxc_env.training.leaderboard_files`)."""
+    starts (:mod:`fxc_env.training.evaluation.leaderboard_files`)."""
     frames, seeds = check_budget(args)
     reps = integer("--bootstrap-reps", args.bootstrap_reps, 1)
     tasks = check_tasks(list(args.tasks))
@@ -217,7 +217,7 @@ def plan_files(
 # ------------------------------------------------------------------------------- scoring
 def law_contenders(learned: dict[str, Any] | None = None) -> list[Any]:
     """The laws and the shipped policies, as the benchmark's contenders; on a task, ``learned`` (the task's
-    schedule and modes, :func:`~fxc_env.training.evaluate.task_suite`) is what the shipped policies run with, as
+    schedule and modes, :func:`~fxc_env.training.evaluation.evaluate.task_suite`) is what the shipped policies run with, as
     ``fxc evaluate --task`` runs them, and a schedule it fixes is every law's too."""
     learned = learned or {}
     laws = on_task_schedule(builtin_contenders(list(LAWS)), learned)
@@ -231,7 +231,7 @@ def scored_names() -> list[str]:
 
 def score_laws(task: NamedTask, folder: Path) -> dict[str, Any]:
     """The deadline errors and energies on the task's evaluation episodes of the zero action and uniform random
-    actions (:func:`~fxc_env.training.leaderboard_runs.untrained_rows`), the laws and the shipped policies."""
+    actions (:func:`~fxc_env.training.evaluation.leaderboard_runs.untrained_rows`), the laws and the shipped policies."""
     suite, learned = task_suite(task)
     contenders = law_contenders(learned)
     output = run_benchmark(suite, contenders, folder, workers=1, progress=False)

@@ -2,7 +2,7 @@
 
 Directed rings of 20, K = 200 on the paper's schedule, ``action_mode="residual"``: every agent adds
 ``sigma * N(0, 1)`` to ``alpha_x``, ``alpha_v`` or both, on every interval or on the last / all but the last
-``n``; prints the median over 20 seeded episodes (``.venv/bin/python -m fxc_env.training.residual_sensitivity``).
+``n``; prints the median over 20 seeded episodes (``.venv/bin/python -m fxc_env.training.recipes.residual_sensitivity``).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""fxc_env.core.statistics: median and IQM over training seeds, and the stratified bootstrap's intervals."""
+"""fxc_env.training.evaluation.statistics: median and IQM over training seeds, and the stratified bootstrap's intervals."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from fxc_env.core.statistics import bootstrap_replicates, decades, iqm, median, stratified_bootstrap
 from fxc_env.core.validation import ArgumentError
+from fxc_env.training.evaluation.statistics import bootstrap_replicates, decades, iqm, median, stratified_bootstrap
 
 
 def test_iqm_of_known_arrays():

@@ -1,4 +1,4 @@
-"""What the torch back ends (:mod:`fxc_env.training.torch_ppo`, :mod:`fxc_env.training.diff_train`) share:
+"""What the torch back ends (:mod:`fxc_env.training.backends.torch_ppo`, :mod:`fxc_env.training.backends.diff_train`) share:
 the Gaussian actor-critic, Adam, the policy record and checkpoints (:class:`TrainerFiles`), ``--init-from``
 (:func:`init_actor`) and the run loop (:func:`drive`).
 
@@ -30,7 +30,7 @@ from fxc_env.policies.records import file_tensor
 from fxc_env.policies.torch_memory import build_actor
 from fxc_env.policies.torch_policy import CHECKPOINT_FORMAT, POLICY_FORMAT, is_torch_policy, load_torch_policy, one_line
 from fxc_env.training.args import TrainArgs, env_settings
-from fxc_env.training.checkpoint_checks import check_resumed_state, check_written_by
+from fxc_env.training.backends.checkpoint_checks import check_resumed_state, check_written_by
 from fxc_env.training.run_dir import TRAIN_TRUST_HINT, RunDir, begin_run
 from fxc_env.training.settings import PPOSettings
 
@@ -97,7 +97,7 @@ class TrainerFiles:
     def load_checkpoint(self, path: Path, run: RunDir, *, trusted: bool = False) -> None:
         """Go on from the checkpoint at ``path`` of ``run``: read with ``weights_only=True`` (tensors and plain values,
         no code), or, with ``trusted`` (``--trust-policy-file``), unpickled (:mod:`fxc_env.training.run_dir`); what
-        it holds is checked (:mod:`fxc_env.training.checkpoint_checks`) before the run goes on."""
+        it holds is checked (:mod:`fxc_env.training.backends.checkpoint_checks`) before the run goes on."""
         try:
             record = torch.load(path, map_location="cpu", weights_only=not trusted)
         except pickle.UnpicklingError as exc:  # weights_only met a pickled object (a crafted file) or garbage
