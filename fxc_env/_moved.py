@@ -1,4 +1,4 @@
-"""Module paths of the previous release that moved when the layers became folders: importable for one release more.
+"""Module paths that moved (the layers into folders, then crowded folders into sub-folders): importable for one release more.
 
 Each old path in :data:`MOVED` imports as a small module that re-exports its new module's names (the
 same objects) and raises a :class:`DeprecationWarning` naming the new path, pointed at the line that
@@ -44,53 +44,24 @@ MOVED: dict[str, tuple[str, ...]] = {
     "fxc_env.torchrl_env": ("fxc_env.envs.torch_env", "fxc_env.policies.torchrl_reference"),
     "fxc_env.vec_env": ("fxc_env.envs.vec_env",),
     "fxc_env.training.train": ("fxc_env.training.backends.sb3_train",),
-    # Issue 36: the laws apart from the benchmark harness; training's back ends, evaluation and recipes.
-    "fxc_env.training.sb3_train": ("fxc_env.training.backends.sb3_train",),
-    "fxc_env.training.torch_ppo": ("fxc_env.training.backends.torch_ppo",),
-    "fxc_env.training.torch_common": ("fxc_env.training.backends.torch_common",),
-    "fxc_env.training.diff_train": ("fxc_env.training.backends.diff_train",),
-    "fxc_env.training.rllib_train": ("fxc_env.training.backends.rllib_train",),
-    "fxc_env.training.checkpoint_checks": ("fxc_env.training.backends.checkpoint_checks",),
-    "fxc_env.training.imitation": ("fxc_env.training.backends.imitation",),
-    "fxc_env.training.evaluate": ("fxc_env.training.evaluation.evaluate",),
-    "fxc_env.training.seed_evaluation": ("fxc_env.training.evaluation.seed_evaluation",),
-    "fxc_env.training.seed_scores": ("fxc_env.training.evaluation.seed_scores",),
-    "fxc_env.training.seeds": ("fxc_env.training.evaluation.seeds",),
-    "fxc_env.training.leaderboard": ("fxc_env.training.evaluation.leaderboard",),
-    "fxc_env.training.leaderboard_files": ("fxc_env.training.evaluation.leaderboard_files",),
-    "fxc_env.training.leaderboard_runs": ("fxc_env.training.evaluation.leaderboard_runs",),
-    "fxc_env.core.statistics": ("fxc_env.training.evaluation.statistics",),
-    "fxc_env.training.rings": ("fxc_env.training.recipes.rings",),
-    "fxc_env.training.rings_scratch": ("fxc_env.training.recipes.rings_scratch",),
-    "fxc_env.training.agnostic": ("fxc_env.training.recipes.agnostic",),
-    "fxc_env.training.noise_gains": ("fxc_env.training.recipes.noise_gains",),
-    "fxc_env.training.recurrent_imitation": ("fxc_env.training.recipes.recurrent_imitation",),
-    "fxc_env.training.residual_sensitivity": ("fxc_env.training.recipes.residual_sensitivity",),
-    "fxc_env.baselines.linear": ("fxc_env.baselines.laws.linear",),
-    "fxc_env.baselines.sampled": ("fxc_env.baselines.laws.sampled",),
-    "fxc_env.baselines.finite_time": ("fxc_env.baselines.laws.finite_time",),
-    "fxc_env.baselines.prescribed_time": ("fxc_env.baselines.laws.prescribed_time",),
-    "fxc_env.baselines.saturation_aware": ("fxc_env.baselines.laws.saturation_aware",),
-    "fxc_env.baselines.minimum_time": ("fxc_env.baselines.laws.minimum_time",),
-    "fxc_env.baselines.leader_follower": ("fxc_env.baselines.laws.leader_follower",),
-    "fxc_env.baselines.signalling": ("fxc_env.baselines.laws.signalling",),
-    "fxc_env.baselines.motion_signals": ("fxc_env.baselines.laws.motion_signals",),
-    "fxc_env.baselines.graph_agnostic": ("fxc_env.baselines.laws.graph_agnostic",),
-    "fxc_env.baselines.bounded_steer": ("fxc_env.baselines.laws.bounded_steer",),
-    "fxc_env.baselines.design": ("fxc_env.baselines.laws.design",),
-    "fxc_env.baselines.policy": ("fxc_env.baselines.laws.policy",),
-    "fxc_env.baselines.filtering": ("fxc_env.baselines.laws.filtering",),
-    "fxc_env.baselines.benchmark": ("fxc_env.baselines.harness.benchmark",),
-    "fxc_env.baselines.dropout": ("fxc_env.baselines.harness.dropout",),
-    "fxc_env.baselines.figures": ("fxc_env.baselines.harness.figures",),
-    "fxc_env.baselines.jobs": ("fxc_env.baselines.harness.jobs",),
-    "fxc_env.baselines.ray_jobs": ("fxc_env.baselines.harness.ray_jobs",),
-    "fxc_env.baselines.report": ("fxc_env.baselines.harness.report",),
-    "fxc_env.baselines.resolution": ("fxc_env.baselines.harness.resolution",),
-    "fxc_env.baselines.suite": ("fxc_env.baselines.harness.suite",),
-    "fxc_env.baselines.filtering_goals": ("fxc_env.baselines.harness.filtering_goals",),
-    "fxc_env.baselines.graph_agnostic_goals": ("fxc_env.baselines.harness.graph_agnostic_goals",),
 }
+
+#: Issue 36: modules that moved one folder down, into the sub-folder that says what they are.
+INTO_FOLDERS = {
+    "fxc_env.baselines.laws": "bounded_steer design filtering finite_time graph_agnostic leader_follower linear minimum_time motion_signals policy prescribed_time sampled saturation_aware signalling",
+    "fxc_env.baselines.harness": "benchmark dropout figures filtering_goals graph_agnostic_goals jobs ray_jobs report resolution suite",
+    "fxc_env.training.backends": "checkpoint_checks diff_train imitation rllib_train sb3_train torch_common torch_ppo",
+    "fxc_env.training.evaluation": "evaluate leaderboard leaderboard_files leaderboard_runs seed_evaluation seed_scores seeds",
+    "fxc_env.training.recipes": "agnostic noise_gains recurrent_imitation residual_sensitivity rings rings_scratch",
+}
+MOVED.update(
+    {
+        f"{folder.rpartition('.')[0]}.{name}": (f"{folder}.{name}",)
+        for folder, names in INTO_FOLDERS.items()
+        for name in names.split()
+    }
+)
+MOVED["fxc_env.core.statistics"] = ("fxc_env.training.evaluation.statistics",)  # with the evaluation that uses it
 
 #: Old module path -> {old attribute name: new attribute name} for names renamed in the move.
 RENAMED: dict[str, dict[str, str]] = {
