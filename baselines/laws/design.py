@@ -1,6 +1,14 @@
 """Offline gain design from the graph: Laplacian spectra, the gain tests, and the ZOH map.
 
-More: docs: optimality.md, "fxc_env.baselines.laws.design".
+Done once, before a run, by the designer who knows the graph (nothing here is available to an agent).
+For the linear law ``u = -g L (x + gamma v)``:
+
+- **Continuous time** (Yu, Chen & Cao 2010, Theorem 1): consensus on a digraph with a directed spanning tree
+  iff ``gamma^2 > Im(mu)^2 / (Re(mu) |mu|^2)`` for every nonzero eigenvalue ``mu`` of ``g L``
+  (:func:`gain_test_bound`; decay rate :func:`continuous_decay_rate`).
+- **Sampled data with zero-order hold** at period h (Cao & Ren 2010): the one-sample map
+  ``[[I - h^2 g L / 2, h I - h^2 g gamma L / 2], [-h g L, I - h g gamma L]]`` (:func:`zoh_radius`) must have
+  spectral radius below one (over a switching period, the ordered product).
 """
 
 from __future__ import annotations

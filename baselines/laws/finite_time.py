@@ -1,6 +1,15 @@
 """Finite-time second-order consensus (Wang & Hong 2008 family).
 
-More: docs: optimality.md, "fxc_env.baselines.laws.finite_time".
+Law (componentwise, ``sig(z)^a = sign(z) |z|^a``)::
+
+    u_i = -g sum_j a_ij [sig(x_i - x_j)^a1 + sig(v_i - v_j)^a2],   a2 = 2 a1 / (1 + a1)
+
+- Source: X. Wang and Y. Hong, "Finite-time consensus for multi-agent networks with
+  second-order agent dynamics", Proc. 17th IFAC World Congress (2008).
+- Proven graph class: **undirected** connected graphs; the benchmark runs it on directed ones **unproven**.
+- Parameters: ``alpha`` = a1 in (0, 1) [0.5, so a2 = 2/3], ``gain`` g [1, SI units: not homogeneous, so its
+  speed depends on the scale of the state]; ``obs_mode="raw"`` only. A continuous-measurement law: the
+  benchmark runs it on a fine ``uniform`` schedule with a zero-order hold.
 """
 
 from __future__ import annotations

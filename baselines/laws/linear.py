@@ -1,6 +1,17 @@
 """Linear second-order consensus (Ren & Atkins 2007), with Yu, Chen & Cao's exact gain test.
 
-More: docs: optimality.md, "fxc_env.baselines.laws.linear".
+Law (agent i, in-neighbours j, ``a_ij = 1``)::
+
+    u_i = -g sum_j a_ij [(x_i - x_j) + gamma (v_i - v_j)]
+
+- Source: W. Ren and E. Atkins, "Distributed multi-vehicle coordinated control via local
+  information exchange", Int. J. Robust Nonlinear Control 17 (2007) (there ``g = 1``).
+- Proven graph class: a fixed digraph with a directed spanning tree, **iff**
+  ``gamma^2 > max Im(mu)^2 / (Re(mu) |mu|^2)`` over the nonzero eigenvalues ``mu`` of ``g L``
+  (W. Yu, G. Chen and M. Cao, Automatica 46 (2010)); on an undirected graph any ``gamma > 0``.
+- Parameters: ``gain`` ``g`` [1, 1/s^2], ``gamma`` [s], by default designed offline for the fastest decay
+  (:func:`fxc_env.baselines.laws.design.design_gamma`; a switching period on its average Laplacian, not covered by
+  the theorem). An explicit ``gamma`` is used as given (:attr:`passes_gain_test`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,16 @@
 """Sampled-data linear consensus (Cao & Ren 2010): the linear law held over a uniform period.
 
-More: docs: optimality.md, "fxc_env.baselines.laws.sampled".
+Law: the linear law of :mod:`fxc_env.baselines.laws.linear`, measured at the sampling instants and held for
+``h = T_s / K``::
+
+    u_i(t) = -g sum_j a_ij [(x_i(t_k) - x_j(t_k)) + gamma (v_i(t_k) - v_j(t_k))],  t in [t_k, t_k + h)
+
+- Source: Y. Cao and W. Ren, "Sampled-data discrete-time coordination algorithms for
+  double-integrator dynamics under dynamic directed interaction", Int. J. Control 83 (2010).
+- Proven graph class: fixed or periodically switching digraphs whose union has a directed spanning tree, for
+  ``(g, gamma, h)`` whose exact one-sample map is a contraction (:func:`fxc_env.baselines.laws.design.zoh_radius`).
+- Parameters: ``gain`` ``g`` (1/s^2), ``gamma`` (s), designed offline for the sampling period
+  (:func:`fxc_env.baselines.laws.design.design_sampled_gains`). It runs with the reference's K.
 """
 
 from __future__ import annotations

@@ -1,6 +1,16 @@
 """A saturation-aware law: the paper's plan where it fits under the input limit, a held linear law where it does not.
 
-More: docs: optimality.md, "fxc_env.baselines.laws.saturation_aware".
+Law, on each interval of a uniform schedule (``T = T_s / K``): agent i forms the paper's minimum-energy plan
+(eq. 11) to the average of the coasted states of itself and its in-neighbours. If the plan's input at both ends
+lies within ``±u_max`` it applies it (the reference's exact averaging step); otherwise it holds
+
+    u_i = g sum_j a_ij [(x_j - x_i) + gamma (v_j - v_i)]
+
+(clipped by the actuator if need be) until the next sample. ``u_max`` is read from the observation's
+input-limit entry ``l / (1 + |l|)``, ``l = log10(u_max T^2 / s_i)``; without a limit the law is the reference.
+
+Parameters: ``gain`` g = 1 s^-2 and ``gamma`` = 3 s (a scan on ``paper_fig1`` and a random N = 20 digraph at
+``u_max`` 10 and 100). No proof: a heuristic of this project (docs: training.md, "Training learned policies").
 """
 
 from __future__ import annotations

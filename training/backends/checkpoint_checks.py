@@ -14,7 +14,7 @@ and the field, the run directory unchanged:
   format, not their step size or what their weights were trained for): :func:`check_written_by`, called
   before the weights are loaded.
 
-More: docs: training.md, "Training learned policies" (resuming), and bad-input.md.
+Docs: training.md, "Training learned policies" (resuming), and bad-input.md.
 """
 
 from __future__ import annotations

@@ -1,6 +1,16 @@
 """``fxc train --backend torch``: a lean PPO loop on the batched engine, on a torch device.
 
-More: docs: training.md, "fxc_env.training.backends.torch_ppo".
+One Gaussian policy shared by every agent of B parallel episodes (IPPO with parameter sharing) on
+:class:`fxc_env.engine.ConsensusEngine` (float64 on ``--device``; float32 networks); nothing is read back to
+the host on the stepping path. The critic is ``local`` or ``central`` (one value per episode from the
+normalized global state). The loop is SB3's PPO written out for the engine's tensors, its settings the
+``torch_ppo`` entry of the hyperparameter file (:class:`PPOSettings`):
+
+    rollout:  T steps of B episodes (T divides K; an episode is K steps), B * N agent-steps each
+    update:   ``epochs`` passes over the T * B * N agent-steps in minibatches of ``minibatch_size``
+
+``progress.csv`` has one row per rollout (:data:`PROGRESS_COLUMNS`); checkpoints and ``--resume`` are
+:mod:`fxc_env.training.backends.torch_common`'s (docs: training.md, "Training learned policies").
 """
 
 from __future__ import annotations

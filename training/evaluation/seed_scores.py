@@ -1,6 +1,16 @@
 """The scores of several training seeds (:mod:`fxc_env.training.evaluation.seed_evaluation`) and the files they go to.
 
-More: docs: training.md, "fxc_env.training.evaluation.seed_scores".
+``seeds.md`` (the table), ``seeds.json`` (every estimate and interval, the runs and their seeds) and
+``marl_eval.json``, the raw scores in the layout marl-eval reads (Gorsane et al. 2022)::
+
+    {"fxc_env": {"<case>": {"<label>": {"seed_<k>": {
+        "step_0": {"step_count": <timesteps trained>, "deadline_error": [S floats], ...},
+        "absolute_metrics": {"deadline_error": [S floats], ...}}}}}}
+
+a task per case, an algorithm per policy, a run per training seed (the reference, which has none, listed
+under each run's key with the same scores), one value per initial state. Metrics: ``deadline_error``
+(``D(T_s)/D(0)``), ``decades_reached`` (``-log10(max(D(T_s)/D(0), 1e-12))``, higher is better) and
+``energy`` (``Σ_i ∫ u_i² dt``, m²/s³).
 """
 
 from __future__ import annotations

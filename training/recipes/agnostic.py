@@ -1,6 +1,16 @@
 """Train the shipped ``agnostic`` policy: gain schedules for every graph, learned without being told the graph.
 
-More: docs: training.md, "fxc_env.training.recipes.agnostic".
+The network is :class:`fxc_env.policies.regime_gains.RegimeGainPolicy`: agent i plans ``G_k r_i`` from its
+own aggregated relative row, its mask and ``k / K``, from the **fixed-graph** ``(K, 2, 2)`` table, or the
+**switching** one once its probe (coasting the first :data:`PROBES` intervals) has seen its in-neighbour set
+change. Both tables are parameterised by factors (:func:`fxc_env.training.recipes.rings_scratch.factor_table`).
+
+It is trained over the graphs of :data:`CASES` (rings except :data:`HELD_OUT_RINGS`, random digraphs, paths,
+stars, periodic switching) by L-BFGS (:func:`fxc_env.training.recipes.rings_scratch.minimise`) on :func:`loss_terms`
+through the exact closed-form interval map (:func:`log_errors`, :func:`probe_keeps_fixed`); no teacher, no
+spectrum read. Training episodes are drawn from seed ``3000 + seed``, evaluation seeds from 0. The command, the
+controls (``--init paper|chebyshev``), ``--quick``, ``--evaluate`` and the results: (docs: results.md,
+"agnostic policy").
 """
 
 from __future__ import annotations

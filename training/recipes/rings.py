@@ -1,6 +1,16 @@
 """Train the shipped ``rings`` policy: a learned gain schedule for directed rings of 20 agents.
 
-More: docs: training.md, "fxc_env.training.recipes.rings".
+The task: directed rings of N = 20 relabelled every episode, initial scales over two decades, K = 200
+intervals of the paper's schedule (eq. 27), T_s = 20 s, plans in normalized units. The network is
+:class:`fxc_env.policies.interval_gains.IntervalGainPolicy` (``G_k r_i`` from a ``(K, 2, 2)`` table indexed
+by ``k / K``), learned in float64 by
+
+1. **Imitation** of the minimum-time law (:mod:`fxc_env.baselines.laws.minimum_time`): ``G_k`` is the
+   least-squares solution of ``plan = G_k r`` over every agent and seeded episode at interval k;
+2. **Direct refinement** (optional, ``--refine-steps``): gradient steps on the mean ``log D(T_s)/D(0)``
+   through the exact closed-form interval map; ``--init paper`` starts from eq. 11's table.
+
+Commands and results: (docs: results.md, "What learning reached").
 """
 
 from __future__ import annotations

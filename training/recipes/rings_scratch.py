@@ -1,6 +1,15 @@
 """Train the shipped ``rings_scratch`` policy: a gain schedule for directed rings of 20, learned from scratch.
 
-More: docs: training.md, "fxc_env.training.recipes.rings_scratch".
+The task and network are :mod:`fxc_env.training.recipes.rings`'s; nothing is copied (no teacher, no spectrum). L-BFGS
+minimises the mean ``log D(T_s)/D(0)`` over seeded episodes through the exact interval map (:func:`log_errors`)
+from a random start ``q_m ~ N(0, 1)`` (a real start is a saddle: the loss is even in each ``b_m``).
+
+**Factors.** Intervals go in pairs, each holding ``q_m = a_m + i b_m``: ``G_{2m} = R_m P_{2m}``,
+``G_{2m+1} = P_{2m+1} R_m^T``, ``R_m = [[a_m, -b_m], [b_m, a_m]]``, ``P_k = [[1, T_k], [0, 1]]``, so an
+episode multiplies every mode mu of ``(D + I)^{-1} L`` by ``prod_m (1 - mu q_m)(1 - mu conj(q_m))``;
+``q_m = 1`` is the paper's controller (eq. 11), ``q_m = 0`` coasting. ``--free`` learns the free table
+instead (the control). Training episodes are drawn from seed ``2000 + seed``, evaluation seeds from 0.
+Commands and results: (docs: results.md, "What learning reached").
 """
 
 from __future__ import annotations
