@@ -1,6 +1,11 @@
 """The filtering law's goal table: medians against the noise floor on the optimality suite's graphs of 20.
 
-Docs: optimality.md, "Filtered dead-beat (`filtering`)".
+``python -c "from fxc_env.baselines.harness.filtering_goals import goal_table; print(goal_table())"`` prints,
+for the directed ring and the random digraph of N = 20 at ``obs_noise = sigma`` (1e-3 m by default; uniform
+K = 200, T_s = 20 s, 20 seeded initial states), the medians of ``D(T_s)/D(0)``, of the noise floor no
+controller beats (:mod:`fxc_env.core.floors`), of their ratio and of the energy over the minimum energy E*;
+each case runs as ``fxc benchmark`` runs it (same seeds and noise streams). Docs: optimality.md,
+"Filtered dead-beat (`filtering`)".
 """
 
 from __future__ import annotations
