@@ -264,7 +264,7 @@ def test_seeds_train_one_diff_run_per_seed(tmp_path, monkeypatch):
 def test_the_readme_hyperparameter_files_check(tmp_path, name, backend):
     from pathlib import Path
 
-    path = Path(__file__).parents[2] / "training" / name
+    path = Path(__file__).parents[2] / "training" / "recipes" / name
     run_args = args(tmp_path, hyperparams=str(path), backend=backend, algo="apg" if backend == "diff" else "ppo")
     assert check_train_args(run_args)["env"]["n_intervals"] == 50
 

@@ -97,7 +97,7 @@ def test_the_readme_command_trains_the_shipped_network_from_scratch_on_the_task(
     assert record["args"]["task"] == "rings20-v2" and record["args"]["init_from"] is None
     assert record["hyperparams"]["env"]["action_mode"] == "plan_balanced"  # not residual: the task's own actions
     section = "torch_ppo" if backend == "torch" else "diff_apg"
-    entry = yaml.safe_load((ROOT / "training" / "rings20_v2.yml").read_text())["rings20-v2"][section]
+    entry = yaml.safe_load((ROOT / "training" / "recipes" / "rings20_v2.yml").read_text())["rings20-v2"][section]
     assert {key: record[section][key] for key in entry} == entry  # every setting of the file's entry, as written
     trained = torch.load(tmp_path / "run" / "policy.pt", weights_only=True)
     for key in ("format", "arch", "hidden", "activation", "obs_size", "action_size", "action_bound", "env", "domain"):
