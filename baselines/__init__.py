@@ -1,7 +1,8 @@
 """Classical consensus controllers (baselines) and the deadline benchmark.
 
 Each baseline is a policy on the local observation, like :class:`fxc_env.ReferencePolicy`; its module docstring
-gives the law, its source paper, the graph class it is proven for, and its parameters. The laws are registered
+gives the law, its source paper, the graph class it is proven for, and its parameters. The laws sit in
+:mod:`fxc_env.baselines.laws`, the benchmark harness in :mod:`fxc_env.baselines.harness`. The laws are registered
 once in :mod:`fxc_env.baselines.registry`; ``fxc benchmark`` (:mod:`fxc_env.baselines.harness.benchmark`) scores them
 against the bounds of :mod:`fxc_env.core.optimality` (docs: benchmark.md, "Baselines and the deadline benchmark").
 
