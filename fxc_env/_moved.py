@@ -126,6 +126,12 @@ class _Loader(importlib.abc.Loader):
         module.__doc__ = f"Deprecated: {old} is now {' and '.join(new)} (this path goes away in the next release)."
         module.__getattr__ = _forwarder(old, targets)
 
+    def get_code(self, fullname: str) -> types.CodeType | None:
+        """``python -m <old path>`` runs the new module's code (a recipe's command line), with the warning."""
+        new = MOVED[fullname][0]
+        warn(f"{fullname} moved to {new}: run python -m {new}; the old path goes away in the next release")
+        return importlib.util.find_spec(new).loader.get_code(new)
+
 
 def _forwarder(old: str, targets: list[types.ModuleType]) -> Any:
     """The old module's ``__getattr__``: renamed names with a warning, private names from the new modules."""

@@ -284,3 +284,15 @@ def test_the_previous_releases_config_names_still_import_from_fxc_env_config():
     namespace: dict[str, object] = {}
     exec("from fxc_env.config import CLOCK_SIZE, EnvConfig, ObservationLayout, config_of, make_config", namespace)
     assert namespace["ObservationLayout"] is layout.ObservationLayout and namespace["CLOCK_SIZE"] == layout.CLOCK_SIZE
+
+
+def test_an_old_recipe_command_runs_the_moved_module_with_a_warning():
+    """The shipped files record ``python -m fxc_env.training.rings ...``: that command runs the recipe still."""
+    result = subprocess.run(
+        [sys.executable, "-W", "always::DeprecationWarning", "-m", "fxc_env.training.rings", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert result.stdout.startswith("usage: python -m fxc_env.training.recipes.rings")
+    assert "fxc_env.training.rings moved to fxc_env.training.recipes.rings" in result.stderr
