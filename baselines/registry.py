@@ -2,7 +2,7 @@
 ``fxc leaderboard`` and the tests read :data:`LAWS` and nothing else.
 
 A law is a policy class built from a config (``cls(config)``) with the settings it runs under. To add
-a baseline, write its module (a :class:`~fxc_env.baselines.policy.HoldPolicy` or a plan-mode ``LawPolicy``
+a baseline, write its module (a :class:`~fxc_env.baselines.laws.policy.HoldPolicy` or a plan-mode ``LawPolicy``
 with ``NAME``) and call :func:`register` with it here; ``fxc benchmark --policies``, the tables, the
 figures' markers and :func:`fxc_env.baselines.load_policy` pick it up.
 """
@@ -13,17 +13,17 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from fxc_env.baselines.bounded_steer import BoundedSteerPolicy
-from fxc_env.baselines.filtering import FilteringPolicy
-from fxc_env.baselines.finite_time import FiniteTimePolicy
-from fxc_env.baselines.graph_agnostic import GraphAgnosticPolicy
-from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
-from fxc_env.baselines.linear import LinearConsensusPolicy
-from fxc_env.baselines.minimum_time import MinimumTimePolicy
-from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
-from fxc_env.baselines.sampled import SampledLinearPolicy
-from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
-from fxc_env.baselines.signalling import SignallingPolicy
+from fxc_env.baselines.laws.bounded_steer import BoundedSteerPolicy
+from fxc_env.baselines.laws.filtering import FilteringPolicy
+from fxc_env.baselines.laws.finite_time import FiniteTimePolicy
+from fxc_env.baselines.laws.graph_agnostic import GraphAgnosticPolicy
+from fxc_env.baselines.laws.leader_follower import LeaderFollowerPolicy
+from fxc_env.baselines.laws.linear import LinearConsensusPolicy
+from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.laws.prescribed_time import PrescribedTimePolicy
+from fxc_env.baselines.laws.sampled import SampledLinearPolicy
+from fxc_env.baselines.laws.saturation_aware import SaturationAwarePolicy
+from fxc_env.baselines.laws.signalling import SignallingPolicy
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.reference import ReferencePolicy
 
@@ -31,7 +31,7 @@ from fxc_env.policies.reference import ReferencePolicy
 @dataclass(frozen=True)
 class OptIn:
     """A law run with ``options`` only where ``setting`` (``obs_noise``, ``u_max`` or ``link_dropout``) is on, which it
-    refuses by default. ``link_dropout`` variants run in the dropout suite (:func:`fxc_env.baselines.dropout.dropout_suite`)."""
+    refuses by default. ``link_dropout`` variants run in the dropout suite (:func:`fxc_env.baselines.harness.dropout.dropout_suite`)."""
 
     suffix: str
     options: Mapping[str, Any]

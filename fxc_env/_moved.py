@@ -1,4 +1,4 @@
-"""Module paths of the previous release that moved when the layers became folders: importable for one release more.
+"""Module paths that moved (the layers into folders, then crowded folders into sub-folders): importable for one release more.
 
 Each old path in :data:`MOVED` imports as a small module that re-exports its new module's names (the
 same objects) and raises a :class:`DeprecationWarning` naming the new path, pointed at the line that
@@ -43,8 +43,25 @@ MOVED: dict[str, tuple[str, ...]] = {
     # The TorchRL env kept the env; the reference as a TorchRL module moved beside the other policies.
     "fxc_env.torchrl_env": ("fxc_env.envs.torch_env", "fxc_env.policies.torchrl_reference"),
     "fxc_env.vec_env": ("fxc_env.envs.vec_env",),
-    "fxc_env.training.train": ("fxc_env.training.sb3_train",),
+    "fxc_env.training.train": ("fxc_env.training.backends.sb3_train",),
 }
+
+#: Issue 36: modules that moved one folder down, into the sub-folder that says what they are.
+INTO_FOLDERS = {
+    "fxc_env.baselines.laws": "bounded_steer design filtering finite_time graph_agnostic leader_follower linear minimum_time motion_signals policy prescribed_time sampled saturation_aware signalling",
+    "fxc_env.baselines.harness": "benchmark dropout figures filtering_goals graph_agnostic_goals jobs ray_jobs report resolution suite",
+    "fxc_env.training.backends": "checkpoint_checks diff_train imitation rllib_train sb3_train torch_common torch_ppo",
+    "fxc_env.training.evaluation": "evaluate leaderboard leaderboard_files leaderboard_runs seed_evaluation seed_scores seeds",
+    "fxc_env.training.recipes": "agnostic noise_gains recurrent_imitation residual_sensitivity rings rings_scratch",
+}
+MOVED.update(
+    {
+        f"{folder.rpartition('.')[0]}.{name}": (f"{folder}.{name}",)
+        for folder, names in INTO_FOLDERS.items()
+        for name in names.split()
+    }
+)
+MOVED["fxc_env.core.statistics"] = ("fxc_env.training.evaluation.statistics",)  # with the evaluation that uses it
 
 #: Old module path -> {old attribute name: new attribute name} for names renamed in the move.
 RENAMED: dict[str, dict[str, str]] = {
@@ -108,6 +125,12 @@ class _Loader(importlib.abc.Loader):
         module.__all__ = sorted(exported)
         module.__doc__ = f"Deprecated: {old} is now {' and '.join(new)} (this path goes away in the next release)."
         module.__getattr__ = _forwarder(old, targets)
+
+    def get_code(self, fullname: str) -> types.CodeType | None:
+        """``python -m <old path>`` runs the new module's code (a recipe's command line), with the warning."""
+        new = MOVED[fullname][0]
+        warn(f"{fullname} moved to {new}: run python -m {new}; the old path goes away in the next release")
+        return importlib.util.find_spec(new).loader.get_code(new)
 
 
 def _forwarder(old: str, targets: list[types.ModuleType]) -> Any:

@@ -556,7 +556,7 @@ def test_a_damaged_torch_checkpoint_is_a_one_line_usage_error_naming_it(torch_ru
     import torch
 
     from fxc_env.training import TrainArgs, train
-    from fxc_env.training.torch_ppo import latest_torch_checkpoint
+    from fxc_env.training.backends.torch_ppo import latest_torch_checkpoint
 
     run, args = torch_run
     copy = shutil.copytree(run, tmp_path / "run")
@@ -601,7 +601,7 @@ def test_a_torch_checkpoint_without_its_policy_record_is_refused_by_name(torch_r
     import torch
 
     from fxc_env.policies.torch_policy import load_torch_policy
-    from fxc_env.training.torch_ppo import latest_torch_checkpoint
+    from fxc_env.training.backends.torch_ppo import latest_torch_checkpoint
 
     record = torch.load(latest_torch_checkpoint(torch_run[0]), weights_only=True)
     del record["policy"]

@@ -8,6 +8,7 @@ and says where the module is now; the public names users import sit on ``fxc_env
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import subprocess
 import sys
 import warnings
@@ -38,8 +39,59 @@ OLD_TO_NEW = {
     "fxc_env.torch_policy": ["fxc_env.policies.torch_policy"],
     "fxc_env.torchrl_env": ["fxc_env.envs.torch_env", "fxc_env.policies.torchrl_reference"],
     "fxc_env.vec_env": ["fxc_env.envs.vec_env"],
-    "fxc_env.training.train": ["fxc_env.training.sb3_train"],
+    "fxc_env.training.train": ["fxc_env.training.backends.sb3_train"],
 }
+
+#: Issue 36: the laws apart from the benchmark harness, training's back ends, evaluation and recipes each in a
+#: sub-folder (core.statistics with the evaluation that uses it). No file stands at an old path.
+MOVED_IN_FOLDERS = {
+    "fxc_env.baselines.benchmark": ["fxc_env.baselines.harness.benchmark"],
+    "fxc_env.baselines.bounded_steer": ["fxc_env.baselines.laws.bounded_steer"],
+    "fxc_env.baselines.design": ["fxc_env.baselines.laws.design"],
+    "fxc_env.baselines.dropout": ["fxc_env.baselines.harness.dropout"],
+    "fxc_env.baselines.figures": ["fxc_env.baselines.harness.figures"],
+    "fxc_env.baselines.filtering": ["fxc_env.baselines.laws.filtering"],
+    "fxc_env.baselines.filtering_goals": ["fxc_env.baselines.harness.filtering_goals"],
+    "fxc_env.baselines.finite_time": ["fxc_env.baselines.laws.finite_time"],
+    "fxc_env.baselines.graph_agnostic": ["fxc_env.baselines.laws.graph_agnostic"],
+    "fxc_env.baselines.graph_agnostic_goals": ["fxc_env.baselines.harness.graph_agnostic_goals"],
+    "fxc_env.baselines.jobs": ["fxc_env.baselines.harness.jobs"],
+    "fxc_env.baselines.leader_follower": ["fxc_env.baselines.laws.leader_follower"],
+    "fxc_env.baselines.linear": ["fxc_env.baselines.laws.linear"],
+    "fxc_env.baselines.minimum_time": ["fxc_env.baselines.laws.minimum_time"],
+    "fxc_env.baselines.motion_signals": ["fxc_env.baselines.laws.motion_signals"],
+    "fxc_env.baselines.policy": ["fxc_env.baselines.laws.policy"],
+    "fxc_env.baselines.prescribed_time": ["fxc_env.baselines.laws.prescribed_time"],
+    "fxc_env.baselines.ray_jobs": ["fxc_env.baselines.harness.ray_jobs"],
+    "fxc_env.baselines.report": ["fxc_env.baselines.harness.report"],
+    "fxc_env.baselines.resolution": ["fxc_env.baselines.harness.resolution"],
+    "fxc_env.baselines.sampled": ["fxc_env.baselines.laws.sampled"],
+    "fxc_env.baselines.saturation_aware": ["fxc_env.baselines.laws.saturation_aware"],
+    "fxc_env.baselines.signalling": ["fxc_env.baselines.laws.signalling"],
+    "fxc_env.baselines.suite": ["fxc_env.baselines.harness.suite"],
+    "fxc_env.core.statistics": ["fxc_env.training.evaluation.statistics"],
+    "fxc_env.training.agnostic": ["fxc_env.training.recipes.agnostic"],
+    "fxc_env.training.checkpoint_checks": ["fxc_env.training.backends.checkpoint_checks"],
+    "fxc_env.training.diff_train": ["fxc_env.training.backends.diff_train"],
+    "fxc_env.training.evaluate": ["fxc_env.training.evaluation.evaluate"],
+    "fxc_env.training.imitation": ["fxc_env.training.backends.imitation"],
+    "fxc_env.training.leaderboard": ["fxc_env.training.evaluation.leaderboard"],
+    "fxc_env.training.leaderboard_files": ["fxc_env.training.evaluation.leaderboard_files"],
+    "fxc_env.training.leaderboard_runs": ["fxc_env.training.evaluation.leaderboard_runs"],
+    "fxc_env.training.noise_gains": ["fxc_env.training.recipes.noise_gains"],
+    "fxc_env.training.recurrent_imitation": ["fxc_env.training.recipes.recurrent_imitation"],
+    "fxc_env.training.residual_sensitivity": ["fxc_env.training.recipes.residual_sensitivity"],
+    "fxc_env.training.rings": ["fxc_env.training.recipes.rings"],
+    "fxc_env.training.rings_scratch": ["fxc_env.training.recipes.rings_scratch"],
+    "fxc_env.training.rllib_train": ["fxc_env.training.backends.rllib_train"],
+    "fxc_env.training.sb3_train": ["fxc_env.training.backends.sb3_train"],
+    "fxc_env.training.seed_evaluation": ["fxc_env.training.evaluation.seed_evaluation"],
+    "fxc_env.training.seed_scores": ["fxc_env.training.evaluation.seed_scores"],
+    "fxc_env.training.seeds": ["fxc_env.training.evaluation.seeds"],
+    "fxc_env.training.torch_common": ["fxc_env.training.backends.torch_common"],
+    "fxc_env.training.torch_ppo": ["fxc_env.training.backends.torch_ppo"],
+}
+OLD_TO_NEW.update({old: new for old, new in MOVED_IN_FOLDERS.items() if "rllib" not in old})  # Ray: .venv-rllib
 
 #: Names the previous release's README imported from the old paths.
 README_IMPORTS = {
@@ -82,6 +134,28 @@ def test_an_old_path_imports_the_new_modules_objects_with_a_warning_naming_the_n
             assert getattr(module, name) is getattr(target, name), name
     for name in README_IMPORTS.get(old, []):
         assert name in module.__all__
+
+
+def test_no_file_stands_at_a_path_that_moved_into_a_sub_folder():
+    """The old paths answer through the one finder of ``fxc_env._moved``, not one shim module per moved file."""
+    from fxc_env import _moved
+
+    for old, (new,) in MOVED_IN_FOLDERS.items():
+        assert _moved.MOVED[old] == (new,)
+        assert importlib.util.find_spec(new).origin != importlib.util.find_spec(old).origin
+        assert importlib.util.find_spec(old).origin is None, old  # no module file at the old path
+
+
+def test_an_old_law_path_gives_the_same_class_with_a_deprecation_warning():
+    from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
+
+    forget("fxc_env.baselines.minimum_time")
+    with pytest.warns(
+        DeprecationWarning, match=r"fxc_env\.baselines\.minimum_time moved to fxc_env\.baselines\.laws\.minimum_time"
+    ):
+        from fxc_env.baselines.minimum_time import MinimumTimePolicy as old
+
+    assert old is MinimumTimePolicy
 
 
 def test_the_renamed_torchrl_env_function_still_answers_with_a_warning_naming_torchrl_wrapper():
@@ -210,3 +284,15 @@ def test_the_previous_releases_config_names_still_import_from_fxc_env_config():
     namespace: dict[str, object] = {}
     exec("from fxc_env.config import CLOCK_SIZE, EnvConfig, ObservationLayout, config_of, make_config", namespace)
     assert namespace["ObservationLayout"] is layout.ObservationLayout and namespace["CLOCK_SIZE"] == layout.CLOCK_SIZE
+
+
+def test_an_old_recipe_command_runs_the_moved_module_with_a_warning():
+    """The shipped files record ``python -m fxc_env.training.rings ...``: that command runs the recipe still."""
+    result = subprocess.run(
+        [sys.executable, "-W", "always::DeprecationWarning", "-m", "fxc_env.training.rings", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert result.stdout.startswith("usage: python -m fxc_env.training.recipes.rings")
+    assert "fxc_env.training.rings moved to fxc_env.training.recipes.rings" in result.stderr

@@ -39,8 +39,11 @@ def test_the_wheel_installs_fxc_env_as_its_only_top_level_name(wheel):
     tops = {name.split("/")[0] for name in names if not name.split("/")[0].endswith(".dist-info")}
     assert tops == {"fxc_env"}
     for module in (
-        "fxc_env/baselines/benchmark.py",
-        "fxc_env/training/sb3_train.py",
+        "fxc_env/baselines/harness/benchmark.py",
+        "fxc_env/baselines/laws/linear.py",
+        "fxc_env/training/backends/sb3_train.py",
+        "fxc_env/training/evaluation/statistics.py",
+        "fxc_env/training/recipes/rings.py",
         "fxc_env/training/hyperparams.yml",
     ):
         assert module in names
@@ -102,3 +105,17 @@ def test_the_layer_contract_holds(tmp_path):
     )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "0 broken" in result.stdout
+
+
+def test_every_package_folder_is_installed():
+    """A sub-folder with an ``__init__.py`` (``baselines/laws/``, ``training/backends/`` ...) is in the wheel's list."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    folders = {"fxc_env": "fxc_env", "baselines": "fxc_env.baselines", "training": "fxc_env.training"}
+    found = {
+        ".".join((package, *init.parent.relative_to(ROOT / folder).parts))
+        for folder, package in folders.items()
+        for init in (ROOT / folder).rglob("__init__.py")
+    }
+    assert found == listed, f"not installed: {sorted(found - listed)}; listed but absent: {sorted(listed - found)}"

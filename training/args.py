@@ -62,7 +62,7 @@ class TrainArgs:
     seeds: str | None = arg(
         None,
         "Several training seeds, one run each, in turn (``0-4``, ``0,2,5``); runs go to ``<run_dir>-seed<k>`` "
-        "(or each seed's default). Not with ``--seed``. See :mod:`fxc_env.training.seeds`.",
+        "(or each seed's default). Not with ``--seed``. See :mod:`fxc_env.training.evaluation.seeds`.",
     )
     run_dir: str | None = arg(
         None, "Run directory; default ``runs/<scenario>-[<backend>-]<algo>-seed<seed>`` (no back-end part for sb3)."
@@ -88,7 +88,7 @@ class TrainArgs:
         "``sb3`` (stable-baselines3 on this machine), ``rllib`` (Ray RLlib PPO on a local Ray or a cluster) or "
         "``torch`` (a lean PPO loop on the batched engine on a torch device; ``torchrl``, its old name, is deprecated) "
         "or ``diff`` (analytic policy gradients through the engine's closed-form intervals, "
-        ":mod:`fxc_env.training.diff_train`; ``--algo apg``, its default).",
+        ":mod:`fxc_env.training.backends.diff_train`; ``--algo apg``, its default).",
     )
     num_env_runners: int = arg(2, "RLlib: env runner actors that sample in parallel (0: sample in this process).")
     envs_per_runner: int = arg(1, "RLlib: environments each env runner steps (``n_envs`` is the SB3 setting).")
@@ -158,7 +158,7 @@ def load_hyperparams(path: str | Path, scenario: str, algo: str, *, name: str = 
         "env": dict(entry.get("env", {})),
         "normalize": bool(entry.get("normalize", False)),
         "algo": dict(entry[key]),
-        # A warm start by imitating the reference (fxc_env.training.imitation), PPO only; None: none.
+        # A warm start by imitating the reference (fxc_env.training.backends.imitation), PPO only; None: none.
         "imitation": dict(entry["imitation"]) if algo == "ppo" and "imitation" in entry else None,
     }
 
@@ -176,7 +176,7 @@ def check_train_args(args: TrainArgs, *, flags: bool = False) -> dict[str, Any]:
 
     if args.seeds is not None:
         raise ArgumentError(
-            f"{name('seeds')}: one run trains one seed; fxc train --seeds (fxc_env.training.seeds.train_seeds) "
+            f"{name('seeds')}: one run trains one seed; fxc train --seeds (fxc_env.training.evaluation.seeds.train_seeds) "
             "trains several"
         )
     choice(name("backend"), canonical_backend(args.backend), BACKENDS)

@@ -20,7 +20,7 @@ class Backend:
 
     Attributes:
         name: ``--backend``'s value.
-        trainer: ``module:function`` of :mod:`fxc_env.training` that trains a run (imported when chosen).
+        trainer: ``module:function`` of :mod:`fxc_env.training.backends` that trains a run (imported when chosen).
         algorithms: the ``--algo`` values it trains, the default first.
         checkpoint: its checkpoint's name in ``checkpoints/`` (``{}``: the timesteps).
         hyperparams_key: the algorithm's entry in the hyperparameter file (``{backend}``, ``{algo}``).

@@ -1,6 +1,15 @@
 """The run directory of ``fxc train``: what every back end writes besides its algorithm's state.
 
-More: docs: training.md, "fxc_env.training.run_dir".
+    runs/<name>/config.json             the exact arguments and resolved hyperparameters (:meth:`RunDir.start`)
+    runs/<name>/versions.json           Python and library versions (:func:`versions`)
+    runs/<name>/progress.csv            one row per rollout or iteration (:class:`Progress`; SB3's names)
+    runs/<name>/events.out.tfevents.*   the same scalars for TensorBoard (sb3 and torch)
+    runs/<name>/checkpoints/            one per save, named with its step count (:data:`CHECKPOINT_NAMES`)
+    runs/<name>/training_curve.png      mean episode return against timesteps (:func:`write_training_curve`)
+
+Resuming runs no code from the run directory unless the user passes ``--trust-policy-file``
+(:data:`TRAIN_TRUST_HINT`); what only unpickling can read is refused without it, naming it (docs: training.md,
+"Training learned policies").
 """
 
 from __future__ import annotations
@@ -98,7 +107,7 @@ class RunDir:
 
         With ``args``, a resumed run must keep ``config.json``'s ``backend``, ``scenario`` and ``critic`` and
         reach beyond the checkpoint's timesteps (what the checkpoint holds is checked as the back end reads it:
-        :mod:`fxc_env.training.checkpoint_checks`); an RLlib checkpoint is refused unless ``args.trust_policy_file``.
+        :mod:`fxc_env.training.backends.checkpoint_checks`); an RLlib checkpoint is refused unless ``args.trust_policy_file``.
         """
         if not resume:
             return None

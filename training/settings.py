@@ -1,6 +1,6 @@
 """The hyperparameter entries of the torch back ends, checked: ``torch_ppo`` (:class:`PPOSettings`) and
 ``diff_apg`` (:class:`DiffSettings`), read by :func:`fxc_env.training.args.check_train_args` before any work
-and by the trainers of :mod:`fxc_env.training.torch_ppo` and :mod:`fxc_env.training.diff_train`.
+and by the trainers of :mod:`fxc_env.training.backends.torch_ppo` and :mod:`fxc_env.training.backends.diff_train`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.networks import ACTIVATIONS
 from fxc_env.policies.torch_memory import GRU_INPUTS
 
-#: The losses of :class:`DiffSettings` (see :mod:`fxc_env.training.diff_train`).
+#: The losses of :class:`DiffSettings` (see :mod:`fxc_env.training.backends.diff_train`).
 LOSSES = ("log_error", "return")
 
 

@@ -17,14 +17,14 @@ from collections.abc import Sequence
 from typing import Any
 
 from fxc_env.analysis.video import add_video_arguments
-from fxc_env.baselines.benchmark import add_benchmark_parser, make_out
+from fxc_env.baselines.harness.benchmark import add_benchmark_parser, make_out
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.config.flags import add_env_arguments, env_kwargs_from
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.speed.command import add_arguments as speed_arguments
 from fxc_env.training.args import add_train_parser
-from fxc_env.training.evaluate import add_evaluate_parser
-from fxc_env.training.leaderboard import add_leaderboard_parser
+from fxc_env.training.evaluation.evaluate import add_evaluate_parser
+from fxc_env.training.evaluation.leaderboard import add_leaderboard_parser
 from fxc_env.utils.cli_checks import output_directory
 
 #: The usage error: the one exception :func:`main` prints as a one-line message (exit status 2).
@@ -154,11 +154,11 @@ def train_command(args: argparse.Namespace) -> int:
 
     Every flag is checked before work starts (``--backend torchrl`` is read as ``--backend torch``,
     with a deprecation message on stderr); Ctrl-C saves a checkpoint and exits with status 130.
-    ``--seeds`` trains one run per seed, in turn (:mod:`fxc_env.training.seeds`).
+    ``--seeds`` trains one run per seed, in turn (:mod:`fxc_env.training.evaluation.seeds`).
     """
     from fxc_env.training.args import args_from_namespace, check_train_args
     from fxc_env.training.backends import train
-    from fxc_env.training.seeds import seed_flag_given, train_seeds
+    from fxc_env.training.evaluation.seeds import seed_flag_given, train_seeds
 
     train_args = args_from_namespace(args)
     if train_args.seeds is not None and seed_flag_given(args):

@@ -7,7 +7,7 @@ import argparse
 import inspect
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -194,3 +194,39 @@ class FlagParser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
         self.register("action", None, StoreOnce)
         self.register("action", "store", StoreOnce)
+
+
+class EnvKwargs(TypedDict, total=False):
+    """The environment's keyword arguments after ``scenario`` (the annotations of :data:`~fxc_env.config.arguments.ENV_ARGUMENTS`), as front ends take them.
+
+    ``**kwargs: Unpack[EnvKwargs]`` lets type checkers and IDEs see each one; :func:`~fxc_env.config.arguments.env_signature`
+    writes them out with their defaults for ``help()`` and ``inspect``.
+    """
+
+    n_agents: int | None
+    topology: Any
+    settling_time: float | None
+    n_intervals: int | None
+    schedule: Any
+    dim: int | None
+    action_mode: str
+    obs_mode: str
+    obs_format: str
+    obs_dtype: str
+    global_state: str
+    action_bound: float | None
+    reward_floor: float
+    initial_state: Any
+    position_range: float | tuple[float, float] | None
+    velocity_range: float | tuple[float, float] | None
+    topology_seed: int | None
+    mean_in_degree: float | None
+    topology_period: int | None
+    obs_slots: int | None
+    u_max: float | Sequence[float] | None
+    obs_noise: float
+    obs_resolution: float | None
+    link_dropout: float
+    switching: str
+    agent_model: Any
+    formation_offsets: Any

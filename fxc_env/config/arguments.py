@@ -12,13 +12,14 @@ from __future__ import annotations
 import inspect
 from collections.abc import Callable, Mapping, Sequence
 from types import MappingProxyType
-from typing import Any, TypedDict, TypeVar
+from typing import Any, TypeVar
 
 from fxc_env.config.argument_types import (
     NO_FALLBACK,
     REQUIRED,
     TABLE_MARKER,
     Argument,
+    EnvKwargs,
     Flag,
     arguments_table,
     with_arguments_table,
@@ -49,42 +50,6 @@ __all__ = [
     "env_signature",
     "with_arguments_table",
 ]
-
-
-class EnvKwargs(TypedDict, total=False):
-    """The environment's keyword arguments after ``scenario`` (the annotations of :data:`ENV_ARGUMENTS`), as front ends take them.
-
-    ``**kwargs: Unpack[EnvKwargs]`` lets type checkers and IDEs see each one; :func:`env_signature`
-    writes them out with their defaults for ``help()`` and ``inspect``.
-    """
-
-    n_agents: int | None
-    topology: Any
-    settling_time: float | None
-    n_intervals: int | None
-    schedule: Any
-    dim: int | None
-    action_mode: str
-    obs_mode: str
-    obs_format: str
-    obs_dtype: str
-    global_state: str
-    action_bound: float | None
-    reward_floor: float
-    initial_state: Any
-    position_range: float | tuple[float, float] | None
-    velocity_range: float | tuple[float, float] | None
-    topology_seed: int | None
-    mean_in_degree: float | None
-    topology_period: int | None
-    obs_slots: int | None
-    u_max: float | Sequence[float] | None
-    obs_noise: float
-    obs_resolution: float | None
-    link_dropout: float
-    switching: str
-    agent_model: Any
-    formation_offsets: Any
 
 
 #: Each environment argument's annotation, as the signatures write it (EnvKwargs's, and ``scenario``'s).

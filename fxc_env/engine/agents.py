@@ -1,6 +1,15 @@
 """The agents' dynamics over one sampling interval, chosen once at construction (:func:`make_agents`).
 
-More: docs: architecture.md, "fxc_env.engine.agents".
+- :class:`DoubleIntegratorAgents`: ``x' = v``, ``v' = u`` (paper eq. 10) under the affine input
+  the action names, integrated by the closed forms of :mod:`fxc_env.core.dynamics`;
+- :class:`LimitedDoubleIntegratorAgents`: the same input clipped to ``±u_max`` (one limit per
+  episode), integrated piece by piece in closed form;
+- :class:`LinearAgents`: a general ``z' = A z + B u`` per axis (docs: agent-models.md, "Agent models and formations"): the
+  action is a plan ``Delta`` and the input the minimum-energy one (:mod:`fxc_env.core.linear`).
+
+Every part maps ``(state, actions)`` at ``t_k`` to an :class:`Interval` without touching the
+engine's state (on numpy the new state goes into the spare buffer ``out``, adopted once finite).
+States are ``(B, N, n, dim)``, component major, space axis last.
 """
 
 from __future__ import annotations

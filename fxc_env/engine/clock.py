@@ -1,6 +1,15 @@
 """The engine's clock: which sampling instant ``t_k`` each episode is at.
 
-More: docs: architecture.md, "fxc_env.engine.clock".
+Episodes start together and advance in lock step (:class:`LockStepClock`: one host counter
+``k``) until a partial reset restarts some of them; from then on every episode has its own
+instant (:class:`EpisodeClock`: ``steps`` ``(B,)`` on the device) and the interval length,
+the clock features and the graph are gathered per episode. The engine swaps one clock for
+the other at the first partial reset; neither branches on the other's case.
+
+Both read the per-instant tables of :class:`InstantTables` (built once per engine): the
+interval lengths ``T_{k+1} = t_{k+1} - t_k`` of the schedule (paper Section 3), the clock
+features of the observation (``t_k / T_s, T_{k+1} / T_s, k / K``), and the factors that put
+a state component in position units (docs: agent-models.md, "Agent models and formations").
 """
 
 from __future__ import annotations

@@ -1,6 +1,20 @@
 """The batched consensus engine: B independent episodes of N double-integrator agents.
 
-More: docs: architecture.md, "fxc_env.engine.consensus_engine".
+This is the one code path behind every front end: the PettingZoo environment is the
+``n_episodes = 1`` case, the SB3 VecEnv and :func:`fxc_env.simulate` use larger batches,
+and the TorchRL environment (:mod:`fxc_env.envs.torch_env`) runs it on torch tensors. Arrays
+are numpy arrays (``device=None``, the default) or torch tensors on ``device`` (``"cpu"``,
+``"cuda"``, ``"meta"``), float64 by default: the state is ``(B, N, n, dim)`` (component major,
+space axis last: ``state[:, :, 0]`` positions ``x``, ``state[:, :, 1]`` velocities ``v``);
+observations ``(B, N, obs_size)``; actions ``(B, N, 2 dim)``.
+
+One step integrates the affine input on ``[t_k, t_{k+1})`` in closed form
+(:mod:`fxc_env.core.dynamics`), clipped to ``±u_max`` when that is set; noise, dropout and
+random switching draw from :attr:`ConsensusEngine.rng`. The engine wires named parts (backend,
+clock, graph table, draws, agents, observations, trackers), each choosing its branch once, at
+construction (docs: architecture.md, "Layers"). On numpy a step whose result would not be finite
+is refused at once, state unchanged; on torch it sets a per-episode flag, read off the hot path by
+:meth:`ConsensusEngine.raise_if_invalid`.
 """
 
 from __future__ import annotations

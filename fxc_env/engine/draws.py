@@ -1,6 +1,16 @@
 """What a new episode draws at reset: its initial state, and where the config asks, its topology and input limit.
 
-More: docs: architecture.md, "fxc_env.engine.draws".
+Two ways to draw, with the same distributions:
+
+- :func:`draw_episode`: one episode from its own seeded numpy generator (the PettingZoo env,
+  the VecEnv, :func:`fxc_env.simulate`), in a fixed order so that seeds keep their episodes;
+- :func:`draw_batch`: every episode at once on the engine's device (the TorchRL env).
+
+Positions are drawn from ``U(-a, a)`` and velocities from ``U(-b, b)`` per component with
+``a = position_range`` and ``b = velocity_range`` (defaults 5 m and 2 m/s); a ``(low, high)``
+range first draws the half-width log-uniformly, so episodes span decades of scale.
+:func:`stack_draws` turns per-episode draws into the arguments of one batched
+:meth:`~fxc_env.engine.ConsensusEngine.reset` (see :meth:`~fxc_env.engine.ConsensusEngine.reset_from_draws`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,17 @@
 """The engine's graph table: every episode's graphs as padded rows of in-neighbour slots.
 
-More: docs: architecture.md, "fxc_env.engine.graph_table".
+Agent i of episode b measures, on the interval after ``t_k``, the agents ``j`` with an edge
+``j -> i`` in that episode's graph ``G_{sigma(k)}`` (paper Section 2: ``sigma(k) = k mod m``
+for periodic switching, or a uniform draw from the period for random switching). The table
+stacks the distinct topologies' graphs once, on the host, and copies them to the device:
+
+- ``neighbour_index`` ``(G, N, slots)``: the in-neighbours of each agent in each of the G
+  distinct graphs, padded to the layout's ``slots`` with the agent itself (a gather of a
+  padded slot then gives an exact zero relative measurement);
+- ``mask_features`` ``(G, N, slots)``: 1 for a real in-neighbour, 0 for padding.
+
+Episode b's graphs are rows ``offset[b] + (0 .. m_b - 1)``. :meth:`GraphTable.draw` picks the
+row of every episode for the coming interval.
 """
 
 from __future__ import annotations

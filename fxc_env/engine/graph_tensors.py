@@ -1,6 +1,17 @@
 """The coming interval's graph of every episode as edge tensors, for graph neural networks (docs: graph-tensors.md, "Graph tensors").
 
-More: docs: architecture.md, "fxc_env.engine.graph_tensors".
+Agent i of episode b measures, on the interval after ``t_k``, every in-neighbour j of that
+episode's current graph ``G_{sigma(k)}`` (paper Section 2; ``sigma(k) = k mod m`` for periodic
+switching): one message ``j -> i`` per edge. :func:`graph_tensors` lists those edges in PyTorch
+Geometric's convention, batched first, on the engine's backend (no read off the device), as the
+fields of :class:`GraphTensors` (their shapes and dtypes).
+
+``E`` is the largest edge count of any graph in the engine's graph table, or a given ``width``
+(:func:`edge_capacity`). Edges come first in each episode, sorted by target then source;
+padding, the edge ``N -> N`` with zero features, follows, so a summing message pass over ``N + 1``
+node rows needs no mask; an edge lost to ``link_dropout`` is not listed. ``edge_attr`` is read
+out of the observation itself (``F = n dim``, normalized or raw as ``obs_mode`` says; docs:
+graph-tensors.md, "Graph tensors").
 """
 
 from __future__ import annotations

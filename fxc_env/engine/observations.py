@@ -1,6 +1,18 @@
 """What the agents measure at ``t_k`` and the observations built from it (the card's Observation Space).
 
-More: docs: architecture.md, "fxc_env.engine.observations".
+Agent i receives from every in-neighbour j of the coming interval's graph the relative state
+``[x_j - x_i, v_j - v_i]`` (paper Section 2), with measurement noise and link dropout where
+the config asks; its local scale is ``s_i = max(|x_j - x_i|, T |v_j - v_i|)`` over the rows
+(``T_s`` in place of ``T`` with ``action_mode="plan_balanced"``: :attr:`EnvConfig.velocity_weight`; the environment
+card's Observation Space). A flat observation is the rows (divided by ``s_i`` in normalized
+mode, velocities times ``T``, or ``T_s``), the slot mask, the clock and, with an input limit, the limit
+feature (:func:`limit_feature`). Each instant's measurements are drawn once and cached
+until the engine moves (:meth:`Observer.invalidate`).
+
+**numpy fast path.** Without noise or dropout, on one shared graph in lock step, the flat
+observation is built agent block by agent block (:data:`BLOCK_AGENTS`), with the same
+element-wise operations in the same order, so the values are identical (docs: performance.md,
+"The observation fast path").
 """
 
 from __future__ import annotations

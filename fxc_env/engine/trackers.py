@@ -1,6 +1,15 @@
 """The episode trackers: rewards and the running figures behind the episode metrics.
 
-More: docs: architecture.md, "fxc_env.engine.trackers".
+Per episode, from its last reset: the initial state (kept whole, for metrics that need it),
+the disagreement ``D(t_k) = e_x + T_s e_v`` (paper eq. 7's figure of merit) at the start
+and now, the reward's floor and logarithm, the energy and peak input per agent, the last
+instant above each settling threshold, and the time spent saturated. :meth:`EpisodeTrackers.update`
+folds one :class:`~fxc_env.engine.agents.Interval` in; :meth:`EpisodeTrackers.batch_metrics`
+turns them into the metrics (docs: benchmark.md, "Baselines and the deadline benchmark"), the
+predicted consensus value by :func:`fxc_env.core.linear.final_value` (Theorems 1-2).
+
+To add a metric: extend :meth:`EpisodeTrackers.extra_metrics`; its columns join
+:meth:`~EpisodeTrackers.batch_metrics`.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
 which stores every info entry as a tensor, one flat schema: the step keys plus
 ``episode_<metric>`` for each metric of the nested ``episode`` dict, NaN until the step that ends
 the episode. RLlib's PettingZoo wrapper lives with the RLlib trainer
-(``fxc_env.training.rllib_train``). For TorchRL at speed use
+(``fxc_env.training.backends.rllib_train``). For TorchRL at speed use
 :class:`fxc_env.envs.torch_env.ConsensusTorchEnv` (docs: performance.md, "Performance").
 """
 

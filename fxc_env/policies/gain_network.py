@@ -92,7 +92,7 @@ class GatedGainExtractor(GainScheduledExtractor):
     needs with the limit, ``sigmoid(k (log10 rho - log10 need))``, where ``rho = u_max T^2 / s_i``
     comes from the observation's limit entry and ``need`` is the largest of
     ``|6 plan_x - 2 plan_v|`` and ``|4 plan_v - 6 plan_x|`` (the plan's end inputs in units of
-    ``s_i / T^2``). The switch of the saturation-aware law (``fxc_env.baselines.saturation_aware``:
+    ``s_i / T^2``). The switch of the saturation-aware law (``fxc_env.baselines.laws.saturation_aware``:
     the paper's plan where it fits, a held linear law where it does not) is one setting of
     it; ``k`` is learned (it starts at 20, a decade either side of the threshold is then
     decided). The gate depends on the rows, which a single gain network cannot express.

@@ -1,6 +1,27 @@
 """A learned gain schedule: one 2 x 2 gain per sampling interval on the agent's aggregated relative row.
 
-More: docs: training.md, "fxc_env.policies.interval_gains".
+:class:`IntervalGainPolicy` is the network of the shipped ``rings`` policy (docs: training.md, "Training
+learned policies"). Agent i reads its in-neighbour rows through the observation layout
+(:class:`fxc_env.config.layout.ObservationLayout`; masked rows are ignored), forms the aggregated
+relative row
+
+    r_i = (1 / (d_i + 1)) sum_{j in N_i} (z_j - z_i),    z = (x, v)    (normalized units: 1, T_{k+1}),
+
+and plans ``(alpha_x, alpha_v) = G_k r_i`` with ``k`` read off the clock and ``G_k`` a learned
+``(K, 2, 2)`` float64 table in normalized units (``alpha_x = a_x / s_i``, ``alpha_v = T_{k+1} a_v /
+s_i``); the paper's controller (eq. 11) is ``G_k = [[1, 1], [0, 1]]``. A table is tied to the
+graph's spectrum, schedule, ``K`` and ``N``: outside its training domain it is refused by name
+unless ``allow_out_of_domain=True``.
+
+**File format** (``.npz``, read with ``allow_pickle=False``: nothing in it runs): ``gains``
+``(K, 2, 2)`` float64 and ``header``, a JSON string: ``format`` (:data:`FORMAT`), ``name``,
+``env`` (:func:`fxc_env.policies.policy_files.training_settings` of the training environment:
+schedule, modes, ``dim``, ``obs_slots`` (for the record: the table reads any), ``n_agents``, ``n_intervals``, ``settling_time``,
+``u_max``), ``topology`` (the graph family, e.g. ``{"family": "ring", "relabel": true}``),
+``eigenvalues`` (the spectrum of ``(D + I)^{-1} L`` it was trained on, ``[[re, im], ...]``, 0 included),
+``domain`` (:func:`fxc_env.policies.domain.training_domain` of the training environment; derived
+from ``env`` and ``topology`` for a file without it) and ``training`` (how it was made: command,
+method, wall time, figures).
 """
 
 from __future__ import annotations

@@ -64,9 +64,9 @@ SHIPPED = {
     "paper_fig1": "paper_fig1_ppo.zip",
     "rings": "rings.npz",  # a gain schedule (fxc_env.policies.interval_gains), not an SB3 model
     "rings_gru": "rings_gru.pt",  # a recurrent torch policy (fxc_env.policies.torch_memory)
-    "rings_scratch": "rings_scratch.npz",  # a gain schedule learned from scratch (fxc_env.training.rings_scratch)
-    "agnostic": "agnostic.npz",  # one gain schedule for any graph, not told the graph (fxc_env.training.agnostic)
-    "ppo_rings20": "ppo_rings20.pt",  # torch PPO from scratch on the task rings20-v2 (training/rings20_v2.yml)
+    "rings_scratch": "rings_scratch.npz",  # a gain schedule learned from scratch (fxc_env.training.recipes.rings_scratch)
+    "agnostic": "agnostic.npz",  # one gain schedule for any graph, not told the graph (fxc_env.training.recipes.agnostic)
+    "ppo_rings20": "ppo_rings20.pt",  # torch PPO from scratch on the task rings20-v2 (training/recipes/rings20_v2.yml)
     "diff_rings20": "diff_rings20.pt",  # analytic policy gradients from scratch on rings20-v2 (same file)
 }
 #: The schedule a shipped policy was trained on, where it is not the paper's.

@@ -1,7 +1,7 @@
 """Every network the package builds: :func:`mlp` and the actors of SB3 policy files.
 
 The torch back ends' actors and critics (:mod:`fxc_env.policies.torch_memory`,
-:mod:`fxc_env.training.torch_ppo`), the gain-scheduled SB3 networks
+:mod:`fxc_env.training.backends.torch_ppo`), the gain-scheduled SB3 networks
 (:mod:`fxc_env.policies.gain_network`), the actors read back from SB3 files
 (:mod:`fxc_env.policies.sb3_files`) and the timing networks of ``fxc speed`` all come from here.
 """

@@ -1,6 +1,21 @@
 """Two learned gain schedules and a memory that picks one: fixed graph or switching, told by the agent itself.
 
-More: docs: training.md, "fxc_env.policies.regime_gains".
+:class:`RegimeGainPolicy` is the network of the shipped ``agnostic`` policy (docs: results.md,
+"agnostic policy"). Every agent plans ``G_k r_i`` from its own aggregated relative row ``r_i``, as
+:class:`~fxc_env.policies.interval_gains.IntervalGainPolicy` does, from one of two learned
+``(K, 2, 2)`` tables: ``gains`` (a fixed graph) or ``switching_gains`` (the graph changes between
+intervals). Which one, the agent finds out from its own memory:
+
+For the first ``probes`` intervals both tables are zero and every agent coasts; an agent whose
+mask changes or whose rows are not the coasted rows (relative tolerance :data:`TOLERANCE`) has
+seen its in-neighbour set change and uses ``switching_gains`` for the rest of the episode. The
+policy is called with every agent's observation at once, ``(..., N, obs_size)``, one instant
+after the other (a call that skips or repeats an instant is refused by name); any ``dim``.
+The probe and the memory: docs: training.md, "The agnostic policy's probe".
+
+**File format** (``.npz``, read with ``allow_pickle=False``): ``gains`` and ``switching_gains``
+``(K, 2, 2)`` float64, and ``header`` as a gain schedule's
+(:mod:`fxc_env.policies.interval_gains`) with ``format`` :data:`REGIME_FORMAT` and ``probes``.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ keywords it was trained on), ``domain`` (its training domain,
 :func:`fxc_env.policies.domain.training_domain`; absent in older files, then derived from ``env``)
 and ``timesteps``; ``arch`` (absent: ``mlp``) names the actor, ``gru``
 (``gru_size``, ``clock_index``) or ``gnn`` (``embed_size``, ``rounds``) of
-:mod:`fxc_env.policies.torch_memory`. The trainer lives in :mod:`fxc_env.training.torch_ppo`;
+:mod:`fxc_env.policies.torch_memory`. The trainer lives in :mod:`fxc_env.training.backends.torch_ppo`;
 this module is what evaluation needs.
 """
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from fxc_env.baselines.jobs import Job, make_jobs, run_job
-from fxc_env.baselines.suite import BASELINES, BenchmarkCase, builtin_contenders, learned_contender, quick_suite
+from fxc_env.baselines.harness.jobs import Job, make_jobs, run_job
+from fxc_env.baselines.harness.suite import BASELINES, BenchmarkCase, builtin_contenders, learned_contender, quick_suite
 from fxc_env.cli import main
 
 FIGURES = ("deadline_vs_budget.png", "energy_vs_error.png", "disagreement_vs_time.png")
@@ -109,8 +109,8 @@ def test_a_learned_policy_runs_as_a_contender_or_says_why_not():
 def test_realism_suite_reports_saturation_for_the_reference_under_an_input_limit(tmp_path):
     from dataclasses import replace
 
-    from fxc_env.baselines.benchmark import run_benchmark
-    from fxc_env.baselines.suite import realism_suite
+    from fxc_env.baselines.harness.benchmark import run_benchmark
+    from fxc_env.baselines.harness.suite import realism_suite
 
     full = realism_suite(n_seeds=3, fine_intervals=200)
     assert {s.condition for s in full.cases} >= {"ideal", "u_max = 10", "obs_noise = 0.1", "link_dropout = 0.3"}
@@ -143,7 +143,7 @@ def test_a_realism_job_with_noise_and_dropout_is_seeded_and_repeatable():
 
 def test_a_damaged_saved_policy_is_an_argument_error_naming_policy(tmp_path):
     from fxc_env import make_config
-    from fxc_env.baselines.suite import load_policy
+    from fxc_env.baselines.harness.suite import load_policy
     from fxc_env.core.validation import ArgumentError
 
     config = make_config("paper_fig1", obs_slots=4)

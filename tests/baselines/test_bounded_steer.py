@@ -7,8 +7,8 @@ import pytest
 from helpers import recorded_observations, stream_actions
 
 from fxc_env import BoundedSteerPolicy
-from fxc_env.baselines.bounded_steer import errors_at_limit_ratios, flooding_schedule, least_peak_inputs
-from fxc_env.baselines.suite import BASELINES, builtin_contenders, load_policy
+from fxc_env.baselines.harness.suite import BASELINES, builtin_contenders, load_policy
+from fxc_env.baselines.laws.bounded_steer import errors_at_limit_ratios, flooding_schedule, least_peak_inputs
 from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine

@@ -7,7 +7,7 @@ import pytest
 from helpers import PAPER_GRAPHS, adjacency_by_hand
 
 from fxc_env import make_topology
-from fxc_env.baselines import design
+from fxc_env.baselines.laws import design
 
 
 def laplacian_by_hand(n, edges):

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from fxc_env.baselines.dropout import DROPOUT_LEVELS, dropout_contenders
+from fxc_env.baselines.harness.dropout import DROPOUT_LEVELS, dropout_contenders
+from fxc_env.baselines.harness.suite import load_policy
 from fxc_env.baselines.registry import LAWS
-from fxc_env.baselines.suite import load_policy
 from fxc_env.cli import main
 from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError

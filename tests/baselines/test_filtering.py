@@ -7,10 +7,10 @@ import pytest
 from helpers import recorded_observations, stream_actions
 
 from fxc_env.baselines import FilteringPolicy
-from fxc_env.baselines.filtering_goals import goal_table
-from fxc_env.baselines.jobs import Job, run_job
+from fxc_env.baselines.harness.filtering_goals import goal_table
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, builtin_contenders, load_policy, optimality_contenders
 from fxc_env.baselines.registry import LAWS
-from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, load_policy, optimality_contenders
 from fxc_env.config import make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fxc_env import ConsensusEngine, make_config
-from fxc_env.baselines.finite_time import FiniteTimePolicy, is_undirected, sig
+from fxc_env.baselines.laws.finite_time import FiniteTimePolicy, is_undirected, sig
 
 UNDIRECTED_RING = [(i, (i + 1) % 5) for i in range(5)] + [((i + 1) % 5, i) for i in range(5)]
 

@@ -7,10 +7,10 @@ import pytest
 from helpers import recorded_observations, stream_actions
 
 from fxc_env.baselines import GraphAgnosticPolicy
-from fxc_env.baselines.graph_agnostic import listening_values, recurrence_limit
-from fxc_env.baselines.graph_agnostic_goals import strongly_connected_random
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, load_policy, optimality_contenders
+from fxc_env.baselines.harness.graph_agnostic_goals import strongly_connected_random
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, builtin_contenders, load_policy, optimality_contenders
+from fxc_env.baselines.laws.graph_agnostic import listening_values, recurrence_limit
 from fxc_env.config import make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.optimality import energy_bound
@@ -226,8 +226,8 @@ def test_on_a_random_digraph_it_pre_steers_toward_its_settled_iterate_and_spends
 
 @pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3, 1e6])
 def test_the_announced_aims_are_read_back_exactly_in_any_units(scale):
-    from fxc_env.baselines.graph_agnostic import AIM_BITS, ANNOUNCE, heard_aim, presteer_aim
-    from fxc_env.baselines.signalling import deviation_of
+    from fxc_env.baselines.laws.graph_agnostic import AIM_BITS, ANNOUNCE, heard_aim, presteer_aim
+    from fxc_env.baselines.laws.signalling import deviation_of
 
     rng = np.random.default_rng(0)
     values = scale * (rng.normal(size=(6, 3, 1)) + 1j * rng.normal(size=(6, 3, 1)))

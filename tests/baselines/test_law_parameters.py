@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fxc_env.baselines.bounded_steer import BoundedSteerPolicy
+from fxc_env.baselines.laws.bounded_steer import BoundedSteerPolicy
 from fxc_env.baselines.registry import LAWS
 from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError

@@ -7,8 +7,8 @@ import pytest
 
 import fxc_env
 from fxc_env.baselines import LeaderFollowerPolicy
-from fxc_env.baselines.figures import COLOURS, MARKERS
-from fxc_env.baselines.suite import BASELINES, BUILTIN_SETTINGS, load_policy, optimality_contenders
+from fxc_env.baselines.harness.figures import COLOURS, MARKERS
+from fxc_env.baselines.harness.suite import BASELINES, BUILTIN_SETTINGS, load_policy, optimality_contenders
 from fxc_env.config import make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.graphs import make_topology

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fxc_env import ConsensusEngine, make_config
-from fxc_env.baselines.linear import LinearConsensusPolicy
+from fxc_env.baselines.laws.linear import LinearConsensusPolicy
 
 #: Agent 0 hears agents 1 and 2; agents 1 and 2 hear agent 0.
 STAR_BACK_AND_FORTH = [(1, 0), (2, 0), (0, 1), (0, 2)]

@@ -9,9 +9,9 @@ import pytest
 
 import fxc_env
 from fxc_env.baselines import MinimumTimePolicy
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.minimum_time import design_eigenvalues, leja_factors
-from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, load_policy
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, builtin_contenders, load_policy
+from fxc_env.baselines.laws.minimum_time import design_eigenvalues, leja_factors
 from fxc_env.config import make_config
 from fxc_env.config.scenarios import HEXAGON
 from fxc_env.core.families import TopologyFamily

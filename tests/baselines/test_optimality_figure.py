@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from fxc_env.baselines import figures
-from fxc_env.baselines.jobs import Job, JobResult
-from fxc_env.baselines.suite import BASELINES, floor_cases, optimality_cases, optimality_contenders
+from fxc_env.baselines.harness import figures
+from fxc_env.baselines.harness.jobs import Job, JobResult
+from fxc_env.baselines.harness.suite import BASELINES, floor_cases, optimality_cases, optimality_contenders
 
 
 def test_every_registered_law_is_a_contender_with_its_own_marker_and_colour():

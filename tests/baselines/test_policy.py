@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 import fxc_env
-from fxc_env.baselines.finite_time import FiniteTimePolicy
-from fxc_env.baselines.linear import LinearConsensusPolicy
-from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
-from fxc_env.baselines.sampled import SampledLinearPolicy
+from fxc_env.baselines.laws.finite_time import FiniteTimePolicy
+from fxc_env.baselines.laws.linear import LinearConsensusPolicy
+from fxc_env.baselines.laws.prescribed_time import PrescribedTimePolicy
+from fxc_env.baselines.laws.sampled import SampledLinearPolicy
 
 POLICIES = [LinearConsensusPolicy, SampledLinearPolicy, FiniteTimePolicy, PrescribedTimePolicy]
 SETTINGS = {"scenario": "random_20_planar", "action_mode": "accel", "obs_mode": "raw", "schedule": "uniform"}

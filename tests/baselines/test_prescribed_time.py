@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fxc_env import ConsensusEngine, make_config
-from fxc_env.baselines.prescribed_time import PrescribedTimePolicy
+from fxc_env.baselines.laws.prescribed_time import PrescribedTimePolicy
 
 #: Complete graph on 4 agents: every nonzero Laplacian eigenvalue is 4.
 COMPLETE_4 = [(j, i) for i in range(4) for j in range(4) if i != j]

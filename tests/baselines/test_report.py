@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from fxc_env.baselines.jobs import Job, JobResult
-from fxc_env.baselines.report import (
+from fxc_env.baselines.harness.jobs import Job, JobResult
+from fxc_env.baselines.harness.report import (
     CSV_METRICS,
     aggregate,
     case_table,
@@ -19,7 +19,7 @@ from fxc_env.baselines.report import (
     realism_table,
     spread_cell,
 )
-from fxc_env.baselines.suite import BenchmarkCase, Suite, builtin_contenders
+from fxc_env.baselines.harness.suite import BenchmarkCase, Suite, builtin_contenders
 
 
 def test_quantiles_ignore_nan_and_rank_inf_last():

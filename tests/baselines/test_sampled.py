@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from fxc_env import ConsensusEngine, make_config
-from fxc_env.baselines import design
-from fxc_env.baselines.sampled import SampledLinearPolicy
+from fxc_env.baselines.laws import design
+from fxc_env.baselines.laws.sampled import SampledLinearPolicy
 
 
 def config_for(topology="ring", n_agents=6, n_intervals=25, settling_time=20.0, **kwargs):

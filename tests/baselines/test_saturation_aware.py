@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import fxc_env
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
-from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, builtin_contenders
+from fxc_env.baselines.laws.saturation_aware import SaturationAwarePolicy
 from fxc_env.config import make_config
 from fxc_env.engine import ConsensusEngine
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fxc_env.baselines.graph_agnostic_goals import strongly_connected_random
-from fxc_env.baselines.policy import claims_exactness
+from fxc_env.baselines.harness.graph_agnostic_goals import strongly_connected_random
+from fxc_env.baselines.laws.policy import claims_exactness
 from fxc_env.baselines.registry import LAWS
 from fxc_env.config import make_config
 from fxc_env.engine import ConsensusEngine

@@ -6,8 +6,14 @@ import numpy as np
 import pytest
 
 from fxc_env.baselines import SignallingPolicy
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import BenchmarkCase, Contender, builtin_contenders, load_policy, optimality_contenders
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import (
+    BenchmarkCase,
+    Contender,
+    builtin_contenders,
+    load_policy,
+    optimality_contenders,
+)
 from fxc_env.config import make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.optimality import energy_bound

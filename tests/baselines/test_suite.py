@@ -6,9 +6,7 @@ import numpy as np
 import pytest
 
 from fxc_env import ReferencePolicy, make_config
-from fxc_env.baselines.finite_time import FiniteTimePolicy
-from fxc_env.baselines.registry import LAWS
-from fxc_env.baselines.suite import (
+from fxc_env.baselines.harness.suite import (
     BUILTIN_SETTINGS,
     builtin_contenders,
     contender_config,
@@ -17,6 +15,8 @@ from fxc_env.baselines.suite import (
     load_policy,
     quick_suite,
 )
+from fxc_env.baselines.laws.finite_time import FiniteTimePolicy
+from fxc_env.baselines.registry import LAWS
 from fxc_env.policies.learned import LearnedPolicy, SlotAdaptedPolicy
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from fxc_env.cli.main import build_parser, main
 from fxc_env.config.tasks import TASKS
-from fxc_env.training.leaderboard import (
+from fxc_env.training.evaluation.leaderboard import (
     ALGORITHMS,
     SHIPPED_TASKS,
     build_experiment,
@@ -18,7 +18,7 @@ from fxc_env.training.leaderboard import (
     policy_actor,
     score_actor,
 )
-from fxc_env.training.leaderboard_runs import CURVE_POINTS
+from fxc_env.training.evaluation.leaderboard_runs import CURVE_POINTS
 
 FRAMES = 400  # two environments x one episode of K = 200 steps: one BenchMARL batch
 ARGV = ["leaderboard", "--frames", str(FRAMES), "--seeds", "1", "--tasks", "rings20-v1", "--algorithms", "mappo"]

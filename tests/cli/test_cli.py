@@ -389,7 +389,7 @@ def test_output_directory_helper(tmp_path):
 def test_benchmark_of_a_policy_refused_on_every_case_exits_2_naming_it(tmp_path, capsys, monkeypatch):
     from types import SimpleNamespace
 
-    import fxc_env.baselines.benchmark as benchmark
+    import fxc_env.baselines.harness.benchmark as benchmark
 
     def every_case_refused(suite, contenders, out, **kwargs):
         results = [
@@ -443,9 +443,9 @@ def test_a_flag_given_twice_is_refused_in_one_line_not_overridden_by_the_last(ar
     ("module", "argv"),
     [
         ("fxc_env.speed.command", ["--rounds", "1", "--rounds", "2"]),
-        ("fxc_env.training.rings", ["--out", "a.npz", "--out", "b.npz"]),
-        ("fxc_env.training.agnostic", ["--out", "a.npz", "--out", "b.npz"]),
-        ("fxc_env.training.noise_gains", ["--sigma", "1e-3", "--sigma", "1e-2"]),
+        ("fxc_env.training.recipes.rings", ["--out", "a.npz", "--out", "b.npz"]),
+        ("fxc_env.training.recipes.agnostic", ["--out", "a.npz", "--out", "b.npz"]),
+        ("fxc_env.training.recipes.noise_gains", ["--sigma", "1e-3", "--sigma", "1e-2"]),
     ],
 )
 def test_the_module_entry_points_refuse_a_flag_given_twice_too(module, argv, capsys):

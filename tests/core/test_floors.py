@@ -10,10 +10,10 @@ import scipy.optimize
 import scipy.sparse
 
 import fxc_env
-from fxc_env.baselines.jobs import Job, JobResult, run_job
-from fxc_env.baselines.minimum_time import MinimumTimePolicy
-from fxc_env.baselines.signalling import SignallingPolicy
-from fxc_env.baselines.suite import BenchmarkCase, Contender, load_policy
+from fxc_env.baselines.harness.jobs import Job, JobResult, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, Contender, load_policy
+from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.laws.signalling import SignallingPolicy
 from fxc_env.config import make_config
 from fxc_env.core.floors import input_floor, input_floor_bounds, noise_floor
 from fxc_env.core.graphs import make_topology
@@ -190,8 +190,8 @@ def test_fxc_simulate_prints_the_floors_of_its_settings(tmp_path, capsys):
 
 
 def test_the_benchmark_tables_carry_the_floors_of_cases_with_noise_or_a_limit():
-    from fxc_env.baselines import report
-    from fxc_env.baselines.suite import floor_cases, optimality_contenders, quick_optimality_suite
+    from fxc_env.baselines.harness import report
+    from fxc_env.baselines.harness.suite import floor_cases, optimality_contenders, quick_optimality_suite
 
     suite = quick_optimality_suite(2)
     contenders = optimality_contenders()[:2]

@@ -12,7 +12,7 @@ import scipy.linalg
 import scipy.optimize
 
 import fxc_env
-from fxc_env.baselines.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
 from fxc_env.config import make_config
 from fxc_env.core.graphs import make_topology
 from fxc_env.core.linear import LinearModel

@@ -7,11 +7,17 @@ import pytest
 
 import fxc_env
 from fxc_env import ConsensusTorchEnv, ConsensusVecEnv, ReferencePolicy
-from fxc_env.baselines import report
-from fxc_env.baselines.jobs import Job, run_job
+from fxc_env.baselines.harness import report
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.resolution import resolution_rows, resolution_section, with_resolution
+from fxc_env.baselines.harness.suite import (
+    BenchmarkCase,
+    Contender,
+    contender_config,
+    load_policy,
+    quick_optimality_suite,
+)
 from fxc_env.baselines.registry import LAWS
-from fxc_env.baselines.resolution import resolution_rows, resolution_section, with_resolution
-from fxc_env.baselines.suite import BenchmarkCase, Contender, contender_config, load_policy, quick_optimality_suite
 from fxc_env.config import make_config
 from fxc_env.core.floors import resolution_floor, resolution_floor_bounds, resolution_worst_state
 from fxc_env.core.validation import ArgumentError

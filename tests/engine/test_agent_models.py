@@ -285,8 +285,8 @@ def test_fxc_simulate_writes_the_figures_of_a_chain_and_of_a_formation(tmp_path)
 def test_the_models_benchmark_suite_scores_the_reference_on_every_model(tmp_path):
     import csv
 
-    from fxc_env.baselines.benchmark import run_benchmark
-    from fxc_env.baselines.suite import builtin_contenders, models_suite
+    from fxc_env.baselines.harness.benchmark import run_benchmark
+    from fxc_env.baselines.harness.suite import builtin_contenders, models_suite
 
     suite = models_suite(n_seeds=2)
     output = run_benchmark(

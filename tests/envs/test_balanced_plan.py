@@ -16,8 +16,8 @@ import torch
 import fxc_env
 from fxc_env import make_config
 from fxc_env.analysis.conditioning import NoiseRow, final_ratios
-from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
-from fxc_env.baselines.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.laws.leader_follower import LeaderFollowerPolicy
+from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
 from fxc_env.config.tasks import task_kwargs
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine

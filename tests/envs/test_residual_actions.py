@@ -13,9 +13,9 @@ import torch
 
 import fxc_env
 from fxc_env import make_config
-from fxc_env.baselines.leader_follower import LeaderFollowerPolicy
-from fxc_env.baselines.minimum_time import MinimumTimePolicy
-from fxc_env.baselines.policy import HoldPolicy
+from fxc_env.baselines.laws.leader_follower import LeaderFollowerPolicy
+from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.laws.policy import HoldPolicy
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 from fxc_env.envs.torch_env import ConsensusTorchEnv
@@ -116,7 +116,7 @@ def test_residual_is_refused_where_it_cannot_be_honoured() -> None:
 
 def test_ppo_can_start_as_the_reference_in_residual_mode() -> None:
     """``actor_out_gain: 0`` starts the actor's output at exactly zero: the untrained policy is eq. (11)."""
-    from fxc_env.training.torch_ppo import ActorCritic, PPOSettings
+    from fxc_env.training.backends.torch_ppo import ActorCritic, PPOSettings
 
     config = make_config(None, action_mode="residual", **RING)
     settings = PPOSettings.from_mapping({"actor_out_gain": 0.0}, config)

@@ -14,8 +14,8 @@ import re
 import numpy as np
 import pytest
 
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, learned_contender
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, builtin_contenders, learned_contender
 from fxc_env.config import make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError
@@ -24,8 +24,15 @@ from fxc_env.envs.parallel import ConsensusParallelEnv
 from fxc_env.policies.interval_gains import read_interval_gains
 from fxc_env.policies.learned import load_learned_policy, pretrained_path
 from fxc_env.policies.regime_gains import REGIME_FORMAT, RegimeGainPolicy
-from fxc_env.training.agnostic import HELD_OUT_RINGS, PROBES, TRAINED_RINGS, case_config, main, probe_keeps_fixed
-from fxc_env.training.rings import TASK
+from fxc_env.training.recipes.agnostic import (
+    HELD_OUT_RINGS,
+    PROBES,
+    TRAINED_RINGS,
+    case_config,
+    main,
+    probe_keeps_fixed,
+)
+from fxc_env.training.recipes.rings import TASK
 
 
 def deadline_errors(contender, n_agents, seeds) -> np.ndarray:
@@ -137,6 +144,7 @@ def test_the_agnostic_file_records_a_training_without_teacher_over_graph_familie
     assert gains.shape == switching.shape == (200, 2, 2) and header["name"] == "agnostic"
     assert header["probes"] == PROBES and not gains[:PROBES].any() and not switching[:PROBES].any()
     assert header["training"]["teacher"] is None
+    # The command as it was run, before the recipes moved into training/recipes/ (a record, not an import).
     assert header["training"]["command"].startswith("python -m fxc_env.training.agnostic")
     domain = header["domain"]
     assert domain["n_agents"] == [12, 40] and domain["schedule"] == ["paper"] and domain["n_intervals"] == [200, 200]
@@ -176,7 +184,7 @@ def test_quick_training_writes_a_policy_that_beats_the_reference_on_a_held_out_r
 
 @pytest.mark.parametrize(("keyword", "value"), [("steps", 0), ("seed", -1)])
 def test_bad_training_settings_are_refused_by_name(keyword, value):
-    from fxc_env.training.agnostic import train
+    from fxc_env.training.recipes.agnostic import train
 
     with pytest.raises(ArgumentError, match=f"^{keyword}"):
         train(**{keyword: value})

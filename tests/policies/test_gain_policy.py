@@ -134,7 +134,7 @@ class HoldGains(torch.nn.Module):
 
 
 def test_the_gated_network_represents_the_saturation_aware_law_exactly():
-    from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
+    from fxc_env.baselines.laws.saturation_aware import SaturationAwarePolicy
     from fxc_env.policies.gain_network import GatedGainExtractor
 
     config = {"scenario": "paper_fig1", "obs_slots": 4, "u_max": 10.0, "schedule": "uniform"}

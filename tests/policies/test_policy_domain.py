@@ -21,8 +21,8 @@ from helpers import SHIPPED_INSIDE as INSIDE
 
 import fxc_env
 from fxc_env import cli
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import BenchmarkCase, learned_contender
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, learned_contender
 from fxc_env.config import make_config
 from fxc_env.config.tasks import TASKS
 from fxc_env.core.families import TopologyFamily
@@ -30,7 +30,7 @@ from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import OutOfDomainWarning, check_domain, domain_differences, training_domain
 from fxc_env.policies.learned import SHIPPED, load_learned_policy, pretrained_path
 from fxc_env.policies.policy_files import METADATA_MEMBER
-from fxc_env.training.rings import task_config
+from fxc_env.training.recipes.rings import task_config
 
 #: The environment each shipped policy was trained on (fxc_env/pretrained/README.md).
 TRAINED = {

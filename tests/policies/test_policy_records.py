@@ -22,7 +22,7 @@ from fxc_env.policies.learned import load_learned_policy, pretrained_path, rllib
 from fxc_env.policies.policy_files import METADATA_MEMBER
 from fxc_env.policies.records import DOMAIN_SCHEMA, checked_domain
 from fxc_env.policies.saving import RLLIB_RECORD_FORMAT
-from fxc_env.training.rings import task_config
+from fxc_env.training.recipes.rings import task_config
 
 #: The shipped file each format is crafted from.
 SOURCES = {"zip": "generalist", "pt": "rings_gru", "npz": "rings"}

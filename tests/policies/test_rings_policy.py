@@ -14,9 +14,9 @@ import warnings
 import numpy as np
 import pytest
 
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.minimum_time import MinimumTimePolicy
-from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, learned_contender
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, builtin_contenders, learned_contender
+from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
 from fxc_env.config import make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.graphs import named_topology
@@ -26,7 +26,7 @@ from fxc_env.policies.domain import OutOfDomainWarning
 from fxc_env.policies.interval_gains import IntervalGainPolicy, read_interval_gains
 from fxc_env.policies.learned import load_learned_policy, pretrained_path
 from fxc_env.policies.policy_files import training_settings
-from fxc_env.training.rings import TASK, task_config
+from fxc_env.training.recipes.rings import TASK, task_config
 
 SEEDS = tuple(range(5))
 
@@ -146,7 +146,7 @@ def test_a_fixed_directed_ring_in_any_labelling_is_inside_the_domain_and_another
 
 @pytest.mark.slow
 def test_training_from_the_teacher_meets_the_goal():
-    from fxc_env.training.rings import evaluate, train
+    from fxc_env.training.recipes.rings import evaluate, train
 
     policy, record = train(episodes=2)
     assert record["regression_max_rms_residual"] < 1e-9
@@ -158,7 +158,7 @@ def test_the_closed_form_interval_map_of_the_training_is_the_engine_episode():
     """Direct refinement scores a table through the exact map ``z_i(t_{k+1}) = P_k z_i + G_k r_i``."""
     import torch
 
-    from fxc_env.training.rings import PAPER_GAIN, episode_log_errors, run_episodes, spectrum_matrix
+    from fxc_env.training.recipes.rings import PAPER_GAIN, episode_log_errors, run_episodes, spectrum_matrix
 
     config = task_config()
     engine = ConsensusEngine(config, n_episodes=1)

@@ -1,6 +1,6 @@
 """The shipped policies meet their goals on a small seeded evaluation (docs: training.md, "Training learned policies").
 
-The same jobs as ``fxc evaluate`` (:func:`fxc_env.baselines.jobs.run_job`), with fewer seeds.
+The same jobs as ``fxc evaluate`` (:func:`fxc_env.baselines.harness.jobs.run_job`), with fewer seeds.
 Deadline errors are compared as ``log10(max(error, 1e-12))``: below 1e-12 counts as met.
 """
 
@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, generalisation_cases, learned_contender
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, builtin_contenders, generalisation_cases, learned_contender
 from fxc_env.policies.learned import pretrained_path
 
 SEEDS = tuple(range(6))

@@ -13,7 +13,7 @@ from fxc_env.policies.torch_memory import MessagePassingActor, RecurrentActor, i
 from fxc_env.policies.torch_policy import POLICY_FORMAT, TorchPolicy, load_torch_policy, mlp
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import check_train_args
-from fxc_env.training.torch_ppo import latest_torch_checkpoint
+from fxc_env.training.backends.torch_ppo import latest_torch_checkpoint
 
 # 2 episodes x 6 agents, one whole episode (K = 200) per rollout: 2400 timesteps a rollout.
 PER_ROLLOUT = 2400

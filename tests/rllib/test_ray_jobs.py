@@ -1,4 +1,4 @@
-"""fxc_env.baselines.ray_jobs: ``fxc benchmark --ray`` gives the single-machine table, from Ray tasks."""
+"""fxc_env.baselines.harness.ray_jobs: ``fxc benchmark --ray`` gives the single-machine table, from Ray tasks."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""fxc_env.training.rllib_train: RLlib PPO on paper_fig1 with 2 env runners on a local Ray, restored and evaluated;
+"""fxc_env.training.backends.rllib_train: RLlib PPO on paper_fig1 with 2 env runners on a local Ray, restored and evaluated;
 its checkpoints record their training settings and domain, and a policy outside that domain says so."""
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from fxc_env.policies.fit import training_settings
 from fxc_env.policies.learned import RLlibPolicy, load_learned_policy
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import HYPERPARAMS
-from fxc_env.training.evaluate import EVALUATION_CASES
-from fxc_env.training.rllib_train import ConsensusRLlibEnv
+from fxc_env.training.backends.rllib_train import ConsensusRLlibEnv
+from fxc_env.training.evaluation.evaluate import EVALUATION_CASES
 
 #: Environment steps per iteration in these tests: two episodes of K = 200 (one per env runner).
 BATCH = 400

@@ -1,4 +1,4 @@
-"""fxc_env.training.diff_train (``fxc train --backend diff``) and ``fxc train --init-from``: seconds-long runs."""
+"""fxc_env.training.backends.diff_train (``fxc train --backend diff``) and ``fxc train --init-from``: seconds-long runs."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from fxc_env.policies.learned import load_learned_policy
 from fxc_env.policies.torch_policy import TorchPolicy, load_torch_policy
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import check_train_args
-from fxc_env.training.diff_train import DiffSettings, DiffTrainer
-from fxc_env.training.torch_ppo import PPOSettings, Trainer, run_config
+from fxc_env.training.backends.diff_train import DiffSettings, DiffTrainer
+from fxc_env.training.backends.torch_ppo import PPOSettings, Trainer, run_config
 
 # paper_fig1 cut to K = 10: 4 episodes x 6 agents a batch, two windows of 5 steps.
 ENV = {"action_mode": "plan", "obs_mode": "normalized", "initial_state": "random", "obs_slots": 4, "n_intervals": 10}
@@ -264,7 +264,7 @@ def test_seeds_train_one_diff_run_per_seed(tmp_path, monkeypatch):
 def test_the_readme_hyperparameter_files_check(tmp_path, name, backend):
     from pathlib import Path
 
-    path = Path(__file__).parents[2] / "training" / name
+    path = Path(__file__).parents[2] / "training" / "recipes" / name
     run_args = args(tmp_path, hyperparams=str(path), backend=backend, algo="apg" if backend == "diff" else "ppo")
     assert check_train_args(run_args)["env"]["n_intervals"] == 50
 

@@ -7,7 +7,7 @@ import csv
 import pytest
 
 from fxc_env import cli
-from fxc_env.training.evaluate import EVALUATION_CASES
+from fxc_env.training.evaluation.evaluate import EVALUATION_CASES
 
 
 @pytest.mark.slow
@@ -48,7 +48,7 @@ def test_budgets_are_comma_separated_distinct_positive_integers():
 
 
 def test_evaluate_checks_everything_before_it_runs(tmp_path, capsys, monkeypatch):
-    import fxc_env.training.evaluate as evaluate
+    import fxc_env.training.evaluation.evaluate as evaluate
 
     def no_run(*args, **kwargs):
         raise AssertionError("the benchmark ran before the arguments were checked")
@@ -82,7 +82,7 @@ def test_evaluate_refuses_a_suite_and_environment_flags_together(tmp_path, capsy
 def test_a_policy_refused_on_every_case_is_a_usage_error(tmp_path, capsys, monkeypatch):
     from types import SimpleNamespace
 
-    import fxc_env.training.evaluate as evaluate
+    import fxc_env.training.evaluation.evaluate as evaluate
 
     def every_case_refused(suite, contenders, out, **kwargs):
         results = [
@@ -111,7 +111,7 @@ def test_an_output_directory_that_cannot_be_created_is_a_usage_error(tmp_path, c
 
 def test_environment_flags_carry_the_agent_model_into_the_case_and_refuse_formations():
     from fxc_env import make_config
-    from fxc_env.training.evaluate import custom_case
+    from fxc_env.training.evaluation.evaluate import custom_case
 
     case, settling_time = custom_case(
         {"scenario": "paper_fig1", "agent_model": {"name": "oscillator", "frequency": 1000.0}}
@@ -126,7 +126,7 @@ def test_environment_flags_carry_the_agent_model_into_the_case_and_refuse_format
 
 
 def test_a_policy_named_twice_in_policies_is_refused_before_anything_runs(tmp_path, capsys, monkeypatch):
-    import fxc_env.baselines.benchmark as benchmark
+    import fxc_env.baselines.harness.benchmark as benchmark
 
     def no_run(*args, **kwargs):
         raise AssertionError("the benchmark ran before the arguments were checked")
@@ -161,9 +161,9 @@ def test_the_notes_name_the_learned_policys_format(tmp_path, capsys):
 def test_a_task_that_fixes_its_schedule_scores_every_contender_on_it():
     """saturated-v1 is the uniform schedule: the reference is scored there, not on its own paper schedule
     (which put 0.358 in the table for an environment the task is not); a task without one leaves each its own."""
-    from fxc_env.baselines.suite import builtin_contenders
+    from fxc_env.baselines.harness.suite import builtin_contenders
     from fxc_env.config.tasks import TASKS
-    from fxc_env.training.evaluate import on_task_schedule, task_suite
+    from fxc_env.training.evaluation.evaluate import on_task_schedule, task_suite
 
     contenders = builtin_contenders(["reference", "minimum_time"])
     assert [c.schedule for c in contenders] == ["paper", "uniform"]

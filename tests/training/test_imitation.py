@@ -1,4 +1,4 @@
-"""fxc_env.training.imitation: the warm start the shipped policies were trained from (docs: training.md, "An imitation warm start")."""
+"""fxc_env.training.backends.imitation: the warm start the shipped policies were trained from (docs: training.md, "An imitation warm start")."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecMonitor
 
 from fxc_env import ConsensusVecEnv
-from fxc_env.baselines.saturation_aware import SaturationAwarePolicy
+from fxc_env.baselines.laws.saturation_aware import SaturationAwarePolicy
 from fxc_env.config import config_of
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.reference import ReferencePolicy
-from fxc_env.training.imitation import demonstrations, imitate_reference
+from fxc_env.training.backends.imitation import demonstrations, imitate_reference
 
 #: The training environment of paper_fig1 (training/hyperparams.yml): 4 episodes x 6 agents = 24 sub-environments.
 ENV = {"scenario": "paper_fig1", "action_mode": "plan", "obs_mode": "normalized", "initial_state": "random"}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from fxc_env.cli.main import main
-from fxc_env.training.leaderboard import has_benchmarl
+from fxc_env.training.evaluation.leaderboard import has_benchmarl
 
 pytestmark = pytest.mark.skipif(has_benchmarl(), reason="BenchMARL is installed: tests/benchmarl/test_leaderboard.py")
 

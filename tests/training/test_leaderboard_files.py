@@ -13,9 +13,9 @@ import pytest
 from fxc_env.cli.main import main
 from fxc_env.config.tasks import TASKS
 from fxc_env.core.validation import ArgumentError
-from fxc_env.training import leaderboard
-from fxc_env.training.leaderboard import ALGORITHMS, law_contenders, plan_files
-from fxc_env.training.leaderboard_files import marl_eval_record, result_record
+from fxc_env.training.evaluation import leaderboard
+from fxc_env.training.evaluation.leaderboard import ALGORITHMS, law_contenders, plan_files
+from fxc_env.training.evaluation.leaderboard_files import marl_eval_record, result_record
 
 SHIPPED = Path(__file__).resolve().parents[2] / "fxc_env" / "assets" / "leaderboard"
 TASK = TASKS["rings20-v1"]
@@ -206,7 +206,7 @@ def test_marl_eval_loads_and_plots_the_shipped_table(tmp_path, capsys):
 def test_on_a_task_the_shipped_policies_run_with_its_action_mode_and_the_laws_on_the_schedule_it_fixes():
     """rings20-v2's shipped PPO was refused in the v2 table ("trained with plan_balanced, this environment has
     plan"), and saturated's reference ran on its own paper schedule: a task is one environment for every row."""
-    from fxc_env.training.evaluate import task_suite
+    from fxc_env.training.evaluation.evaluate import task_suite
 
     _, learned = task_suite(TASKS["rings20-v2"])
     shipped = {c.name: c for c in law_contenders(learned)}

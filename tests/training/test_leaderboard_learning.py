@@ -12,9 +12,9 @@ import numpy as np
 from fxc_env.analysis.conditioning import final_ratios
 from fxc_env.cli.main import main
 from fxc_env.config.tasks import TASKS
-from fxc_env.training import leaderboard
-from fxc_env.training.leaderboard_files import result_record
-from fxc_env.training.leaderboard_runs import untrained_rows
+from fxc_env.training.evaluation import leaderboard
+from fxc_env.training.evaluation.leaderboard_files import result_record
+from fxc_env.training.evaluation.leaderboard_runs import untrained_rows
 
 TASK = TASKS["rings20-v2"]
 EPISODES = len(TASK.eval_seeds)

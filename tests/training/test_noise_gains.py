@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from fxc_env.core.validation import ArgumentError
-from fxc_env.training import noise_gains
+from fxc_env.training.recipes import noise_gains
 
 torch = pytest.importorskip("torch")
 
@@ -41,8 +41,8 @@ def test_closed_form_predicts_the_environment(config):
 
 def test_measure_scores_the_deadbeat_table_as_the_suite_scores_minimum_time_noisy(config):
     """``measure`` of ``minimum_time``'s table is the optimality suite's ``minimum_time/noisy`` row, to the digit."""
-    from fxc_env.baselines.jobs import Job, run_job
-    from fxc_env.baselines.suite import BenchmarkCase, Contender
+    from fxc_env.baselines.harness.jobs import Job, run_job
+    from fxc_env.baselines.harness.suite import BenchmarkCase, Contender
 
     result = noise_gains.measure(config, noise_gains.policy_of(config, noise_gains.start_table(config, "deadbeat")))
     contender = Contender("minimum_time/noisy", "minimum_time/noisy", True, "uniform", "plan", "normalized")
@@ -99,7 +99,7 @@ def test_a_fit_round_lowers_the_predicted_error_and_saves_the_table(config, tmp_
 
 def test_a_saved_table_runs_in_the_benchmark_only_at_its_noise(config, tmp_path):
     """``--policy`` files load through the benchmark's ``load_policy``; another σ is refused by name."""
-    from fxc_env.baselines.suite import load_policy
+    from fxc_env.baselines.harness.suite import load_policy
 
     path = noise_gains.policy_of(config, noise_gains.start_table(config, "deadbeat")).save(tmp_path / "t.npz")
     policy = load_policy(str(path), config)

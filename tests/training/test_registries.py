@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fxc_env.baselines import registry as laws
-from fxc_env.baselines.suite import builtin_contenders, load_policy, optimality_contenders
+from fxc_env.baselines.harness.suite import builtin_contenders, load_policy, optimality_contenders
 from fxc_env.config import make_config
 from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine

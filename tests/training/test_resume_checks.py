@@ -1,4 +1,4 @@
-"""``fxc train --resume`` refuses a damaged checkpoint, or another back end's, by name (fxc_env.training.checkpoint_checks).
+"""``fxc train --resume`` refuses a damaged checkpoint, or another back end's, by name (fxc_env.training.backends.checkpoint_checks).
 
 Each case damages a copy of a real run's checkpoint (sb3 and torch: 120 timesteps, diff: 1,200), then
 resumes it through the command line: exit 2, one line naming the file and the field, and the run

@@ -22,12 +22,12 @@ import yaml
 
 import fxc_env
 from fxc_env import cli
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import builtin_contenders, learned_contender
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import builtin_contenders, learned_contender
 from fxc_env.config.tasks import TASKS
 from fxc_env.policies.learned import load_learned_policy, pretrained_path
 from fxc_env.policies.torch_policy import TorchPolicy
-from fxc_env.training.evaluate import task_suite
+from fxc_env.training.evaluation.evaluate import task_suite
 
 ROOT = Path(__file__).resolve().parents[2]
 TASK = TASKS["rings20-v2"]
@@ -97,7 +97,7 @@ def test_the_readme_command_trains_the_shipped_network_from_scratch_on_the_task(
     assert record["args"]["task"] == "rings20-v2" and record["args"]["init_from"] is None
     assert record["hyperparams"]["env"]["action_mode"] == "plan_balanced"  # not residual: the task's own actions
     section = "torch_ppo" if backend == "torch" else "diff_apg"
-    entry = yaml.safe_load((ROOT / "training" / "rings20_v2.yml").read_text())["rings20-v2"][section]
+    entry = yaml.safe_load((ROOT / "training" / "recipes" / "rings20_v2.yml").read_text())["rings20-v2"][section]
     assert {key: record[section][key] for key in entry} == entry  # every setting of the file's entry, as written
     trained = torch.load(tmp_path / "run" / "policy.pt", weights_only=True)
     for key in ("format", "arch", "hidden", "activation", "obs_size", "action_size", "action_bound", "env", "domain"):

@@ -14,16 +14,16 @@ import re
 import numpy as np
 import pytest
 
-from fxc_env.baselines.jobs import Job, run_job
-from fxc_env.baselines.suite import BenchmarkCase, builtin_contenders, learned_contender
+from fxc_env.baselines.harness.jobs import Job, run_job
+from fxc_env.baselines.harness.suite import BenchmarkCase, builtin_contenders, learned_contender
 from fxc_env.config import make_config
 from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import IntervalGainPolicy, read_interval_gains
 from fxc_env.policies.learned import load_learned_policy, pretrained_path
-from fxc_env.training.rings import PAPER_GAIN, TASK, episode_log_errors, physical_map, task_config
-from fxc_env.training.rings_scratch import factor_table, log_errors, main, minimise, training_episodes
+from fxc_env.training.recipes.rings import PAPER_GAIN, TASK, episode_log_errors, physical_map, task_config
+from fxc_env.training.recipes.rings_scratch import factor_table, log_errors, main, minimise, training_episodes
 
 SEEDS = tuple(range(3))
 
@@ -56,6 +56,7 @@ def test_the_rings_scratch_file_records_a_training_without_teacher_and_its_domai
         gains, header = arrays["gains"], json.loads(str(arrays["header"]))
     assert gains.shape == (200, 2, 2) and header["name"] == "rings_scratch"
     assert header["training"]["teacher"] is None
+    # The command as it was run, before the recipes moved into training/recipes/ (a record, not an import).
     assert header["training"]["command"].startswith("python -m fxc_env.training.rings_scratch")
     env = header["env"]
     assert (env["schedule"], env["action_mode"], env["obs_mode"]) == ("paper", "plan", "normalized")
@@ -125,7 +126,7 @@ def test_quick_training_from_a_random_start_beats_the_reference_tenfold(tmp_path
 
 @pytest.mark.parametrize(("keyword", "value"), [("episodes", 0), ("steps", 0), ("seed", -1)])
 def test_bad_training_settings_are_refused_by_name(keyword, value):
-    from fxc_env.training.rings_scratch import train
+    from fxc_env.training.recipes.rings_scratch import train
 
     with pytest.raises(ArgumentError, match=f"^{keyword}"):
         train(**{keyword: value})
@@ -136,7 +137,7 @@ def test_one_lbfgs_loop_trains_both_gain_schedules_and_stops_after_its_fresh_his
     after ``restarts`` fresh curvature histories; ``stop`` ends it at once."""
     import torch
 
-    from fxc_env.training import agnostic
+    from fxc_env.training.recipes import agnostic
 
     assert agnostic.minimise is minimise
     x = torch.tensor([3.0, -2.0], dtype=torch.float64, requires_grad=True)

@@ -1,4 +1,4 @@
-"""fxc_env.training.recurrent_imitation: cloning the minimum-time law into a schedule-reading gru policy."""
+"""fxc_env.training.recipes.recurrent_imitation: cloning the minimum-time law into a schedule-reading gru policy."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from fxc_env.core.validation import ArgumentError
 from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.torch_memory import RecurrentActor
 from fxc_env.policies.torch_policy import load_torch_policy
-from fxc_env.training import recurrent_imitation
+from fxc_env.training.recipes import recurrent_imitation
 
 
 def ring_observations(n_agents: int = 5, n_intervals: int = 12) -> torch.Tensor:

@@ -1,4 +1,4 @@
-"""fxc_env.training.torch_ppo (``fxc train --backend torch``): short runs, checkpoints, resume, the saved policy."""
+"""fxc_env.training.backends.torch_ppo (``fxc train --backend torch``): short runs, checkpoints, resume, the saved policy."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.torch_policy import load_torch_policy
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import HYPERPARAMS, check_train_args
-from fxc_env.training.torch_ppo import Trainer, latest_torch_checkpoint
+from fxc_env.training.backends.torch_ppo import Trainer, latest_torch_checkpoint
 
 # 2 episodes x 6 agents, one whole episode (K = 200) per rollout: 2400 timesteps a rollout.
 PER_ROLLOUT = 2400

@@ -1,4 +1,4 @@
-"""fxc_env.training.sb3_train (``fxc train``, ``--backend sb3``): a short real PPO run, checkpoints, resume, Ctrl-C, reproducibility."""
+"""fxc_env.training.backends.sb3_train (``fxc train``, ``--backend sb3``): a short real PPO run, checkpoints, resume, Ctrl-C, reproducibility."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.learned import LearnedPolicy, load_model
 from fxc_env.training import TrainArgs, train
 from fxc_env.training.args import check_train_args, load_hyperparams
+from fxc_env.training.backends.sb3_train import RolloutCheckpoint
 from fxc_env.training.run_dir import RunDir
-from fxc_env.training.sb3_train import RolloutCheckpoint
 
 # 4 episodes x 6 agents = 24 sub-environments; one PPO rollout is 200 x 24 = 4800 timesteps.
 SHORT = {"scenario": "paper_fig1", "n_envs": 4, "progress_bar": False}

@@ -1,4 +1,4 @@
-"""fxc_env.training.seeds and seed_evaluation: ``fxc train --seeds`` and ``fxc evaluate --runs``."""
+"""fxc_env.training.evaluation.seeds and seed_evaluation: ``fxc train --seeds`` and ``fxc evaluate --runs``."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from fxc_env.cli import main
 from fxc_env.core.validation import ArgumentError
 from fxc_env.training import TrainArgs
 from fxc_env.training.args import check_train_args
-from fxc_env.training.seed_evaluation import expand_runs, resolve_run
-from fxc_env.training.seeds import parse_seeds, plan_seed_runs, seed_run_dir
+from fxc_env.training.evaluation.seed_evaluation import expand_runs, resolve_run
+from fxc_env.training.evaluation.seeds import parse_seeds, plan_seed_runs, seed_run_dir
 
 
 @pytest.mark.parametrize(
@@ -186,7 +186,7 @@ def test_evaluate_takes_one_policy_or_the_seeds_of_one(tmp_path, capsys):
 
 def test_runs_pooled_as_seeds_must_be_one_policy_and_non_policy_files_are_not_runs(tmp_path, capsys):
     from fxc_env.policies.learned import pretrained_path
-    from fxc_env.training.seed_evaluation import seed_contenders
+    from fxc_env.training.evaluation.seed_evaluation import seed_contenders
 
     def copy(name, target):
         (tmp_path / target).write_bytes(pretrained_path(name).read_bytes())
@@ -225,7 +225,7 @@ def test_runs_pooled_as_seeds_must_be_one_policy_and_non_policy_files_are_not_ru
 def test_a_torch_ppo_run_and_an_analytic_gradient_run_are_not_pooled_as_seeds_of_one_policy(tmp_path):
     """Both save a torch policy file: the back end their run directories record is what tells them apart."""
     from fxc_env.policies.learned import pretrained_path
-    from fxc_env.training.seed_evaluation import seed_contenders
+    from fxc_env.training.evaluation.seed_evaluation import seed_contenders
 
     for seed, backend, algo in ((0, "torch", "ppo"), (1, "diff", "apg")):
         run = tmp_path / f"rings-seed{seed}"
