@@ -18,7 +18,7 @@ import numpy as np
 
 from fxc_env.config import config_of
 from fxc_env.core.families import TopologyMixture, edge_lists
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core.validation import ArgumentError, boolean
 
 #: The ``format`` entry of a domain record.
 DOMAIN_FORMAT = "fxc_env.policy_domain/1"
@@ -212,9 +212,7 @@ def check_domain(
 
 def checked_allow(value: Any) -> bool:
     """``allow_out_of_domain`` once it is True or False; else the error naming it."""
-    if not isinstance(value, bool):
-        raise ArgumentError(f"allow_out_of_domain: expected True or False, got {value!r}")
-    return value
+    return boolean("allow_out_of_domain", value)
 
 
 def _time_rescales(config: Any) -> bool:
