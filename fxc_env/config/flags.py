@@ -16,7 +16,7 @@ from typing import Any
 
 from fxc_env.config.arguments import ENV_ARGUMENTS, Argument, Flag
 from fxc_env.config.scenarios import SCENARIOS
-from fxc_env.core.families import FAMILY_KINDS
+from fxc_env.core.graph_kinds import FAMILY_KEYS, FAMILY_KINDS
 from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY
 from fxc_env.core.validation import ArgumentError
 
@@ -96,8 +96,9 @@ def env_kwargs_from(args: argparse.Namespace) -> dict[str, Any]:
     if args.family is not None:
         if "topology" in kwargs:
             raise ArgumentError("--family: draws the topology; leave out --topology")
-        if args.family != "random" and "mean_in_degree" in kwargs:
-            raise ArgumentError(f"--mean-in-degree: shapes --family random only, got --family {args.family}")
+        if "mean_in_degree" not in FAMILY_KEYS[args.family] and "mean_in_degree" in kwargs:
+            shaped = " or ".join(kind for kind, keys in FAMILY_KEYS.items() if "mean_in_degree" in keys)
+            raise ArgumentError(f"--mean-in-degree: shapes --family {shaped} only, got --family {args.family}")
         family: dict[str, Any] = {"family": args.family}
         for key in ("mean_in_degree", "topology_period"):
             if key in kwargs:
