@@ -17,19 +17,15 @@ from typing import Any
 from fxc_env.config.arguments import ENV_ARGUMENTS, Argument, Flag
 from fxc_env.config.scenarios import SCENARIOS
 from fxc_env.core.graph_kinds import FAMILY_KEYS, FAMILY_KINDS
-from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY
+from fxc_env.core.models import AGENT_MODELS
 from fxc_env.core.validation import ArgumentError
 
 #: The arguments that have a flag, in the table's order (``scenario`` first).
 FLAG_ARGUMENTS: tuple[Argument, ...] = tuple(argument for argument in ENV_ARGUMENTS if argument.flag is not None)
 
 _ARGPARSE_TYPES = {"int": int, "float": float}
-#: ``--order``, ``--damping``, ``--frequency``: the parameter of ``--agent-model``'s spec.
-MODEL_FLAGS = {
-    "order": (int, "order of --agent-model integrator_chain (1-4, default 2)"),
-    "damping": (float, f"drag c of --agent-model damped (1/s, default {DEFAULT_DAMPING:g})"),
-    "frequency": (float, f"frequency of --agent-model oscillator (rad/s, default {DEFAULT_FREQUENCY:g})"),
-}
+#: ``--order``, ``--damping``, ``--frequency``: the parameter of ``--agent-model``'s spec, read from the model table.
+MODEL_FLAGS = {m.parameter: (m.flag_type, m.flag_help) for m in AGENT_MODELS.values() if m.parameter}
 
 
 def add_env_arguments(parser: argparse.ArgumentParser, *, scenario_default: str | None = "paper_fig1") -> None:
