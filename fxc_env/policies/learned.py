@@ -271,9 +271,9 @@ class PolicyFormat:
 
     def recognises(self, path: Path) -> bool:
         """Whether ``path`` is of this format, judged from the path (its suffix, or a directory's file names)."""
-        if path.is_dir():
-            return self.any_directory or (self.member is not None and (path / self.member).is_file())
-        return path.suffix in self.suffixes
+        if path.suffix in self.suffixes:
+            return True
+        return path.is_dir() and (self.any_directory or (self.member is not None and (path / self.member).is_file()))
 
 
 _HERE = "fxc_env.policies"
