@@ -9,35 +9,20 @@ against the bounds of :mod:`fxc_env.core.optimality` (docs: benchmark.md, "Basel
     >>> import fxc_env
     >>> from fxc_env import baselines
     >>> env = fxc_env.parallel_env(action_mode="accel", obs_mode="raw", schedule="uniform", n_intervals=4000)
-    >>> policy = baselines.LinearConsensusPolicy(env)
+    >>> policy = baselines.load_policy("linear", env)  # the registered law "linear"; its class in LAW_CLASSES
 """
 
 from __future__ import annotations
 
 from fxc_env.baselines.harness.suite import load_policy
-from fxc_env.baselines.laws.bounded_steer import BoundedSteerPolicy
-from fxc_env.baselines.laws.filtering import FilteringPolicy
-from fxc_env.baselines.laws.finite_time import FiniteTimePolicy
-from fxc_env.baselines.laws.graph_agnostic import GraphAgnosticPolicy
-from fxc_env.baselines.laws.leader_follower import LeaderFollowerPolicy
-from fxc_env.baselines.laws.linear import LinearConsensusPolicy
-from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
-from fxc_env.baselines.laws.prescribed_time import PrescribedTimePolicy
-from fxc_env.baselines.laws.sampled import SampledLinearPolicy
-from fxc_env.baselines.laws.saturation_aware import SaturationAwarePolicy
-from fxc_env.baselines.laws.signalling import SignallingPolicy
+from fxc_env.baselines.registry import LAWS
 
-__all__ = [
-    "BoundedSteerPolicy",
-    "FilteringPolicy",
-    "FiniteTimePolicy",
-    "GraphAgnosticPolicy",
-    "LeaderFollowerPolicy",
-    "LinearConsensusPolicy",
-    "MinimumTimePolicy",
-    "PrescribedTimePolicy",
-    "SampledLinearPolicy",
-    "SaturationAwarePolicy",
-    "SignallingPolicy",
-    "load_policy",
-]
+#: Each registered baseline's class by its class name, read from :data:`~fxc_env.baselines.registry.LAWS` (the
+#: reference is :class:`fxc_env.ReferencePolicy`): each is exported under its class name here and on ``fxc_env``
+#: (imported there on first use), so a law registered once is exported without a list to edit.
+LAW_CLASSES: dict[str, type] = {
+    law.policy.__name__: law.policy for law in LAWS.values() if law.policy.__module__.startswith(__name__)
+}
+globals().update(LAW_CLASSES)
+
+__all__ = [*sorted(LAW_CLASSES), "LAW_CLASSES", "load_policy"]

@@ -33,27 +33,16 @@ register_environments()
 sys.modules.setdefault(f"{__name__}.fxc_consensus_v0", fxc_consensus_v0)
 _moved.install()  # the previous release's module paths, with a DeprecationWarning naming the new ones
 
-__all__ = [
+_EAGER_ALL = [
     "ENV_ID",
     "SCENARIOS",
-    "BoundedSteerPolicy",
     "ConsensusEngine",
     "ConsensusTorchEnv",
     "ConsensusVecEnv",
     "EnvConfig",
-    "FilteringPolicy",
-    "FiniteTimePolicy",
-    "GraphAgnosticPolicy",
-    "LeaderFollowerPolicy",
-    "LinearConsensusPolicy",
-    "MinimumTimePolicy",
-    "PrescribedTimePolicy",
     "ReferenceModule",
     "ReferencePolicy",
-    "SampledLinearPolicy",
-    "SaturationAwarePolicy",
     "Schedule",
-    "SignallingPolicy",
     "Topology",
     "Trajectory",
     "env",
@@ -76,28 +65,26 @@ _LAZY = {
     "ConsensusTorchEnv": "fxc_env.envs.torch_env",  # torchrl (the torchrl extra)
     "reference_policy": "fxc_env.policies.torchrl_reference",
     "ReferenceModule": "fxc_env.policies.torchrl_reference",
-    # The baselines sit above the environments in the layer order: imported on first use, never by fxc_env itself.
-    "BoundedSteerPolicy": "fxc_env.baselines",
-    "FilteringPolicy": "fxc_env.baselines",
-    "FiniteTimePolicy": "fxc_env.baselines",
-    "GraphAgnosticPolicy": "fxc_env.baselines",
-    "LeaderFollowerPolicy": "fxc_env.baselines",
-    "LinearConsensusPolicy": "fxc_env.baselines",
-    "MinimumTimePolicy": "fxc_env.baselines",
-    "PrescribedTimePolicy": "fxc_env.baselines",
-    "SampledLinearPolicy": "fxc_env.baselines",
-    "SaturationAwarePolicy": "fxc_env.baselines",
-    "SignallingPolicy": "fxc_env.baselines",
 }
 
 
-def __getattr__(name: str) -> object:
-    if name in _LAZY:
-        import importlib
+def _law_classes() -> dict[str, type]:
+    """Every registered baseline's class by name (:data:`fxc_env.baselines.LAW_CLASSES`): the baselines sit above
+    the environments in the layer order, so they are imported on first use, never by ``fxc_env`` itself."""
+    import importlib
 
+    return importlib.import_module("fxc_env.baselines").LAW_CLASSES
+
+
+def __getattr__(name: str) -> object:
+    import importlib
+
+    if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
     if f"{__name__}.{name}" in _moved.MOVED:  # an old submodule read as an attribute: import it, with its warning
-        import importlib
-
         return importlib.import_module(f"{__name__}.{name}")
+    if name == "__all__":  # the eager names and every registered law (so `from fxc_env import *` imports the laws)
+        return sorted([*_EAGER_ALL, *_law_classes()])
+    if not name.startswith("_") and name in _law_classes():  # a law's class, as fxc_env.baselines exports it
+        return _law_classes()[name]
     raise AttributeError(f"module 'fxc_env' has no attribute {name!r}")

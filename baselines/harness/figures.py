@@ -40,8 +40,9 @@ COLOURS = (
     "#dbdb8d",
     "#393b79",
 )
-#: One marker per policy where points of several policies may coincide (the optimality figure).
-#: Nineteen markers and nineteen colours: the first nineteen contenders differ in both, later ones repeat.
+#: One marker per policy where points of several policies may coincide (the optimality figure). The first
+#: contenders take these pairs in turn; later ones a numbered marker and a colour of their own (:func:`style_at`),
+#: so a newly registered law is drawn distinctly without an entry here.
 MARKERS = (
     "o",
     "^",
@@ -65,9 +66,19 @@ MARKERS = (
 )
 
 
+def style_at(index: int) -> tuple[str, str]:
+    """``(marker, colour)`` of the ``index``-th contender (from 0): the pairs of :data:`MARKERS` and :data:`COLOURS`
+    first, then the index as a mathtext marker with a hue stepped by the golden ratio (each pair its own)."""
+    if index < min(len(MARKERS), len(COLOURS)):
+        return MARKERS[index], COLOURS[index]
+    from matplotlib import colormaps
+    from matplotlib.colors import to_hex
+
+    return f"${index}$", to_hex(colormaps["hsv"]((index * 0.6180339887) % 1.0))
+
+
 def _colour(contenders: list[Contender], name: str) -> str:
-    names = [c.name for c in contenders]
-    return COLOURS[names.index(name) % len(COLOURS)]
+    return optimality_style(contenders, name)[1]
 
 
 def _visible(value: float) -> float:
@@ -179,10 +190,9 @@ def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list
 
 
 def optimality_style(contenders: list[Contender], name: str) -> tuple[str, str]:
-    """``(marker, colour)`` of a law in the optimality figure: its own pair for each of the first
-    :data:`MARKERS`-many contenders (the figure draws every registered law; see its test)."""
-    index = [c.name for c in contenders].index(name)
-    return MARKERS[index % len(MARKERS)], COLOURS[index % len(COLOURS)]
+    """``(marker, colour)`` of a law in the optimality figure (:func:`style_at` of its place among ``contenders``):
+    each contender its own marker and its own colour (the figure draws every registered law; see its test)."""
+    return style_at([c.name for c in contenders].index(name))
 
 
 def _condition(case, name: str) -> float | None:

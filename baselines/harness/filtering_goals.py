@@ -14,14 +14,13 @@ import numpy as np
 
 from fxc_env.baselines.harness.jobs import Job, run_job
 from fxc_env.baselines.harness.suite import BenchmarkCase, builtin_contenders
-from fxc_env.baselines.laws.filtering import FilteringPolicy
 
 
 def goal_table(sigma: float = 1e-3, seeds: tuple[int, ...] = tuple(range(20))) -> str:
     """Medians over ``seeds`` of ``D(T_s)/D(0)``, the noise floor and energy / E* on the optimality suite's directed
     ring and random digraph of 20 at ``obs_noise = sigma`` (uniform K = 200, T_s = 20 s), run as ``fxc benchmark``
     runs them (same seeds and noise streams; docs: optimality.md, "Filtered dead-beat (`filtering`)")."""
-    contender = builtin_contenders([FilteringPolicy.NAME])[0]
+    contender = builtin_contenders(["filtering"])[0]
     lines = ["case: error, noise floor, error / floor, energy / E*"]
     for family in ("ring", "random"):
         case = BenchmarkCase(family, 20, conditions=(("obs_noise", sigma),))

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.laws.graph_agnostic import GraphAgnosticPolicy
+from fxc_env.baselines.registry import LAWS
 from fxc_env.core.validation import ArgumentError
 
 __all__ = ["goal_row", "goal_table", "strongly_connected_random"]
@@ -36,7 +36,7 @@ def goal_row(settings: dict[str, Any], max_factor: int, seeds: range) -> tuple[f
 
     config = make_config(**settings)
     try:
-        policy = GraphAgnosticPolicy(config, max_agents=max_factor * config.n_agents)
+        policy = LAWS["graph_agnostic"].policy(config, max_agents=max_factor * config.n_agents)
     except ArgumentError as exc:
         return f"refused: {str(exc).split(':')[0]}"
     engine = ConsensusEngine(config, n_episodes=len(seeds))

@@ -16,20 +16,16 @@ from typing import Any
 
 from fxc_env.config.arguments import ENV_ARGUMENTS, Argument, Flag
 from fxc_env.config.scenarios import SCENARIOS
-from fxc_env.core.families import FAMILY_KINDS
-from fxc_env.core.models import DEFAULT_DAMPING, DEFAULT_FREQUENCY
+from fxc_env.core.graph_kinds import FAMILY_KEYS, FAMILY_KINDS
+from fxc_env.core.models import AGENT_MODELS
 from fxc_env.core.validation import ArgumentError
 
 #: The arguments that have a flag, in the table's order (``scenario`` first).
 FLAG_ARGUMENTS: tuple[Argument, ...] = tuple(argument for argument in ENV_ARGUMENTS if argument.flag is not None)
 
 _ARGPARSE_TYPES = {"int": int, "float": float}
-#: ``--order``, ``--damping``, ``--frequency``: the parameter of ``--agent-model``'s spec.
-MODEL_FLAGS = {
-    "order": (int, "order of --agent-model integrator_chain (1-4, default 2)"),
-    "damping": (float, f"drag c of --agent-model damped (1/s, default {DEFAULT_DAMPING:g})"),
-    "frequency": (float, f"frequency of --agent-model oscillator (rad/s, default {DEFAULT_FREQUENCY:g})"),
-}
+#: ``--order``, ``--damping``, ``--frequency``: the parameter of ``--agent-model``'s spec, read from the model table.
+MODEL_FLAGS = {m.parameter: (m.flag_type, m.flag_help) for m in AGENT_MODELS.values() if m.parameter}
 
 
 def add_env_arguments(parser: argparse.ArgumentParser, *, scenario_default: str | None = "paper_fig1") -> None:
@@ -96,8 +92,9 @@ def env_kwargs_from(args: argparse.Namespace) -> dict[str, Any]:
     if args.family is not None:
         if "topology" in kwargs:
             raise ArgumentError("--family: draws the topology; leave out --topology")
-        if args.family != "random" and "mean_in_degree" in kwargs:
-            raise ArgumentError(f"--mean-in-degree: shapes --family random only, got --family {args.family}")
+        if "mean_in_degree" not in FAMILY_KEYS[args.family] and "mean_in_degree" in kwargs:
+            shaped = " or ".join(kind for kind, keys in FAMILY_KEYS.items() if "mean_in_degree" in keys)
+            raise ArgumentError(f"--mean-in-degree: shapes --family {shaped} only, got --family {args.family}")
         family: dict[str, Any] = {"family": args.family}
         for key in ("mean_in_degree", "topology_period"):
             if key in kwargs:

@@ -18,20 +18,9 @@ from typing import Any
 import numpy as np
 
 from fxc_env.core import validation
+from fxc_env.core.graph_kinds import FAMILY_KEYS, FAMILY_KINDS, GRAPH_KINDS
 from fxc_env.core.graphs import Topology, make_topology, random_topology, structured_edges
 from fxc_env.core.validation import ArgumentError
-
-FAMILY_KINDS = ("ring", "path", "star", "complete", "random")
-#: The keys of each family's mapping beside ``family``: ``mean_in_degree`` shapes ``random`` only,
-#: and ``relabel`` the structured families whose labels matter (every labelling of a complete
-#: graph is the same graph; ``random`` draws its labels with its tree). Any other key is refused.
-FAMILY_KEYS = {
-    "ring": ("period", "relabel"),
-    "path": ("period", "relabel"),
-    "star": ("period", "relabel"),
-    "complete": ("period",),
-    "random": ("mean_in_degree", "period"),
-}
 
 
 def _range(name: str, value: Any, kind: type, minimum: float) -> tuple[Any, Any]:
@@ -68,7 +57,7 @@ class TopologyFamily:
     @property
     def name(self) -> str:
         parts = [self.kind]
-        if self.kind == "random":
+        if "mean_in_degree" in FAMILY_KEYS[self.kind]:
             low, high = self.mean_in_degree
             parts.append(f"d{low:g}" if low == high else f"d{low:g}-{high:g}")
         if self.period != (1, 1):
@@ -78,18 +67,12 @@ class TopologyFamily:
 
     def max_in_degree(self, n_agents: int) -> int:
         """The largest in-degree any draw on ``n_agents`` agents can have (the observation's slots)."""
-        if n_agents == 1:
-            return 0
-        if self.kind == "complete":
-            return n_agents - 1
-        if self.kind == "random":
-            return max(1, min(math.ceil(self.mean_in_degree[1]), n_agents - 1))
-        return 1
+        return 0 if n_agents == 1 else GRAPH_KINDS[self.kind].in_degree(n_agents, self.mean_in_degree[1])
 
     def draw(self, n_agents: int, rng: np.random.Generator) -> Topology:
         """One topology on ``n_agents`` agents whose (joint) graph spans."""
         period = int(rng.integers(self.period[0], self.period[1] + 1))
-        if self.kind == "random":
+        if GRAPH_KINDS[self.kind].edges is None:  # drawn at random (random)
             low, high = self.mean_in_degree
             mean = low if low == high else float(rng.uniform(low, high))
             seed = int(rng.integers(0, 2**63))

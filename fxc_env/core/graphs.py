@@ -21,9 +21,8 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 
 from fxc_env.core import validation
+from fxc_env.core.graph_kinds import GRAPH_KINDS, TOPOLOGY_NAMES
 from fxc_env.core.validation import ArgumentError, ArgumentTypeError
-
-TOPOLOGY_NAMES = ("paper_fig1", "ring", "path", "star", "complete", "random")
 
 #: Largest N for which :meth:`Topology.consensus_weights` builds dense matrices.
 DENSE_LIMIT = 2000
@@ -398,40 +397,27 @@ def named_topology(
     """
     if name not in TOPOLOGY_NAMES:
         raise ArgumentError(f"topology: unknown name {name!r}; expected one of {TOPOLOGY_NAMES}")
-    n = n_agents
-    if name == "paper_fig1":
-        if n != 6:
-            raise ArgumentError(f"n_agents: topology 'paper_fig1' has 6 agents, got n_agents = {n}")
-        period_edges = [[(0, 1), (3, 4)], [(1, 2), (4, 5)], [(2, 3), (5, 0)]]
-        note = "assumed Fig. 1 (reconstruction; the paper's image is lost)"
-        edges = tuple(_normalise_edges(e, n, "topology", f"graph {g}") for g, e in enumerate(period_edges))
-        return Topology(n_agents=n, edges=edges, name=name, note=note)
-    if name == "random":
-        return random_topology(n, seed=seed, mean_in_degree=mean_in_degree, period=period)
-    pairs = structured_edges(name, n)
-    edges = (_normalise_edges(pairs, n, "topology", "the edge list"),)
-    return Topology(n_agents=n, edges=edges, name=name)
+    kind = GRAPH_KINDS[name]
+    if kind.period_edges is not None:  # a fixed graph, given edge by edge
+        if n_agents != kind.n_agents:
+            raise ArgumentError(f"n_agents: topology {name!r} has {kind.n_agents} agents, got n_agents = {n_agents}")
+        edges = tuple(_normalise_edges(e, n_agents, "topology", f"graph {g}") for g, e in enumerate(kind.period_edges))
+        return Topology(n_agents=n_agents, edges=edges, name=name, note=kind.note)
+    if kind.edges is None:  # drawn
+        return random_topology(n_agents, seed=seed, mean_in_degree=mean_in_degree, period=period)
+    edges = (_normalise_edges(structured_edges(name, n_agents), n_agents, "topology", "the edge list"),)
+    return Topology(n_agents=n_agents, edges=edges, name=name)
 
 
 def structured_edges(kind: str, n: int) -> np.ndarray:
-    """The ``(sender, receiver)`` pairs of ``ring`` (``0 -> 1 -> ... -> N-1 -> 0``), ``path`` (``0 -> ... -> N-1``,
-    rooted at 0), ``star`` (agent 0 sends to every other: a leader, ``xi = e_0``) or ``complete`` on ``n`` agents.
+    """The ``(sender, receiver)`` pairs of a structured kind of :data:`GRAPH_KINDS` on ``n`` agents.
 
     The one definition of the structured graphs, for fixed topologies (:func:`named_topology`)
     and topology families (:mod:`fxc_env.core.families`, which relabel the agents at random).
     """
-    nodes = np.arange(n)
     if n == 1:
         return np.zeros((0, 2), dtype=np.int64)
-    if kind == "ring":
-        return np.stack([nodes, (nodes + 1) % n], axis=1)
-    if kind == "path":
-        return np.stack([nodes[:-1], nodes[1:]], axis=1)
-    if kind == "star":
-        return np.stack([np.zeros(n - 1, np.int64), nodes[1:]], axis=1)
-    senders, receivers = np.meshgrid(nodes, nodes, indexing="ij")
-    off = senders != receivers
-    return np.stack([senders[off], receivers[off]], axis=1)
+    return GRAPH_KINDS[kind].edges(np.arange(n))
 
 
 def random_topology(n_agents: int, *, seed: int | None = 0, mean_in_degree: float = 2.0, period: int = 1) -> Topology:

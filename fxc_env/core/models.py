@@ -10,7 +10,8 @@ arguments of the previous release still work for one release, with a
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -18,22 +19,79 @@ import numpy as np
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
 
-MODEL_NAMES = ("double_integrator", "single_integrator", "integrator_chain", "damped", "oscillator")
 #: Orders accepted by the ``"integrator_chain"`` model.
 CHAIN_ORDERS = (1, 2, 3, 4)
 #: Default damping ``c`` of the ``"damped"`` model (1/s): ``v' = -c v + u``.
 DEFAULT_DAMPING = 0.5
 #: Default angular frequency ``omega`` of the ``"oscillator"`` model (rad/s): ``v' = -omega^2 x + u``.
 DEFAULT_FREQUENCY = 1.0
+
+
+@dataclass(frozen=True)
+class AgentModel:
+    """A named per-axis agent model ``z' = A z + B u``: one entry of :data:`AGENT_MODELS`.
+
+    Attributes:
+        matrices: ``matrices(value)``, its ``(A, B)`` (float64 ``(n, n)``, ``(n, 1)``) for its parameter's
+            ``value`` (None: the default), the value checked there (an error naming the parameter).
+        parameter: the name of its one parameter (a key of its spec beside ``"name"``, and an ``fxc`` flag), or None.
+        flag_type, flag_help: the type and the help text of that flag (``--damping``).
+    """
+
+    matrices: Callable[[Any], tuple[np.ndarray, np.ndarray]]
+    parameter: str | None = None
+    flag_type: type = float
+    flag_help: str = ""
+
+
+def _chain(n: int) -> tuple[np.ndarray, np.ndarray]:
+    A = np.eye(n, k=1)
+    B = np.zeros((n, 1))
+    B[-1, 0] = 1.0
+    return A, B
+
+
+def _damped(damping: Any) -> tuple[np.ndarray, np.ndarray]:
+    A, B = _chain(2)
+    A[1, 1] = -(DEFAULT_DAMPING if damping is None else validation.real("damping", damping, minimum=0.0))
+    return A, B
+
+
+def _oscillator(frequency: Any) -> tuple[np.ndarray, np.ndarray]:
+    A, B = _chain(2)
+    omega = DEFAULT_FREQUENCY if frequency is None else validation.real("frequency", frequency, minimum=0.0)
+    A[1, 0] = -(omega * omega)
+    return A, B
+
+
+#: Every named agent model (docs: agent-models.md): the spec's names, their parameters, the ``fxc`` flags and
+#: :func:`model_matrices` read this table. Adding a model is one entry here (docs: extending.md, "An agent model").
+AGENT_MODELS: dict[str, AgentModel] = {
+    "double_integrator": AgentModel(lambda _: _chain(2)),
+    "single_integrator": AgentModel(lambda _: (np.zeros((1, 1)), np.ones((1, 1)))),
+    "integrator_chain": AgentModel(
+        lambda order: _chain(
+            2 if order is None else validation.integer("order", order, CHAIN_ORDERS[0], CHAIN_ORDERS[-1])
+        ),
+        "order",
+        int,
+        "order of --agent-model integrator_chain (1-4, default 2)",
+    ),
+    "damped": AgentModel(
+        _damped, "damping", float, f"drag c of --agent-model damped (1/s, default {DEFAULT_DAMPING:g})"
+    ),
+    "oscillator": AgentModel(
+        _oscillator, "frequency", float, f"frequency of --agent-model oscillator (rad/s, default {DEFAULT_FREQUENCY:g})"
+    ),
+}
+MODEL_NAMES = tuple(AGENT_MODELS)
 #: The parameter each named model takes (a key of its spec beside ``"name"``); the others take none.
-MODEL_PARAMETERS = {"integrator_chain": "order", "damped": "damping", "oscillator": "frequency"}
-#: The previous release's flat arguments (deprecated): each one model's parameter.
+MODEL_PARAMETERS = {name: model.parameter for name, model in AGENT_MODELS.items() if model.parameter}
+#: The previous release's flat arguments (deprecated), frozen: a newer model's parameter exists only in the spec.
 FLAT_PARAMETERS = ("order", "damping", "frequency")
 
 
-def model_matrices(
-    name: Any, order: Any = None, damping: Any = None, frequency: Any = None
-) -> tuple[np.ndarray, np.ndarray]:
+def model_matrices(name: Any, **parameters: Any) -> tuple[np.ndarray, np.ndarray]:
     """``(A, B)`` of a named per-axis model, float64 ``(n, n)`` and ``(n, 1)``; states ``(x, v, ...)``.
 
     Args:
@@ -46,39 +104,25 @@ def model_matrices(
             - ``"damped"``: ``x' = v``, ``v' = -c v + u`` with c = ``damping`` >= 0 in 1/s (default 0.5).
             - ``"oscillator"``: ``x' = v``, ``v' = -omega^2 x + u`` with omega = ``frequency`` >= 0
               in rad/s (default 1).
-        order, damping, frequency: the parameter of the model that has it; ``None`` for the default.
+        parameters: the parameter of the model that has it (``order``, ``damping``, ``frequency``: a key of
+            :data:`MODEL_PARAMETERS`' values); ``None`` for the default.
 
     Raises:
         ArgumentError naming ``agent_model`` (unknown name) or the parameter (out of range, or
         given to a model that has no such parameter).
     """
     name = validation.choice("agent_model", name, MODEL_NAMES)
-    for parameter, value in (("order", order), ("damping", damping), ("frequency", frequency)):
-        owner = next(model for model, key in MODEL_PARAMETERS.items() if key == parameter)
-        if value is not None and owner != name:
+    owners = {key: model for model, key in MODEL_PARAMETERS.items()}
+    for parameter, value in parameters.items():
+        if parameter not in owners:
+            raise TypeError(f"model_matrices() got an unexpected keyword argument {parameter!r}")
+        if value is not None and owners[parameter] != name:
             raise ArgumentError(
-                f"{parameter}: only agent_model = {owner!r} has a {parameter}, "
+                f"{parameter}: only agent_model = {owners[parameter]!r} has a {parameter}, "
                 f"got {parameter} = {value!r} with agent_model = {name!r}"
             )
-    if name == "single_integrator":
-        return np.zeros((1, 1)), np.ones((1, 1))
-    if name in ("double_integrator", "integrator_chain"):
-        n = 2 if order is None else validation.integer("order", order, CHAIN_ORDERS[0], CHAIN_ORDERS[-1])
-        return _chain(n)
-    A, B = _chain(2)
-    if name == "damped":
-        A[1, 1] = -(DEFAULT_DAMPING if damping is None else validation.real("damping", damping, minimum=0.0))
-    else:
-        omega = DEFAULT_FREQUENCY if frequency is None else validation.real("frequency", frequency, minimum=0.0)
-        A[1, 0] = -(omega * omega)
-    return A, B
-
-
-def _chain(n: int) -> tuple[np.ndarray, np.ndarray]:
-    A = np.eye(n, k=1)
-    B = np.zeros((n, 1))
-    B[-1, 0] = 1.0
-    return A, B
+    model = AGENT_MODELS[name]
+    return model.matrices(parameters.get(model.parameter) if model.parameter else None)
 
 
 def model_spec(value: Any, flat: Mapping[str, Any] | None = None) -> tuple[str, dict[str, Any]]:

@@ -162,6 +162,13 @@ def probability(name: str, value: Any) -> float:
     return number
 
 
+def boolean(name: str, value: Any) -> bool:
+    """``value`` if it is True or False (not 0, 1 or a string)."""
+    if not isinstance(value, bool):
+        raise ArgumentError(f"{name}: expected True or False, got {value!r}")
+    return value
+
+
 def choice(name: str, value: Any, options: Sequence[str]) -> str:
     """``value`` if it is one of ``options``."""
     if not isinstance(value, str) or value not in options:

@@ -17,8 +17,9 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import config_of
+from fxc_env.core import graph_kinds
 from fxc_env.core.families import TopologyMixture, edge_lists
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core.validation import ArgumentError, boolean
 
 #: The ``format`` entry of a domain record.
 DOMAIN_FORMAT = "fxc_env.policy_domain/1"
@@ -111,10 +112,7 @@ def _graph_entries(config: Any) -> list[dict[str, Any]]:
     members = family.families if isinstance(family, TopologyMixture) else (family,)
     entries = []
     for member in members:
-        entry: dict[str, Any] = {"family": member.kind, "period": [int(p) for p in member.period]}
-        if member.kind == "random":
-            entry["mean_in_degree"] = [float(m) for m in member.mean_in_degree]
-        entries.append(entry)
+        entries.append(_family_entry(member))
     return entries
 
 
@@ -212,9 +210,7 @@ def check_domain(
 
 def checked_allow(value: Any) -> bool:
     """``allow_out_of_domain`` once it is True or False; else the error naming it."""
-    if not isinstance(value, bool):
-        raise ArgumentError(f"allow_out_of_domain: expected True or False, got {value!r}")
-    return value
+    return boolean("allow_out_of_domain", value)
 
 
 def _time_rescales(config: Any) -> bool:
@@ -267,13 +263,15 @@ def _uncovered_graphs(graphs: Sequence[Mapping[str, Any]], config: Any) -> str:
     outside = [m for m in members if not any(_covers_family(entry, m) for entry in graphs)]
     if not outside:
         return ""
-    labels = []
-    for member in outside:
-        entry: dict[str, Any] = {"family": member.kind, "period": list(member.period)}
-        if member.kind == "random":
-            entry["mean_in_degree"] = list(member.mean_in_degree)
-        labels.append(f"the family {graph_label(entry)}")
-    return "; ".join(labels)
+    return "; ".join(f"the family {graph_label(_family_entry(member))}" for member in outside)
+
+
+def _family_entry(member: Any) -> dict[str, Any]:
+    """A family's graph entry: its kind, period range and, for a kind that takes it, its mean in-degree range."""
+    entry: dict[str, Any] = {"family": member.kind, "period": [int(p) for p in member.period]}
+    if "mean_in_degree" in graph_kinds.FAMILY_KEYS[member.kind]:
+        entry["mean_in_degree"] = [float(m) for m in member.mean_in_degree]
+    return entry
 
 
 def _inside(inner: Sequence[float], outer: Sequence[float]) -> bool:
@@ -283,7 +281,7 @@ def _inside(inner: Sequence[float], outer: Sequence[float]) -> bool:
 def _covers_family(entry: Mapping[str, Any], member: Any) -> bool:
     if entry.get("family") != member.kind or not _inside(member.period, entry["period"]):
         return False
-    return member.kind != "random" or _inside(member.mean_in_degree, entry["mean_in_degree"])
+    return "mean_in_degree" not in entry or _inside(member.mean_in_degree, entry["mean_in_degree"])
 
 
 def _covers_fixed(entry: Mapping[str, Any], topology: Any) -> bool:
@@ -292,10 +290,9 @@ def _covers_fixed(entry: Mapping[str, Any], topology: Any) -> bool:
         return recorded is not None and _same_edges(recorded, topology)
     if not (entry["period"][0] <= topology.period <= entry["period"][1]):
         return False
-    kind = entry["family"]
-    if kind == "random":
+    if "mean_in_degree" in entry:  # a drawn kind (random): its in-degrees
         return _random_draw(topology, *entry["mean_in_degree"])
-    return union_kind(topology) == kind
+    return union_kind(topology) == entry["family"]
 
 
 def _same_edges(recorded: Sequence[Any], topology: Any) -> bool:
@@ -322,17 +319,7 @@ def union_kind(topology: Any) -> str:
     The union spans (every environment's does), so a union with every in- and out-degree 1 is
     one directed cycle, one with N - 1 edges and in- and out-degrees at most 1 a directed path.
     """
-    n = topology.n_agents
-    indeg, outdeg, count = _union(topology)
-    if n >= 2 and count == n * (n - 1):
-        return "complete"
-    if n >= 2 and np.all(indeg == 1) and np.all(outdeg == 1):
-        return "ring"
-    if n >= 2 and count == n - 1 and indeg.max() <= 1 and outdeg.max() <= 1:
-        return "path"
-    if n >= 2 and count == n - 1 and outdeg.max() == n - 1:
-        return "star"
-    return "another graph"
+    return graph_kinds.union_kind(*_union(topology))
 
 
 def _random_draw(topology: Any, low: float, high: float) -> bool:

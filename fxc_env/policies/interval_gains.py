@@ -172,6 +172,7 @@ class IntervalGainPolicy(Policy):
         from fxc_env.policies.policy_files import training_settings
 
         config = config_of(env, "IntervalGainPolicy")
+        domain = self.training_domain
         here = training_settings(config)
         name = self.header.get("name", "this gain schedule")
         for key, keyword in self.matched_settings.items():
@@ -181,9 +182,20 @@ class IntervalGainPolicy(Policy):
                     f"{keyword}: the {name} policy was trained with {key}={trained!r}; this environment has "
                     f"{key}={got!r} (its gain table fits only the setting it was learned on)"
                 )
-        check_domain(
-            self.training_domain, config, self.source or f"the {name} policy", allow_out_of_domain, stacklevel=4
-        )
+        check_domain(domain, config, self.source or f"the {name} policy", allow_out_of_domain, stacklevel=4)
+
+    def fit_to(self, config: Any, *, check: bool = True, allow_out_of_domain: bool = False) -> IntervalGainPolicy:
+        """This table once it fits ``config``: :meth:`check` (unless ``check=False``), then it reads ``config``'s
+        observations (:meth:`read_slots`), whose sizes must be its own (refused naming ``policy`` and both sizes)."""
+        if check:
+            self.check(config, allow_out_of_domain)
+        self.read_slots(config.layout.slots, None if "dim" in self.matched_settings else config.dim)
+        if (config.layout.size, config.action_size) != (self.obs_size, self.action_size):
+            raise ArgumentError(
+                f"policy: the table takes observations of size {self.obs_size}; this environment has "
+                f"{config.layout.size}"
+            )
+        return self
 
 
 def spectrum(topology: Any) -> np.ndarray:
@@ -229,15 +241,7 @@ def load_interval_gains(
     if env is not None:
         from fxc_env.config import config_of
 
-        config = config_of(env, "policy")
-        if check:
-            policy.check(config, allow_out_of_domain)
-        policy.read_slots(config.layout.slots, None if "dim" in policy.matched_settings else config.dim)
-        if (config.layout.size, config.action_size) != (policy.obs_size, policy.action_size):
-            raise ArgumentError(
-                f"policy: the table takes observations of size {policy.obs_size}; this environment has "
-                f"{config.layout.size}"
-            )
+        policy.fit_to(config_of(env, "policy"), check=check, allow_out_of_domain=allow_out_of_domain)
     return policy
 
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 import json
 import re
 import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -24,8 +26,8 @@ import numpy as np
 
 from fxc_env.config import config_of, make_config
 from fxc_env.config.layout import ObservationLayout
-from fxc_env.core.validation import ArgumentError
-from fxc_env.policies.domain import check_domain, checked_allow, domain_from_settings, training_domain
+from fxc_env.core.validation import ArgumentError, boolean
+from fxc_env.policies.domain import check_domain, domain_from_settings, training_domain
 from fxc_env.policies.fit import (  # noqa: F401
     PerAxisPolicy,
     PolicyAdaptedWarning,
@@ -38,7 +40,7 @@ from fxc_env.policies.fit import (  # noqa: F401
     trained_slots,
     training_settings,
 )
-from fxc_env.policies.interval_gains import load_interval_gains
+from fxc_env.policies.interval_gains import IntervalGainPolicy, read_interval_gains
 from fxc_env.policies.policy_files import (
     MODEL_LOAD_ERRORS,
     TRUST_HINT,
@@ -212,14 +214,15 @@ def load_learned_policy(
     (naming the sizes, or the setting and both values), or ``env`` lies outside its training
     domain without ``allow_out_of_domain``.
     """
-    checked_allow(allow_out_of_domain)
+    boolean("allow_out_of_domain", allow_out_of_domain)
     path = pretrained_path(str(path)) if str(path) in SHIPPED and not Path(path).exists() else Path(path)
-    if path.suffix == ".npz":
-        return load_interval_gains(path, env, allow_out_of_domain=allow_out_of_domain)  # type: ignore[return-value]
-    policy = _read(path, trusted)
+    policy = policy_format(path).read(path, trusted)
     if env is None:
         return policy
+    # The one check after loading, whatever the format: sizes, training settings and domain, adapting the slots.
     config = config_of(env, "policy")
+    if isinstance(policy, IntervalGainPolicy):  # reads any obs_slots; its own settings must match
+        return policy.fit_to(config, allow_out_of_domain=allow_out_of_domain)  # type: ignore[return-value]
     trained = getattr(policy, "training_settings", None)
     per_axis, target, slots = _adaptation(policy, config)
     skip = ("dim",) if per_axis else ()
@@ -241,23 +244,77 @@ def load_learned_policy(
 def saved_format(path: str | Path) -> str:
     """The format of the saved policy at ``path``, as :func:`load_learned_policy` reads it, for messages:
     ``gain schedule`` (``.npz``), ``torch policy``, ``RLlib checkpoint`` (another directory) or ``SB3 model``."""
-    from fxc_env.policies.torch_policy import is_torch_policy
+    return policy_format(path).name
 
+
+@dataclass(frozen=True)
+class PolicyFormat:
+    """A format of saved policy, as :func:`load_learned_policy` reads it (one entry of :data:`POLICY_FORMATS`).
+
+    Attributes:
+        name: the format in messages (:func:`saved_format`).
+        suffixes: the file suffixes it is recognised by, from the path alone (nothing is opened).
+        member: a directory holding this file is this format too (a run directory), or None.
+        any_directory: every other directory is this format.
+        read: ``read(path, trusted)``, the policy saved at ``path``, read as data: no code from the file runs,
+            except in a format that can only unpickle, which refuses without ``trusted=True`` and reads nothing.
+        record: the function (dotted path) that checks the file's records, each number and its training domain,
+            with :mod:`fxc_env.policies.records`, before anything is built.
+    """
+
+    name: str
+    suffixes: tuple[str, ...]
+    member: str | None
+    any_directory: bool
+    read: Callable[[Path, bool], Any]
+    record: str
+
+    def recognises(self, path: Path) -> bool:
+        """Whether ``path`` is of this format, judged from the path (its suffix, or a directory's file names)."""
+        if path.suffix in self.suffixes:
+            return True
+        return path.is_dir() and (self.any_directory or (self.member is not None and (path / self.member).is_file()))
+
+
+_HERE = "fxc_env.policies"
+
+
+def _read_torch_policy(path: Path, trusted: bool) -> Any:
+    from fxc_env.policies.torch_policy import load_torch_policy  # torch only when a torch policy is read
+
+    return load_torch_policy(path)
+
+
+#: The formats :func:`load_learned_policy` reads, in the order a path is tried; a path none recognises is read as
+#: the last (an SB3 ``.zip``, whose reader names what the file lacks). Adding a format is one entry here.
+POLICY_FORMATS = (
+    PolicyFormat(
+        "gain schedule",
+        (".npz",),
+        None,
+        False,
+        lambda p, _: read_interval_gains(p),
+        f"{_HERE}.interval_gains.IntervalGainPolicy",
+    ),
+    PolicyFormat("torch policy", (".pt",), "policy.pt", False, _read_torch_policy, f"{_HERE}.torch_policy.TorchPolicy"),
+    PolicyFormat(
+        "RLlib checkpoint", (), None, True, lambda p, t: RLlibPolicy(p, trusted=t), f"{_HERE}.learned.rllib_record"
+    ),
+    PolicyFormat(
+        "SB3 model",
+        (".zip",),
+        None,
+        False,
+        lambda p, t: LearnedPolicy(p, trusted=t),
+        f"{_HERE}.policy_files.read_sb3_zip",
+    ),
+)
+
+
+def policy_format(path: str | Path) -> PolicyFormat:
+    """The entry of :data:`POLICY_FORMATS` that reads ``path`` (the first that recognises it, else the last)."""
     path = Path(path)
-    if path.suffix == ".npz":
-        return "gain schedule"
-    if is_torch_policy(path):
-        return "torch policy"
-    return "RLlib checkpoint" if path.is_dir() else "SB3 model"
-
-
-def _read(path: Path, trusted: bool) -> Any:
-    """The policy saved at ``path``: a torch policy, an RLlib checkpoint (a directory) or an SB3 ``.zip``."""
-    from fxc_env.policies.torch_policy import is_torch_policy, load_torch_policy
-
-    if is_torch_policy(path):
-        return load_torch_policy(path)
-    return RLlibPolicy(path, trusted=trusted) if path.is_dir() else LearnedPolicy(path, trusted=trusted)
+    return next((f for f in POLICY_FORMATS if f.recognises(path)), POLICY_FORMATS[-1])
 
 
 def _adaptation(policy: Any, config: Any) -> tuple[bool, Any, int | None]:

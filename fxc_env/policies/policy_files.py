@@ -204,8 +204,10 @@ def read_sb3_zip(path: str | Path) -> SavedModel:
         raise ArgumentError(f"policy: {path}: its model description is malformed ({summary(exc)})") from exc
 
 
-def _check_numbers(path: Path, spec: Mapping[str, Any], data: Mapping[str, Any], weights: Mapping[str, Any]) -> None:
-    """Refuse, naming the file and the field, a malformed space, ``num_timesteps`` or a non-finite weight."""
+def _check_numbers(path: Path, spec: dict[str, Any], data: Mapping[str, Any], weights: Mapping[str, Any]) -> None:
+    """Refuse, naming the file and the field, a malformed domain record, space, ``num_timesteps`` or a non-finite
+    weight: every record of the file checked in one pass (:mod:`fxc_env.policies.records`) before anything is built."""
+    spec["domain"] = checked_domain(spec["domain"], path)
     file_box(path, "observation", spec["observation"], bounded=False)
     file_box(path, "action", spec["action"], bounded=True)
     for record in (data, spec.get("metadata") or {}):  # SB3's count, and the count fxc_policy.json records
@@ -268,7 +270,7 @@ def _recorded_spec(path: Path, metadata: Any) -> dict[str, Any]:
         action=metadata.get("action"),
         normalization=metadata.get("normalization"),
         env=metadata.get("env"),
-        domain=checked_domain(metadata.get("domain"), path),
+        domain=metadata.get("domain"),  # checked with the file's other records (_check_numbers)
         metadata=dict(metadata),
     )
     for key in ("observation", "action"):
@@ -368,10 +370,10 @@ def _build(path: Path, spec: dict[str, Any], weights: Mapping[str, Any]) -> Any:
         )
         state = _renamed(weights, _ACTOR_PREFIXES[cls])
     else:  # the gain-scheduled networks of fxc_env.policies.gain_network
-        from fxc_env.policies.gain_network import GainScheduledExtractor, GatedGainExtractor
-
         net_arch = spec["net_arch"]
         hidden = tuple(int(w) for w in net_arch) if isinstance(net_arch, list | tuple) else (64, 64)
+        from fxc_env.policies.gain_network import GainScheduledExtractor, GatedGainExtractor
+
         extractor_class = GatedGainExtractor if cls == "GatedGainPolicy" else GainScheduledExtractor
         try:
             extractor = extractor_class(obs_size, hidden)

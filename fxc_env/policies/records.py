@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.core.families import FAMILY_KINDS
+from fxc_env.core.graph_kinds import FAMILY_KEYS, FAMILY_KINDS
 from fxc_env.core.validation import (
     MAX_AGENTS,
     MAX_DIM,
@@ -116,11 +116,11 @@ def _check_graph(name: str, entry: Any) -> None:
         kind = entry["family"]
         if kind not in FAMILY_KINDS:
             raise ArgumentError(f"{name}.family: expected one of {FAMILY_KINDS}, got {_short(kind)}")
-        keys = {"family", "period", *(("mean_in_degree",) if kind == "random" else ())}
+        keys = {"family", "period", *(("mean_in_degree",) if "mean_in_degree" in FAMILY_KEYS[kind] else ())}
         if set(entry) != keys:
             raise ArgumentError(f"{name}: a {kind!r} entry holds {sorted(keys)}, got {sorted(map(str, entry))}")
         _check_range(f"{name}.period", entry["period"], True, 1, MAX_PERIOD)
-        if kind == "random":
+        if "mean_in_degree" in keys:
             _check_range(f"{name}.mean_in_degree", entry["mean_in_degree"], False, 0.0, MAX_AGENTS, True)
         return
     if set(entry) != {"topology", "edges"} or not isinstance(entry["topology"], str):

@@ -57,31 +57,27 @@ class TorchPolicy(Policy):
         self.timesteps = file_number(label, "timesteps", record.get("timesteps", 0), integral=True, minimum=0)
         #: ``mlp`` (absent in older files), ``gru`` or ``gnn`` (:mod:`fxc_env.policies.torch_memory`).
         self.arch = str(record.get("arch", "mlp"))
+        actor = record["actor"]  # a non-mapping fails in load_state_dict below, as a damaged file
+        for name, weight in actor.items() if isinstance(actor, Mapping) else ():  # checked before anything is built
+            file_tensor(label, f"actor.{name}", weight)
+        recorded = checked_domain(record.get("domain"), label)
         self.module = build_actor(record, self.obs_size, self.action_size)
         self.module.load_state_dict(record["actor"])
-        for name, weight in record["actor"].items():
-            file_tensor(label, f"actor.{name}", weight)
         self.module.eval().requires_grad_(False)
-        self._settings: dict[str, Any] | None = None
-        self._domain = checked_domain(record.get("domain"), label)
+        #: The settings of the environment ``env`` describes (None when it records none or does not build).
+        self.training_settings: dict[str, Any] | None = settings_from_env_kwargs(self.env) if self.env else None
+        #: Where it was trained (:mod:`fxc_env.policies.domain`): the record's ``domain``, else the one ``env`` makes.
+        self.training_domain: dict[str, Any] | None = recorded or self._domain_of_env()
         self._hidden: torch.Tensor | None = None  # gru: the memory of the episodes under way
 
-    @property
-    def training_settings(self) -> dict[str, Any] | None:
-        """The settings of the environment ``env`` describes (None when it records none or does not build)."""
-        if self._settings is None and self.env:
-            self._settings = settings_from_env_kwargs(self.env)
-        return self._settings
-
-    @property
-    def training_domain(self) -> dict[str, Any] | None:
-        """Where it was trained (:mod:`fxc_env.policies.domain`): the record's ``domain``, else the one ``env`` makes."""
-        if self._domain is None and self.env:
-            try:
-                self._domain = training_domain(make_config(**self.env))
-            except (ArgumentError, TypeError):
-                return None
-        return self._domain
+    def _domain_of_env(self) -> dict[str, Any] | None:
+        """The training domain ``env`` makes (a file that records none), or None when it records none or fails."""
+        if not self.env:
+            return None
+        try:
+            return training_domain(make_config(**self.env))
+        except (ArgumentError, TypeError):
+            return None
 
     @property
     def needs_team(self) -> bool:  # type: ignore[override]

@@ -7,7 +7,7 @@ import pytest
 
 import fxc_env
 from fxc_env.baselines import LeaderFollowerPolicy
-from fxc_env.baselines.harness.figures import COLOURS, MARKERS
+from fxc_env.baselines.harness.figures import style_at
 from fxc_env.baselines.harness.suite import BASELINES, BUILTIN_SETTINGS, load_policy, optimality_contenders
 from fxc_env.config import make_config
 from fxc_env.core.families import TopologyFamily
@@ -102,7 +102,7 @@ def test_it_is_a_registered_baseline_with_its_settings():
     assert BUILTIN_SETTINGS["leader_follower"] == (True, "uniform", "plan", "normalized")
     laws = [c.name for c in optimality_contenders()]
     assert "leader_follower" in laws
-    assert len(set(zip(MARKERS, COLOURS, strict=False))) >= len(laws)  # its own marker and colour on the frontier
+    assert len({style_at(i) for i in range(len(laws))}) == len(laws)  # its own marker and colour on the frontier
     policy = load_policy("leader_follower", make_config(scenario=None, topology="ring", n_agents=5))
     assert isinstance(policy, LeaderFollowerPolicy) and policy.guarantee().startswith("exact")
     short = LeaderFollowerPolicy(make_config(scenario=None, topology="ring", n_agents=9, n_intervals=7))

@@ -16,10 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.laws.saturation_aware import SaturationAwarePolicy
+from fxc_env.baselines.registry import LAWS
 from fxc_env.config import config_of
 from fxc_env.core.validation import ArgumentError
-from fxc_env.policies.reference import ReferencePolicy
 
 #: Defaults of the ``imitation`` entry of the hyperparameter file.
 DEFAULTS = {
@@ -36,10 +35,10 @@ DEFAULTS = {
 
 def teacher_policy(name: str, config: Any) -> Any:
     """The policy to copy, in the run's own units (plan actions, normalized observations)."""
-    teachers = {"reference": ReferencePolicy, "saturation_aware": SaturationAwarePolicy}
+    teachers = ("reference", "saturation_aware")  # registered laws (fxc_env.baselines.registry) that plan
     if name not in teachers:
-        raise ArgumentError(f"hyperparams: imitation teacher {name!r}; expected one of {tuple(teachers)}")
-    return teachers[name](config)
+        raise ArgumentError(f"hyperparams: imitation teacher {name!r}; expected one of {teachers}")
+    return LAWS[name].policy(config)
 
 
 @dataclass(frozen=True)

@@ -100,9 +100,9 @@ def start_table(config: Any, start: str) -> np.ndarray:
             raise ArgumentError(f"start: {start} holds no finite ({config.n_intervals}, 2, 2) table")
         return gains
     if start == "deadbeat":
-        from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
+        from fxc_env.baselines.registry import LAWS
 
-        return MinimumTimePolicy(config, allow_noise=config.obs_noise > 0).gains.copy()
+        return LAWS["minimum_time"].policy(config, allow_noise=config.obs_noise > 0).gains.copy()
     if start == "accel":
         tau = np.asarray(config.schedule.intervals, dtype=np.float64)
         shape = np.stack([tau**2 / 2, tau], axis=-1)[:, :, None]  # (K, 2, 1): offsets of a constant input

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.registry import LAWS
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer
@@ -64,7 +64,9 @@ def play(config: EnvConfig, seeds: Sequence[int], student: Any = None, label: bo
     teachers = []
     if label or student is None:
         teachers = [
-            MinimumTimePolicy(make_config(None, **{**TASK, "n_agents": config.n_agents, "topology": d.topology}))
+            LAWS["minimum_time"].policy(
+                make_config(None, **{**TASK, "n_agents": config.n_agents, "topology": d.topology})
+            )
             for d in draws
         ]
     observations, targets = [], []

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.baselines.laws.minimum_time import MinimumTimePolicy
+from fxc_env.baselines.registry import LAWS
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.families import TopologyFamily
@@ -190,7 +190,7 @@ def train(
     record: dict[str, Any] = {"init": init, "demonstration_episodes": episodes, "refine_steps": refine_steps, "lr": lr}
     began = time.perf_counter()
     if init == "teacher":
-        demos = run_episodes(config, MinimumTimePolicy, range(seed, seed + episodes), record=True)
+        demos = run_episodes(config, LAWS["minimum_time"].policy, range(seed, seed + episodes), record=True)
         gains, residuals = regress_gains(config, demos["observations"], demos["actions"])
         record["teacher"] = "minimum_time"
         record["teacher_median_deadline_error"] = float(np.median(demos["deadline_error"]))
