@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, TypedDict
@@ -187,10 +188,45 @@ class StoreOnce(argparse._StoreAction):
         namespace.given_flags = given | {self.dest}
 
 
+#: A Sphinx cross-reference (``:data:`fxc_env.SCENARIOS```, ``:meth:`title <target>```) or a literal in double backticks.
+_MARKUP = re.compile(r":[a-z]+:`(~?)([^`<]*?)\s*(?:<[^`>]*>)?`|``([^`]*)``")
+
+
+def plain_text(text: str) -> str:
+    """``text`` with its docstring markup read as a terminal shows it: a role's title (or target) and a literal's text.
+
+    ``:data:`fxc_env.SCENARIOS``` reads ``fxc_env.SCENARIOS``, ``:func:`~fxc_env.engine.draws.draw_batch```
+    reads ``draw_batch``, ``:meth:`Observer.measure <fxc_env...>``` reads ``Observer.measure``, and
+    ````rings20-v2```` reads ``rings20-v2``.
+    """
+
+    def shown(match: re.Match[str]) -> str:
+        tilde, target, literal = match.groups()
+        if literal is not None:
+            return literal
+        return target.rsplit(".", 1)[-1] if tilde else target
+
+    return _MARKUP.sub(shown, text)
+
+
+class PlainHelpFormatter(argparse.HelpFormatter):
+    """``--help`` in plain text: descriptions and flag help are built from docstrings, whose markup it drops."""
+
+    def _format_text(self, text: str) -> str:
+        return super()._format_text(plain_text(text))
+
+    def _expand_help(self, action: argparse.Action) -> str:
+        return plain_text(super()._expand_help(action))
+
+
 class FlagParser(argparse.ArgumentParser):
-    """The ``fxc`` parser: a flag is stored by :class:`StoreOnce`, so a repeated one is refused."""
+    """The ``fxc`` parser: a flag is stored by :class:`StoreOnce`, so a repeated one is refused.
+
+    Its help is plain text (:class:`PlainHelpFormatter`), its sub-commands' too (they are FlagParsers).
+    """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", PlainHelpFormatter)
         super().__init__(*args, **kwargs)
         self.register("action", None, StoreOnce)
         self.register("action", "store", StoreOnce)

@@ -56,6 +56,12 @@ class Interval:
     plan: Any = None
     disagreement: Any = None
 
+    def outcome(self, reward: Any, terminated: Any) -> StepOutcome:
+        """What the interval did, as a step returns it: ``reward`` ``(B,)`` and ``terminated`` beside its figures."""
+        return StepOutcome(
+            reward, self.energy, self.peak, self.u_start, self.u_end, self.saturated_fraction, terminated, self.plan
+        )
+
 
 @dataclass(slots=True)
 class StepOutcome:
@@ -374,9 +380,16 @@ class Formation:
 
 
 def make_agents(config: EnvConfig, backend: Any) -> DoubleIntegratorAgents | LinearAgents:
-    """The agents' part for ``config``: general ``(A, B)``, clipped or plain double integrators."""
+    """The agents' part for ``config``: general ``(A, B)``, clipped or plain double integrators.
+
+    With a set of input limits every episode holds the set's first until a reset gives its own.
+    """
     if config.model is not None:
-        return LinearAgents(config, backend)
+        agents: DoubleIntegratorAgents | LinearAgents = LinearAgents(config, backend)
+    elif config.u_max_choices is not None:
+        agents = LimitedDoubleIntegratorAgents(config, backend)
+    else:
+        agents = DoubleIntegratorAgents(config, backend)
     if config.u_max_choices is not None:
-        return LimitedDoubleIntegratorAgents(config, backend)
-    return DoubleIntegratorAgents(config, backend)
+        agents.u_max = backend.full(backend.n_episodes, config.u_max_choices[0])
+    return agents

@@ -28,9 +28,9 @@ from fxc_env.config import EnvConfig
 from fxc_env.core import validation
 from fxc_env.core.graphs import Topology
 from fxc_env.core.metrics import EpisodeMetrics
-from fxc_env.core.validation import ArgumentError, ArgumentTypeError
+from fxc_env.core.validation import ArgumentTypeError
 
-from . import draws
+from . import draws, resets
 from .agents import Formation, StepOutcome, make_agents, state_disagreement
 from .backend import DTYPES, TINY, make_backend, to_host
 from .clock import BeforeReset, EpisodeClock, InstantTables, LockStepClock
@@ -51,6 +51,15 @@ __all__ = [
 ]
 
 
+def _checked_config(config: object) -> EnvConfig:
+    """``config`` if it is an :class:`EnvConfig` (one way in: the settings make_config validated); else raise naming it."""
+    if not isinstance(config, EnvConfig):
+        shown = f"the name {config!r}" if isinstance(config, str) else f"a {type(config).__name__}"
+        hint = f"make_config({config!r})" if isinstance(config, str) else "make_config(...)"
+        raise ArgumentTypeError(f"config: expected an EnvConfig ({hint}), got {shown}")
+    return config
+
+
 class ConsensusEngine:
     """B episodes advanced as arrays. Call :meth:`reset` before :meth:`step`.
 
@@ -63,20 +72,10 @@ class ConsensusEngine:
     """
 
     def __init__(self, config: EnvConfig, n_episodes: int = 1, *, device: Any = None, dtype: str = "float64") -> None:
-        if not isinstance(config, EnvConfig):  # one way in: the settings make_config validated
-            shown = f"the name {config!r}" if isinstance(config, str) else f"a {type(config).__name__}"
-            hint = f"make_config({config!r})" if isinstance(config, str) else "make_config(...)"
-            raise ArgumentTypeError(f"config: expected an EnvConfig ({hint}), got {shown}")
-        self.config = config
+        self.config = _checked_config(config)
         self.n_episodes = b = validation.integer("n_episodes", n_episodes, 1, validation.MAX_AGENTS)
         self.layout = config.layout
         self.backend = backend = make_backend(device, dtype, b)
-        if (config.obs_dtype, config.obs_mode) == ("float32", "raw"):
-            # A raw row is a difference of two states: one beyond float32's range would observe as inf.
-            backend.limit_rows(
-                validation.float32_row_limit(config.obs_noise) - config.obs_resolution,
-                [config.settling_time**level for level in range(config.n_states)],
-            )
         shape = (b, config.n_agents, config.n_states, config.dim)
         #: ``(B, N, n, dim)`` at ``t_k``; numpy plays each interval into the spare buffer (double buffering).
         self.state = backend.zeros(shape)
@@ -85,8 +84,6 @@ class ConsensusEngine:
         self.clock: LockStepClock | EpisodeClock = BeforeReset(self.tables)
         self.graphs = GraphTable([config.topology] * b, self.layout.slots, backend, config.switching == "random")
         self.agents = make_agents(config, backend)
-        if config.u_max_choices is not None:
-            self.agents.u_max = backend.full(b, config.u_max_choices[0])
         self.formation = Formation(config, backend)
         self.trackers = EpisodeTrackers(config, backend)
         self.observer = Observer(config, backend, self.tables)
@@ -116,31 +113,24 @@ class ConsensusEngine:
     initial_disagreement = property(lambda self: self.trackers.initial_disagreement, doc="``D(0)`` ``(B,)``.")
     current_disagreement = property(lambda self: self.trackers.current_disagreement, doc="``D(t_k)`` ``(B,)``.")
 
-    @property
-    def u_max(self) -> Any:
-        """Each episode's input limit ``u_max`` (m/s^2), ``(B,)``, or None without a limit (held by the agents' part)."""
-        return self.agents.u_max
+    u_max = property(
+        lambda self: self.agents.u_max,
+        lambda self, value: setattr(self.agents, "u_max", value),
+        doc="Each episode's input limit ``u_max`` (m/s^2), ``(B,)``, or None without a limit (held by the agents' part).",
+    )
+    x = property(
+        lambda self: self.state[:, :, 0], doc="Positions ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`)."
+    )
 
-    @u_max.setter
-    def u_max(self, value: Any) -> None:
-        self.agents.u_max = value
+    v = property(
+        lambda self: self.xp.zeros_like(self.x) if self.config.n_states == 1 else self.state[:, :, 1],
+        doc="Velocities ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`; zeros for a single integrator).",
+    )
 
-    @property
-    def x(self) -> Any:
-        """Positions ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`)."""
-        return self.state[:, :, 0]
-
-    @property
-    def v(self) -> Any:
-        """Velocities ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`; zeros for a single integrator)."""
-        if self.config.n_states == 1:
-            return self.xp.zeros_like(self.state[:, :, 0])
-        return self.state[:, :, 1]
-
-    @property
-    def done(self) -> bool:
-        """The deadline has been reached: ``t_k = T_s`` (lock step; see :meth:`episode_done` after a partial reset)."""
-        return self.clock.done
+    done = property(
+        lambda self: self.clock.done,
+        doc="The deadline has been reached: ``t_k = T_s`` (lock step; see :meth:`episode_done` after a partial reset).",
+    )
 
     def episode_done(self) -> Any:
         """Per episode, whether it reached ``T_s``: ``(B,)`` booleans on the device."""
@@ -173,11 +163,8 @@ class ConsensusEngine:
         return self.backend.normal(self.rng, shape)
 
     def _switching_draw(self, periods: Any) -> Any:
-        """Random switching: each episode's graph index on the coming interval, uniform in ``[0, m_b)``."""
-        if self.is_numpy and self.graphs.shared:
-            return self.rng.integers(0, int(periods[0]), self.n_episodes)
-        local = self.xp.floor(self._uniform((self.n_episodes,)) * self.xp.astype(periods, self.dtype))
-        return self.xp.astype(local, self.xp.int64)
+        """Random switching: each episode's graph index on the coming interval (:func:`~fxc_env.engine.draws.switching_draw`)."""
+        return draws.switching_draw(self.backend, self.rng, self.graphs.shared, periods)
 
     def sample_initial_state(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """One episode's ``(x0, v0)`` (numpy): see :func:`fxc_env.engine.draws.sample_initial_state`."""
@@ -185,10 +172,6 @@ class ConsensusEngine:
 
     def draw_episode(self, rng: np.random.Generator) -> EpisodeDraw:
         """What a new episode draws from its seeded numpy generator: see :func:`fxc_env.engine.draws.draw_episode`."""
-        if not isinstance(rng, np.random.Generator):
-            raise ArgumentTypeError(
-                f"rng: expected a numpy Generator (np.random.default_rng), got {type(rng).__name__}"
-            )
         return draws.draw_episode(self.config, rng)
 
     def draw_batch(self, host_rng: np.random.Generator | None = None) -> tuple[Any, Any, Any, list | None]:
@@ -232,86 +215,22 @@ class ConsensusEngine:
         within ``±1e100`` (``±1e37`` with raw float32 observations, ``config.state_limit``); a bad
         one raises :class:`ArgumentError` naming it and the engine is unchanged. numpy arrays
         are checked in full; a torch tensor's values in one read off the device (none on ``meta``).
+        The other arguments are checked next (:func:`fxc_env.engine.resets.checked_reset`).
         """
-        xp, c = self.xp, self.config
-        shape, limit = (self.n_episodes, c.n_agents, c.dim), c.state_limit
-        x0, v0 = self.backend.checked_state("x0", x0, shape, limit), self.backend.checked_state("v0", v0, shape, limit)
-        self.backend.check_state_values({"x0": x0, "v0": v0}, limit)
-        if episodes is not None and c.model is not None:
-            raise ArgumentError(f"episodes: partial resets are for the double integrator, not {c.agent_model!r} agents")
-        self._check_reset_extras(rng, topologies, u_max, episodes)
+        c = self.config
+        x0, v0 = resets.checked_reset(c, self.backend, self.u_max, x0, v0, rng, topologies, u_max, episodes)
         if topologies is not None:
-            chosen = [c.topology if t is None else t for t in topologies]
+            chosen = resets.episode_topologies(c, topologies)
             if any(a is not b for a, b in zip(chosen, self.topologies, strict=True)):
                 self.graphs = GraphTable(chosen, self.layout.slots, self.backend, c.switching == "random")
         if u_max is not None and self.u_max is not None:
-            if isinstance(u_max, Sequence) and not hasattr(u_max, "shape"):
-                u_max = [c.u_max_choices[0] if u is None else u for u in u_max]
-            given = self.backend.array(u_max) if self.is_numpy or isinstance(u_max, np.ndarray | list) else u_max
-            self.agents.u_max = given if episodes is None else xp.where(episodes, given, self.u_max)
+            self.agents.u_max = resets.episode_limits(c, self.backend, u_max, episodes, self.u_max)
         if rng is not None:
             self.rng = rng
         fresh = self.formation.initial_state(x0, v0)
-        if episodes is None:
-            if self.is_numpy:
-                self.state[...] = fresh  # numpy: the double buffer keeps its two arrays
-            else:
-                self.state = fresh  # a new tensor: nothing of the previous episodes' autograd graph is kept
-            self.clock = LockStepClock(self.tables)
-        else:
-            self.state = xp.where(xp.reshape(episodes, (-1, 1, 1, 1)), fresh, self.state)
-            current = self.clock.episode_steps(self.backend)
-            self.clock = EpisodeClock(self.tables, xp.where(episodes, xp.zeros_like(current), current), self.clock.k)
+        self.state, self.clock = resets.restarted(self.backend, self.tables, self.state, self.clock, fresh, episodes)
         self.backend.clear_flags(episodes)
         self._restart(x0, v0, fresh, episodes)
-
-    def _check_reset_extras(self, rng: Any, topologies: Any, u_max: Any, episodes: Any) -> None:
-        """Refuse, naming it, a :meth:`reset` argument beside the states that does not fit (before anything changes).
-
-        ``rng``: a numpy ``Generator`` (numpy) or a ``torch.Generator`` (torch); ``topologies``: one
-        :class:`~fxc_env.core.graphs.Topology` of N agents (or None) per episode; ``u_max``: one
-        positive limit within ±1e100 per episode, only where the config has a limit;
-        ``episodes``: a ``(B,)`` boolean array of the backend.
-        """
-        c, b = self.config, self.n_episodes
-        if rng is not None:
-            if self.is_numpy:
-                fits, expected = isinstance(rng, np.random.Generator), "a numpy Generator (np.random.default_rng)"
-            else:
-                import torch
-
-                fits, expected = isinstance(rng, torch.Generator), "a torch.Generator"
-            if not fits:
-                raise ArgumentTypeError(f"rng: expected None or {expected}, got {type(rng).__name__}")
-        if topologies is not None:
-            if isinstance(topologies, str | bytes) or not isinstance(topologies, Sequence) or len(topologies) != b:
-                raise ArgumentError(f"topologies: expected one topology (or None) per episode, {b} in all")
-            for topology in topologies:
-                if topology is not None and (not isinstance(topology, Topology) or topology.n_agents != c.n_agents):
-                    raise ArgumentError(
-                        f"topologies: expected Topology objects of {c.n_agents} agents (or None), got {topology!r:.80}"
-                    )
-        if u_max is not None:
-            if self.u_max is None:
-                raise ArgumentError("u_max: this engine's config has no input limit (give u_max to make_config)")
-            if self.is_numpy or isinstance(u_max, np.ndarray | list | tuple):
-                if isinstance(u_max, list | tuple):
-                    u_max = [c.u_max_choices[0] if u is None else u for u in u_max]
-                array = validation.real_array("u_max", u_max, f"an array of shape ({b},)")
-                if array.shape != (b,):
-                    raise ArgumentError(f"u_max: expected one limit per episode, shape ({b},), got {array.shape}")
-                if not np.all((array > 0) & (array <= validation.STATE_LIMIT)):
-                    raise ArgumentError(
-                        f"u_max: expected positive finite limits <= {validation.STATE_LIMIT:g} (m/s^2), one per episode"
-                    )
-            elif tuple(u_max.shape) != (b,):
-                raise ArgumentError(f"u_max: expected one limit per episode, shape ({b},), got {tuple(u_max.shape)}")
-        if episodes is not None:
-            dtype = getattr(episodes, "dtype", None)
-            if tuple(getattr(episodes, "shape", ())) != (b,) or dtype not in (np.bool_, self.xp.bool):
-                raise ArgumentError(
-                    f"episodes: expected a boolean array of shape ({b},) on the engine's device, got {episodes!r:.80}"
-                )
 
     def _restart(self, x0: Any, v0: Any, fresh: Any, episodes: Any = None) -> None:
         """Restart the trackers of ``episodes`` (None: all), drop the cached measurements, draw the graphs."""
@@ -343,13 +262,6 @@ class ConsensusEngine:
         array: for loops that consume observations at once, it saves the page faults of
         a new large buffer every step.
         """
-        if out is not None and (
-            not isinstance(out, np.ndarray)
-            or out.dtype != np.float64
-            or out.shape != (self.n_episodes, self.config.n_agents, self.layout.size)
-        ):
-            expected = (self.n_episodes, self.config.n_agents, self.layout.size)
-            raise ArgumentError(f"out: expected a float64 numpy array of shape {expected}, got {out!r:.60}")
         return self.observer.observe(self.state, self.clock, self.graphs, self.u_max, self._uniform, self._normal, out)
 
     def normalized_state(self) -> Any:
@@ -386,18 +298,8 @@ class ConsensusEngine:
         return self.agents.inputs(self.plans_from_actions(actions), self.clock.interval(2), self.local_scale)
 
     def plans_from_actions(self, actions: Any) -> Any:
-        """The actions as the agents take them: with ``action_mode="residual"`` plus the paper's plan (eq. 11).
-
-        Normalized residuals correct velocities in units of ``s / T_s`` (``a_v`` changes by
-        ``s alpha_v / T_s``, not the plan's ``s alpha_v / T``), so one ``alpha_v`` moves the
-        disagreement about as much on every interval of the schedule as one ``alpha_x``
-        (the card's Action Space). Raw residuals are added as given.
-        """
-        if self.config.action_mode != "residual":
-            return actions
-        if self.config.obs_mode == "normalized":
-            actions = actions * self.clock.per_instant(self.tables.residual_factors)
-        return actions + self.observer.reference_plan(self.state, self.clock, self.graphs, self._uniform, self._normal)
+        """The actions as the agents take them: residuals plus the paper's plan (:meth:`~fxc_env.engine.observations.Observer.plans`)."""
+        return self.observer.plans(actions, self.state, self.clock, self.graphs, self._uniform, self._normal)
 
     def step(self, actions: Any) -> StepOutcome:
         """Play one interval with already validated ``(B, N, 2 dim)`` actions."""
@@ -413,16 +315,7 @@ class ConsensusEngine:
         self.observer.invalidate()
         self.graphs.draw(self.clock, self._switching_draw)
         terminated = self.episode_done() if self.clock.per_episode else self.clock.done
-        return StepOutcome(
-            reward,
-            interval.energy,
-            interval.peak,
-            interval.u_start,
-            interval.u_end,
-            interval.saturated_fraction,
-            terminated,
-            interval.plan,
-        )
+        return interval.outcome(reward, terminated)
 
     # ---------------------------------------------------------------- metrics
     def batch_metrics(self) -> dict[str, np.ndarray]:

@@ -24,6 +24,7 @@ import numpy as np
 
 from fxc_env.config import EnvConfig
 from fxc_env.core.graphs import Topology
+from fxc_env.core.validation import ArgumentTypeError
 
 
 @dataclass(frozen=True)
@@ -71,8 +72,11 @@ def draw_episode(config: EnvConfig, rng: np.random.Generator) -> EpisodeDraw:
 
     Its topology when the config has a family, its input limit when ``u_max`` is a set,
     then ``(x0, v0)`` (:func:`sample_initial_state`). A config with none of these draws
-    exactly what it always did, so seeds keep their episodes.
+    exactly what it always did, so seeds keep their episodes. ``rng`` other than a numpy
+    ``Generator`` raises :class:`~fxc_env.core.validation.ArgumentTypeError` naming it.
     """
+    if not isinstance(rng, np.random.Generator):
+        raise ArgumentTypeError(f"rng: expected a numpy Generator (np.random.default_rng), got {type(rng).__name__}")
     topology = None if config.family is None else config.family.draw(config.n_agents, rng)
     choices = config.u_max_choices
     u_max = None if choices is None else choices[0] if len(choices) == 1 else float(rng.choice(choices))
@@ -123,6 +127,20 @@ def draw_batch(
         rng = np.random.default_rng() if host_rng is None else host_rng
         topologies = [config.family.draw(config.n_agents, rng) for _ in range(b)]
     return BatchDraw(x0, v0, topologies, u_max)
+
+
+def switching_draw(backend: Any, rng: Any, shared: bool, periods: Any) -> Any:
+    """Random switching: each episode's graph index on the coming interval, uniform in ``[0, m_b)``, ``(B,)`` int64.
+
+    ``periods`` ``(B,)``: each episode's number of graphs ``m_b``; ``rng``: the engine's generator.
+    numpy with one topology for every episode (``shared``) draws integers; otherwise
+    ``floor(u m_b)`` of uniform draws on the device.
+    """
+    if backend.is_numpy and shared:
+        return rng.integers(0, int(periods[0]), backend.n_episodes)
+    xp = backend.xp
+    local = xp.floor(backend.uniform(rng, (backend.n_episodes,)) * xp.astype(periods, backend.dtype))
+    return xp.astype(local, xp.int64)
 
 
 def _half_widths(half_widths: tuple[float, float], xp: Any, uniform: Callable, b: int) -> Any:

@@ -23,8 +23,9 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config import EnvConfig
-from fxc_env.core import slots
+from fxc_env.core import slots, validation
 from fxc_env.core.arrays import namespace
+from fxc_env.core.validation import ArgumentError
 
 from .backend import TINY
 
@@ -81,11 +82,19 @@ class Observer:
 
     Args:
         config: the environment's settings (modes, noise, dropout, layout).
-        backend: the engine's array backend.
+        backend: the engine's array backend (with raw float32 observations, told the largest
+            row a step may leave: :meth:`~fxc_env.engine.backend.NumpyBackend.limit_rows`).
         tables: the engine's per-instant tables (:class:`~fxc_env.engine.clock.InstantTables`).
     """
 
     def __init__(self, config: EnvConfig, backend: Any, tables: Any) -> None:
+        if (config.obs_dtype, config.obs_mode) == ("float32", "raw"):
+            # A raw row is a difference of two states: one beyond float32's range would observe as inf,
+            # so the backend refuses (numpy) or flags (torch) a step after which one is.
+            backend.limit_rows(
+                validation.float32_row_limit(config.obs_noise) - config.obs_resolution,
+                [config.settling_time**level for level in range(config.n_states)],
+            )
         self.config = config
         self.layout = config.layout
         self.backend = backend
@@ -192,16 +201,36 @@ class Observer:
             return _over_scale(weight * plan, scale, self.backend)
         return xp.concat([weight * (sum_x + T * sum_v), weight * sum_v], axis=-1)
 
+    def plans(self, actions: Any, state: Any, clock: Any, graphs: Any, uniform: Callable, normal: Callable) -> Any:
+        """``actions`` ``(B, N, 2 dim)`` as the agents take them: with ``action_mode="residual"`` plus :meth:`reference_plan`.
+
+        Normalized residuals correct velocities in units of ``s / T_s`` (``a_v`` changes by
+        ``s alpha_v / T_s``, not the plan's ``s alpha_v / T``), so one ``alpha_v`` moves the
+        disagreement about as much on every interval of the schedule as one ``alpha_x``
+        (the card's Action Space). Raw residuals are added as given; other modes return ``actions``.
+        """
+        if self.config.action_mode != "residual":
+            return actions
+        if self.config.obs_mode == "normalized":
+            actions = actions * clock.per_instant(self.tables.residual_factors)
+        return actions + self.reference_plan(state, clock, graphs, uniform, normal)
+
     def observe(
         self, state: Any, clock: Any, graphs: Any, u_max: Any, uniform: Callable, normal: Callable, out: Any = None
     ) -> Any:
         """Every agent's flat observation ``(B, N, obs_size)`` at ``t_k``; ``out`` (numpy) is filled if given.
+
+        ``out`` other than a float64 numpy array ``(B, N, obs_size)`` raises :class:`ArgumentError` naming it.
 
         In normalized mode the rows are divided by the local scale; division (not
         multiplication by ``1/s``) keeps every entry within [-1, 1].
         """
         layout, xp, backend = self.layout, self.backend.xp, self.backend
         b, n = backend.n_episodes, self.config.n_agents
+        if out is not None and (
+            not isinstance(out, np.ndarray) or out.dtype != np.float64 or out.shape != (b, n, layout.size)
+        ):
+            raise ArgumentError(f"out: expected a float64 numpy array of shape {(b, n, layout.size)}, got {out!r:.60}")
         if self.blocked and graphs.same_graph and self._measured is None:
             obs = np.empty((b, n, layout.size)) if out is None else out
             self._scale = self._observe_blocked(obs, state, clock, graphs)

@@ -2,8 +2,10 @@
 
 Per N, an interval is the observations, the reference policy (paper eq. 11) and the exact
 step; the peak memory is traced while building and stepping. The goals: one interval at
-N = :data:`INTERVAL_GOAL_N` (``dim = 1``) within :data:`INTERVAL_GOAL` seconds, and
-``dim = 2`` within :data:`RATIO_GOAL` times ``dim = 1`` at N = :data:`RATIO_N`.
+N = :data:`INTERVAL_GOAL_N` (``dim = 1``) within :data:`INTERVAL_GOAL` seconds and within
+:data:`PRODUCT_GOAL` times a bare scipy CSR product on the same graph, measured in the same run
+(:func:`interval_and_product`), and ``dim = 2`` within :data:`RATIO_GOAL` times ``dim = 1`` at
+N = :data:`RATIO_N`.
 """
 
 from __future__ import annotations
@@ -13,11 +15,12 @@ import tracemalloc
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from fxc_env.config import make_config
 from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.reference import ReferencePolicy
-from fxc_env.speed.timing import met
+from fxc_env.speed.timing import alternate, met, timed_rate
 
 #: The first N of the scaling table; ``--largest`` is at least this.
 SCALING_FIRST_N = 100
@@ -34,6 +37,10 @@ RATIO_GOAL = 3.0
 #: The engine's interval goal: seconds per interval at N = INTERVAL_GOAL_N (random digraph, mean in-degree 4, dim = 1).
 INTERVAL_GOAL_N = 10**6
 INTERVAL_GOAL = 0.1
+#: The same interval within this many times one bare scipy CSR product (:func:`interval_and_product`).
+PRODUCT_GOAL = 1.2
+#: Alternating rounds, and intervals (and products) per round, of :func:`interval_and_product`.
+PRODUCT_ROUNDS, PRODUCT_STEPS = 7, 3
 
 
 def scaling_row(n_agents: int, steps: int, dim: int = 1, **model: Any) -> tuple[float, float, float]:
@@ -97,8 +104,60 @@ def scaling_table(largest: int, dims: tuple[int, ...] = (1,)) -> list[str]:
         if compared != RATIO_N:
             lines.append(f"(the goal is stated at N={RATIO_N:,}: pass --largest {RATIO_N} or more)")
     if 1 in dims:
-        lines += ["", interval_goal_line(seconds_at.get((1, INTERVAL_GOAL_N)))]
+        measured_product = INTERVAL_GOAL_N in measured
+        lines += ["", product_goal_line(*interval_and_product(INTERVAL_GOAL_N) if measured_product else (None, None))]
+        lines.append(interval_goal_line(seconds_at.get((1, INTERVAL_GOAL_N))))
     return lines
+
+
+def interval_and_product(
+    n_agents: int, rounds: int = PRODUCT_ROUNDS, steps: int = PRODUCT_STEPS
+) -> tuple[float, float]:
+    """Median seconds of one interval and of one bare scipy CSR product on the same graph, alternated.
+
+    The interval is :func:`scaling_row`'s (observations into a reused buffer, the reference
+    policy, the exact step; random digraph of mean in-degree 4, ``dim = 1``), without
+    tracemalloc. The product is the graph's Laplacian ``L`` (scipy CSR, ``N x N``, one entry per
+    edge and one per agent, int32 indices) times the state ``[x v]`` ``(N, 2)``: the neighbour
+    sums ``sum_j (x_j - x_i)`` and ``sum_j (v_j - v_i)`` of the paper's plan (eq. 11) and nothing
+    else. Each round times ``steps`` intervals, then ``steps`` products; medians over ``rounds``.
+    """
+    config = make_config(topology="random", n_agents=n_agents, mean_in_degree=4.0, n_intervals=(rounds + 1) * steps + 1)
+    engine = ConsensusEngine(config, n_episodes=1)
+    x0, v0 = engine.sample_initial_state(np.random.default_rng(0))
+    engine.reset(x0[None], v0[None])
+    policy = ReferencePolicy(config)
+    buffer = np.empty((1, n_agents, config.layout.size))
+    laplacian = config.topology.laplacian()
+    laplacian = sp.csr_array(
+        (laplacian.data, laplacian.indices.astype(np.int32), laplacian.indptr.astype(np.int32)), shape=laplacian.shape
+    )
+    state = engine.state[0].reshape(n_agents, 2).copy()
+
+    def interval() -> None:
+        engine.step(policy(engine.observations(buffer)))
+
+    def product() -> None:
+        laplacian @ state
+
+    interval(), product()  # warm-up: the engine's block buffers, the product's output pages
+    rates = alternate(
+        {"interval": lambda: timed_rate(interval, steps), "product": lambda: timed_rate(product, steps)}, rounds
+    )
+    return 1.0 / rates["interval"], 1.0 / rates["product"]
+
+
+def product_goal_line(seconds_per_interval: float | None, seconds_per_product: float | None) -> str:
+    """The line comparing one interval at N = :data:`INTERVAL_GOAL_N` with a bare CSR product (None: not measured)."""
+    where = f"one interval / one scipy CSR product (Laplacian x [x v]) at N={INTERVAL_GOAL_N:,}"
+    goal = f"goal <= {PRODUCT_GOAL:g}x"
+    if seconds_per_interval is None or seconds_per_product is None:
+        return f"{where}: not measured ({goal}: pass --largest {INTERVAL_GOAL_N})"
+    ratio = seconds_per_interval / seconds_per_product
+    return (
+        f"{where}: {ratio:.2f}x ({seconds_per_interval * 1e3:.1f} ms / {seconds_per_product * 1e3:.1f} ms) "
+        f"({goal}: {met(ratio <= PRODUCT_GOAL)})"
+    )
 
 
 def interval_goal_line(seconds_per_interval: float | None) -> str:

@@ -47,6 +47,21 @@ def test_scaling_rows_cover_each_power_of_ten_with_positive_costs():
     # The engine's interval goal is stated at N = 10^6, which --largest 1000 does not reach.
     assert lines[-1] == scaling.interval_goal_line(None)
     assert "N=1,000,000" in lines[-1] and "not measured" in lines[-1] and "--largest 1000000" in lines[-1]
+    # So is its comparison with a bare scipy CSR product, measured in the same run.
+    assert lines[-2] == scaling.product_goal_line(None, None)
+    assert "CSR product" in lines[-2] and "not measured" in lines[-2] and "(goal <= 1.2x" in lines[-2]
+
+
+@pytest.mark.parametrize(("interval", "verdict"), [(0.06, "met"), (0.12, "met"), (0.2, "not met")])
+def test_the_product_goal_line_gives_the_interval_over_the_csr_product(interval, verdict):
+    line = scaling.product_goal_line(interval, 0.1)
+    assert f": {interval / 0.1:.2f}x (" in line and line.endswith(f"(goal <= 1.2x: {verdict})")
+    assert "N=1,000,000" in line and "Laplacian x [x v]" in line
+
+
+def test_interval_and_product_time_both_on_the_same_graph():
+    interval, product = scaling.interval_and_product(2000, rounds=1, steps=1)
+    assert 0 < interval < 10 and 0 < product < 10
 
 
 @pytest.mark.parametrize(("seconds", "verdict"), [(0.05, "met"), (0.1, "met"), (0.2, "not met")])
