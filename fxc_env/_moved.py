@@ -64,9 +64,7 @@ MOVED.update(
 MOVED["fxc_env.core.statistics"] = ("fxc_env.training.evaluation.statistics",)  # with the evaluation that uses it
 
 #: Old module path -> {old attribute name: new attribute name} for names renamed in the move.
-RENAMED: dict[str, dict[str, str]] = {
-    "fxc_env.interop": {"torchrl_env": "torchrl_wrapper"},
-}
+RENAMED: dict[str, dict[str, str]] = {"fxc_env.interop": {"torchrl_env": "torchrl_wrapper"}}
 
 _HERE = os.path.normcase(os.path.abspath(__file__))
 _PACKAGE_INIT = os.path.normcase(os.path.join(os.path.dirname(_HERE), "__init__.py"))
@@ -158,9 +156,7 @@ class _Finder(importlib.abc.MetaPathFinder):
     """Answers only the old paths in :data:`MOVED`; every other import is left to the ordinary finders."""
 
     def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> importlib.machinery.ModuleSpec | None:
-        if fullname not in MOVED:
-            return None
-        return importlib.util.spec_from_loader(fullname, _Loader())
+        return importlib.util.spec_from_loader(fullname, _Loader()) if fullname in MOVED else None
 
 
 def install() -> None:

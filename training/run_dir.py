@@ -184,10 +184,7 @@ class RunDir:
 
         self.create()
         progress = self.path / "progress.csv"
-        if resumed_at is None:
-            csv_log = CSVOutputFormat(str(progress))
-        else:
-            csv_log = _resumed_sb3_csv(progress, resumed_at)
+        csv_log = CSVOutputFormat(str(progress)) if resumed_at is None else _resumed_sb3_csv(progress, resumed_at)
         return Logger(folder=str(self.path), output_formats=[csv_log, TensorBoardOutputFormat(str(self.path))])
 
     @contextmanager

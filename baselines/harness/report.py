@@ -40,10 +40,7 @@ HEADLINE_COLUMNS = (
 )
 
 #: Metrics summarised per row of the CSV.
-CSV_METRICS = (
-    *(f.name for f in EpisodeMetrics.__dataclass_fields__.values()),
-    "final_value_gap",
-)
+CSV_METRICS = (*(f.name for f in EpisodeMetrics.__dataclass_fields__.values()), "final_value_gap")
 
 
 def quantiles(values: np.ndarray) -> tuple[float, float, float]:
@@ -82,9 +79,7 @@ def number_text(value: float) -> str:
 def spread_cell(values: np.ndarray) -> str:
     """``median [q25, q75]``."""
     median, q25, q75 = quantiles(values)
-    if math.isnan(median):
-        return "n/a"
-    return f"{number_text(median)} [{number_text(q25)}, {number_text(q75)}]"
+    return "n/a" if math.isnan(median) else f"{number_text(median)} [{number_text(q25)}, {number_text(q75)}]"
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
@@ -450,11 +445,7 @@ def markdown_report(
     command: str | None = None,
 ) -> str:
     """The whole report: headline, per-case and per-budget tables, notes."""
-    parts = [
-        "## Deadline benchmark",
-        "",
-        suite.describe() + ".",
-    ]
+    parts = ["## Deadline benchmark", "", suite.describe() + "."]
     if command:
         parts.append(f"Command: `{command}`" + (f" ({seconds:.0f} s wall time)." if seconds is not None else "."))
     parts += [

@@ -152,9 +152,7 @@ class FilteringPolicy(SignalPolicy):
     def _reads(self, k: int) -> bool:
         """Whether the row at instant k belongs to a block's estimate (nobody is moving at t_k)."""
         b, rest = divmod(k, self.block)
-        if b >= len(self.gains) + (rest == 0):
-            return False
-        return b == 0 or rest == 0 or rest >= self.spread
+        return b < len(self.gains) + (rest == 0) and (b == 0 or rest == 0 or rest >= self.spread)
 
     # ------------------------------------------------------------------ memory
     def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:

@@ -415,9 +415,7 @@ def structured_edges(kind: str, n: int) -> np.ndarray:
     The one definition of the structured graphs, for fixed topologies (:func:`named_topology`)
     and topology families (:mod:`fxc_env.core.families`, which relabel the agents at random).
     """
-    if n == 1:
-        return np.zeros((0, 2), dtype=np.int64)
-    return GRAPH_KINDS[kind].edges(np.arange(n))
+    return np.zeros((0, 2), dtype=np.int64) if n == 1 else GRAPH_KINDS[kind].edges(np.arange(n))
 
 
 def random_topology(n_agents: int, *, seed: int | None = 0, mean_in_degree: float = 2.0, period: int = 1) -> Topology:

@@ -94,12 +94,7 @@ def integer(name: str, value: Any, minimum: int | None = None, maximum: int | No
 
 
 def real(
-    name: str,
-    value: Any,
-    minimum: float | None = None,
-    maximum: float | None = None,
-    *,
-    positive: bool = False,
+    name: str, value: Any, minimum: float | None = None, maximum: float | None = None, *, positive: bool = False
 ) -> float:
     """``value`` as a finite ``float`` in ``[minimum, maximum]`` (``> 0`` with ``positive``)."""
     expected = "a positive finite number" if positive else "a finite number"
@@ -210,9 +205,7 @@ def reset_options(name: str, value: Any) -> Mapping[str, Any]:
 
 def optional_seed(name: str, value: Any) -> int | None:
     """``None`` or a seed numpy's generators accept: an integer in ``[0, 2**128)``."""
-    if value is None:
-        return None
-    return integer(name, value, 0, MAX_SEED - 1)
+    return None if value is None else integer(name, value, 0, MAX_SEED - 1)
 
 
 def state_array(name: str, value: Any, n_agents: int, dim: int, limit: float = STATE_LIMIT) -> np.ndarray:
@@ -321,9 +314,7 @@ def _range_text(minimum: float | None, maximum: float | None) -> str:
         return f" in [{low}, {high}]"
     if minimum is not None:
         return f" >= {low}"
-    if maximum is not None:
-        return f" <= {high}"
-    return ""
+    return f" <= {high}" if maximum is not None else ""
 
 
 def _number_text(value: float | None) -> str:

@@ -33,16 +33,12 @@ MAX_TORCH_SEED = 2**64 - 1
 
 def torch_seed(name: str, value: Any) -> int | None:
     """None or a seed of a ``torch.Generator``: an integer in ``[0, 2**64)`` (bools and floats refused)."""
-    if value is None:
-        return None
-    return validation.integer(name, value, 0, MAX_TORCH_SEED)
+    return None if value is None else validation.integer(name, value, 0, MAX_TORCH_SEED)
 
 
 def to_host(array: Any) -> np.ndarray:
     """A numpy copy (or the array itself) of a numpy array or a torch tensor: a read off the device."""
-    if isinstance(array, np.ndarray):
-        return array
-    return array.detach().cpu().numpy()
+    return array if isinstance(array, np.ndarray) else array.detach().cpu().numpy()
 
 
 class NumpyBackend:
@@ -373,6 +369,4 @@ class TorchBackend(NumpyBackend):
 
 def make_backend(device: Any, dtype: str, n_episodes: int) -> NumpyBackend:
     """:class:`NumpyBackend` for ``device=None``, else :class:`TorchBackend` on ``device``."""
-    if device is None:
-        return NumpyBackend(dtype, n_episodes)
-    return TorchBackend(device, dtype, n_episodes)
+    return NumpyBackend(dtype, n_episodes) if device is None else TorchBackend(device, dtype, n_episodes)

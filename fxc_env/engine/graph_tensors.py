@@ -56,9 +56,7 @@ def edge_capacity(config: Any) -> int:
     A fixed topology: its largest graph's edge count. A family (a new graph every reset): ``N
     slots``, the most edges an observation can hold (every agent's slots filled).
     """
-    if config.family is not None:
-        return int(config.n_agents * config.layout.slots)
-    return max_edges([config.topology])
+    return int(config.n_agents * config.layout.slots) if config.family is not None else max_edges([config.topology])
 
 
 class _EdgeTable:

@@ -179,9 +179,7 @@ class Observer:
 
     def local_scale(self, state: Any, clock: Any, graphs: Any, uniform: Callable, normal: Callable) -> Any:
         """Each agent's local scale ``s_i`` at ``t_k`` (metres), ``(B, N)``; 0 if it sees no disagreement."""
-        if self._scale is not None:
-            return self._scale
-        return self.measure(state, clock, graphs, uniform, normal)[2]
+        return self._scale if self._scale is not None else self.measure(state, clock, graphs, uniform, normal)[2]
 
     def reference_plan(self, state: Any, clock: Any, graphs: Any, uniform: Callable, normal: Callable) -> Any:
         """The paper's plan (eq. 11) at ``t_k`` in the action's units, ``(B, N, 2 dim)`` (double integrator).

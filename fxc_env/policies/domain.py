@@ -261,9 +261,7 @@ def _uncovered_graphs(graphs: Sequence[Mapping[str, Any]], config: Any) -> str:
         return f"the fixed topology {topology.name!r} ({shape}, period {topology.period}, N = {topology.n_agents})"
     members = config.family.families if isinstance(config.family, TopologyMixture) else (config.family,)
     outside = [m for m in members if not any(_covers_family(entry, m) for entry in graphs)]
-    if not outside:
-        return ""
-    return "; ".join(f"the family {graph_label(_family_entry(member))}" for member in outside)
+    return "; ".join(f"the family {graph_label(_family_entry(member))}" for member in outside) if outside else ""
 
 
 def _family_entry(member: Any) -> dict[str, Any]:

@@ -331,10 +331,7 @@ class Trainer(TrainerFiles):
         count = 0
         for index in self._minibatches(graphs, size):
             mean = model.actor(obs[index], edge_index[index], edge_mask[index])
-            if self.central:
-                value = model.critic(states[index]).squeeze(-1)
-            else:
-                value = model.critic(obs[index]).squeeze(-1)
+            value = model.critic((states if self.central else obs)[index]).squeeze(-1)
             sums += self._minibatch_step(
                 mean, actions[index], old_log_probs[index], per_agent[index], value, value_targets[index]
             )

@@ -104,9 +104,7 @@ def expand_runs(entries: Sequence[str], name: str = "--runs") -> list[str]:
 
 def _is_policy(path: Path) -> bool:
     """Whether ``path`` is a saved policy (:data:`POLICY_SUFFIXES`) or a run directory."""
-    if path.is_dir():
-        return _is_run(path) or _is_rllib_run(path)
-    return path.suffix in POLICY_SUFFIXES
+    return (_is_run(path) or _is_rllib_run(path)) if path.is_dir() else path.suffix in POLICY_SUFFIXES
 
 
 def _is_run(path: Path) -> bool:
