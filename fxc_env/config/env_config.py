@@ -165,11 +165,6 @@ class EnvConfig:
         return choices[0] if choices is not None and len(choices) == 1 else None
 
     @property
-    def topology_name(self) -> str:
-        """The family's name, or the fixed topology's."""
-        return self.family.name if self.family is not None else self.topology.name
-
-    @property
     def action_size(self) -> int:
         return self.n_states * self.dim
 

@@ -243,8 +243,3 @@ def load_interval_gains(
 
         policy.fit_to(config_of(env, "policy"), check=check, allow_out_of_domain=allow_out_of_domain)
     return policy
-
-
-def is_interval_gains(path: str | Path) -> bool:
-    """Whether ``path`` names a gain-schedule file (``.npz``)."""
-    return Path(path).suffix == ".npz"
