@@ -18,7 +18,7 @@ from fxc_env.baselines.laws.motion_signals import plan_action
 from fxc_env.baselines.laws.policy import LawPolicy, lost_link_guarantee, refuse_lost_links, rows_read
 from fxc_env.config import config_of
 from fxc_env.core.graphs import DENSE_LIMIT, Topology
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core.validation import ArgumentError, boolean
 
 
 @dataclass(frozen=True)
@@ -307,8 +307,7 @@ class MinimumTimePolicy(LawPolicy):
 
     def __init__(self, env: Any, allow_noise: bool = False, allow_dropout: bool = False) -> None:
         config = config_of(env, type(self).__name__)
-        if not isinstance(allow_noise, bool):
-            raise ArgumentError(f"allow_noise: expected True or False, got {allow_noise!r}")
+        boolean("allow_noise", allow_noise)
         refuse_what_a_graph_design_cannot_honour(
             config, type(self).__name__, allow_noise=allow_noise, allow_dropout=allow_dropout, lost_link=self.LOST_LINK
         )

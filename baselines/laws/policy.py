@@ -46,8 +46,7 @@ def refuse_lost_links(config: Any, name: str, allow_dropout: Any, lost_link: str
     Raises:
         ArgumentError naming ``allow_dropout`` (not a bool) or ``link_dropout`` (on, not opted in).
     """
-    if not isinstance(allow_dropout, bool):
-        raise ArgumentError(f"allow_dropout: expected True or False, got {allow_dropout!r}")
+    validation.boolean("allow_dropout", allow_dropout)
     if config.link_dropout != 0 and not allow_dropout:
         raise ArgumentError(
             f"link_dropout: {name} needs every row it reads: {lost_link}; got link_dropout={config.link_dropout!r} "

@@ -30,7 +30,7 @@ from fxc_env.baselines.laws.motion_signals import (
 from fxc_env.baselines.laws.policy import lost_link_guarantee, rows_read
 from fxc_env.config import config_of
 from fxc_env.core.optimality import root_set
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core.validation import ArgumentError, boolean
 
 #: Default signalling amplitude ε: a deviation of 1e-6 of the register, read about 1e10 above the
 #: float64 rounding of a row (1e-16 relative), at an energy about 1e-12 of the state scale squared.
@@ -83,8 +83,7 @@ class SignallingPolicy(SignalPolicy):
         self, env: Any, amplitude: float | None = None, allow_limit: bool = False, allow_dropout: bool = False
     ) -> None:
         config = config_of(env, type(self).__name__)
-        if not isinstance(allow_limit, bool):
-            raise ArgumentError(f"allow_limit: expected True or False, got {allow_limit!r}")
+        boolean("allow_limit", allow_limit)
         _refuse_what_it_cannot_honour(config, allow_limit, allow_dropout)
         if config.obs_noise != 0 and amplitude is None:
             raise ArgumentError(

@@ -162,8 +162,7 @@ def make_family(spec: Any, argument: str = "topology") -> AnyFamily:
         takes = ", ".join(repr(key) for key in ("family", *FAMILY_KEYS[kind]))
         raise ArgumentError(f"{argument}: the {kind!r} family does not use {unused!r}; its keys are {takes}")
     relabel = spec.get("relabel", True)
-    if not isinstance(relabel, bool):
-        raise ArgumentError(f"{argument}['relabel']: expected True or False, got {relabel!r}")
+    validation.boolean(f"{argument}['relabel']", relabel)
     return TopologyFamily(
         kind=kind,
         mean_in_degree=_range(f"{argument}['mean_in_degree']", spec.get("mean_in_degree", 2.0), float, 0.0),

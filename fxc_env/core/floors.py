@@ -83,11 +83,7 @@ def noise_floor(topology: Topology, times: Any, sigma: Any, dim: int = 1) -> flo
         rows cannot determine the disagreement (a graph without a spanning tree, or too few
         instants); NaN above :data:`NOISE_LIMIT` agents, where it is not computed.
     """
-    if not isinstance(topology, Topology):
-        raise ArgumentError(f"topology: expected a fxc_env.core.graphs.Topology, got {type(topology).__name__}")
-    instants = validation.real_array("times", times, "the sampling instants t_0 .. t_K (seconds)")
-    if instants.ndim != 1 or len(instants) < 2 or not np.all(np.diff(instants) > 0) or instants[0] != 0:
-        raise ArgumentError(f"times: expected increasing instants t_0 = 0 .. t_K = T_s, got shape {instants.shape}")
+    instants = _checked_instants(topology, times)
     sigma = validation.real("sigma", sigma, 0.0)
     dim = validation.integer("dim", dim, 1)
     n = topology.n_agents

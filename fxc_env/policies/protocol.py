@@ -43,9 +43,7 @@ def team_observations(observation: Any) -> dict[Any, Any] | None:
     """
     if not isinstance(observation, Mapping):
         return None
-    if observation and set(observation) <= OBSERVATION_KEYS:
-        return None
-    return dict(observation)
+    return None if observation and set(observation) <= OBSERVATION_KEYS else dict(observation)
 
 
 def flat_observation(observation: Any) -> np.ndarray:
@@ -181,8 +179,7 @@ def rollout(env: Any, policy: Any, seed: int | None = None, *, trajectory: bool 
     if not callable(policy):
         raise ArgumentError(f"policy: expected a policy called as policy(observations), got {type(policy).__name__}")
     seed = validation.optional_seed("seed", seed)
-    if not isinstance(trajectory, bool):
-        raise ArgumentError(f"trajectory: expected True or False, got {trajectory!r}")
+    validation.boolean("trajectory", trajectory)
     reset_policy(policy)
     observations, infos = env.reset(seed=seed)
     agents = list(env.possible_agents)

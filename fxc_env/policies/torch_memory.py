@@ -20,7 +20,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from fxc_env.core.validation import ArgumentError
+from fxc_env.core.validation import ArgumentError, choice
 from fxc_env.engine.graph_tensors import graph_tensors
 from fxc_env.policies.networks import ACTIVATIONS, mlp
 
@@ -80,8 +80,7 @@ class RecurrentActor(nn.Module):
         rows_end: int = 0,
     ) -> None:
         super().__init__()
-        if gru_input not in GRU_INPUTS:
-            raise ArgumentError(f"gru_input: expected one of {GRU_INPUTS}, got {gru_input!r}")
+        choice("gru_input", gru_input, GRU_INPUTS)
         self.obs_size, self.gru_size, self.clock_index = obs_size, gru_size, clock_index
         self.gru_input, self.rows_end = gru_input, rows_end if gru_input == "schedule" else 0
         self.gru = nn.GRU(obs_size - self.rows_end, gru_size)
@@ -144,13 +143,7 @@ class MessagePassingActor(nn.Module):
     """
 
     def __init__(
-        self,
-        obs_size: int,
-        action_size: int,
-        hidden: tuple[int, ...],
-        activation: str,
-        embed_size: int,
-        rounds: int,
+        self, obs_size: int, action_size: int, hidden: tuple[int, ...], activation: str, embed_size: int, rounds: int
     ) -> None:
         super().__init__()
         self.obs_size, self.embed_size, self.rounds = obs_size, embed_size, rounds

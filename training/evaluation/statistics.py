@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fxc_env.core.validation import ArgumentError, integer
+from fxc_env.core.validation import ArgumentError, choice, integer
 
 #: Bootstrap replicates of :func:`stratified_bootstrap` unless told (the percentile interval's
 #: endpoints move by ~1e-2 of its width between generator seeds at this count).
@@ -134,9 +134,7 @@ def stratified_bootstrap(
     reproducible for a given ``seed``.
     """
     if isinstance(aggregate, str):
-        if aggregate not in AGGREGATES:
-            raise ArgumentError(f"aggregate: expected one of {tuple(AGGREGATES)}, got {aggregate!r}")
-        aggregate = AGGREGATES[aggregate]
+        aggregate = AGGREGATES[choice("aggregate", aggregate, tuple(AGGREGATES))]
     if not (isinstance(confidence, float | int) and 0.0 < float(confidence) < 1.0):
         raise ArgumentError(f"confidence: expected a number in (0, 1), got {confidence!r}")
     x = checked_scores(scores)
