@@ -80,7 +80,10 @@ class EpisodeView:
             raise RuntimeError("render: there is no episode to draw yet; call reset() first")
         return [self._draw(b) for b in range(len(self.history[0][2]))]
 
-    def _show(self, picture: np.ndarray) -> None:
+    def _shown(self, picture: np.ndarray) -> np.ndarray | None:
+        """``picture``; ``human``: shown in the window instead, None."""
+        if self.render_mode != "human":
+            return picture
         import matplotlib.pyplot as plt
 
         if self._window is None:
@@ -92,25 +95,18 @@ class EpisodeView:
         else:
             self._window[1].set_data(picture)
         plt.pause(0.001)
+        return None
 
     def frame(self) -> np.ndarray | None:
         """Episode 0's frame (``rgb_array``: ``(H, W, 3)`` uint8; ``human``: shown, None).
 
         Raises ``RuntimeError`` when no episode has started (nothing recorded).
         """
-        picture = self._draw(0)
-        if self.render_mode == "human":
-            self._show(picture)
-            return None
-        return picture
+        return self._shown(self._draw(0))
 
     def grid(self) -> np.ndarray | None:
         """The recorded episodes' frames tiled (:func:`tile_frames`); ``human``: shown, None."""
-        picture = tile_frames(self.frames())
-        if self.render_mode == "human":
-            self._show(picture)
-            return None
-        return picture
+        return self._shown(tile_frames(self.frames()))
 
     def close(self) -> None:
         self._renderer = None
