@@ -252,10 +252,7 @@ def full_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
 def quick_suite(n_seeds: int = 20, fine_intervals: int = 1000) -> Suite:
     """A one-minute run: every family at N in {6, 20}, K in {25, 100, 200}, a coarser fine K."""
     return replace(
-        full_suite(n_seeds, fine_intervals),
-        cases=_cases((6, 20), FAMILIES),
-        budgets=(25, 100, 200),
-        name="quick",
+        full_suite(n_seeds, fine_intervals), cases=_cases((6, 20), FAMILIES), budgets=(25, 100, 200), name="quick"
     )
 
 

@@ -129,13 +129,7 @@ def _costs(per_component: Any, u0: Any, u1: Any, xp: Any) -> tuple[Any, Any]:
 
 
 def advance_into(
-    x: np.ndarray,
-    v: np.ndarray,
-    u0: np.ndarray,
-    u1: np.ndarray,
-    T: float,
-    x_out: np.ndarray,
-    v_out: np.ndarray,
+    x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T: float, x_out: np.ndarray, v_out: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`advance_with_costs` written into ``x_out`` and ``v_out``, returning the energy and the peak.
 

@@ -70,9 +70,5 @@ def torchrl_wrapper(group: str = "agents", **kwargs: Any) -> Any:
         raise ArgumentError('torchrl_wrapper: TorchRL is not installed; pip install "fxc-env[torchrl]"') from exc
     env = FlatEpisodeInfos(parallel_env(**kwargs))
     return PettingZooWrapper(
-        env,
-        group_map={group: list(env.possible_agents)},
-        categorical_actions=False,
-        use_mask=False,
-        return_state=True,
+        env, group_map={group: list(env.possible_agents)}, categorical_actions=False, use_mask=False, return_state=True
     )

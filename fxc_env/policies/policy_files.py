@@ -32,10 +32,7 @@ from fxc_env.policies.records import checked_domain, file_box, file_number, file
 from fxc_env.policies.saving import METADATA_FORMAT, METADATA_MEMBER, add_metadata, policy_metadata, save_model  # noqa: F401
 
 #: Policy classes whose network :func:`read_sb3_zip` rebuilds, by algorithm.
-KNOWN_POLICIES = {
-    "PPO": ("ActorCriticPolicy", "GainScheduledPolicy", "GatedGainPolicy"),
-    "SAC": ("SACPolicy",),
-}
+KNOWN_POLICIES = {"PPO": ("ActorCriticPolicy", "GainScheduledPolicy", "GatedGainPolicy"), "SAC": ("SACPolicy",)}
 #: The modules those classes live in (read from ``data``'s ``policy_class.__module__``).
 KNOWN_MODULES = {
     "stable_baselines3.common.policies": ("ActorCriticPolicy",),

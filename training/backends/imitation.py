@@ -127,8 +127,4 @@ def imitate_reference(model: Any, venv: Any, settings: dict[str, Any], seed: int
         mean = policy.get_distribution(x[sample]).distribution.mean
         action_error = float(torch.sqrt(torch.mean((mean - y[sample]) ** 2)) / torch.sqrt(torch.mean(y[sample] ** 2)))
         value_error = float(torch.sqrt(torch.mean((policy.predict_values(x[sample]) - g[sample]) ** 2)))
-    return {
-        "samples": float(len(x)),
-        "relative_action_rms_error": action_error,
-        "value_rms_error": value_error,
-    }
+    return {"samples": float(len(x)), "relative_action_rms_error": action_error, "value_rms_error": value_error}
