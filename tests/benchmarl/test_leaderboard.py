@@ -139,7 +139,7 @@ def test_the_shipped_table_is_what_fxc_leaderboards_defaults_reproduce():
     assert "Command: `fxc leaderboard --frames 1000 --seeds 3 --out out/leaderboard`" in table
     defaults = build_parser().parse_args(["leaderboard"])
     assert (defaults.frames, defaults.seeds, defaults.tasks, defaults.algorithms) == (
-        1000,
+        ["1000"],
         3,
         list(SHIPPED_TASKS),
         list(ALGORITHMS),

@@ -302,6 +302,7 @@ def curve_figure(
     ]
     if starts and max(r[0]["frames"] for r in runs.values()) > 4 * min(r[0]["frames"] for r in runs.values()):
         axes.set_xscale("symlog", linthresh=min(starts))  # budgets that differ (on- and off-policy): all legible
+        axes.set_xlim(0, 1.1 * max(r[0]["frames"] for r in runs.values()))
     levels = [float(np.median(errors)) for errors in baselines.values()]
     low, high = axes.get_ylim()
     axes.set_ylim(min([low, *(level / 3 for level in levels if level > 0)]), max([high, *levels]))
