@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 from fxc_env.cli import main
+from fxc_env.config.argument_types import plain_text
 from fxc_env.core.validation import ArgumentError
 from fxc_env.training import TrainArgs, registry
 from fxc_env.training.args import (
@@ -59,7 +60,7 @@ def test_the_help_text_of_fxc_train_lists_every_flag(capsys):
     text = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
     for field in FIELDS:
         assert flag(field) in text
-        assert " ".join(field.metadata["help"].split()[:4]) in text, field.name
+        assert " ".join(plain_text(field.metadata["help"]).split()[:4]) in text, field.name
 
 
 def test_a_command_line_reaches_every_field_with_its_type(parser):

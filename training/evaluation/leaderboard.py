@@ -179,11 +179,12 @@ def refuse_unread_budget(args: argparse.Namespace, algorithms: list[str]) -> Non
 def leaderboard_command(args: argparse.Namespace) -> int:
     """Handler of ``fxc leaderboard``: every value and every file kept under ``--out`` is checked before any run
     starts (:mod:`fxc_env.training.evaluation.leaderboard_files`)."""
-    algorithms = check_algorithms(list(args.algorithms))
-    refuse_unread_budget(args, algorithms)
-    frames, seeds = check_budget(args, algorithms)
+    named = [] if list(args.algorithms) == ["none"] else list(dict.fromkeys(args.algorithms))
+    frames, seeds = check_budget(args, named)
     reps = integer("--bootstrap-reps", args.bootstrap_reps, 1)
     tasks = check_tasks(list(args.tasks))
+    algorithms = check_algorithms(list(args.algorithms))
+    refuse_unread_budget(args, algorithms)
     out = output_directory("--out", args.out)
     contenders = scored_names()
     rescore, train = plan_files(out, tasks, algorithms, seeds, frames, contenders)
