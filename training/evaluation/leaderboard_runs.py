@@ -51,6 +51,8 @@ OFF_POLICY = frozenset({"masac", "maddpg"})
 #: the Gaussian's scale softplus(x + b) + 0.1 with b such that the untrained output x = 0 gives 0.22 (BenchMARL's
 #: default "biased_softplus_1.0": 1 at x = 0, floor 0.01): the floor keeps exploring where the default's scale
 #: collapses and the curve flattens at the reference (docs results.md, "What was tried"). Off-policy: lr 3e-4.
+#: Per task (``tasks``): on ``saturated-v2`` the on-policy lr is 3e-4, since at 1e-3 MAPPO reached 0.002 to
+#: 0.034 by 448k frames and then collapsed in all three seeds (1.3 to 1.7 at 1,024k; docs results.md).
 SETTINGS: dict[int, dict[str, Any]] = {
     1: {},
     2: {
@@ -63,15 +65,18 @@ SETTINGS: dict[int, dict[str, Any]] = {
         "num_cells": (64, 64),
         "on_policy": {"lr": 1e-3, "algorithm": {"scale_mapping": "biased_softplus_0.22_0.1"}},
         "off_policy": {"lr": 3e-4, "algorithm": {}},
+        "tasks": {"saturated-v2": {"on_policy": {"lr": 3e-4}}},
     },
 }
 #: The keys of a version's :data:`SETTINGS` that are not fields of BenchMARL's ``ExperimentConfig``.
-_NOT_EXPERIMENT_FIELDS = ("num_cells", "on_policy", "off_policy", "episodes_per_batch")
+_NOT_EXPERIMENT_FIELDS = ("num_cells", "on_policy", "off_policy", "episodes_per_batch", "tasks")
 
 
 def kind_settings(task: NamedTask, algorithm: str) -> dict[str, Any]:
-    """The task version's settings of ``algorithm``'s kind (``lr``, ``algorithm``: config fields); {} for v1."""
-    return SETTINGS[task.version].get("off_policy" if algorithm in OFF_POLICY else "on_policy", {})
+    """The task version's settings of ``algorithm``'s kind (``lr``, ``algorithm``: config fields), with the task's
+    own where :data:`SETTINGS` gives them (``tasks``); {} for v1."""
+    version, kind = SETTINGS[task.version], "off_policy" if algorithm in OFF_POLICY else "on_policy"
+    return {**version.get(kind, {}), **version.get("tasks", {}).get(task.id, {}).get(kind, {})}
 
 
 def score_actor(task: NamedTask, act: Any) -> dict[str, list[float]]:
