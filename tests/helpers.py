@@ -7,6 +7,7 @@ the paper's definitions (Section 2 and the proof of Theorem 1) with plain numpy 
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -162,3 +163,19 @@ SHIPPED_INSIDE = {
     "ppo_rings20": {"scenario": None, **TASKS["rings20-v2"].settings},  # the task it was trained on
     "diff_rings20": {"scenario": None, **TASKS["rings20-v2"].settings},
 }
+
+
+#: The repository root and the library's folders with the import names they install as.
+ROOT = Path(__file__).resolve().parents[1]
+LIBRARY_FOLDERS = {"fxc_env": "fxc_env", "baselines": "fxc_env.baselines", "training": "fxc_env.training"}
+
+
+def library_modules() -> dict[str, Path]:
+    """Every module and package of the library by its import name, in folder order."""
+    found = {}
+    for folder, package in LIBRARY_FOLDERS.items():
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            parts = path.relative_to(ROOT / folder).with_suffix("").parts
+            parts = parts[:-1] if parts[-1] == "__init__" else parts
+            found[".".join((package, *parts))] = path
+    return found

@@ -16,24 +16,14 @@ import re
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import ROOT
+from helpers import library_modules as modules
+
 DOCS = ROOT / "fxc_env" / "docs"
-FOLDERS = {"fxc_env": "fxc_env", "baselines": "fxc_env.baselines", "training": "fxc_env.training"}
 BEGIN = "<!-- modules: written from the module docstrings by tests/test_architecture_page.py; edit the docstrings -->"
 END = "<!-- end of modules -->"
 HEADING = re.compile(r"^### `(fxc_env(?:\.[a-z_0-9]+)+)`\n", re.M)
 ROLE = re.compile(r":(?:class|func|mod|meth|data|attr|exc|obj):`(~?)([^`]+)`")
-
-
-def modules() -> dict[str, Path]:
-    """Every module and package by its import name, in folder order."""
-    found = {}
-    for folder, package in FOLDERS.items():
-        for path in sorted((ROOT / folder).rglob("*.py")):
-            parts = path.relative_to(ROOT / folder).with_suffix("").parts
-            parts = parts[:-1] if parts[-1] == "__init__" else parts
-            found[".".join((package, *parts))] = path
-    return found
 
 
 def docstring(path: Path) -> str:

@@ -17,8 +17,8 @@ import tokenize
 from collections import Counter
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-FOLDERS = {"fxc_env": "fxc_env", "baselines": "fxc_env.baselines", "training": "fxc_env.training"}
+from helpers import ROOT, library_modules
+
 MAX_MODULE_CODE_LINES = 400
 MAX_FUNCTION_LINES = 60
 MAX_FOLDER_MODULES = 16
@@ -26,18 +26,7 @@ MAX_FOLDER_MODULES = 16
 NOT_CODE = {tokenize.COMMENT, tokenize.NL, tokenize.NEWLINE, tokenize.INDENT, tokenize.DEDENT, tokenize.ENDMARKER}
 
 
-def _modules() -> dict[str, Path]:
-    """Every module by its import name."""
-    found = {}
-    for folder, package in FOLDERS.items():
-        for path in sorted((ROOT / folder).rglob("*.py")):
-            parts = path.relative_to(ROOT / folder).with_suffix("").parts
-            parts = parts[:-1] if parts[-1] == "__init__" else parts
-            found[".".join((package, *parts))] = path
-    return found
-
-
-MODULES = _modules()
+MODULES = library_modules()
 
 
 def _rel(path: Path) -> str:
