@@ -65,7 +65,7 @@ SETTINGS: dict[int, dict[str, Any]] = {
         "num_cells": (64, 64),
         "on_policy": {"lr": 1e-3, "algorithm": {"scale_mapping": "biased_softplus_0.22_0.1"}},
         "off_policy": {"lr": 3e-4, "algorithm": {}},
-        "tasks": {"saturated-v2": {"on_policy": {"lr": 3e-4}}},
+        "tasks": {"saturated-v2": {"on_policy": {"lr": 3e-4}}, "generalist-v2": {"on_policy": {"lr": 3e-4}}},
     },
 }
 #: The keys of a version's :data:`SETTINGS` that are not fields of BenchMARL's ``ExperimentConfig``.
