@@ -52,7 +52,9 @@ OFF_POLICY = frozenset({"masac", "maddpg"})
 #: default "biased_softplus_1.0": 1 at x = 0, floor 0.01): the floor keeps exploring where the default's scale
 #: collapses and the curve flattens at the reference (docs results.md, "What was tried"). Off-policy: lr 3e-4.
 #: Per task (``tasks``): on ``saturated-v2`` the on-policy lr is 3e-4, since at 1e-3 MAPPO reached 0.002 to
-#: 0.034 by 448k frames and then collapsed in all three seeds (1.3 to 1.7 at 1,024k; docs results.md).
+#: 0.034 by 448k frames and then collapsed in all three seeds (1.3 to 1.7 at 1,024k; docs results.md); on
+#: ``generalist-v2`` too, since at 1e-3 IPPO climbed from 0.35 at 64k frames to 0.4-0.78 at 1,024k in all three
+#: seeds (at 3e-4 MAPPO ends at 0.178 instead of 0.249 and IPPO at 0.459 instead of 0.500).
 SETTINGS: dict[int, dict[str, Any]] = {
     1: {},
     2: {
