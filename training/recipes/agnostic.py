@@ -15,8 +15,6 @@ controls (``--init paper|chebyshev``), ``--quick``, ``--evaluate`` and the resul
 
 from __future__ import annotations
 
-import json
-import sys
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -33,8 +31,9 @@ from fxc_env.policies.interval_gains import load_interval_gains
 from fxc_env.policies.policy_files import training_settings
 from fxc_env.policies.reference import ReferencePolicy
 from fxc_env.policies.regime_gains import RegimeGainPolicy
-from fxc_env.training.recipes.rings import TASK, comparison, physical_map, run_episodes, task_config
+from fxc_env.training.recipes.rings import TASK, comparison, physical_map, record_run, run_episodes, task_config
 from fxc_env.training.recipes.rings_scratch import factor_table, minimise
+from fxc_env.utils.threads import torch_threads
 
 #: Training episodes are drawn from ``np.random.default_rng(TRAINING_SEED + seed)``; evaluation's from seeds 0 ...
 TRAINING_SEED = 3_000
@@ -223,18 +222,12 @@ def train(
     steps: int = FULL["steps"], seed: int = 0, quick: bool = False, init: str = "random", progress: bool = False
 ) -> tuple[RegimeGainPolicy, dict]:
     """The ``agnostic`` policy and a record of how it was made (see the module)."""
-    import torch
-
     integer("steps", steps, 1)
     integer("seed", seed, 0)
     if init not in INITS:
         raise ArgumentError(f"init: expected one of {', '.join(INITS)}, got {init!r}")
-    threads = torch.get_num_threads()
-    torch.set_num_threads(THREADS)
-    try:
+    with torch_threads(THREADS):
         return _train(steps, seed, QUICK_CASES if quick else CASES, init, progress)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _start(M: int, seed: int, init: str) -> Any:
@@ -368,17 +361,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         preset = QUICK if args.quick else FULL
         steps = preset["steps"] if args.steps is None else args.steps
         try:
-            policy, record = train(steps, args.seed, args.quick, args.init, progress=True)
+            policy, _ = train(steps, args.seed, args.quick, args.init, progress=True)
         except ArgumentError as exc:
             parser.error(str(exc))
-        policy.header["training"]["command"] = "python -m fxc_env.training.recipes.agnostic " + " ".join(
-            sys.argv[1:] if argv is None else argv
-        )
-        policy.header["training"]["training_seed"] = args.seed
-        shown = {key: value for key, value in record.items() if key not in ("loss_curve", "cases")}
-        print("trained:", json.dumps(shown))
-        if args.out:
-            print("wrote", policy.save(args.out))
+        record_run(policy, "agnostic", argv, args.seed, args.out, hidden=("loss_curve", "cases"))
     if args.quick:
         sizes, args.seeds = sizes[:1], min(args.seeds, 2)
     for row in evaluate_rings(policy, sizes, range(args.seeds)):

@@ -16,9 +16,9 @@ from fxc_env.config import make_config
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer, real
 from fxc_env.engine import ConsensusEngine
-from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import IntervalGainPolicy, spectrum
-from fxc_env.policies.policy_files import training_settings
+from fxc_env.training.recipes.rings import ring_header
+from fxc_env.utils.threads import torch_threads
 
 #: The task: directed ring of 20, K = 200 uniform intervals, T_s = 20 s, the optimality suite's noise case.
 TASK = {"topology": "ring", "n_agents": 20, "n_intervals": 200, "settling_time": 20.0, "schedule": "uniform"}
@@ -154,9 +154,7 @@ def fit(
         return value
 
     began, history = time.perf_counter(), []
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # small sequential tensors: a second thread only waits
-    try:
+    with torch_threads(1):
         for _ in range(steps):
             optimiser.step(closure)
             with torch.no_grad():
@@ -166,8 +164,6 @@ def fit(
                 progress(f"{history[-1][0]:8.1f} s  predicted rms {rms:.3g}  energy {ratio:.3g} x E[E*]")
             if out is not None:
                 np.save(out, (shape * theta).detach().numpy())
-    finally:
-        torch.set_num_threads(threads)
     return (shape * theta).detach().numpy(), history
 
 
@@ -183,16 +179,9 @@ def policy_of(config: Any, gains: np.ndarray, training: dict[str, Any] | None = 
     tau = np.asarray(config.schedule.intervals, dtype=np.float64)
     scale = np.ones((len(tau), 2, 2))
     scale[:, 0, 1], scale[:, 1, 0] = tau, 1.0 / tau
-    eigenvalues = spectrum(config.topology)
-    header = {
-        "name": "noise_gains",
-        "env": training_settings(config),
-        "topology": {"family": "ring", "relabel": True, "period": 1},
-        "eigenvalues": np.stack([eigenvalues.real, eigenvalues.imag], axis=-1).tolist(),
-        "domain": training_domain(config),
-        "training": training or {},
-    }
-    return IntervalGainPolicy(gains / scale, header)
+    return IntervalGainPolicy(
+        gains / scale, ring_header("noise_gains", config, config.topology, training=training or {})
+    )
 
 
 def measure(config: Any, policy: Any, seeds: Sequence[int] = tuple(range(20))) -> dict[str, float]:

@@ -203,19 +203,46 @@ def train(
         gains, curve = refine(config, gains, refine_steps, seed + episodes, lr=lr)
         record["refine_first_loss"], record["refine_best_loss"] = curve[0], min(curve)
     record["wall_s"] = round(time.perf_counter() - began, 2)
-    ring = config.family.draw(config.n_agents, np.random.default_rng(0))
+    header = ring_header(
+        "rings",
+        config,
+        config.family.draw(config.n_agents, np.random.default_rng(0)),
+        task_ranges=True,
+        training=record,
+    )
+    return IntervalGainPolicy(gains, header), record
+
+
+def ring_header(name: str, config: EnvConfig, ring: Any, *, task_ranges: bool = False, **fields: Any) -> dict[str, Any]:
+    """A ring policy file's header: ``name``, the training settings and domain of ``config``, the relabelled rings,
+    the eigenvalues of ``ring`` (for the graph check at load time only: training never reads them), with
+    ``task_ranges`` the :data:`TASK`'s initial ranges, then ``fields``."""
     eigenvalues = spectrum(ring)
-    header = {
-        "name": "rings",
+    ranges = {key: list(TASK[key]) for key in ("position_range", "velocity_range")} if task_ranges else {}
+    return {
+        "name": name,
         "env": training_settings(config),
         "domain": training_domain(config),
         "topology": {"family": "ring", "relabel": True, "period": 1},
-        "position_range": list(TASK["position_range"]),
-        "velocity_range": list(TASK["velocity_range"]),
+        **ranges,
         "eigenvalues": np.stack([eigenvalues.real, eigenvalues.imag], axis=-1).tolist(),
-        "training": record,
+        **fields,
     }
-    return IntervalGainPolicy(gains, header), record
+
+
+def record_run(
+    policy: Any, recipe: str, argv: Sequence[str] | None, seed: int, out: str | None, hidden: Sequence[str] = ()
+) -> None:
+    """Record in ``policy``'s header the command of ``python -m fxc_env.training.recipes.<recipe>`` and the training
+    seed, print its training record (but the keys ``hidden``) and save it to ``out`` when given."""
+    record = policy.header["training"]
+    record["command"] = f"python -m fxc_env.training.recipes.{recipe} " + " ".join(
+        sys.argv[1:] if argv is None else argv
+    )
+    record["training_seed"] = seed
+    print("trained:", json.dumps({key: value for key, value in record.items() if key not in hidden}))
+    if out:
+        print("wrote", policy.save(out))
 
 
 def evaluate(policy: IntervalGainPolicy, n_agents: int = 20, seeds: Sequence[int] = range(20)) -> dict[str, float]:
@@ -268,12 +295,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         policy = load_interval_gains(args.evaluate)
     else:
         first = DEMONSTRATION_SEED + args.seed * args.episodes  # seed 0: the shipped file's episodes
-        policy, record = train(args.episodes, args.refine_steps, args.init, seed=first, lr=args.lr)
-        policy.header["training"]["command"] = "python -m fxc_env.training.recipes.rings " + " ".join(sys.argv[1:])
-        policy.header["training"]["training_seed"] = args.seed
-        print("trained:", json.dumps(record))
-        if args.out:
-            print("wrote", policy.save(args.out))
+        policy, _ = train(args.episodes, args.refine_steps, args.init, seed=first, lr=args.lr)
+        record_run(policy, "rings", argv, args.seed, args.out)
     result = evaluate(policy, args.n_agents, range(EVALUATION_SEED, EVALUATION_SEED + args.seeds))
     print(comparison_line("rings", result))
     return 0

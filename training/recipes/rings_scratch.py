@@ -14,8 +14,6 @@ Commands and results: (docs: results.md, "What learning reached").
 
 from __future__ import annotations
 
-import json
-import sys
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -25,10 +23,10 @@ import numpy as np
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
-from fxc_env.policies.domain import training_domain
-from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum
-from fxc_env.policies.policy_files import training_settings
-from fxc_env.training.recipes.rings import EVALUATION_SEED, TASK, evaluate, physical_map, spectrum_matrix, task_config
+from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains
+from fxc_env.training.recipes import rings
+from fxc_env.training.recipes.rings import EVALUATION_SEED, evaluate, physical_map, spectrum_matrix, task_config
+from fxc_env.utils.threads import torch_threads
 
 #: Training episodes are drawn from ``np.random.default_rng(TRAINING_SEED + seed)``; the evaluation's from seeds 0 ...
 TRAINING_SEED = 2_000
@@ -154,17 +152,11 @@ def train(
     ``free=True`` is the control experiment: the same start, loss and optimiser over the free
     ``(K, 2, 2)`` table instead of the factors.
     """
-    import torch
-
     integer("episodes", episodes, 1)
     integer("steps", steps, 1)
     integer("seed", seed, 0)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # one thread: the tensors are small, and a second one only waits on a shared machine
-    try:
+    with torch_threads(1):  # one thread: the tensors are small, and a second one only waits on a shared machine
         return _train(episodes, steps, seed, free)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _train(episodes: int, steps: int, seed: int, free: bool) -> tuple[IntervalGainPolicy, dict]:
@@ -200,19 +192,14 @@ def _train(episodes: int, steps: int, seed: int, free: bool) -> tuple[IntervalGa
     }
     with torch.no_grad():
         gains = table().numpy().copy()
-    ring = config.family.draw(config.n_agents, np.random.default_rng(0))
-    eigenvalues = spectrum(ring)  # for the graph check at load time only: training never reads it
-    header = {
-        "name": "rings_scratch",
-        "env": training_settings(config),
-        "topology": {"family": "ring", "relabel": True, "period": 1},
-        "position_range": list(TASK["position_range"]),
-        "velocity_range": list(TASK["velocity_range"]),
-        "eigenvalues": np.stack([eigenvalues.real, eigenvalues.imag], axis=-1).tolist(),
-        "domain": training_domain(config),
-        "factors": None if free else q.detach().numpy().tolist(),
-        "training": record,
-    }
+    header = rings.ring_header(
+        "rings_scratch",
+        config,
+        config.family.draw(config.n_agents, np.random.default_rng(0)),
+        task_ranges=True,
+        factors=None if free else q.detach().numpy().tolist(),
+        training=record,
+    )
     return IntervalGainPolicy(gains, header), record
 
 
@@ -236,17 +223,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         episodes = preset["episodes"] if args.episodes is None else args.episodes
         steps = preset["steps"] if args.steps is None else args.steps
         try:
-            policy, record = train(episodes, steps, args.seed, args.free)
+            policy, _ = train(episodes, steps, args.seed, args.free)
         except ArgumentError as exc:
             parser.error(str(exc))
-        policy.header["training"]["command"] = "python -m fxc_env.training.recipes.rings_scratch " + " ".join(
-            sys.argv[1:] if argv is None else argv
-        )
-        policy.header["training"]["training_seed"] = args.seed
-        shown = {key: value for key, value in record.items() if key != "loss_curve"}
-        print("trained:", json.dumps(shown))
-        if args.out:
-            print("wrote", policy.save(args.out))
+        rings.record_run(policy, "rings_scratch", argv, args.seed, args.out, hidden=("loss_curve",))
     result = evaluate(policy, 20, range(EVALUATION_SEED, EVALUATION_SEED + args.seeds))
     print(
         f"rings N = 20, K = 200, T_s = 20, {result['seeds']} held-out seeds: median D(T_s)/D(0) "
