@@ -225,15 +225,11 @@ def floor_text(metrics: dict[str, np.ndarray]) -> str:
     """The floors of one job's episodes (medians): ``noise ≥ …`` on D(T_s)/D(0), ``u_max ≥ …`` (m/s²), ``worst D/D(0) ≥ …``
     under ``obs_resolution``; ``—`` without any."""
     parts = []
-    noise = quantiles(np.asarray(metrics.get("noise_floor", [np.nan]), dtype=float))[0]
-    if not math.isnan(noise):
-        parts.append(f"D/D(0) ≥ {number_text(noise)}")
-    limit = quantiles(np.asarray(metrics.get("input_floor", [np.nan]), dtype=float))[0]
-    if not math.isnan(limit):
-        parts.append(f"u_max ≥ {number_text(limit)}")
-    resolution = quantiles(np.asarray(metrics.get("resolution_floor", [np.nan]), dtype=float))[0]
-    if not math.isnan(resolution):  # a worst case over the states that read all zeros (resolution.py)
-        parts.append(f"worst D/D(0) ≥ {number_text(resolution)}")
+    # the resolution floor: a worst case over the states that read all zeros (resolution.py)
+    for metric, label in (("noise_floor", "D/D(0)"), ("input_floor", "u_max"), ("resolution_floor", "worst D/D(0)")):
+        median = quantiles(np.asarray(metrics.get(metric, [np.nan]), dtype=float))[0]
+        if not math.isnan(median):
+            parts.append(f"{label} ≥ {number_text(median)}")
     return ", ".join(parts) or "—"
 
 
