@@ -17,7 +17,7 @@ from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer, real
 from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.interval_gains import IntervalGainPolicy, spectrum
-from fxc_env.training.recipes.rings import ring_header
+from fxc_env.training.recipes.rings import gain_scale, ring_header
 from fxc_env.utils.threads import torch_threads
 
 #: The task: directed ring of 20, K = 200 uniform intervals, T_s = 20 s, the optimality suite's noise case.
@@ -176,11 +176,8 @@ def policy_of(config: Any, gains: np.ndarray, training: dict[str, Any] | None = 
     gains = np.asarray(gains, dtype=np.float64)
     if gains.shape != (config.n_intervals, 2, 2) or not np.all(np.isfinite(gains)):
         raise ArgumentError(f"gains: expected a finite ({config.n_intervals}, 2, 2) table, got shape {gains.shape}")
-    tau = np.asarray(config.schedule.intervals, dtype=np.float64)
-    scale = np.ones((len(tau), 2, 2))
-    scale[:, 0, 1], scale[:, 1, 0] = tau, 1.0 / tau
     return IntervalGainPolicy(
-        gains / scale, ring_header("noise_gains", config, config.topology, training=training or {})
+        gains / gain_scale(config), ring_header("noise_gains", config, config.topology, training=training or {})
     )
 
 

@@ -113,15 +113,20 @@ def regress_gains(config: EnvConfig, observations: np.ndarray, actions: np.ndarr
 
 
 # ----------------------------------------------------------------------------- refinement
+def gain_scale(config: EnvConfig) -> np.ndarray:
+    """``[[1, T_{k+1}], [1/T_{k+1}, 1]]`` per interval ``(K, 2, 2)``: a table in normalized units times it
+    (entrywise) is the table in physical units, and a physical one divided by it the normalized one."""
+    tau = np.asarray(config.schedule.intervals, dtype=np.float64)
+    scale = np.ones((len(tau), 2, 2))
+    scale[:, 0, 1], scale[:, 1, 0] = tau, 1.0 / tau
+    return scale
+
+
 def physical_map(config: EnvConfig, gains: Any) -> Any:
     """The table in physical units ``S^{-1} G_k S``, ``S = diag(1, T_{k+1})`` (torch, ``(K, 2, 2)``)."""
     import torch
 
-    tau = torch.as_tensor(np.array(config.schedule.intervals, dtype=np.float64))
-    scale = torch.ones(len(tau), 2, 2, dtype=torch.float64)
-    scale[:, 0, 1] = tau
-    scale[:, 1, 0] = 1.0 / tau
-    return gains * scale
+    return gains * torch.as_tensor(gain_scale(config))
 
 
 def episode_log_errors(config: EnvConfig, gains: Any, x0: np.ndarray, v0: np.ndarray, w_hat: np.ndarray) -> Any:
@@ -265,10 +270,11 @@ def comparison(n_agents: int, ours: np.ndarray, reference: np.ndarray) -> dict[s
     }
 
 
-def comparison_line(label: str, result: dict[str, float]) -> str:
-    """One line of :func:`comparison`: the policy's median (and max) beside the reference's, and their ratio."""
+def comparison_line(label: str, result: dict[str, float], seeds: str = "seeds") -> str:
+    """One line of :func:`comparison`: the policy's median (and max) beside the reference's, and their ratio
+    (``seeds``: what the episodes are called, e.g. ``held-out seeds``)."""
     return (
-        f"{label} N = {result['n_agents']}, K = 200, T_s = 20, {result['seeds']} seeds: median D(T_s)/D(0) "
+        f"{label} N = {result['n_agents']}, K = 200, T_s = 20, {result['seeds']} {seeds}: median D(T_s)/D(0) "
         f"{result['median']:.3g} (max {result['max']:.3g}), reference {result['reference_median']:.3g}, "
         f"{result['ratio']:.3g}x below the reference"
     )

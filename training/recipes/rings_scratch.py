@@ -57,10 +57,7 @@ def factor_table(config: Any, q: Any) -> Any:
     gains[0::2], gains[1::2] = first, second
     if K % 2:
         gains[-1] = a[-1] * coast[-1]
-    scale = torch.ones(K, 2, 2, dtype=torch.float64)
-    scale[:, 0, 1] = tau
-    scale[:, 1, 0] = 1.0 / tau
-    return gains / scale
+    return gains / torch.as_tensor(rings.gain_scale(config))
 
 
 def log_errors(config: Any, gains: Any, x0: np.ndarray, v0: np.ndarray, w_hat: np.ndarray) -> Any:
@@ -228,11 +225,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(str(exc))
         rings.record_run(policy, "rings_scratch", argv, args.seed, args.out, hidden=("loss_curve",))
     result = evaluate(policy, 20, range(EVALUATION_SEED, EVALUATION_SEED + args.seeds))
-    print(
-        f"rings N = 20, K = 200, T_s = 20, {result['seeds']} held-out seeds: median D(T_s)/D(0) "
-        f"{result['median']:.3g} (max {result['max']:.3g}), reference {result['reference_median']:.3g}, "
-        f"{result['ratio']:.3g}x below the reference"
-    )
+    print(rings.comparison_line("rings", result, "held-out seeds"))
     return 0
 
 
