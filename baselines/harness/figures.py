@@ -160,7 +160,7 @@ def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list
         match = _ran(
             results,
             contender,
-            lambda r: r.trace is not None and r.job.n_intervals == k and r.job.case == suite.trace_case,
+            lambda r, k=k: r.trace is not None and r.job.n_intervals == k and r.job.case == suite.trace_case,
         )
         if not match:
             continue
