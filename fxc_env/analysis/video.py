@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from fxc_env.analysis.simulation import Trajectory, _free_motion
+from fxc_env.analysis.simulation import Trajectory
 from fxc_env.core.dynamics import advance_clipped, state_inside
 from fxc_env.core.validation import ArgumentError, integer, real
 from fxc_env.engine import state_disagreement
@@ -175,7 +175,7 @@ def absolute_positions(trajectory: Trajectory, times: np.ndarray, states: np.nda
     """``(P, N, dim)`` absolute positions (m) from :func:`states_at`'s states (the offsets' motion added back)."""
     c = trajectory.config
     if c.formation is not None:
-        states = states + _free_motion(c, times)[:, None] @ c.formation
+        states = states + c.free_motion(times)[:, None] @ c.formation
     return states[:, :, 0]
 
 
