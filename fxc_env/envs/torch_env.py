@@ -85,6 +85,7 @@ TORCH_ARGUMENTS: tuple[Argument, ...] = (
         help="read the device-side validity flags at every reset and episode end",
         card="read the device-side validity flags at every reset and at every episode end (one host read per "
         "episode; see below)",
+        kind="boolean",
     ),
     Argument(
         "max_cycles",
@@ -188,8 +189,7 @@ class ConsensusTorchEnv(EnvBase):
         arguments = env_arguments(locals(), kwargs)
         size = _batch_size(batch_size)
         seed = torch_seed("seed", seed)
-        if not isinstance(check_values, bool | np.bool_):
-            raise validation.ArgumentTypeError(f"check_values: expected True or False, got {check_values!r}")
+        check_values = _OWN_ARGUMENTS["check_values"].check(check_values)
         self.config = make_config(**arguments) if config is None else _prebuilt(config, arguments)
         if self.config.obs_format != "flat":
             raise validation.ArgumentError(
@@ -197,7 +197,7 @@ class ConsensusTorchEnv(EnvBase):
                 f"{self.config.obs_format!r} (the PettingZoo env's dict observations)"
             )
         self.max_cycles = _OWN_ARGUMENTS["max_cycles"].check(max_cycles)
-        self.check_values = bool(check_values)
+        self.check_values = check_values
         #: Whether every reset and step adds the current graph's edge tensors (docs: graph-tensors.md, "Graph tensors").
         self.graph_tensors = GRAPH_TENSORS.check(graph_tensors)
         engine = ConsensusEngine(self.config, size, device=device, dtype=dtype)
