@@ -29,8 +29,10 @@ from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import load_interval_gains
 from fxc_env.policies.policy_files import training_settings
+from fxc_env.policies.protocol import seeded_metrics
 from fxc_env.policies.reference import ReferencePolicy
 from fxc_env.policies.regime_gains import RegimeGainPolicy
+from fxc_env.training.recipes import rings
 from fxc_env.training.recipes.rings import TASK, comparison, physical_map, record_run, run_episodes, task_config
 from fxc_env.training.recipes.rings_scratch import factor_table, minimise
 from fxc_env.utils.threads import torch_threads
@@ -88,19 +90,13 @@ def case_config(family: dict[str, Any], n_agents: int) -> EnvConfig:
     return make_config(None, **{**TASK, "n_agents": n_agents, "topology": family, "obs_slots": SLOTS})
 
 
-def _w_hat(topology: Any, g: int) -> np.ndarray:
-    laplacian = topology.laplacian(g)
-    laplacian = laplacian.toarray() if hasattr(laplacian, "toarray") else np.asarray(laplacian)
-    return laplacian / (np.asarray(topology.in_degree[g], dtype=np.float64)[:, None] + 1.0)
-
-
 def probe_keeps_fixed(topology: Any) -> np.ndarray:
     """``(N,)``: whether each agent's probe sees no change and it plays the fixed table (see the module).
 
     The probe (:mod:`fxc_env.policies.regime_gains`) sees no change exactly when the agent's row of ``Ŵ`` is the
     same on the graphs of intervals ``0 .. PROBES``.
     """
-    rows = np.stack([_w_hat(topology, c % topology.period) for c in range(PROBES + 1)])
+    rows = np.stack([rings.spectrum_matrix(topology, c % topology.period) for c in range(PROBES + 1)])
     return np.all(rows[1:] == rows[:1], axis=(0, 2))
 
 
@@ -127,7 +123,8 @@ def draw_cases(cases: Sequence[tuple[dict[str, Any], int, int]], seed: int) -> d
             x0.append(np.pad(d.x0[:, 0], pad))
             v0.append(np.pad(d.v0[:, 0], pad))
             mask.append(np.pad(np.ones(n), pad))
-            w.append(np.stack([np.pad(_w_hat(d.topology, c % d.topology.period), [pad, pad]) for c in range(CYCLE)]))
+            graphs = [rings.spectrum_matrix(d.topology, c % d.topology.period) for c in range(CYCLE)]
+            w.append(np.stack([np.pad(graph, [pad, pad]) for graph in graphs]))
             ring.append(family == {"kind": "ring"})
             fixed.append(np.pad(probe_keeps_fixed(d.topology), pad))
         labels.append([f"{family} N={n}", episodes])
@@ -326,11 +323,7 @@ def evaluate_rings(policy: RegimeGainPolicy, sizes: Sequence[int], seeds: Sequen
         config = task_config(n)  # one neighbour slot: the table reads any number
         policy.read_slots(config.layout.slots)
         policy.reset()
-        engine = ConsensusEngine(config, n_episodes=len(seeds))
-        engine.reset_from_draws([engine.draw_episode(np.random.default_rng(seed)) for seed in seeds])
-        while not engine.done:
-            engine.step(np.asarray(policy(np.asarray(engine.observations())), dtype=np.float64))
-        ours = np.asarray(engine.batch_metrics()["relative_deadline_error"])
+        ours = np.asarray(seeded_metrics(config, policy, seeds)["relative_deadline_error"])
         reference = run_episodes(config, ReferencePolicy, seeds)["deadline_error"]
         rows.append(comparison(n, ours, reference))
     return rows

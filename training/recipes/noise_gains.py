@@ -15,8 +15,8 @@ import numpy as np
 from fxc_env.config import make_config
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer, real
-from fxc_env.engine import ConsensusEngine
 from fxc_env.policies.interval_gains import IntervalGainPolicy, spectrum
+from fxc_env.policies.protocol import seeded_metrics
 from fxc_env.training.recipes.rings import gain_scale, ring_header
 from fxc_env.utils.threads import torch_threads
 
@@ -189,14 +189,7 @@ def measure(config: Any, policy: Any, seeds: Sequence[int] = tuple(range(20))) -
     """
     if not callable(policy):
         raise ArgumentError(f"policy: expected a callable of observations, got {type(policy).__name__}")
-    engine = ConsensusEngine(config, n_episodes=len(seeds))
-    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
-    engine.reset_from_draws(draws, rng=np.random.default_rng([*seeds, config.n_intervals]))
-    obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
-    while not engine.done:
-        engine.observations(out=obs)
-        engine.step(np.asarray(policy(obs), dtype=np.float64))
-    metrics = engine.batch_metrics()
+    metrics = seeded_metrics(config, policy, seeds, np.random.default_rng([*seeds, config.n_intervals]))
     return {
         "error": float(np.median(metrics["relative_deadline_error"])),
         "energy_ratio": float(np.median(metrics["energy_ratio"])),

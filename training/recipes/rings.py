@@ -32,6 +32,7 @@ from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum
 from fxc_env.policies.policy_files import training_settings
+from fxc_env.policies.protocol import seeded_engine
 from fxc_env.policies.reference import ReferencePolicy
 
 #: The task of the shipped policy (keywords of :func:`fxc_env.make_config`).
@@ -67,9 +68,7 @@ def run_episodes(config: EnvConfig, policy_of: Any, seeds: Sequence[int], record
     Episode b is ``reset(seed=seeds[b])``'s. Returns ``deadline_error`` ``(B,)`` and, with ``record``, the
     observations ``(K, B, N, obs_size)`` and actions ``(K, B, N, 2)``.
     """
-    engine = ConsensusEngine(config, n_episodes=len(seeds))
-    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
-    engine.reset_from_draws(draws)
+    engine, draws = seeded_engine(config, seeds)
     policies = [
         policy_of(make_config(None, **{**dict(TASK, n_agents=config.n_agents), "topology": d.topology})) for d in draws
     ]
@@ -165,10 +164,7 @@ def refine(
     rng = np.random.default_rng(seed)
     best, best_loss, curve = gains.copy(), np.inf, []
     for _ in range(steps):
-        draws = [engine.draw_episode(rng) for _ in range(batch)]
-        x0 = np.stack([d.x0[:, 0] for d in draws])
-        v0 = np.stack([d.v0[:, 0] for d in draws])
-        w_hat = spectrum_matrix(draws[0].topology)  # one relabelled ring: D is invariant to the labels
+        x0, v0, w_hat = drawn_rings(engine, rng, batch)
         loss = episode_log_errors(config, table, x0, v0, w_hat).mean()
         curve.append(float(loss.detach()))
         if curve[-1] < best_loss:  # the table this batch was scored with, before the step
@@ -179,11 +175,19 @@ def refine(
     return best, curve
 
 
-def spectrum_matrix(topology: Any) -> np.ndarray:
-    """``Ŵ = (D + I)^{-1} L`` of a fixed topology, dense ``(N, N)``."""
-    laplacian = topology.laplacian(0)
+def drawn_rings(engine: Any, rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``x0, v0`` ``(count, N)`` of ``count`` episodes ``engine`` draws from ``rng``, and ``Ŵ`` of the first one's
+    ring (one relabelled ring serves them all: D is invariant to the labels)."""
+    draws = [engine.draw_episode(rng) for _ in range(count)]
+    x0, v0 = (np.stack([getattr(d, key)[:, 0] for d in draws]) for key in ("x0", "v0"))
+    return x0, v0, spectrum_matrix(draws[0].topology)
+
+
+def spectrum_matrix(topology: Any, g: int = 0) -> np.ndarray:
+    """``Ŵ = (D + I)^{-1} L`` of graph ``g`` of a topology (its only one: a fixed topology), dense ``(N, N)``."""
+    laplacian = topology.laplacian(g)
     laplacian = laplacian.toarray() if hasattr(laplacian, "toarray") else np.asarray(laplacian)
-    return laplacian / (np.asarray(topology.in_degree[0], dtype=np.float64)[:, None] + 1.0)
+    return laplacian / (np.asarray(topology.in_degree[g], dtype=np.float64)[:, None] + 1.0)
 
 
 # ---------------------------------------------------------------------------------- training

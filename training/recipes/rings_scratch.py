@@ -25,7 +25,7 @@ from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains
 from fxc_env.training.recipes import rings
-from fxc_env.training.recipes.rings import EVALUATION_SEED, evaluate, physical_map, spectrum_matrix, task_config
+from fxc_env.training.recipes.rings import EVALUATION_SEED, evaluate, physical_map, task_config
 from fxc_env.utils.threads import torch_threads
 
 #: Training episodes are drawn from ``np.random.default_rng(TRAINING_SEED + seed)``; the evaluation's from seeds 0 ...
@@ -133,12 +133,9 @@ def minimise(
 
 def training_episodes(config: Any, episodes: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``x0, v0`` ``(episodes, N)`` of seeded episodes of the task and ``Ŵ`` of one drawn ring (the labels change no D)."""
-    engine = ConsensusEngine(config, n_episodes=1)
-    rng = np.random.default_rng(TRAINING_SEED + seed)
-    draws = [engine.draw_episode(rng) for _ in range(episodes)]
-    x0 = np.stack([d.x0[:, 0] for d in draws])
-    v0 = np.stack([d.v0[:, 0] for d in draws])
-    return x0, v0, spectrum_matrix(draws[0].topology)
+    return rings.drawn_rings(
+        ConsensusEngine(config, n_episodes=1), np.random.default_rng(TRAINING_SEED + seed), episodes
+    )
 
 
 def train(
