@@ -126,12 +126,7 @@ class RunDir:
 
     def _check_resumed_args(self, checkpoint: Path, args: TrainArgs) -> None:
         config = self.path / "config.json"
-        try:
-            started = json.loads(config.read_text()).get("args", {}) if config.is_file() else {}
-        except (OSError, UnicodeDecodeError, ValueError, AttributeError, RecursionError):
-            started = {}  # a damaged config.json: the checkpoint's own checks still apply
-        if not isinstance(started, dict):
-            started = {}
+        started = recorded_args(config)  # a damaged config.json: the checkpoint's own checks still apply
         for field in ("backend", "scenario", "task", "critic"):
             before, now = started.get(field), getattr(args, field)
             before = canonical_backend(before, warn=False) if field == "backend" else before
@@ -274,6 +269,15 @@ def _resumed_sb3_csv(path: Path, timesteps: int) -> Any:
             writer.file.write(lines[0] + "".join(kept))
             writer.file.flush()
     return writer
+
+
+def recorded_args(path: Path) -> dict[str, Any]:
+    """The ``args`` a run's ``config.json`` at ``path`` records (``{}`` when it is missing or damaged)."""
+    try:
+        args = json.loads(path.read_text()).get("args", {}) if path.is_file() else {}
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError, RecursionError):
+        return {}
+    return args if isinstance(args, dict) else {}
 
 
 def _number(cells: Sequence[str], column: int) -> float:

@@ -157,15 +157,11 @@ def disagreement_figure(results: list[JobResult], suite: Suite, contenders: list
     ax = fig.subplots()
     for contender in contenders:
         k = suite.headline_budget if contender.sampled else suite.fine_intervals
-        match = [
-            r
-            for r in results
-            if r.error is None
-            and r.trace is not None
-            and r.job.contender.name == contender.name
-            and r.job.n_intervals == k
-            and r.job.case == suite.trace_case
-        ]
+        match = _ran(
+            results,
+            contender,
+            lambda r, k=k: r.trace is not None and r.job.n_intervals == k and r.job.case == suite.trace_case,
+        )
         if not match:
             continue
         trace = np.where(np.isfinite(match[0].trace), np.maximum(match[0].trace, DISPLAY_FLOOR), np.nan)

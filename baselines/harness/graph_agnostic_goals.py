@@ -32,18 +32,14 @@ def strongly_connected_random(n_agents: int, mean_in_degree: float) -> tuple[Any
 def goal_row(settings: dict[str, Any], max_factor: int, seeds: range) -> tuple[float, float] | str:
     """Median relative deadline error and energy / E* of the law on seeded episodes, or its refusal."""
     from fxc_env.config import make_config
-    from fxc_env.engine import ConsensusEngine
+    from fxc_env.policies.protocol import seeded_metrics
 
     config = make_config(**settings)
     try:
         policy = LAWS["graph_agnostic"].policy(config, max_agents=max_factor * config.n_agents)
     except ArgumentError as exc:
         return f"refused: {str(exc).split(':')[0]}"
-    engine = ConsensusEngine(config, n_episodes=len(seeds))
-    engine.reset_from_draws([engine.draw_episode(np.random.default_rng(seed)) for seed in seeds])
-    while not engine.done:
-        engine.step(np.asarray(policy(engine.observations()), dtype=np.float64))
-    metrics = engine.batch_metrics()
+    metrics = seeded_metrics(config, policy, seeds)
     return float(np.median(metrics["relative_deadline_error"])), float(np.median(metrics["energy_ratio"]))
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from fxc_env.baselines.harness.suite import BenchmarkCase, Contender, Suite, contender_config, load_policy
 from fxc_env.core.validation import ArgumentError
-from fxc_env.engine import ConsensusEngine
+from fxc_env.policies.protocol import seeded_engine
 
 
 @dataclass(frozen=True)
@@ -63,14 +63,12 @@ class JobResult:
 
 def make_jobs(suite: Suite, contenders: list[Contender]) -> list[Job]:
     """Every (contender, case, K) of the suite, in table order."""
-    jobs = []
-    for contender in contenders:
-        budgets = suite.budgets if contender.sampled else (suite.fine_intervals,)
-        for case in suite.cases:
-            for k in budgets:
-                trace = case == suite.trace_case
-                jobs.append(Job(contender, case, k, suite.seeds, suite.settling_time, trace))
-    return jobs
+    return [
+        Job(contender, case, k, suite.seeds, suite.settling_time, case == suite.trace_case)
+        for contender in contenders
+        for case in suite.cases
+        for k in (suite.budgets if contender.sampled else (suite.fine_intervals,))
+    ]
 
 
 def run_job(job: Job) -> JobResult:
@@ -89,11 +87,9 @@ def run_job(job: Job) -> JobResult:
     result.parameters = policy.parameters() if hasattr(policy, "parameters") else {}
     result.guarantee = policy.guarantee() if hasattr(policy, "guarantee") else _reference_guarantee(job)
 
-    engine = ConsensusEngine(config, n_episodes=len(job.seeds))
     # Each seed draws its episode (topology of a family, input limit of a set, initial state);
     # noise, dropout and random switching draw from the job's own seeded stream.
-    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in job.seeds]
-    engine.reset_from_draws(draws, rng=job_generator(job))
+    engine, _ = seeded_engine(config, job.seeds, job_generator(job))
     d0 = engine.initial_disagreement.copy()
     trace = [np.ones(len(job.seeds))]
     obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))

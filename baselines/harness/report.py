@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import math
+from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -143,14 +144,13 @@ def episode_rows(results: list[JobResult]) -> list[dict[str, Any]]:
     rows = []
     for r in _ran(results):
         for b, seed in enumerate(r.job.seeds):
-            row: dict[str, Any] = {
+            row = {
                 "policy": r.job.contender.name,
                 "case": r.job.case.key,
                 "n_intervals": r.job.n_intervals,
                 "seed": seed,
             }
-            row.update({m: float(r.metrics[m][b]) for m in (*CSV_METRICS, "initial_disagreement")})
-            rows.append(row)
+            rows.append({**row, **{m: float(r.metrics[m][b]) for m in (*CSV_METRICS, "initial_disagreement")}})
     return rows
 
 
@@ -225,15 +225,11 @@ def floor_text(metrics: dict[str, np.ndarray]) -> str:
     """The floors of one job's episodes (medians): ``noise ≥ …`` on D(T_s)/D(0), ``u_max ≥ …`` (m/s²), ``worst D/D(0) ≥ …``
     under ``obs_resolution``; ``—`` without any."""
     parts = []
-    noise = quantiles(np.asarray(metrics.get("noise_floor", [np.nan]), dtype=float))[0]
-    if not math.isnan(noise):
-        parts.append(f"D/D(0) ≥ {number_text(noise)}")
-    limit = quantiles(np.asarray(metrics.get("input_floor", [np.nan]), dtype=float))[0]
-    if not math.isnan(limit):
-        parts.append(f"u_max ≥ {number_text(limit)}")
-    resolution = quantiles(np.asarray(metrics.get("resolution_floor", [np.nan]), dtype=float))[0]
-    if not math.isnan(resolution):  # a worst case over the states that read all zeros (resolution.py)
-        parts.append(f"worst D/D(0) ≥ {number_text(resolution)}")
+    # the resolution floor: a worst case over the states that read all zeros (resolution.py)
+    for metric, label in (("noise_floor", "D/D(0)"), ("input_floor", "u_max"), ("resolution_floor", "worst D/D(0)")):
+        median = quantiles(np.asarray(metrics.get(metric, [np.nan]), dtype=float))[0]
+        if not math.isnan(median):
+            parts.append(f"{label} ≥ {number_text(median)}")
     return ", ".join(parts) or "—"
 
 
@@ -374,10 +370,7 @@ def notes(results: list[JobResult], suite: Suite, contenders: list[Contender]) -
                 f"  Parameters (range over the suite; graph-dependent ones designed offline per graph and K): "
                 f"{_parameter_ranges(ran)}."
             )
-        verdicts: dict[str, int] = {}
-        for r in ran:
-            verdict = r.guarantee.split(" (")[0]
-            verdicts[verdict] = verdicts.get(verdict, 0) + 1
+        verdicts = Counter(r.guarantee.split(" (")[0] for r in ran)
         if verdicts:
             lines.append("  Runs: " + "; ".join(f"{v} × {n}" for v, n in verdicts.items()) + ".")
         failed = [r for r in mine if r.error is not None]

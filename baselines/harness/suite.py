@@ -225,14 +225,12 @@ class Suite:
 
 def _cases(sizes: tuple[int, ...], families: tuple[str, ...]) -> tuple[BenchmarkCase, ...]:
     cases = [BenchmarkCase("paper_fig1", 6)] if "paper_fig1" in families else []
-    for n in sizes:
-        for family in families:
-            if family == "paper_fig1":
-                continue
-            if family == "random_switching":
-                cases.append(BenchmarkCase("random", n, period=3))
-            else:
-                cases.append(BenchmarkCase(family, n))
+    cases += [
+        BenchmarkCase("random", n, period=3) if family == "random_switching" else BenchmarkCase(family, n)
+        for n in sizes
+        for family in families
+        if family != "paper_fig1"
+    ]
     return tuple(cases)
 
 
@@ -269,11 +267,16 @@ REALISM_CONDITIONS: tuple[tuple[tuple[str, float], ...], ...] = (
 )
 
 
+def _on_two_graphs(conditions: tuple[tuple[tuple[str, Any], ...], ...]) -> tuple[BenchmarkCase, ...]:
+    """``paper_fig1``, then a random N = 20 digraph, each under every one of ``conditions``."""
+    bases = (BenchmarkCase("paper_fig1", 6), BenchmarkCase("random", 20))
+    return tuple(replace(base, conditions=c) for base in bases for c in conditions)
+
+
 def realism_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     """Every policy under input limits, noise and dropout on ``paper_fig1`` and a random N = 20 digraph, K = 200."""
-    bases = (BenchmarkCase("paper_fig1", 6), BenchmarkCase("random", 20))
     return Suite(
-        cases=tuple(replace(base, conditions=c) for base in bases for c in REALISM_CONDITIONS),
+        cases=_on_two_graphs(REALISM_CONDITIONS),
         seeds=tuple(range(n_seeds)),
         budgets=(200,),
         fine_intervals=fine_intervals,
@@ -295,8 +298,7 @@ MODEL_CONDITIONS = (
 def models_suite(n_seeds: int = 20, fine_intervals: int = 4000) -> Suite:
     """Every named agent model on ``paper_fig1`` and a random N = 20 digraph at K = 200 and 400 (the analytic
     baselines, laws for the double integrator, are reported as not run on the others)."""
-    bases = (BenchmarkCase("paper_fig1", 6), BenchmarkCase("random", 20))
-    cases = tuple(replace(base, conditions=c) for base in bases for c in MODEL_CONDITIONS)
+    cases = _on_two_graphs(MODEL_CONDITIONS)
     return Suite(
         cases=cases,
         seeds=tuple(range(n_seeds)),

@@ -158,13 +158,8 @@ class BoundedSteerPolicy(SignalPolicy):
                 f"at least one; got {config.n_intervals}"
             )
         self.amplitude = _amplitude(DEFAULT_AMPLITUDE if amplitude is None else amplitude)
-        self.config = config
-        self.layout = config.layout
+        super().__init__(config)
         self._index, self._mask = topology.neighbour_index[0], topology.neighbour_mask[0]
-        self._times = np.asarray(config.schedule.times, dtype=np.float64)
-        self._intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
-        self._memory: dict[str, np.ndarray] | None = None
-        self._next_instant = 0
 
     def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:
         n, dim = self.config.n_agents, self.config.dim

@@ -136,12 +136,7 @@ class FilteringPolicy(SignalPolicy):
         self.block, self.spread, self.damping = block_sizes(len(factors), config.n_intervals, block, spread, damping)
         #: ``(F + damping, 2, 2)``: the gain on ``ρ̂_i`` of each block, the factors then ``I / 2``.
         self.gains = np.concatenate([factors, np.repeat(np.eye(2)[None] / 2.0, self.damping, axis=0)])
-        self.config = config
-        self.layout = config.layout
-        self._times = np.asarray(config.schedule.times, dtype=np.float64)
-        self._intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
-        self._memory = None
-        self._next_instant = 0
+        super().__init__(config)
 
     # ------------------------------------------------------------------ schedule
     def _move_of(self, k: int) -> int | None:

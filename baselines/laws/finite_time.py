@@ -29,11 +29,7 @@ def sig(z: np.ndarray, power: float) -> np.ndarray:
 
 def is_undirected(topology: Any) -> bool:
     """Every graph of the period is symmetric (each edge ``(j, i)`` has its ``(i, j)``)."""
-    for g in range(topology.period):
-        adjacency = topology.adjacency(g)
-        if (adjacency != adjacency.T).nnz:
-            return False
-    return True
+    return all((adjacency != adjacency.T).nnz == 0 for adjacency in map(topology.adjacency, range(topology.period)))
 
 
 class FiniteTimePolicy(HoldPolicy):

@@ -298,12 +298,7 @@ class GraphAgnosticPolicy(SignalPolicy):
         self.max_agents = max_agents
         self.amplitude = amplitude
         self.rank_tolerance = rank_tolerance
-        self.config = config
-        self.layout = config.layout
-        self._times = np.asarray(config.schedule.times, dtype=np.float64)
-        self._intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
-        self._memory: dict[str, np.ndarray] | None = None
-        self._next_instant = 0
+        super().__init__(config)
         #: Per agent of the last episode batch, the degree of the recurrence its rank test found ``(..., N)``.
         self.degrees: np.ndarray | None = None
 

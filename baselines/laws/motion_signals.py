@@ -117,18 +117,24 @@ class SignalPolicy(LawPolicy):
     the parallel env's dict or ``(..., N, obs_size)`` in agent order, one instant after the other from ``k = 0``
     (which starts an episode; :meth:`reset` forgets the episodes under way).
 
-    Subclasses set :attr:`TITLE`, ``config``, ``_intervals``, ``_memory`` (None, or holding the own deviation
-    ``"d"`` ``(..., N, 2, dim)``) and ``_next_instant = 0``, and implement ``_reset`` and ``_plan``.
+    Subclasses set :attr:`TITLE`, call ``super().__init__(config)`` once they have checked the
+    configuration, and implement ``_reset`` (which sets ``_memory``, holding the own deviation ``"d"``
+    ``(..., N, 2, dim)``) and ``_plan``.
     """
 
     #: How messages name the law (``"the signalling law"``).
     TITLE: ClassVar[str] = ""
     #: Its memory is per agent: one agent's observation alone is refused (:mod:`fxc_env.policies.protocol`).
     needs_team: ClassVar[bool] = True
-    config: Any
-    _intervals: np.ndarray
-    _memory: dict[str, np.ndarray] | None
-    _next_instant: int
+
+    def __init__(self, config: Any) -> None:
+        """Hold ``config``, its observation layout and sampling instants, and no episode yet."""
+        self.config = config
+        self.layout = config.layout
+        self._times = np.asarray(config.schedule.times, dtype=np.float64)
+        self._intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
+        self._memory: dict[str, np.ndarray] | None = None
+        self._next_instant = 0
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """One instant of the law for every agent: plans (``plan`` mode) or end inputs (``accel``)."""

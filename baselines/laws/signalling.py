@@ -115,10 +115,7 @@ class SignallingPolicy(SignalPolicy):
                 f"n_intervals: the signalling law needs at least {self.agreement_intervals} intervals "
                 f"({m} per update x {self.updates} updates), got {config.n_intervals}"
             )
-        self.config = config
-        self.layout = config.layout
-        self._times = np.asarray(config.schedule.times, dtype=np.float64)
-        self._intervals = np.asarray(config.schedule.intervals, dtype=np.float64)
+        super().__init__(config)
         # The union in-neighbours of every agent, and where slot s of graph g puts its row among them.
         union = union_graph(topology)
         union_neighbours = [np.sort(union[[i], :].indices) for i in range(n)]
@@ -132,8 +129,6 @@ class SignallingPolicy(SignalPolicy):
             for i in range(n):
                 for s in np.flatnonzero(mask[g, i]):
                     self._slot_map[g, i, s] = int(np.searchsorted(union_neighbours[i], index[g, i, s]))
-        self._memory: dict[str, np.ndarray] | None = None
-        self._next_instant = 0
 
     # ----------------------------------------------------------------------------- acting
     def _reset(self, rows: np.ndarray, lead: tuple[int, ...]) -> None:

@@ -24,7 +24,7 @@ import numpy as np
 
 from fxc_env.config import make_config
 from fxc_env.config.tasks import get_task
-from fxc_env.engine import ConsensusEngine
+from fxc_env.policies.protocol import seeded_engine
 from fxc_env.policies.reference import ReferencePolicy
 
 #: The noise's standard deviation as a share of the box's half-width.
@@ -88,8 +88,7 @@ def final_ratios(
     """
     kwargs = dict(settings)
     config = make_config(kwargs.pop("scenario", None), **{**kwargs, "initial_state": "random"})
-    engine = ConsensusEngine(config, len(seeds))
-    engine.reset_from_draws([engine.draw_episode(np.random.default_rng(seed)) for seed in seeds])
+    engine, _ = seeded_engine(config, seeds)
     policy, rng, bound = ReferencePolicy(config), np.random.default_rng(noise_seed), config.action_bound
     shape = (len(seeds), config.n_agents, config.action_size)
     with np.errstate(over="ignore", invalid="ignore"):

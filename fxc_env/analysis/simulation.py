@@ -11,7 +11,6 @@ import numpy as np
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.core.dynamics import advance_clipped, state_inside
 from fxc_env.core.graphs import Topology
-from fxc_env.core.linear import LinearModel, model_matrices
 from fxc_env.core.metrics import EpisodeMetrics
 from fxc_env.core.validation import ArgumentError, integer, optional_seed
 from fxc_env.engine import ConsensusEngine, state_disagreement, with_initial_state
@@ -142,7 +141,7 @@ def _trajectory(config, engine, states, u_start, u_end, plans, graphs, points_pe
     disagreement_dense = state_disagreement(dense_z, config)
     if config.formation is not None:  # absolute states: the formation error plus e^{A t} h
         z = z + config.formation_motion[:, None] @ config.formation
-        dense_z = dense_z + _free_motion(config, dense_times)[:, None] @ config.formation
+        dense_z = dense_z + config.free_motion(dense_times)[:, None] @ config.formation
     x, dense_x = z[:, :, 0], dense_z[:, :, 0]
     v, dense_v = (z[:, :, 1], dense_z[:, :, 1]) if config.n_states > 1 else (np.zeros_like(x), np.zeros_like(dense_x))
     return Trajectory(
@@ -203,9 +202,3 @@ def _dense_linear(config: EnvConfig, z, plans, offsets, u_end):
         inputs.append(u[..., 0])  # (P, N, dim)
     last_u = u_end[-1:] if u_end.ndim == 3 else u_end[-1:, ..., 0]
     return np.concatenate([*states, z[-1:]]), np.concatenate([*inputs, last_u])
-
-
-def _free_motion(config: EnvConfig, times: np.ndarray) -> np.ndarray:
-    """``e^{A t}`` at ``times`` ``(P, n, n)``, for the formation offsets' trajectory."""
-    model = config.model if config.model is not None else LinearModel(*model_matrices("double_integrator"))
-    return model.free_motion_matrix(times)

@@ -11,14 +11,14 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from fxc_env.analysis.simulation import Trajectory, _free_motion
+from fxc_env.analysis.simulation import Trajectory
 from fxc_env.core.dynamics import advance_clipped, state_inside
 from fxc_env.core.validation import ArgumentError, integer, real
 from fxc_env.engine import state_disagreement
@@ -90,14 +90,8 @@ def check_video_path(name: str, path: Any, size: tuple[int, int] = FRAME_SIZE) -
     nothing is downloaded) or with an odd frame side (H.264 needs even ones), an existing
     directory, and a folder that cannot be created or written.
     """
-    text = os.fspath(path)
-    target = Path(text)
-    suffix = target.suffix.lower()
-    if suffix not in VIDEO_SUFFIXES:
-        raise ArgumentError(f"{name}: expected a file name ending in .gif or .mp4, got {text!r}")
-    if target.is_dir():
-        raise ArgumentError(f"{name}: expected a file, got {text!r}, which is an existing directory")
-    if suffix == ".mp4":
+    target = _file_path(name, path, VIDEO_SUFFIXES, ".gif or .mp4")
+    if target.suffix.lower() == ".mp4":
         if mp4_encoder() is None:
             raise ArgumentError(f"{name}: writing .mp4 needs an encoder and none is installed: {_MP4_HINT}")
         if size[0] % 2 or size[1] % 2:
@@ -108,13 +102,19 @@ def check_video_path(name: str, path: Any, size: tuple[int, int] = FRAME_SIZE) -
 
 def check_strip_path(name: str, path: Any) -> Path:
     """``path`` as a PNG file to write (refused naming ``name`` otherwise)."""
+    target = _file_path(name, path, (".png",), ".png")
+    output_directory(name, target.parent if str(target.parent) else ".")
+    return target
+
+
+def _file_path(name: str, path: Any, suffixes: Sequence[str], expected: str) -> Path:
+    """``path`` once its suffix is one of ``suffixes`` (``expected`` says which) and no directory is there."""
     text = os.fspath(path)
     target = Path(text)
-    if target.suffix.lower() != ".png":
-        raise ArgumentError(f"{name}: expected a file name ending in .png, got {text!r}")
+    if target.suffix.lower() not in suffixes:
+        raise ArgumentError(f"{name}: expected a file name ending in {expected}, got {text!r}")
     if target.is_dir():
         raise ArgumentError(f"{name}: expected a file, got {text!r}, which is an existing directory")
-    output_directory(name, target.parent if str(target.parent) else ".")
     return target
 
 
@@ -175,7 +175,7 @@ def absolute_positions(trajectory: Trajectory, times: np.ndarray, states: np.nda
     """``(P, N, dim)`` absolute positions (m) from :func:`states_at`'s states (the offsets' motion added back)."""
     c = trajectory.config
     if c.formation is not None:
-        states = states + _free_motion(c, times)[:, None] @ c.formation
+        states = states + c.free_motion(times)[:, None] @ c.formation
     return states[:, :, 0]
 
 

@@ -135,10 +135,12 @@ class EnvConfig:
     @cached_property
     def formation_motion(self) -> np.ndarray | None:
         """``e^{A t_k}`` at every sampling instant ``(K + 1, n, n)`` when there are formation offsets, else None."""
-        if self.formation is None:
-            return None
+        return None if self.formation is None else self.free_motion(self.schedule.times)
+
+    def free_motion(self, times: Any) -> np.ndarray:
+        """``e^{A t}`` at ``times`` (s), ``(P, n, n)``: the agents' free motion (the double integrator's without a model)."""
         model = self.model if self.model is not None else LinearModel(*model_matrices("double_integrator"))
-        return model.free_motion_matrix(self.schedule.times)
+        return model.free_motion_matrix(times)
 
     @property
     def n_agents(self) -> int:

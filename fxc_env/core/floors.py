@@ -174,8 +174,7 @@ def input_floor_bounds(x0: Any, v0: Any, settling_time: Any, facets: int = INPUT
         x, v = x[:, None], v.reshape(-1, 1) if v.ndim == 1 else v
     if x.ndim != 2 or v.shape != x.shape:
         raise ArgumentError(f"x0, v0: expected two arrays (N, dim) of one shape, got {x.shape} and {v.shape}")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
-        raise ArgumentError("x0, v0: every entry must be finite (no NaN or inf)")
+    validation.finite_array("x0, v0", np.stack([x, v]))
     t = validation.real("settling_time", settling_time, positive=True)
     facets = validation.integer("facets", facets, 2)
     outer_normals, outer_offsets, inner_normals, inner_offsets = _polygons(t, facets)

@@ -69,11 +69,6 @@ def _real_matrix(name: str, value: Any, expected: str, copy: bool = True) -> np.
     return np.array(array) if copy else array
 
 
-def _check_finite(name: str, array: np.ndarray) -> None:
-    if not np.all(np.isfinite(array)):
-        raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
-
-
 def _structural_levels(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Breadth-first level of each state from the input through the nonzero pattern of A, ``(n,)`` int."""
     n = A.shape[0]
@@ -115,7 +110,7 @@ class LinearModel:
         a = _real_matrix("A", A, "a square (n, n) array")
         if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] < 1:
             raise ArgumentError(f"A: expected a square (n, n) array with n >= 1, got shape {a.shape}")
-        _check_finite("A", a)
+        validation.finite_array("A", a)
         n = a.shape[0]
         b = _real_matrix("B", B, f"an (n, m) = ({n}, m) array")
         if b.shape == (n,):
@@ -125,7 +120,7 @@ class LinearModel:
                 f"B: expected an (n, m) = ({n}, m) array with m >= 1 (a length-{n} vector is one input), "
                 f"got shape {b.shape}"
             )
-        _check_finite("B", b)
+        validation.finite_array("B", b)
         blocks = [b]
         for _ in range(n - 1):
             blocks.append(a @ blocks[-1])
@@ -348,7 +343,7 @@ def formation_offsets(offsets: Any, n_agents: int, dim: int, n_states: int) -> n
         array = full
     elif array.shape != (n_agents, dim, n_states):
         raise ArgumentError(f"{name}: expected {expected}, got shape {array.shape}")
-    _check_finite(name, array)
+    validation.finite_array(name, array)
     return array
 
 

@@ -41,9 +41,7 @@ def _states(name: str, value: Any, minimum_ndim: int) -> np.ndarray:
     array = validation.real_array(name, value, f"an array of at least {minimum_ndim} dimensions")
     if array.ndim < minimum_ndim:
         raise ArgumentError(f"{name}: expected an array of at least {minimum_ndim} dimensions, got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
-    return array
+    return validation.finite_array(name, array)
 
 
 def energy_bound(x0: Any, v0: Any, settling_time: Any) -> np.ndarray:

@@ -83,8 +83,7 @@ def make_schedule(settling_time: Any = 20.0, n_intervals: Any = 200, schedule: A
         k_total = _validated_n_intervals(n_intervals)
         if schedule == "paper":
             # t_k = T_s (6/pi^2) sum_{j<=k} 1/j^2 < T_s for k <= K-1; t_K = T_s exactly.
-            partial = paper_interval(np.arange(1, k_total), t_s)
-            inner = np.cumsum(partial)
+            inner = np.cumsum(paper_interval(np.arange(1, k_total), t_s))
         else:
             inner = t_s * np.arange(1, k_total) / k_total
         times = np.concatenate(([0.0], inner, [t_s]))

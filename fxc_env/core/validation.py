@@ -140,7 +140,7 @@ def in_range(
     try:
         number = float(value)
     except (TypeError, ValueError, OverflowError):
-        raise ArgumentTypeError(f"{name}: expected a number, {expected}; got {_short(value)}") from None
+        raise ArgumentTypeError(f"{name}: expected a number, {expected}; got {short_repr(value)}") from None
     too_low = number < low or (low_open and number == low)
     too_high = number > high or (high_open and number == high)
     if too_low or too_high or not math.isfinite(number):
@@ -284,12 +284,18 @@ def real_array(name: str, value: Any, expected: str, *, booleans: bool = True) -
     try:
         array = np.asarray(value)
     except (TypeError, ValueError, OverflowError):
-        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {_short(value)}") from None
+        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {short_repr(value)}") from None
     if array.dtype.kind not in "biuf":
-        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {_short(value)}")
+        raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got {short_repr(value)}")
     if not booleans and array.dtype.kind == "b":
         raise ArgumentTypeError(f"{name}: expected {expected} of real numbers, got booleans")
     return array.astype(np.float64, copy=False)
+
+
+def finite_array(name: str, array: np.ndarray) -> np.ndarray:
+    """``array`` once every entry is finite (no NaN or inf); else an :class:`ArgumentError` naming ``name``."""
+    _check_entries(name, array, None)
+    return array
 
 
 def _check_entries(name: str, array: np.ndarray, limit: float | None) -> None:
@@ -331,6 +337,7 @@ def _number_text(value: float | None) -> str:
     return f"{value:g}"
 
 
-def _short(value: Any) -> str:
+def short_repr(value: Any) -> str:
+    """``repr(value)``, cut to 80 characters for a message."""
     text = repr(value)
     return text if len(text) <= 80 else text[:77] + "..."

@@ -85,6 +85,7 @@ TORCH_ARGUMENTS: tuple[Argument, ...] = (
         help="read the device-side validity flags at every reset and episode end",
         card="read the device-side validity flags at every reset and at every episode end (one host read per "
         "episode; see below)",
+        kind="boolean",
     ),
     Argument(
         "max_cycles",
@@ -188,8 +189,7 @@ class ConsensusTorchEnv(EnvBase):
         arguments = env_arguments(locals(), kwargs)
         size = _batch_size(batch_size)
         seed = torch_seed("seed", seed)
-        if not isinstance(check_values, bool | np.bool_):
-            raise validation.ArgumentTypeError(f"check_values: expected True or False, got {check_values!r}")
+        check_values = _OWN_ARGUMENTS["check_values"].check(check_values)
         self.config = make_config(**arguments) if config is None else _prebuilt(config, arguments)
         if self.config.obs_format != "flat":
             raise validation.ArgumentError(
@@ -197,7 +197,7 @@ class ConsensusTorchEnv(EnvBase):
                 f"{self.config.obs_format!r} (the PettingZoo env's dict observations)"
             )
         self.max_cycles = _OWN_ARGUMENTS["max_cycles"].check(max_cycles)
-        self.check_values = bool(check_values)
+        self.check_values = check_values
         #: Whether every reset and step adds the current graph's edge tensors (docs: graph-tensors.md, "Graph tensors").
         self.graph_tensors = GRAPH_TENSORS.check(graph_tensors)
         engine = ConsensusEngine(self.config, size, device=device, dtype=dtype)
@@ -221,6 +221,11 @@ class ConsensusTorchEnv(EnvBase):
     def _make_specs(self) -> None:
         c, layout, device = self.config, self.config.layout, self.engine.device
         b, n = self.batch_size[0], c.n_agents
+
+        def grouped(entries: dict[str, Any]) -> Composite:
+            """``entries`` per agent, under the group key: ``[B, N, ...]`` inside ``[B]``."""
+            return Composite({GROUP: Composite(entries, shape=(b, n))}, shape=(b,))
+
         low, high = observation_bounds(c)
         observation = Bounded(
             low=torch.as_tensor(low, dtype=self._observation_dtype, device=device).expand(b, n, layout.size),
@@ -229,7 +234,7 @@ class ConsensusTorchEnv(EnvBase):
             dtype=self._observation_dtype,
             device=device,
         )
-        observation_spec = Composite({GROUP: Composite({"observation": observation}, shape=(b, n))}, shape=(b,))
+        observation_spec = grouped({"observation": observation})
         if c.global_state == "normalized":
             size = n * 2 * c.dim + CLOCK_SIZE
             observation_spec["state"] = Bounded(
@@ -238,28 +243,11 @@ class ConsensusTorchEnv(EnvBase):
         if self.graph_tensors:
             observation_spec.update(self._graph_specs(device))
         self.observation_spec = observation_spec
-        bound = c.action_bound
-        self.action_spec = Composite(
-            {
-                GROUP: Composite(
-                    {
-                        "action": Bounded(
-                            -bound, bound, shape=(b, n, c.action_size), dtype=self.engine.dtype, device=device
-                        )
-                    },
-                    shape=(b, n),
-                )
-            },
-            shape=(b,),
+        bound, dtype = c.action_bound, self.engine.dtype
+        self.action_spec = grouped(
+            {"action": Bounded(-bound, bound, shape=(b, n, c.action_size), dtype=dtype, device=device)}
         )
-        self.reward_spec = Composite(
-            {
-                GROUP: Composite(
-                    {"reward": Unbounded(shape=(b, n, 1), dtype=self.engine.dtype, device=device)}, shape=(b, n)
-                )
-            },
-            shape=(b,),
-        )
+        self.reward_spec = grouped({"reward": Unbounded(shape=(b, n, 1), dtype=dtype, device=device)})
         flag = Categorical(n=2, shape=(b, 1), dtype=torch.bool, device=device)
         self.done_spec = Composite({"done": flag, "terminated": flag.clone(), "truncated": flag.clone()}, shape=(b,))
 
@@ -323,20 +311,8 @@ class ConsensusTorchEnv(EnvBase):
             if episodes is None
             else torch.where(episodes, 0, self._cycles)
         )
-        false = torch.zeros((self.batch_size[0], 1), dtype=torch.bool, device=engine.device)
-        observations = self._observations()
-        out = TensorDict(
-            {
-                GROUP: TensorDict({"observation": observations}, batch_size=(self.batch_size[0], self.n_agents)),
-                "done": false,
-                "terminated": false.clone(),
-                "truncated": false.clone(),
-            },
-            batch_size=self.batch_size,
-            device=engine.device,
-        )
-        self._add_state(out, observations)
-        return out
+        false = torch.zeros(self.batch_size[0], dtype=torch.bool, device=engine.device)
+        return self._output({}, false, false.clone())
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         engine = self.engine
@@ -352,17 +328,23 @@ class ConsensusTorchEnv(EnvBase):
         )
         if self.check_values and engine.steps is None and engine.done:
             engine.raise_if_invalid()  # the episode end: one read per episode
-        reward = outcome.reward[:, None, None].expand(b, n, 1)
+        return self._output({"reward": outcome.reward[:, None, None].expand(b, n, 1)}, terminated, truncated)
+
+    def _output(self, entries: dict[str, Any], terminated: torch.Tensor, truncated: torch.Tensor) -> TensorDictBase:
+        """A reset's or step's TensorDict: the observations and ``entries`` per agent, the ``(B,)`` flags as
+        ``[B, 1]``, and the state and graph tensors where asked for."""
         observations = self._observations()
         out = TensorDict(
             {
-                GROUP: TensorDict({"observation": observations, "reward": reward}, batch_size=(b, n)),
+                GROUP: TensorDict(
+                    {"observation": observations, **entries}, batch_size=(self.batch_size[0], self.n_agents)
+                ),
                 "done": (terminated | truncated)[:, None],
                 "terminated": terminated[:, None],
                 "truncated": truncated[:, None],
             },
             batch_size=self.batch_size,
-            device=engine.device,
+            device=self.engine.device,
         )
         self._add_state(out, observations)
         return out

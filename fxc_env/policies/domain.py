@@ -110,10 +110,7 @@ def _graph_entries(config: Any) -> list[dict[str, Any]]:
         topology = config.topology
         return [{"topology": topology.name, "edges": edge_lists(topology)}]
     members = family.families if isinstance(family, TopologyMixture) else (family,)
-    entries = []
-    for member in members:
-        entries.append(_family_entry(member))
-    return entries
+    return [_family_entry(member) for member in members]
 
 
 # ------------------------------------------------------------------------------------- checking
@@ -294,13 +291,11 @@ def _covers_fixed(entry: Mapping[str, Any], topology: Any) -> bool:
 
 
 def _same_edges(recorded: Sequence[Any], topology: Any) -> bool:
-    if len(recorded) != topology.period:
-        return False
-    for graph, edges in zip(recorded, topology.edges, strict=True):
-        pairs = np.asarray(graph, dtype=np.int64).reshape(-1, 2)
-        if {tuple(p) for p in pairs.tolist()} != {tuple(p) for p in np.asarray(edges).tolist()}:
-            return False
-    return True
+    return len(recorded) == topology.period and all(
+        {tuple(p) for p in np.asarray(graph, dtype=np.int64).reshape(-1, 2).tolist()}
+        == {tuple(p) for p in np.asarray(edges).tolist()}
+        for graph, edges in zip(recorded, topology.edges, strict=True)
+    )
 
 
 def _union(topology: Any) -> tuple[np.ndarray, np.ndarray, int]:

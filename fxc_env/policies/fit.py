@@ -231,7 +231,26 @@ def check_width(policy: Any, env: Any, source: Any) -> None:
     )
 
 
-class SlotAdaptedPolicy(Policy):
+class _AdaptedPolicy(Policy):
+    """A saved ``policy`` acting on the observations of ``layout``: it keeps the wrapped policy's record
+    (``source``, ``training_settings``, ``training_domain``), says in ``adaptation`` what was adapted, and resets
+    the wrapped policy (a torch GRU actor's memory) where it has a ``reset``."""
+
+    def __init__(self, policy: Any, layout: Any, action_size: int, adaptation: str) -> None:
+        self.policy = policy
+        self.layout = layout
+        self.obs_size = layout.size
+        self.action_size = action_size
+        for key in ("source", "training_settings", "training_domain"):  # the wrapped policy's record
+            setattr(self, key, getattr(policy, key, None))
+        self.adaptation = adaptation
+
+    def reset(self) -> None:
+        """The wrapped policy's ``reset`` (a torch GRU actor's memory), where it has one."""
+        reset_policy(self.policy)
+
+
+class SlotAdaptedPolicy(_AdaptedPolicy):
     """A policy trained on ``W`` neighbour slots acting on an environment's observations of ``S`` slots.
 
     The observation (:class:`fxc_env.config.layout.ObservationLayout`) is rebuilt in the trained
@@ -254,15 +273,10 @@ class SlotAdaptedPolicy(Policy):
     """
 
     def __init__(self, policy: Any, layout: Any, slots: int, reads_any_rows: bool) -> None:
-        self.policy = policy
-        self.layout = layout
+        adaptation = f"trained with {slots} neighbour slots, acting on {layout.slots}"
+        super().__init__(policy, layout, policy.action_size, adaptation)
         self.trained = ObservationLayout(slots, layout.dim, layout.limit_feature, layout.n_states)
         self.reads_any_rows = reads_any_rows
-        self.obs_size = layout.size
-        self.action_size = policy.action_size
-        for key in ("source", "training_settings", "training_domain"):  # the wrapped policy's record
-            setattr(self, key, getattr(policy, key, None))
-        self.adaptation = f"trained with {slots} neighbour slots, acting on {layout.slots}"
 
     def trained_observation(self, observation: Any) -> np.ndarray:
         """The observation ``(..., obs_size)`` (or a dict one) rebuilt in the trained layout ``(..., trained.size)``."""
@@ -308,12 +322,8 @@ class SlotAdaptedPolicy(Policy):
         (called as every policy is: :mod:`fxc_env.policies.protocol`)."""
         return np.asarray(self.policy(self.trained_observation(obs)), dtype=np.float64)
 
-    def reset(self) -> None:
-        """The wrapped policy's ``reset`` (a torch GRU actor's memory), where it has one."""
-        reset_policy(self.policy)
 
-
-class PerAxisPolicy(Policy):
+class PerAxisPolicy(_AdaptedPolicy):
     """A policy trained in one dimension acting on each axis of a ``dim``-dimensional environment.
 
     The paper's controller (eq. 11) acts on every axis alone, and so can a learned policy:
@@ -330,19 +340,10 @@ class PerAxisPolicy(Policy):
     """
 
     def __init__(self, policy: Any, config: Any) -> None:
-        self.policy = policy
+        adaptation = f"trained in dim 1, acting per axis in dim {config.dim}"
+        super().__init__(policy, config.layout, config.action_size, adaptation)
         self.config = config
-        self.layout = config.layout
         self.axis_layout = ObservationLayout(self.layout.slots, 1, limit_feature=self.layout.limit_feature)
-        self.obs_size = self.layout.size
-        self.action_size = config.action_size
-        for key in ("source", "training_settings", "training_domain"):  # the wrapped policy's record
-            setattr(self, key, getattr(policy, key, None))
-        self.adaptation = f"trained in dim 1, acting per axis in dim {config.dim}"
-
-    def reset(self) -> None:
-        """The wrapped policy's ``reset`` (a torch GRU actor's memory), where it has one."""
-        reset_policy(self.policy)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Actions ``(..., 2 dim)`` for flat observations ``(..., obs_size)`` (called as every policy is:

@@ -140,14 +140,20 @@ class IntervalGainPolicy(Policy):
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Plans ``(..., 2 dim)`` (``alpha_x`` then ``alpha_v``) for flat observations ``(..., obs_size)``."""
+        _, _, _, k, r = self._read(obs)
+        plan = self.gains[k] @ r  # (..., 2, dim)
+        return np.concatenate([plan[..., 0, :], plan[..., 1, :]], axis=-1)
+
+    def _read(self, obs: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``(rows, mask, clock, k, r)`` of flat observations: their parts, the interval ``k`` ``(...)`` and the
+        aggregated relative row ``r`` ``(..., 2, dim)`` (masked rows left out)."""
         if obs.shape[-1] != self.obs_size:
             raise ArgumentError(f"observations: expected shape (..., {self.obs_size}), got {obs.shape}")
         rows, mask, clock = self.layout.split(obs)  # rows (..., slots, 2, dim)
         real = mask[..., None, None] > 0.5
         r = np.sum(np.where(real, rows, 0.0), axis=-3) / (np.sum(mask > 0.5, axis=-1)[..., None, None] + 1.0)
         k = np.clip(np.rint(clock[..., 2] * self.n_intervals).astype(np.int64), 0, self.n_intervals - 1)
-        plan = self.gains[k] @ r  # (..., 2, dim)
-        return np.concatenate([plan[..., 0, :], plan[..., 1, :]], axis=-1)
+        return rows, mask, clock, k, r
 
     def save(self, path: str | Path) -> Path:
         """Write the table and its header to ``path`` (``.npz``, no pickled objects)."""

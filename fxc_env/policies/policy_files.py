@@ -86,16 +86,12 @@ class SavedModel:
         self.policy_class = spec["policy_class"]
         self.policy = policy
         self.squash = self.algorithm == "SAC"
-        self.observation_space = spaces.Box(
-            np.asarray(spec["observation"]["low"], dtype=np.float64).reshape(spec["observation"]["shape"]),
-            np.asarray(spec["observation"]["high"], dtype=np.float64).reshape(spec["observation"]["shape"]),
-            dtype=np.float64,
-        )
-        self.action_space = spaces.Box(
-            np.asarray(spec["action"]["low"], dtype=np.float64).reshape(spec["action"]["shape"]),
-            np.asarray(spec["action"]["high"], dtype=np.float64).reshape(spec["action"]["shape"]),
-            dtype=np.float64,
-        )
+
+        def box(record: Mapping[str, Any]) -> Any:
+            low, high = (np.asarray(record[end], dtype=np.float64).reshape(record["shape"]) for end in ("low", "high"))
+            return spaces.Box(low, high, dtype=np.float64)
+
+        self.observation_space, self.action_space = box(spec["observation"]), box(spec["action"])
         self.num_timesteps = int(data.get("num_timesteps", 0) or 0)
         self.normalization = spec.get("normalization")
         self.training = spec.get("env")
@@ -182,9 +178,8 @@ def read_sb3_zip(path: str | Path) -> SavedModel:
         raise ArgumentError(f"policy: {path} is not a saved SB3 model (its data is not a JSON object)")
     try:
         weights = torch.load(io.BytesIO(weights_bytes), map_location="cpu", weights_only=True)
-    except (
-        Exception
-    ) as exc:  # torch's UnpicklingError for anything but plain tensors, RuntimeError/EOFError when damaged
+    # torch's UnpicklingError for anything but plain tensors, RuntimeError/EOFError when damaged
+    except Exception as exc:
         raise ArgumentError(
             f"policy: {path}: policy.pth is not a plain state dict of tensors ({summary(exc)}); "
             f"nothing in it was run. {TRUST_HINT}"

@@ -1,4 +1,4 @@
-"""One way to call a policy, and ``rollout``, which plays one episode of the parallel env with it.
+"""One way to call a policy, and ``rollout``, which plays one episode of the parallel env with it (``seeded_metrics``: seeded episodes on the engine).
 
 Every policy the project ships or loads (the paper's controller ``fxc_env.ReferencePolicy``, every law of
 ``fxc_env.baselines``, every learned format ``fxc_env.policies.learned.load_learned_policy`` reads,
@@ -30,6 +30,7 @@ import numpy as np
 from fxc_env.config.layout import ObservationLayout
 from fxc_env.core import validation
 from fxc_env.core.validation import ArgumentError
+from fxc_env.engine import ConsensusEngine
 
 #: The keys of one agent's dict observation (``obs_format="dict"``; ``input_limit`` only with ``u_max``).
 OBSERVATION_KEYS = frozenset({"neighbours", "mask", "clock", "input_limit"})
@@ -196,3 +197,21 @@ def rollout(env: Any, policy: Any, seed: int | None = None, *, trajectory: bool 
     if not trajectory:
         return episode
     return episode, {key: np.asarray(value, dtype=np.float64) for key, value in steps.items()}
+
+
+def seeded_engine(config: Any, seeds: Any, rng: Any = None) -> tuple[ConsensusEngine, list[Any]]:
+    """An engine of ``config`` playing one episode per seed (episode b drawn from ``np.random.default_rng(seeds[b])``;
+    noise, dropout and random switching from ``rng``), reset, and the episodes' draws."""
+    engine = ConsensusEngine(config, n_episodes=len(seeds))
+    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
+    engine.reset_from_draws(draws, rng)
+    return engine, draws
+
+
+def seeded_metrics(config: Any, policy: Any, seeds: Any, rng: Any = None) -> dict[str, np.ndarray]:
+    """Every agent of the :func:`seeded_engine` episodes acting by ``policy(observations (B, N, obs_size))`` to the
+    end; the engine's episode metrics, one ``(B,)`` array each."""
+    engine, _ = seeded_engine(config, seeds, rng)
+    while not engine.done:
+        engine.step(np.asarray(policy(np.asarray(engine.observations())), dtype=np.float64))
+    return engine.batch_metrics()

@@ -31,6 +31,7 @@ from fxc_env.core.validation import (
     integer,
     real,
 )
+from fxc_env.core.validation import short_repr as _short
 from fxc_env.policies.domain import DOMAIN_FORMAT
 
 #: The range fields of a domain record: ``[low, high]`` with ``low <= high``, each ``(integral, minimum,
@@ -171,11 +172,6 @@ def file_tensor(source: Any, field: str, value: Any, shape: tuple[int, ...] | No
     if not np.all(np.isfinite(array)):
         raise ArgumentError(f"{name}: every entry must be finite (no NaN or inf)")
     return value
-
-
-def _short(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def file_box(source: Any, field: str, record: Mapping[str, Any], *, bounded: bool) -> None:

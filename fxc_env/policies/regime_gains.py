@@ -84,13 +84,8 @@ class RegimeGainPolicy(IntervalGainPolicy):
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Plans ``(..., 2 dim)`` for every agent's flat observation ``(..., N, obs_size)`` at one instant (see the module)."""
-        if obs.shape[-1] != self.obs_size:
-            raise ArgumentError(f"observations: expected shape (..., {self.obs_size}), got {obs.shape}")
-        rows, mask, clock = self.layout.split(obs)
-        k = np.clip(np.rint(clock[..., 2] * self.n_intervals).astype(np.int64), 0, self.n_intervals - 1)
+        rows, mask, clock, k, r = self._read(obs)
         switched = self._remember(rows, mask > 0.5, clock[..., 1], k)
-        real = mask[..., None, None] > 0.5
-        r = np.sum(np.where(real, rows, 0.0), axis=-3) / (np.sum(mask > 0.5, axis=-1)[..., None, None] + 1.0)
         gains = np.where(switched[..., None, None], self.switching_gains[k], self.gains[k])
         plan = gains @ r  # (..., 2, dim)
         return np.concatenate([plan[..., 0, :], plan[..., 1, :]], axis=-1)

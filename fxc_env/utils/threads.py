@@ -40,6 +40,19 @@ def single_threaded_children() -> Iterator[None]:
                 os.environ[name] = value
 
 
+@contextmanager
+def torch_threads(count: int) -> Iterator[None]:
+    """Torch uses ``count`` threads inside (small sequential tensors: another thread only waits); the count before after."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 def pin_threads_or_reexec(module: str, argv: list[str]) -> None:
     """Re-run ``python -m module argv`` with one thread per library unless that is already so.
 

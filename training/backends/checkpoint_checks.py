@@ -104,12 +104,9 @@ def check_optimizer(name: str, state: Any) -> None:
         if not isinstance(group, Mapping):
             continue
         label = name if len(groups) == 1 else f"{name} group {index}"
-        if "lr" in group:
-            real(f"{label} lr", _number(group["lr"]), 0.0)
-        if "eps" in group:
-            real(f"{label} eps", _number(group["eps"]), positive=True)
-        if "weight_decay" in group:
-            real(f"{label} weight_decay", _number(group["weight_decay"]), 0.0)
+        for key, minimum, positive in (("lr", 0.0, False), ("eps", None, True), ("weight_decay", 0.0, False)):
+            if key in group:
+                real(f"{label} {key}", _number(group[key]), minimum, positive=positive)
         if "betas" in group:
             betas = group["betas"]
             if not isinstance(betas, tuple | list) or len(betas) != 2:

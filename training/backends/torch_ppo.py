@@ -117,12 +117,8 @@ class Trainer(TrainerFiles):
             self.edge_mask = torch.empty((t, b, self.edge_width), dtype=torch.bool, device=device)
 
     # ---------------------------------------------------------------------- episodes
-    def _draw(self) -> tuple[Any, Any, Any, Any]:
-        x0, v0, u_max, topologies = self.engine.draw_batch(self.host_rng)
-        return x0, v0, topologies, u_max
-
     def _reset(self) -> None:
-        x0, v0, topologies, u_max = self._draw()
+        x0, v0, u_max, topologies = self.engine.draw_batch(self.host_rng)
         self.engine.reset(x0, v0, topologies=topologies, u_max=u_max)
         self.episode_return.zero_()
         self.fresh = True
@@ -168,12 +164,10 @@ class Trainer(TrainerFiles):
                     if t + 1 < self.settings.rollout_steps:
                         self._reset()
             # The value after the last step: 0 at an episode end, else bootstrapped.
-            if terminal[-1]:
-                last_value = None
-            elif self.central:
-                last_value = model.critic(engine.normalized_state().to(torch.float32)).squeeze(-1)
-            else:
-                last_value = model.critic(engine.observations().to(torch.float32)).squeeze(-1)
+            last_value = None
+            if not terminal[-1]:
+                inputs = engine.normalized_state() if self.central else engine.observations()
+                last_value = model.critic(inputs.to(torch.float32)).squeeze(-1)
         return {
             "terminal": terminal,
             "last_value": last_value,
@@ -219,10 +213,9 @@ class Trainer(TrainerFiles):
             # One value per episode and step; its agents share the episode's advantage.
             per_agent = advantages[:, :, None].expand(-1, -1, n).reshape(-1)
             states = self.states.reshape(-1, self.state_size)
-            targets = targets.reshape(-1)
         else:
             per_agent = advantages.reshape(-1)
-            targets = targets.reshape(-1)
+        targets = targets.reshape(-1)
         total = obs.shape[0]
         sums = torch.zeros(5, dtype=torch.float32, device=self.device)
         count = 0

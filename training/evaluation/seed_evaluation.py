@@ -10,7 +10,6 @@ interval (fixed bootstrap seed; the reference resamples initial states only). Th
 from __future__ import annotations
 
 import glob
-import json
 import re
 import sys
 from collections.abc import Sequence
@@ -33,6 +32,7 @@ from fxc_env.training.evaluation.seed_scores import (  # noqa: F401
     case_scores,
     write_seed_report,
 )
+from fxc_env.training.run_dir import recorded_args
 
 #: Training seed of each shipped policy (its recipe in ``fxc_env/pretrained/README.md``: ``--seed 0``;
 #: ``rings``: ``python -m fxc_env.training.recipes.rings --seed 0``, the default).
@@ -131,7 +131,7 @@ def resolve_run(entry: str, name: str = "--runs") -> TrainedRun:
     spec = str(path / "model.zip") if path.is_dir() and (path / "model.zip").is_file() else entry
     run_dir = path if path.is_dir() else path.parent
     config = run_dir / "config.json"
-    recorded = _read_config(config) if entry not in SHIPPED or path.exists() else {}
+    recorded = recorded_args(config) if entry not in SHIPPED or path.exists() else {}
     seed = recorded.get("seed")
     if seed is not None:  # fxc train checks it as TrainArgs.seed: a damaged config.json is refused by name
         integer(f"{name}: the seed in {str(config)!r}", seed, 0, 2**32 - 1)
@@ -152,14 +152,6 @@ def _trainer(recorded: dict[str, Any]) -> str | None:
     if not isinstance(backend, str):
         return None
     return f"--backend {canonical_backend(backend, warn=False)}" + (f" --algo {algo}" if isinstance(algo, str) else "")
-
-
-def _read_config(path: Path) -> dict[str, Any]:
-    try:
-        args = json.loads(path.read_text()).get("args", {}) if path.is_file() else {}
-    except (OSError, UnicodeDecodeError, ValueError, AttributeError, RecursionError):
-        return {}
-    return args if isinstance(args, dict) else {}
 
 
 def _timesteps(spec: str, recorded: dict[str, Any]) -> int:

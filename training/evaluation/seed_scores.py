@@ -188,14 +188,11 @@ def marl_eval_record(scores: Sequence[CaseScores], runs: Sequence[TrainedRun], l
         for i, run in enumerate(runs):
             learned = _episode_metrics(case.learned_error[i], case.learned_energy[i])
             reference = _episode_metrics(case.reference_error, case.reference_energy)
-            algorithms[label][f"seed_{run.seed}"] = {
-                "step_0": {"step_count": run.timesteps, **learned},
-                "absolute_metrics": learned,
-            }
-            algorithms["reference"][f"seed_{run.seed}"] = {
-                "step_0": {"step_count": run.timesteps, **reference},
-                "absolute_metrics": reference,
-            }
+            for name, metrics in ((label, learned), ("reference", reference)):
+                algorithms[name][f"seed_{run.seed}"] = {
+                    "step_0": {"step_count": run.timesteps, **metrics},
+                    "absolute_metrics": metrics,
+                }
         tasks[case.case.key] = algorithms
     return {MARL_EVAL_ENV: tasks}
 

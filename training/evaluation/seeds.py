@@ -82,18 +82,14 @@ def plan_seed_runs(args: TrainArgs, *, flags: bool = True) -> list[SeedRun]:
     for seed in seeds:
         one = dataclasses.replace(args, seed=seed, seeds=None, run_dir=seed_run_dir(args, seed))
         run = RunDir.of(one)
-        if not args.resume:
-            check_train_args(one, flags=flags)
-            planned.append(SeedRun(one, "train"))
-            continue
-        checkpoint = run.newest_checkpoint()
-        if checkpoint is None:
+        checkpoint = run.newest_checkpoint() if args.resume else None
+        if args.resume and checkpoint is None:
             one = dataclasses.replace(one, resume=False, trust_policy_file=False)  # nothing to read
-            check_train_args(one, flags=flags)
-            planned.append(SeedRun(one, "train", "no checkpoint yet, so it starts afresh"))
+        check_train_args(one, flags=flags)
+        if checkpoint is None:
+            planned.append(SeedRun(one, "train", "no checkpoint yet, so it starts afresh" if args.resume else ""))
             continue
         steps = run.checkpoint_steps(checkpoint)
-        check_train_args(one, flags=flags)
         if steps is not None and steps >= one.timesteps:
             planned.append(SeedRun(one, "done", f"already at {steps} timesteps ({checkpoint.name})"))
             continue

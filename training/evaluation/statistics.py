@@ -12,7 +12,7 @@ Every function is batched over leading dimensions and takes scores as float64 ar
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -72,14 +72,7 @@ class Interval:
 
     def as_dict(self) -> dict[str, float | int]:
         """Plain JSON values (``inf`` stays a float: ``json`` writes it as ``Infinity``)."""
-        return {
-            "estimate": self.estimate,
-            "low": self.low,
-            "high": self.high,
-            "confidence": self.confidence,
-            "reps": self.reps,
-            "seed": self.seed,
-        }
+        return asdict(self)
 
 
 def checked_scores(scores: object, name: str = "scores") -> np.ndarray:

@@ -15,8 +15,6 @@ controls (``--init paper|chebyshev``), ``--quick``, ``--evaluate`` and the resul
 
 from __future__ import annotations
 
-import json
-import sys
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -31,10 +29,13 @@ from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import load_interval_gains
 from fxc_env.policies.policy_files import training_settings
+from fxc_env.policies.protocol import seeded_metrics
 from fxc_env.policies.reference import ReferencePolicy
 from fxc_env.policies.regime_gains import RegimeGainPolicy
-from fxc_env.training.recipes.rings import TASK, comparison, physical_map, run_episodes, task_config
+from fxc_env.training.recipes import rings
+from fxc_env.training.recipes.rings import TASK, comparison, physical_map, record_run, run_episodes, task_config
 from fxc_env.training.recipes.rings_scratch import factor_table, minimise
+from fxc_env.utils.threads import torch_threads
 
 #: Training episodes are drawn from ``np.random.default_rng(TRAINING_SEED + seed)``; evaluation's from seeds 0 ...
 TRAINING_SEED = 3_000
@@ -89,19 +90,13 @@ def case_config(family: dict[str, Any], n_agents: int) -> EnvConfig:
     return make_config(None, **{**TASK, "n_agents": n_agents, "topology": family, "obs_slots": SLOTS})
 
 
-def _w_hat(topology: Any, g: int) -> np.ndarray:
-    laplacian = topology.laplacian(g)
-    laplacian = laplacian.toarray() if hasattr(laplacian, "toarray") else np.asarray(laplacian)
-    return laplacian / (np.asarray(topology.in_degree[g], dtype=np.float64)[:, None] + 1.0)
-
-
 def probe_keeps_fixed(topology: Any) -> np.ndarray:
     """``(N,)``: whether each agent's probe sees no change and it plays the fixed table (see the module).
 
     The probe (:mod:`fxc_env.policies.regime_gains`) sees no change exactly when the agent's row of ``Ŵ`` is the
     same on the graphs of intervals ``0 .. PROBES``.
     """
-    rows = np.stack([_w_hat(topology, c % topology.period) for c in range(PROBES + 1)])
+    rows = np.stack([rings.spectrum_matrix(topology, c % topology.period) for c in range(PROBES + 1)])
     return np.all(rows[1:] == rows[:1], axis=(0, 2))
 
 
@@ -128,7 +123,8 @@ def draw_cases(cases: Sequence[tuple[dict[str, Any], int, int]], seed: int) -> d
             x0.append(np.pad(d.x0[:, 0], pad))
             v0.append(np.pad(d.v0[:, 0], pad))
             mask.append(np.pad(np.ones(n), pad))
-            w.append(np.stack([np.pad(_w_hat(d.topology, c % d.topology.period), [pad, pad]) for c in range(CYCLE)]))
+            graphs = [rings.spectrum_matrix(d.topology, c % d.topology.period) for c in range(CYCLE)]
+            w.append(np.stack([np.pad(graph, [pad, pad]) for graph in graphs]))
             ring.append(family == {"kind": "ring"})
             fixed.append(np.pad(probe_keeps_fixed(d.topology), pad))
         labels.append([f"{family} N={n}", episodes])
@@ -223,18 +219,12 @@ def train(
     steps: int = FULL["steps"], seed: int = 0, quick: bool = False, init: str = "random", progress: bool = False
 ) -> tuple[RegimeGainPolicy, dict]:
     """The ``agnostic`` policy and a record of how it was made (see the module)."""
-    import torch
-
     integer("steps", steps, 1)
     integer("seed", seed, 0)
     if init not in INITS:
         raise ArgumentError(f"init: expected one of {', '.join(INITS)}, got {init!r}")
-    threads = torch.get_num_threads()
-    torch.set_num_threads(THREADS)
-    try:
+    with torch_threads(THREADS):
         return _train(steps, seed, QUICK_CASES if quick else CASES, init, progress)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _start(M: int, seed: int, init: str) -> Any:
@@ -333,11 +323,7 @@ def evaluate_rings(policy: RegimeGainPolicy, sizes: Sequence[int], seeds: Sequen
         config = task_config(n)  # one neighbour slot: the table reads any number
         policy.read_slots(config.layout.slots)
         policy.reset()
-        engine = ConsensusEngine(config, n_episodes=len(seeds))
-        engine.reset_from_draws([engine.draw_episode(np.random.default_rng(seed)) for seed in seeds])
-        while not engine.done:
-            engine.step(np.asarray(policy(np.asarray(engine.observations())), dtype=np.float64))
-        ours = np.asarray(engine.batch_metrics()["relative_deadline_error"])
+        ours = np.asarray(seeded_metrics(config, policy, seeds)["relative_deadline_error"])
         reference = run_episodes(config, ReferencePolicy, seeds)["deadline_error"]
         rows.append(comparison(n, ours, reference))
     return rows
@@ -368,17 +354,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         preset = QUICK if args.quick else FULL
         steps = preset["steps"] if args.steps is None else args.steps
         try:
-            policy, record = train(steps, args.seed, args.quick, args.init, progress=True)
+            policy, _ = train(steps, args.seed, args.quick, args.init, progress=True)
         except ArgumentError as exc:
             parser.error(str(exc))
-        policy.header["training"]["command"] = "python -m fxc_env.training.recipes.agnostic " + " ".join(
-            sys.argv[1:] if argv is None else argv
-        )
-        policy.header["training"]["training_seed"] = args.seed
-        shown = {key: value for key, value in record.items() if key not in ("loss_curve", "cases")}
-        print("trained:", json.dumps(shown))
-        if args.out:
-            print("wrote", policy.save(args.out))
+        record_run(policy, "agnostic", argv, args.seed, args.out, hidden=("loss_curve", "cases"))
     if args.quick:
         sizes, args.seeds = sizes[:1], min(args.seeds, 2)
     for row in evaluate_rings(policy, sizes, range(args.seeds)):

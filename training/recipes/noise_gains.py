@@ -15,10 +15,10 @@ import numpy as np
 from fxc_env.config import make_config
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer, real
-from fxc_env.engine import ConsensusEngine
-from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import IntervalGainPolicy, spectrum
-from fxc_env.policies.policy_files import training_settings
+from fxc_env.policies.protocol import seeded_metrics
+from fxc_env.training.recipes.rings import gain_scale, ring_header
+from fxc_env.utils.threads import torch_threads
 
 #: The task: directed ring of 20, K = 200 uniform intervals, T_s = 20 s, the optimality suite's noise case.
 TASK = {"topology": "ring", "n_agents": 20, "n_intervals": 200, "settling_time": 20.0, "schedule": "uniform"}
@@ -154,9 +154,7 @@ def fit(
         return value
 
     began, history = time.perf_counter(), []
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # small sequential tensors: a second thread only waits
-    try:
+    with torch_threads(1):
         for _ in range(steps):
             optimiser.step(closure)
             with torch.no_grad():
@@ -166,8 +164,6 @@ def fit(
                 progress(f"{history[-1][0]:8.1f} s  predicted rms {rms:.3g}  energy {ratio:.3g} x E[E*]")
             if out is not None:
                 np.save(out, (shape * theta).detach().numpy())
-    finally:
-        torch.set_num_threads(threads)
     return (shape * theta).detach().numpy(), history
 
 
@@ -180,19 +176,9 @@ def policy_of(config: Any, gains: np.ndarray, training: dict[str, Any] | None = 
     gains = np.asarray(gains, dtype=np.float64)
     if gains.shape != (config.n_intervals, 2, 2) or not np.all(np.isfinite(gains)):
         raise ArgumentError(f"gains: expected a finite ({config.n_intervals}, 2, 2) table, got shape {gains.shape}")
-    tau = np.asarray(config.schedule.intervals, dtype=np.float64)
-    scale = np.ones((len(tau), 2, 2))
-    scale[:, 0, 1], scale[:, 1, 0] = tau, 1.0 / tau
-    eigenvalues = spectrum(config.topology)
-    header = {
-        "name": "noise_gains",
-        "env": training_settings(config),
-        "topology": {"family": "ring", "relabel": True, "period": 1},
-        "eigenvalues": np.stack([eigenvalues.real, eigenvalues.imag], axis=-1).tolist(),
-        "domain": training_domain(config),
-        "training": training or {},
-    }
-    return IntervalGainPolicy(gains / scale, header)
+    return IntervalGainPolicy(
+        gains / gain_scale(config), ring_header("noise_gains", config, config.topology, training=training or {})
+    )
 
 
 def measure(config: Any, policy: Any, seeds: Sequence[int] = tuple(range(20))) -> dict[str, float]:
@@ -203,14 +189,7 @@ def measure(config: Any, policy: Any, seeds: Sequence[int] = tuple(range(20))) -
     """
     if not callable(policy):
         raise ArgumentError(f"policy: expected a callable of observations, got {type(policy).__name__}")
-    engine = ConsensusEngine(config, n_episodes=len(seeds))
-    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
-    engine.reset_from_draws(draws, rng=np.random.default_rng([*seeds, config.n_intervals]))
-    obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
-    while not engine.done:
-        engine.observations(out=obs)
-        engine.step(np.asarray(policy(obs), dtype=np.float64))
-    metrics = engine.batch_metrics()
+    metrics = seeded_metrics(config, policy, seeds, np.random.default_rng([*seeds, config.n_intervals]))
     return {
         "error": float(np.median(metrics["relative_deadline_error"])),
         "energy_ratio": float(np.median(metrics["energy_ratio"])),

@@ -27,8 +27,8 @@ from fxc_env.baselines.registry import LAWS
 from fxc_env.config import EnvConfig, make_config
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer
-from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
+from fxc_env.policies.protocol import seeded_engine
 from fxc_env.policies.reference import ReferencePolicy
 from fxc_env.policies.torch_memory import RecurrentActor
 from fxc_env.policies.torch_policy import POLICY_FORMAT, TorchPolicy, load_torch_policy
@@ -58,9 +58,7 @@ def play(config: EnvConfig, seeds: Sequence[int], student: Any = None, label: bo
     Returns ``deadline_error`` ``(B,)`` (inf for every episode when a diverging student overflows float64) and,
     with ``label``, the observations ``(K, B, N, obs_size)`` and the teacher's plans ``(K, B, N, 2)``.
     """
-    engine = ConsensusEngine(config, n_episodes=len(seeds))
-    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
-    engine.reset_from_draws(draws)
+    engine, draws = seeded_engine(config, seeds)
     teachers = []
     if label or student is None:
         teachers = [

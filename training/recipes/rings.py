@@ -32,6 +32,7 @@ from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
 from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum
 from fxc_env.policies.policy_files import training_settings
+from fxc_env.policies.protocol import seeded_engine
 from fxc_env.policies.reference import ReferencePolicy
 
 #: The task of the shipped policy (keywords of :func:`fxc_env.make_config`).
@@ -67,9 +68,7 @@ def run_episodes(config: EnvConfig, policy_of: Any, seeds: Sequence[int], record
     Episode b is ``reset(seed=seeds[b])``'s. Returns ``deadline_error`` ``(B,)`` and, with ``record``, the
     observations ``(K, B, N, obs_size)`` and actions ``(K, B, N, 2)``.
     """
-    engine = ConsensusEngine(config, n_episodes=len(seeds))
-    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
-    engine.reset_from_draws(draws)
+    engine, draws = seeded_engine(config, seeds)
     policies = [
         policy_of(make_config(None, **{**dict(TASK, n_agents=config.n_agents), "topology": d.topology})) for d in draws
     ]
@@ -113,15 +112,20 @@ def regress_gains(config: EnvConfig, observations: np.ndarray, actions: np.ndarr
 
 
 # ----------------------------------------------------------------------------- refinement
+def gain_scale(config: EnvConfig) -> np.ndarray:
+    """``[[1, T_{k+1}], [1/T_{k+1}, 1]]`` per interval ``(K, 2, 2)``: a table in normalized units times it
+    (entrywise) is the table in physical units, and a physical one divided by it the normalized one."""
+    tau = np.asarray(config.schedule.intervals, dtype=np.float64)
+    scale = np.ones((len(tau), 2, 2))
+    scale[:, 0, 1], scale[:, 1, 0] = tau, 1.0 / tau
+    return scale
+
+
 def physical_map(config: EnvConfig, gains: Any) -> Any:
     """The table in physical units ``S^{-1} G_k S``, ``S = diag(1, T_{k+1})`` (torch, ``(K, 2, 2)``)."""
     import torch
 
-    tau = torch.as_tensor(np.array(config.schedule.intervals, dtype=np.float64))
-    scale = torch.ones(len(tau), 2, 2, dtype=torch.float64)
-    scale[:, 0, 1] = tau
-    scale[:, 1, 0] = 1.0 / tau
-    return gains * scale
+    return gains * torch.as_tensor(gain_scale(config))
 
 
 def episode_log_errors(config: EnvConfig, gains: Any, x0: np.ndarray, v0: np.ndarray, w_hat: np.ndarray) -> Any:
@@ -160,10 +164,7 @@ def refine(
     rng = np.random.default_rng(seed)
     best, best_loss, curve = gains.copy(), np.inf, []
     for _ in range(steps):
-        draws = [engine.draw_episode(rng) for _ in range(batch)]
-        x0 = np.stack([d.x0[:, 0] for d in draws])
-        v0 = np.stack([d.v0[:, 0] for d in draws])
-        w_hat = spectrum_matrix(draws[0].topology)  # one relabelled ring: D is invariant to the labels
+        x0, v0, w_hat = drawn_rings(engine, rng, batch)
         loss = episode_log_errors(config, table, x0, v0, w_hat).mean()
         curve.append(float(loss.detach()))
         if curve[-1] < best_loss:  # the table this batch was scored with, before the step
@@ -174,11 +175,19 @@ def refine(
     return best, curve
 
 
-def spectrum_matrix(topology: Any) -> np.ndarray:
-    """``Ŵ = (D + I)^{-1} L`` of a fixed topology, dense ``(N, N)``."""
-    laplacian = topology.laplacian(0)
+def drawn_rings(engine: Any, rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``x0, v0`` ``(count, N)`` of ``count`` episodes ``engine`` draws from ``rng``, and ``Ŵ`` of the first one's
+    ring (one relabelled ring serves them all: D is invariant to the labels)."""
+    draws = [engine.draw_episode(rng) for _ in range(count)]
+    x0, v0 = (np.stack([getattr(d, key)[:, 0] for d in draws]) for key in ("x0", "v0"))
+    return x0, v0, spectrum_matrix(draws[0].topology)
+
+
+def spectrum_matrix(topology: Any, g: int = 0) -> np.ndarray:
+    """``Ŵ = (D + I)^{-1} L`` of graph ``g`` of a topology (its only one: a fixed topology), dense ``(N, N)``."""
+    laplacian = topology.laplacian(g)
     laplacian = laplacian.toarray() if hasattr(laplacian, "toarray") else np.asarray(laplacian)
-    return laplacian / (np.asarray(topology.in_degree[0], dtype=np.float64)[:, None] + 1.0)
+    return laplacian / (np.asarray(topology.in_degree[g], dtype=np.float64)[:, None] + 1.0)
 
 
 # ---------------------------------------------------------------------------------- training
@@ -203,19 +212,46 @@ def train(
         gains, curve = refine(config, gains, refine_steps, seed + episodes, lr=lr)
         record["refine_first_loss"], record["refine_best_loss"] = curve[0], min(curve)
     record["wall_s"] = round(time.perf_counter() - began, 2)
-    ring = config.family.draw(config.n_agents, np.random.default_rng(0))
+    header = ring_header(
+        "rings",
+        config,
+        config.family.draw(config.n_agents, np.random.default_rng(0)),
+        task_ranges=True,
+        training=record,
+    )
+    return IntervalGainPolicy(gains, header), record
+
+
+def ring_header(name: str, config: EnvConfig, ring: Any, *, task_ranges: bool = False, **fields: Any) -> dict[str, Any]:
+    """A ring policy file's header: ``name``, the training settings and domain of ``config``, the relabelled rings,
+    the eigenvalues of ``ring`` (for the graph check at load time only: training never reads them), with
+    ``task_ranges`` the :data:`TASK`'s initial ranges, then ``fields``."""
     eigenvalues = spectrum(ring)
-    header = {
-        "name": "rings",
+    ranges = {key: list(TASK[key]) for key in ("position_range", "velocity_range")} if task_ranges else {}
+    return {
+        "name": name,
         "env": training_settings(config),
         "domain": training_domain(config),
         "topology": {"family": "ring", "relabel": True, "period": 1},
-        "position_range": list(TASK["position_range"]),
-        "velocity_range": list(TASK["velocity_range"]),
+        **ranges,
         "eigenvalues": np.stack([eigenvalues.real, eigenvalues.imag], axis=-1).tolist(),
-        "training": record,
+        **fields,
     }
-    return IntervalGainPolicy(gains, header), record
+
+
+def record_run(
+    policy: Any, recipe: str, argv: Sequence[str] | None, seed: int, out: str | None, hidden: Sequence[str] = ()
+) -> None:
+    """Record in ``policy``'s header the command of ``python -m fxc_env.training.recipes.<recipe>`` and the training
+    seed, print its training record (but the keys ``hidden``) and save it to ``out`` when given."""
+    record = policy.header["training"]
+    record["command"] = f"python -m fxc_env.training.recipes.{recipe} " + " ".join(
+        sys.argv[1:] if argv is None else argv
+    )
+    record["training_seed"] = seed
+    print("trained:", json.dumps({key: value for key, value in record.items() if key not in hidden}))
+    if out:
+        print("wrote", policy.save(out))
 
 
 def evaluate(policy: IntervalGainPolicy, n_agents: int = 20, seeds: Sequence[int] = range(20)) -> dict[str, float]:
@@ -238,10 +274,11 @@ def comparison(n_agents: int, ours: np.ndarray, reference: np.ndarray) -> dict[s
     }
 
 
-def comparison_line(label: str, result: dict[str, float]) -> str:
-    """One line of :func:`comparison`: the policy's median (and max) beside the reference's, and their ratio."""
+def comparison_line(label: str, result: dict[str, float], seeds: str = "seeds") -> str:
+    """One line of :func:`comparison`: the policy's median (and max) beside the reference's, and their ratio
+    (``seeds``: what the episodes are called, e.g. ``held-out seeds``)."""
     return (
-        f"{label} N = {result['n_agents']}, K = 200, T_s = 20, {result['seeds']} seeds: median D(T_s)/D(0) "
+        f"{label} N = {result['n_agents']}, K = 200, T_s = 20, {result['seeds']} {seeds}: median D(T_s)/D(0) "
         f"{result['median']:.3g} (max {result['max']:.3g}), reference {result['reference_median']:.3g}, "
         f"{result['ratio']:.3g}x below the reference"
     )
@@ -268,12 +305,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         policy = load_interval_gains(args.evaluate)
     else:
         first = DEMONSTRATION_SEED + args.seed * args.episodes  # seed 0: the shipped file's episodes
-        policy, record = train(args.episodes, args.refine_steps, args.init, seed=first, lr=args.lr)
-        policy.header["training"]["command"] = "python -m fxc_env.training.recipes.rings " + " ".join(sys.argv[1:])
-        policy.header["training"]["training_seed"] = args.seed
-        print("trained:", json.dumps(record))
-        if args.out:
-            print("wrote", policy.save(args.out))
+        policy, _ = train(args.episodes, args.refine_steps, args.init, seed=first, lr=args.lr)
+        record_run(policy, "rings", argv, args.seed, args.out)
     result = evaluate(policy, args.n_agents, range(EVALUATION_SEED, EVALUATION_SEED + args.seeds))
     print(comparison_line("rings", result))
     return 0

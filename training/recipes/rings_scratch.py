@@ -14,8 +14,6 @@ Commands and results: (docs: results.md, "What learning reached").
 
 from __future__ import annotations
 
-import json
-import sys
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -25,10 +23,10 @@ import numpy as np
 from fxc_env.config.argument_types import FlagParser
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
-from fxc_env.policies.domain import training_domain
-from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum
-from fxc_env.policies.policy_files import training_settings
-from fxc_env.training.recipes.rings import EVALUATION_SEED, TASK, evaluate, physical_map, spectrum_matrix, task_config
+from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains
+from fxc_env.training.recipes import rings
+from fxc_env.training.recipes.rings import EVALUATION_SEED, evaluate, physical_map, task_config
+from fxc_env.utils.threads import torch_threads
 
 #: Training episodes are drawn from ``np.random.default_rng(TRAINING_SEED + seed)``; the evaluation's from seeds 0 ...
 TRAINING_SEED = 2_000
@@ -59,10 +57,7 @@ def factor_table(config: Any, q: Any) -> Any:
     gains[0::2], gains[1::2] = first, second
     if K % 2:
         gains[-1] = a[-1] * coast[-1]
-    scale = torch.ones(K, 2, 2, dtype=torch.float64)
-    scale[:, 0, 1] = tau
-    scale[:, 1, 0] = 1.0 / tau
-    return gains / scale
+    return gains / torch.as_tensor(rings.gain_scale(config))
 
 
 def log_errors(config: Any, gains: Any, x0: np.ndarray, v0: np.ndarray, w_hat: np.ndarray) -> Any:
@@ -138,12 +133,9 @@ def minimise(
 
 def training_episodes(config: Any, episodes: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``x0, v0`` ``(episodes, N)`` of seeded episodes of the task and ``Ŵ`` of one drawn ring (the labels change no D)."""
-    engine = ConsensusEngine(config, n_episodes=1)
-    rng = np.random.default_rng(TRAINING_SEED + seed)
-    draws = [engine.draw_episode(rng) for _ in range(episodes)]
-    x0 = np.stack([d.x0[:, 0] for d in draws])
-    v0 = np.stack([d.v0[:, 0] for d in draws])
-    return x0, v0, spectrum_matrix(draws[0].topology)
+    return rings.drawn_rings(
+        ConsensusEngine(config, n_episodes=1), np.random.default_rng(TRAINING_SEED + seed), episodes
+    )
 
 
 def train(
@@ -154,17 +146,11 @@ def train(
     ``free=True`` is the control experiment: the same start, loss and optimiser over the free
     ``(K, 2, 2)`` table instead of the factors.
     """
-    import torch
-
     integer("episodes", episodes, 1)
     integer("steps", steps, 1)
     integer("seed", seed, 0)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # one thread: the tensors are small, and a second one only waits on a shared machine
-    try:
+    with torch_threads(1):  # one thread: the tensors are small, and a second one only waits on a shared machine
         return _train(episodes, steps, seed, free)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _train(episodes: int, steps: int, seed: int, free: bool) -> tuple[IntervalGainPolicy, dict]:
@@ -200,19 +186,14 @@ def _train(episodes: int, steps: int, seed: int, free: bool) -> tuple[IntervalGa
     }
     with torch.no_grad():
         gains = table().numpy().copy()
-    ring = config.family.draw(config.n_agents, np.random.default_rng(0))
-    eigenvalues = spectrum(ring)  # for the graph check at load time only: training never reads it
-    header = {
-        "name": "rings_scratch",
-        "env": training_settings(config),
-        "topology": {"family": "ring", "relabel": True, "period": 1},
-        "position_range": list(TASK["position_range"]),
-        "velocity_range": list(TASK["velocity_range"]),
-        "eigenvalues": np.stack([eigenvalues.real, eigenvalues.imag], axis=-1).tolist(),
-        "domain": training_domain(config),
-        "factors": None if free else q.detach().numpy().tolist(),
-        "training": record,
-    }
+    header = rings.ring_header(
+        "rings_scratch",
+        config,
+        config.family.draw(config.n_agents, np.random.default_rng(0)),
+        task_ranges=True,
+        factors=None if free else q.detach().numpy().tolist(),
+        training=record,
+    )
     return IntervalGainPolicy(gains, header), record
 
 
@@ -236,23 +217,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         episodes = preset["episodes"] if args.episodes is None else args.episodes
         steps = preset["steps"] if args.steps is None else args.steps
         try:
-            policy, record = train(episodes, steps, args.seed, args.free)
+            policy, _ = train(episodes, steps, args.seed, args.free)
         except ArgumentError as exc:
             parser.error(str(exc))
-        policy.header["training"]["command"] = "python -m fxc_env.training.recipes.rings_scratch " + " ".join(
-            sys.argv[1:] if argv is None else argv
-        )
-        policy.header["training"]["training_seed"] = args.seed
-        shown = {key: value for key, value in record.items() if key != "loss_curve"}
-        print("trained:", json.dumps(shown))
-        if args.out:
-            print("wrote", policy.save(args.out))
+        rings.record_run(policy, "rings_scratch", argv, args.seed, args.out, hidden=("loss_curve",))
     result = evaluate(policy, 20, range(EVALUATION_SEED, EVALUATION_SEED + args.seeds))
-    print(
-        f"rings N = 20, K = 200, T_s = 20, {result['seeds']} held-out seeds: median D(T_s)/D(0) "
-        f"{result['median']:.3g} (max {result['max']:.3g}), reference {result['reference_median']:.3g}, "
-        f"{result['ratio']:.3g}x below the reference"
-    )
+    print(rings.comparison_line("rings", result, "held-out seeds"))
     return 0
 
 
