@@ -56,11 +56,10 @@ def scaling_row(n_agents: int, steps: int, dim: int = 1, **model: Any) -> tuple[
     x0, v0 = engine.sample_initial_state(np.random.default_rng(0))
     engine.reset(x0[None], v0[None])
     policy = ReferencePolicy(config)
-    buffer = np.empty((1, n_agents, config.layout.size))
-    engine.step(policy(engine.observations(buffer)))  # warm-up
+    policy.step(engine)  # warm-up
     start = time.perf_counter()
     for _ in range(steps):
-        engine.step(policy(engine.observations(buffer)))
+        policy.step(engine)
     seconds = (time.perf_counter() - start) / steps
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
@@ -127,7 +126,6 @@ def interval_and_product(
     x0, v0 = engine.sample_initial_state(np.random.default_rng(0))
     engine.reset(x0[None], v0[None])
     policy = ReferencePolicy(config)
-    buffer = np.empty((1, n_agents, config.layout.size))
     laplacian = config.topology.laplacian()
     laplacian = sp.csr_array(
         (laplacian.data, laplacian.indices.astype(np.int32), laplacian.indptr.astype(np.int32)), shape=laplacian.shape
@@ -135,7 +133,7 @@ def interval_and_product(
     state = engine.state[0].reshape(n_agents, 2).copy()
 
     def interval() -> None:
-        engine.step(policy(engine.observations(buffer)))
+        policy.step(engine)
 
     def product() -> None:
         laplacian @ state
