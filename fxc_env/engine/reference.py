@@ -58,9 +58,20 @@ class NeighbourPlans:
         self.config = config
         self.n_episodes = backend.n_episodes
         self._plans: np.ndarray | None = None
+        #: ``1 / (d_i + 1)`` ``(N, 1)`` by row of the graph table whose rows they are (made at first use).
+        self._weights: tuple[Any, dict[int, np.ndarray]] = (None, {})
 
     def __getstate__(self) -> dict[str, Any]:
-        return {**self.__dict__, "_plans": None}  # scratch space, made again on first use
+        return {**self.__dict__, "_plans": None, "_weights": (None, {})}  # scratch space, made again on first use
+
+    def _weight(self, graphs: Any, graph: int) -> np.ndarray:
+        """``1 / (d_i + 1)`` ``(N, 1)`` of row ``graph`` of ``graphs`` (the table's own degrees, cached)."""
+        if self._weights[0] is not graphs:
+            self._weights = (graphs, {})
+        cached = self._weights[1]
+        if graph not in cached:
+            cached[graph] = 1.0 / (graphs.mask_features[graph].sum(axis=1, keepdims=True) + 1.0)
+        return cached[graph]
 
     def plans(self, state: np.ndarray, clock: Any, graphs: Any) -> np.ndarray:
         """Every agent's plan at ``t_k`` for the state ``(B, N, 2, dim)`` and each episode's coming graph.
@@ -84,18 +95,18 @@ class NeighbourPlans:
             self._plans = np.empty((b, n, 2 * dim))
         intervals = np.broadcast_to(np.ravel(clock.interval(1)), (b,))
         block = min(BLOCK_AGENTS, n)
-        gathered, moved, weight = np.empty((slots, block, 2 * dim)), np.empty((block, dim)), np.empty((block, 1))
+        gathered, moved = np.empty((slots, block, 2 * dim)), np.empty((block, dim))
         for episode in range(b):
             flat = state[episode].reshape(n, 2 * dim)  # [x | v] per agent
-            for start, index, mask in graphs.blocks(int(graphs.graph_ids[episode]), block):
-                m = index.shape[1]
-                rows, own, sums = gathered[:, :m], flat[start : start + m], self._plans[episode, start : start + m]
+            graph = int(graphs.graph_ids[episode])
+            weight = self._weight(graphs, graph)
+            for start, index, _ in graphs.blocks(graph, block):
+                stop = start + index.shape[1]
+                rows, sums = gathered[:, : stop - start], self._plans[episode, start:stop]
                 np.take(flat, index, axis=0, out=rows, mode="clip")
-                np.subtract(rows, own, out=rows)  # z_j - z_i
+                np.subtract(rows, flat[start:stop], out=rows)  # z_j - z_i
                 np.add.reduce(rows, axis=0, out=sums)  # [S_x | S_v]
-                np.add.reduce(mask, axis=0, out=weight[:m, 0])
-                np.divide(1.0, weight[:m] + 1.0, out=weight[:m])  # 1 / (d_i + 1)
-                np.multiply(sums[:, dim:], intervals[episode], out=moved[:m])
-                sums[:, :dim] += moved[:m]
-                sums *= weight[:m]
+                np.multiply(sums[:, dim:], intervals[episode], out=moved[: stop - start])
+                sums[:, :dim] += moved[: stop - start]
+                sums *= weight[start:stop]  # over d_i + 1
         return self._plans
