@@ -58,19 +58,24 @@ class NeighbourPlans:
         self.config = config
         self.n_episodes = backend.n_episodes
         self._plans: np.ndarray | None = None
-        #: ``1 / (d_i + 1)`` ``(N, 1)`` by row of the graph table whose rows they are (made at first use).
+        #: ``1 / (d_i + 1)`` ``(N, 2 dim)`` by row of the graph table whose rows they are (made at first use).
         self._weights: tuple[Any, dict[int, np.ndarray]] = (None, {})
 
     def __getstate__(self) -> dict[str, Any]:
         return {**self.__dict__, "_plans": None, "_weights": (None, {})}  # scratch space, made again on first use
 
     def _weight(self, graphs: Any, graph: int) -> np.ndarray:
-        """``1 / (d_i + 1)`` ``(N, 1)`` of row ``graph`` of ``graphs`` (the table's own degrees, cached)."""
+        """``1 / (d_i + 1)`` of row ``graph`` of ``graphs`` (the table's own degrees, cached), once per plan entry ``(N, 2 dim)``.
+
+        Repeated along the row so that multiplying the plans by it is one contiguous run (a
+        ``(N, 1)`` column broadcast over ``2 dim`` entries makes numpy loop per agent).
+        """
         if self._weights[0] is not graphs:
             self._weights = (graphs, {})
         cached = self._weights[1]
         if graph not in cached:
-            cached[graph] = 1.0 / (graphs.mask_features[graph].sum(axis=1, keepdims=True) + 1.0)
+            weight = 1.0 / (graphs.mask_features[graph].sum(axis=1, keepdims=True) + 1.0)
+            cached[graph] = np.repeat(weight, 2 * self.config.dim, axis=1)
         return cached[graph]
 
     def plans(self, state: np.ndarray, clock: Any, graphs: Any) -> np.ndarray:
@@ -108,5 +113,5 @@ class NeighbourPlans:
                 np.add.reduce(rows, axis=0, out=sums)  # [S_x | S_v]
                 np.multiply(sums[:, dim:], intervals[episode], out=moved[: stop - start])
                 sums[:, :dim] += moved[: stop - start]
-                sums *= weight[start:stop]  # over d_i + 1
+                np.multiply(sums, weight[start:stop], out=sums)  # over d_i + 1
         return self._plans
