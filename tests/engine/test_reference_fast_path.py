@@ -146,3 +146,20 @@ def test_simulate_and_the_speed_interval_run_the_reference_without_observations(
     assert simulate("reference", "paper_fig1", seed=0).metrics.relative_deadline_error < 1e-10
     interval, product = scaling.interval_and_product(2000, rounds=1, steps=1)
     assert interval > 0 and product > 0
+
+
+def test_after_a_partial_reset_each_episode_plays_its_own_interval_and_graph():
+    config = make_config(topology="random", n_agents=50, mean_in_degree=3.0, topology_period=2, n_intervals=8)
+    policy, states = ReferencePolicy(config), []
+    for fast in (False, True):
+        engine = ConsensusEngine(config, n_episodes=3)
+        draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in range(3)]
+        engine.reset_from_draws(draws, rng=np.random.default_rng(1))
+        x0, v0 = engine.sample_initial_state(np.random.default_rng(9))
+        for k in range(7):
+            if k == 3:  # episode 0 starts again: the episodes' clocks and graphs differ from here on
+                engine.reset(np.stack([x0] * 3), np.stack([v0] * 3), episodes=np.array([True, False, False]))
+            engine.step_reference() if fast else engine.step(policy(engine.observations()))
+        np.testing.assert_array_equal(engine.steps, [4, 7, 7])
+        states.append(engine.state.copy())
+    np.testing.assert_allclose(states[1], states[0], rtol=1e-12, atol=1e-14 * np.abs(states[0]).max())
