@@ -124,32 +124,38 @@ class DoubleIntegratorAgents:
         self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
         self._range_weights = np.array([1.0, config.settling_time])
 
-    def inputs(self, actions: Any, T: Any, local_scale: Callable[[], Any]) -> tuple[Any, Any]:
+    def inputs(self, actions: Any, T: Any, local_scale: Callable[[], Any], raw_plans: bool = False) -> tuple[Any, Any]:
         """The affine input's end values ``(u(t_k+), u(t_{k+1}-))`` of actions (the card's Action Space).
 
         ``T`` is the interval (a number, or ``(B, 1, 1)``); ``local_scale()`` gives ``s_i``
-        ``(B, N)``, read in normalized mode only.
+        ``(B, N)``, read in normalized mode only. ``raw_plans``: the actions are plans ``[a_x, a_v]``
+        in metres and m/s whatever the action mode (:meth:`ConsensusEngine.step_reference
+        <fxc_env.engine.ConsensusEngine.step_reference>`).
         """
         dim = self.dim
+        if raw_plans:
+            return dynamics.input_from_plan(actions[..., :dim], actions[..., dim:], T)
         s = local_scale()[..., None] if self.normalized else None
         return self._ends(actions[..., :dim], actions[..., dim:], T, s)
 
-    def advance(self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any) -> Interval:
-        """Play the coming interval of ``clock`` from ``state`` under ``actions``; numpy writes into ``out``."""
+    def advance(
+        self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any, raw_plans: bool = False
+    ) -> Interval:
+        """Play the coming interval of ``clock`` from ``state`` under ``actions`` (:meth:`inputs`); numpy writes into ``out``."""
         T = clock.interval(2)
         with np.errstate(over="ignore", invalid="ignore"):
             x, v = state[:, :, 0], state[:, :, 1]
             if out is not None and isinstance(T, float) and actions.size >= BLOCKED_FROM:
                 # numpy fast path: block by block (in the cache), into the spare buffer (1.1-1.3x at N = 1e6).
-                u0, u1, energy, peak = self._advance_blocked(state, actions, T, local_scale, out)
+                u0, u1, energy, peak = self._advance_blocked(state, actions, T, local_scale, out, raw_plans)
                 following = out
             elif out is not None:
                 # numpy fast path: the closed forms written into the spare buffer (no temporaries).
-                u0, u1 = self.inputs(actions, T, local_scale)
+                u0, u1 = self.inputs(actions, T, local_scale, raw_plans)
                 energy, peak = dynamics.advance_into(x, v, u0, u1, T, out[:, :, 0], out[:, :, 1])
                 following = out
             else:
-                u0, u1 = self.inputs(actions, T, local_scale)
+                u0, u1 = self.inputs(actions, T, local_scale, raw_plans)
                 x_next, v_next, energy, peak = dynamics.advance_with_costs(x, v, u0, u1, T)
                 following = self.backend.xp.stack([x_next, v_next], axis=2)
             return Interval(
@@ -157,7 +163,7 @@ class DoubleIntegratorAgents:
             )
 
     def _advance_blocked(
-        self, state: Any, actions: Any, T: float, local_scale: Callable[[], Any], out: Any
+        self, state: Any, actions: Any, T: float, local_scale: Callable[[], Any], out: Any, raw_plans: bool
     ) -> tuple[Any, ...]:
         """numpy fast path of :meth:`advance` in lock step: :meth:`inputs` and the closed forms per block of agents.
 
@@ -171,16 +177,18 @@ class DoubleIntegratorAgents:
         flat_actions = actions.reshape(rows, 1, -1)
         flat_state = state.reshape(rows, 2, dim)
         flat_out = out.reshape(rows, 2, dim)
-        flat_scale = local_scale().reshape(rows, 1) if self.normalized else None
+        flat_scale = local_scale().reshape(rows, 1) if self.normalized and not raw_plans else None
         u0, u1 = np.empty((rows, 1, dim)), np.empty((rows, 1, dim))
         energy, peak = np.empty((rows, 1)), np.empty((rows, 1))
+        scratch = [np.empty((min(BLOCK_AGENTS, rows), 1, dim)) for _ in range(3)]
         for start in range(0, rows, BLOCK_AGENTS):
             part = slice(start, start + BLOCK_AGENTS)
             block_scale = None if flat_scale is None else flat_scale[part]
-            u0[part], u1[part] = self.inputs(flat_actions[part], T, lambda: block_scale)  # noqa: B023 (called at once)
+            u0[part], u1[part] = self.inputs(flat_actions[part], T, lambda: block_scale, raw_plans)  # noqa: B023
             x, v = flat_state[part, None, 0], flat_state[part, None, 1]
+            m = x.shape[0]
             energy[part], peak[part] = dynamics.advance_into(
-                x, v, u0[part], u1[part], T, flat_out[part, None, 0], flat_out[part, None, 1]
+                x, v, u0[part], u1[part], T, flat_out[part, None, 0], flat_out[part, None, 1], [a[:m] for a in scratch]
             )
         return u0.reshape(b, n, dim), u1.reshape(b, n, dim), energy.reshape(b, n), peak.reshape(b, n)
 
@@ -206,10 +214,12 @@ class DoubleIntegratorAgents:
 class LimitedDoubleIntegratorAgents(DoubleIntegratorAgents):
     """Double integrators whose input is clipped to ``±u_max`` per component (one limit per episode)."""
 
-    def advance(self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any) -> Interval:
+    def advance(
+        self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any, raw_plans: bool = False
+    ) -> Interval:
         T = clock.interval(2)
         with np.errstate(over="ignore", invalid="ignore"):
-            u0, u1 = self.inputs(actions, T, local_scale)
+            u0, u1 = self.inputs(actions, T, local_scale, raw_plans)
             x_next, v_next, energy, peak, saturated_time = dynamics.advance_clipped(
                 state[:, :, 0], state[:, :, 1], u0, u1, T, self.u_max[:, None, None]
             )
@@ -249,14 +259,20 @@ class LinearAgents:
             "the input's end values are StepOutcome.u_start and u_end"
         )
 
-    def advance(self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any) -> Interval:
-        """The plan's minimum-energy input over interval k (:mod:`fxc_env.core.linear`).
+    def advance(
+        self, state: Any, actions: Any, clock: Any, local_scale: Callable[[], Any], out: Any, raw_plans: bool = False
+    ) -> Interval:
+        """The plan's minimum-energy input over interval k (:mod:`fxc_env.core.linear`); ``raw_plans`` is refused.
 
         ``actions`` ``(B, N, n dim)`` are plans ``Delta`` (terminal change relative to free
         motion, component-major like the state), in normalized mode ``alpha`` with
         ``Delta_l = s_i alpha_l / row_scales_l``. The input at both ends is ``(B, N, dim)``
         (``(B, N, dim, m)`` for m > 1 inputs).
         """
+        if raw_plans:
+            raise ArgumentError(
+                f"raw_plans: expected False for {self.config.agent_model!r} agents (plans [a_x, a_v] are the double integrator's), got True"
+            )
         c, k = self.config, clock.k
         b, n_agents, n, dim = actions.shape[0], c.n_agents, c.n_states, c.dim
         with np.errstate(over="ignore", invalid="ignore"):

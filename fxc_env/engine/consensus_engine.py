@@ -37,6 +37,7 @@ from .clock import BeforeReset, EpisodeClock, InstantTables, LockStepClock
 from .draws import EpisodeDraw
 from .graph_table import GraphTable
 from .observations import Observer, limit_feature, normalized_state
+from .reference import NeighbourPlans
 from .trackers import EpisodeTrackers
 
 __all__ = [
@@ -87,6 +88,7 @@ class ConsensusEngine:
         self.formation = Formation(config, backend)
         self.trackers = EpisodeTrackers(config, backend)
         self.observer = Observer(config, backend, self.tables)
+        self.neighbour_plans = NeighbourPlans(config, backend)
         #: Generator of measurement noise, link dropout and random switching.
         self.rng: Any = backend.generator(None)
         self._restart(self.trackers.x0, self.trackers.v0, self.state)
@@ -121,7 +123,6 @@ class ConsensusEngine:
     x = property(
         lambda self: self.state[:, :, 0], doc="Positions ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`)."
     )
-
     v = property(
         lambda self: self.xp.zeros_like(self.x) if self.config.n_states == 1 else self.state[:, :, 1],
         doc="Velocities ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`; zeros for a single integrator).",
@@ -301,11 +302,11 @@ class ConsensusEngine:
         """The actions as the agents take them: residuals plus the paper's plan (:meth:`~fxc_env.engine.observations.Observer.plans`)."""
         return self.observer.plans(actions, self.state, self.clock, self.graphs, self._uniform, self._normal)
 
-    def step(self, actions: Any) -> StepOutcome:
-        """Play one interval with already validated ``(B, N, 2 dim)`` actions."""
+    def step(self, actions: Any, raw_plans: bool = False) -> StepOutcome:
+        """Play one interval with already validated ``(B, N, 2 dim)`` actions (``raw_plans``: double-integrator plans ``[a_x, a_v]`` in metres and m/s, whatever the action mode)."""
         self.clock.check_can_step()
-        actions = self.plans_from_actions(actions)
-        interval = self.agents.advance(self.state, actions, self.clock, self.local_scale, self._spare)
+        actions = actions if raw_plans else self.plans_from_actions(actions)
+        interval = self.agents.advance(self.state, actions, self.clock, self.local_scale, self._spare, raw_plans)
         self.state, self._spare = self.backend.commit_if_finite(
             self.state, interval, lambda: self.backend.refusal(actions, interval, self.k, self.current_interval())
         )
@@ -316,6 +317,10 @@ class ConsensusEngine:
         self.graphs.draw(self.clock, self._switching_draw)
         terminated = self.episode_done() if self.clock.per_episode else self.clock.done
         return interval.outcome(reward, terminated)
+
+    def step_reference(self) -> StepOutcome:
+        """One interval of the paper's controller (eq. 11), ``step(ReferencePolicy(config)(observations()))`` to rounding, from the neighbour sums alone where the agents observe exactly (:mod:`~fxc_env.engine.reference`; else :class:`ArgumentError`)."""
+        return self.step(self.neighbour_plans.plans(self.state, self.clock, self.graphs), raw_plans=True)
 
     # ---------------------------------------------------------------- metrics
     def batch_metrics(self) -> dict[str, np.ndarray]:

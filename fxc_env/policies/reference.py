@@ -62,6 +62,18 @@ class ReferencePolicy(Policy):
             self._motion = motion
         self._summation = summation
 
+    def step(self, engine: Any) -> Any:
+        """Play one interval of ``engine`` (a :class:`~fxc_env.engine.ConsensusEngine` of this config) under eq. (11); its :class:`StepOutcome`.
+
+        Where its agents observe exactly (:func:`~fxc_env.engine.reference.exact_observations`):
+        :meth:`ConsensusEngine.step_reference <fxc_env.engine.ConsensusEngine.step_reference>`, the
+        plan from the neighbour sums alone, no observations; else
+        ``engine.step(self.act(engine.observations()))`` (numpy or torch). The same interval to rounding either way.
+        """
+        if engine.neighbour_plans.exact:
+            return engine.step_reference()
+        return engine.step(self.act(engine.observations()))
+
     def act(self, obs: Any) -> Any:
         """Eq. (11) from flat observations ``(..., obs_size)``: actions ``(..., 2 dim)`` (numpy or torch)."""
         c, dim = self.config, self.config.dim

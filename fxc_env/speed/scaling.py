@@ -1,11 +1,12 @@
 """One episode on random digraphs from N = 10^2 to 10^6: seconds per sampling interval, per agent-step, memory.
 
-Per N, an interval is the observations, the reference policy (paper eq. 11) and the exact
-step; the peak memory is traced while building and stepping. The goals: one interval at
-N = :data:`INTERVAL_GOAL_N` (``dim = 1``) within :data:`INTERVAL_GOAL` seconds and within
-:data:`PRODUCT_GOAL` times a bare scipy CSR product on the same graph, measured in the same run
-(:func:`interval_and_product`), and ``dim = 2`` within :data:`RATIO_GOAL` times ``dim = 1`` at
-N = :data:`RATIO_N`.
+Per N, an interval is the reference (paper eq. 11) as users run it, :meth:`ReferencePolicy.step
+<fxc_env.policies.reference.ReferencePolicy.step>`: on these exact observations the plan from the
+neighbour sums (no observations built) and the exact step; the peak memory is traced while
+building and stepping. The goals: one interval at N = :data:`INTERVAL_GOAL_N` (``dim = 1``) within
+:data:`INTERVAL_GOAL` seconds and within :data:`PRODUCT_GOAL` times a bare scipy CSR product on the
+same graph, measured in the same run (:func:`interval_and_product`), and ``dim = 2`` within
+:data:`RATIO_GOAL` times ``dim = 1`` at N = :data:`RATIO_N`.
 """
 
 from __future__ import annotations
@@ -56,11 +57,10 @@ def scaling_row(n_agents: int, steps: int, dim: int = 1, **model: Any) -> tuple[
     x0, v0 = engine.sample_initial_state(np.random.default_rng(0))
     engine.reset(x0[None], v0[None])
     policy = ReferencePolicy(config)
-    buffer = np.empty((1, n_agents, config.layout.size))
-    engine.step(policy(engine.observations(buffer)))  # warm-up
+    policy.step(engine)  # warm-up
     start = time.perf_counter()
     for _ in range(steps):
-        engine.step(policy(engine.observations(buffer)))
+        policy.step(engine)
     seconds = (time.perf_counter() - start) / steps
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
@@ -115,9 +115,9 @@ def interval_and_product(
 ) -> tuple[float, float]:
     """Median seconds of one interval and of one bare scipy CSR product on the same graph, alternated.
 
-    The interval is :func:`scaling_row`'s (observations into a reused buffer, the reference
-    policy, the exact step; random digraph of mean in-degree 4, ``dim = 1``), without
-    tracemalloc. The product is the graph's Laplacian ``L`` (scipy CSR, ``N x N``, one entry per
+    The interval is :func:`scaling_row`'s (``ReferencePolicy.step``: the plan from the neighbour
+    sums, the exact step with its inputs, energy, peak, disagreement and reward; random digraph
+    of mean in-degree 4, ``dim = 1``), without tracemalloc. The product is the graph's Laplacian ``L`` (scipy CSR, ``N x N``, one entry per
     edge and one per agent, int32 indices) times the state ``[x v]`` ``(N, 2)``: the neighbour
     sums ``sum_j (x_j - x_i)`` and ``sum_j (v_j - v_i)`` of the paper's plan (eq. 11) and nothing
     else. Each round times ``steps`` intervals, then ``steps`` products; medians over ``rounds``.
@@ -127,7 +127,6 @@ def interval_and_product(
     x0, v0 = engine.sample_initial_state(np.random.default_rng(0))
     engine.reset(x0[None], v0[None])
     policy = ReferencePolicy(config)
-    buffer = np.empty((1, n_agents, config.layout.size))
     laplacian = config.topology.laplacian()
     laplacian = sp.csr_array(
         (laplacian.data, laplacian.indices.astype(np.int32), laplacian.indptr.astype(np.int32)), shape=laplacian.shape
@@ -135,7 +134,7 @@ def interval_and_product(
     state = engine.state[0].reshape(n_agents, 2).copy()
 
     def interval() -> None:
-        engine.step(policy(engine.observations(buffer)))
+        policy.step(engine)
 
     def product() -> None:
         laplacian @ state
@@ -149,7 +148,7 @@ def interval_and_product(
 
 def product_goal_line(seconds_per_interval: float | None, seconds_per_product: float | None) -> str:
     """The line comparing one interval at N = :data:`INTERVAL_GOAL_N` with a bare CSR product (None: not measured)."""
-    where = f"one interval / one scipy CSR product (Laplacian x [x v]) at N={INTERVAL_GOAL_N:,}"
+    where = f"one reference interval (neighbour sums, plan, exact step) / one scipy CSR product (Laplacian x [x v]) at N={INTERVAL_GOAL_N:,}"
     goal = f"goal <= {PRODUCT_GOAL:g}x"
     if seconds_per_interval is None or seconds_per_product is None:
         return f"{where}: not measured ({goal}: pass --largest {INTERVAL_GOAL_N})"
