@@ -28,7 +28,6 @@ from fxc_env.training.evaluation.seed_scores import (  # noqa: F401
     LOG_FLOOR,
     MARL_EVAL_ENV,
     TrainedRun,
-    _episode_metrics,
     case_scores,
     write_seed_report,
 )
