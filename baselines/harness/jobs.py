@@ -1,20 +1,25 @@
 """The benchmark's unit of work: one contender on one case at one budget K, and what it measured.
 
-:func:`run_job` runs a :class:`Job` in this process. Every job is seeded (initial states from the suite's
+:func:`run_job` runs a :class:`Job` in this process, :func:`run_suite` every job of a suite over processes or Ray
+(``fxc benchmark`` and ``python -m fxc_env.baselines.harness.resolution``). Every job is seeded (initial states from the suite's
 seeds; noise, dropout and random switching from a generator seeded by the same seeds), so a job gives the
 same numbers wherever and whenever it runs.
 """
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
+from multiprocessing import get_context
 
 import numpy as np
 
 from fxc_env.baselines.harness.suite import BenchmarkCase, Contender, Suite, contender_config, load_policy
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.protocol import seeded_engine
+from fxc_env.utils.threads import single_threaded_children
 
 
 @dataclass(frozen=True)
@@ -69,6 +74,48 @@ def make_jobs(suite: Suite, contenders: list[Contender]) -> list[Job]:
         for case in suite.cases
         for k in (suite.budgets if contender.sampled else (suite.fine_intervals,))
     ]
+
+
+def run_suite(
+    suite: Suite,
+    contenders: list[Contender],
+    *,
+    workers: int | None = None,
+    progress: bool = True,
+    ray: bool = False,
+    address: str | None = None,
+) -> list[JobResult]:
+    """Run every job of the suite; results in table order.
+
+    Over ``workers`` processes (default: all cores), or with ``ray`` as Ray tasks on a local Ray or on the
+    cluster at ``address``; both give the same results.
+    """
+    from tqdm import tqdm
+
+    jobs = make_jobs(suite, contenders)
+    order = {job: i for i, job in enumerate(jobs)}
+    longest_first = sorted(jobs, key=lambda j: -j.cost)
+    bar = tqdm(total=len(jobs), desc=f"fxc benchmark ({suite.name})", unit="job", disable=not progress)
+    with bar:
+        if ray:
+            from fxc_env.baselines.harness.ray_jobs import run_jobs_on_ray
+
+            results = run_jobs_on_ray(longest_first, address=address, num_cpus=workers, on_done=bar.update)
+            for result, job in zip(results, longest_first, strict=True):
+                result.job = job
+        else:
+            workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
+            results = []
+            with single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+                submitted = {pool.submit(run_job, job): job for job in longest_first}
+                for future in as_completed(submitted):
+                    result = future.result()
+                    # The job as submitted: a copy back from another process may not compare equal
+                    # (a Topology object, say, compares by identity).
+                    result.job = submitted[future]
+                    results.append(result)
+                    bar.update()
+    return sorted(results, key=lambda r: order[r.job])
 
 
 def run_job(job: Job) -> JobResult:
