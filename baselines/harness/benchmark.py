@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from fxc_env.baselines.harness import dropout, figures, report
-from fxc_env.baselines.harness.jobs import JobResult, run_suite
+from fxc_env.baselines.harness.jobs import JobResult, make_jobs, run_in_processes
 from fxc_env.baselines.harness.resolution import with_resolution
 from fxc_env.baselines.harness.suite import (
     Contender,
@@ -34,6 +34,38 @@ from fxc_env.baselines.harness.suite import (
 from fxc_env.baselines.registry import LAWS
 from fxc_env.core.validation import MAX_INTERVALS, ArgumentError, integer
 from fxc_env.utils.cli_checks import output_directory
+
+
+def run_suite(
+    suite: Suite,
+    contenders: list[Contender],
+    *,
+    workers: int | None = None,
+    progress: bool = True,
+    ray: bool = False,
+    address: str | None = None,
+) -> list[JobResult]:
+    """Run every job of the suite; results in table order.
+
+    Over ``workers`` processes (default: all cores), or with ``ray`` as Ray tasks on a local Ray or on the
+    cluster at ``address``; both give the same results.
+    """
+    from tqdm import tqdm
+
+    jobs = make_jobs(suite, contenders)
+    order = {job: i for i, job in enumerate(jobs)}
+    longest_first = sorted(jobs, key=lambda j: -j.cost)
+    bar = tqdm(total=len(jobs), desc=f"fxc benchmark ({suite.name})", unit="job", disable=not progress)
+    with bar:
+        if ray:
+            from fxc_env.baselines.harness.ray_jobs import run_jobs_on_ray
+
+            results = run_jobs_on_ray(longest_first, address=address, num_cpus=workers, on_done=bar.update)
+            for result, job in zip(results, longest_first, strict=True):
+                result.job = job
+        else:
+            results = run_in_processes(longest_first, workers, on_done=bar.update)
+    return sorted(results, key=lambda r: order[r.job])
 
 
 @dataclass(frozen=True)

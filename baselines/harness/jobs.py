@@ -1,7 +1,6 @@
 """The benchmark's unit of work: one contender on one case at one budget K, and what it measured.
 
-:func:`run_job` runs a :class:`Job` in this process, :func:`run_suite` every job of a suite over processes or Ray
-(``fxc benchmark`` and ``python -m fxc_env.baselines.harness.resolution``). Every job is seeded (initial states from the suite's
+:func:`run_job` runs a :class:`Job` in this process, :func:`run_in_processes` a list of them over processes. Every job is seeded (initial states from the suite's
 seeds; noise, dropout and random switching from a generator seeded by the same seeds), so a job gives the
 same numbers wherever and whenever it runs.
 """
@@ -10,9 +9,11 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from multiprocessing import get_context
+from typing import Any
 
 import numpy as np
 
@@ -76,46 +77,22 @@ def make_jobs(suite: Suite, contenders: list[Contender]) -> list[Job]:
     ]
 
 
-def run_suite(
-    suite: Suite,
-    contenders: list[Contender],
-    *,
-    workers: int | None = None,
-    progress: bool = True,
-    ray: bool = False,
-    address: str | None = None,
+def run_in_processes(
+    jobs: list[Job], workers: int | None = None, on_done: Callable[[], Any] = lambda: None
 ) -> list[JobResult]:
-    """Run every job of the suite; results in table order.
-
-    Over ``workers`` processes (default: all cores), or with ``ray`` as Ray tasks on a local Ray or on the
-    cluster at ``address``; both give the same results.
-    """
-    from tqdm import tqdm
-
-    jobs = make_jobs(suite, contenders)
-    order = {job: i for i, job in enumerate(jobs)}
-    longest_first = sorted(jobs, key=lambda j: -j.cost)
-    bar = tqdm(total=len(jobs), desc=f"fxc benchmark ({suite.name})", unit="job", disable=not progress)
-    with bar:
-        if ray:
-            from fxc_env.baselines.harness.ray_jobs import run_jobs_on_ray
-
-            results = run_jobs_on_ray(longest_first, address=address, num_cpus=workers, on_done=bar.update)
-            for result, job in zip(results, longest_first, strict=True):
-                result.job = job
-        else:
-            workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
-            results = []
-            with single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-                submitted = {pool.submit(run_job, job): job for job in longest_first}
-                for future in as_completed(submitted):
-                    result = future.result()
-                    # The job as submitted: a copy back from another process may not compare equal
-                    # (a Topology object, say, compares by identity).
-                    result.job = submitted[future]
-                    results.append(result)
-                    bar.update()
-    return sorted(results, key=lambda r: order[r.job])
+    """Run ``jobs`` over ``workers`` spawned, single-threaded processes (default: all cores, at most one per job);
+    ``on_done()`` after each. The results in ``jobs``' order, each with its job as submitted."""
+    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
+    done: dict[int, JobResult] = {}
+    with single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        submitted = {pool.submit(run_job, job): i for i, job in enumerate(jobs)}
+        for future in as_completed(submitted):
+            result = done[submitted[future]] = future.result()
+            # The job as submitted: a copy back from another process may not compare equal
+            # (a Topology object, say, compares by identity).
+            result.job = jobs[submitted[future]]
+            on_done()
+    return [done[i] for i in range(len(jobs))]
 
 
 def run_job(job: Job) -> JobResult:

@@ -157,7 +157,7 @@ def frontier_figure(results: list[Any], path: Path | str) -> Path:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run every registered law on :func:`resolution_suite`; print the table; write the figure."""
-    from fxc_env.baselines.harness.jobs import run_suite
+    from fxc_env.baselines.harness.jobs import make_jobs, run_in_processes
     from fxc_env.baselines.harness.suite import builtin_contenders
 
     parser = argparse.ArgumentParser(prog="python -m fxc_env.baselines.harness.resolution", description=main.__doc__)
@@ -165,7 +165,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     parser.add_argument("--out", default="out/resolution_frontier.png", help="the figure's path")
     args = parser.parse_args(argv)
-    results = run_suite(resolution_suite(args.seeds), builtin_contenders(), workers=args.workers, progress=False)
+    results = run_in_processes(make_jobs(resolution_suite(args.seeds), builtin_contenders()), args.workers)
     refused = sorted({(r.job.contender.name, r.error.split(":")[0]) for r in results if r.error})
     print("\n".join(resolution_section(results)))
     print("refused: " + ", ".join(f"{name} ({argument})" for name, argument in refused))
