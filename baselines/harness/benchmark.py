@@ -9,17 +9,14 @@ over a Ray cluster (:mod:`fxc_env.baselines.harness.ray_jobs`); :mod:`fxc_env.ba
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
 from fxc_env.baselines.harness import dropout, figures, report
-from fxc_env.baselines.harness.jobs import JobResult, make_jobs, run_job
+from fxc_env.baselines.harness.jobs import JobResult, make_jobs, run_in_processes
 from fxc_env.baselines.harness.resolution import with_resolution
 from fxc_env.baselines.harness.suite import (
     Contender,
@@ -37,7 +34,6 @@ from fxc_env.baselines.harness.suite import (
 from fxc_env.baselines.registry import LAWS
 from fxc_env.core.validation import MAX_INTERVALS, ArgumentError, integer
 from fxc_env.utils.cli_checks import output_directory
-from fxc_env.utils.threads import single_threaded_children
 
 
 def run_suite(
@@ -68,17 +64,7 @@ def run_suite(
             for result, job in zip(results, longest_first, strict=True):
                 result.job = job
         else:
-            workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
-            results = []
-            with single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-                submitted = {pool.submit(run_job, job): job for job in longest_first}
-                for future in as_completed(submitted):
-                    result = future.result()
-                    # The job as submitted: a copy back from another process may not compare equal
-                    # (a Topology object, say, compares by identity).
-                    result.job = submitted[future]
-                    results.append(result)
-                    bar.update()
+            results = run_in_processes(longest_first, workers, on_done=bar.update)
     return sorted(results, key=lambda r: order[r.job])
 
 

@@ -1,20 +1,26 @@
 """The benchmark's unit of work: one contender on one case at one budget K, and what it measured.
 
-:func:`run_job` runs a :class:`Job` in this process. Every job is seeded (initial states from the suite's
+:func:`run_job` runs a :class:`Job` in this process, :func:`run_in_processes` a list of them over processes. Every job is seeded (initial states from the suite's
 seeds; noise, dropout and random switching from a generator seeded by the same seeds), so a job gives the
 same numbers wherever and whenever it runs.
 """
 
 from __future__ import annotations
 
+import os
 import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
+from multiprocessing import get_context
+from typing import Any
 
 import numpy as np
 
 from fxc_env.baselines.harness.suite import BenchmarkCase, Contender, Suite, contender_config, load_policy
 from fxc_env.core.validation import ArgumentError
 from fxc_env.policies.protocol import seeded_engine
+from fxc_env.utils.threads import single_threaded_children
 
 
 @dataclass(frozen=True)
@@ -69,6 +75,24 @@ def make_jobs(suite: Suite, contenders: list[Contender]) -> list[Job]:
         for case in suite.cases
         for k in (suite.budgets if contender.sampled else (suite.fine_intervals,))
     ]
+
+
+def run_in_processes(
+    jobs: list[Job], workers: int | None = None, on_done: Callable[[], Any] = lambda: None
+) -> list[JobResult]:
+    """Run ``jobs`` over ``workers`` spawned, single-threaded processes (default: all cores, at most one per job);
+    ``on_done()`` after each. The results in ``jobs``' order, each with its job as submitted."""
+    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
+    done: dict[int, JobResult] = {}
+    with single_threaded_children(), ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        submitted = {pool.submit(run_job, job): i for i, job in enumerate(jobs)}
+        for future in as_completed(submitted):
+            result = done[submitted[future]] = future.result()
+            # The job as submitted: a copy back from another process may not compare equal
+            # (a Topology object, say, compares by identity).
+            result.job = jobs[submitted[future]]
+            on_done()
+    return [done[i] for i in range(len(jobs))]
 
 
 def run_job(job: Job) -> JobResult:

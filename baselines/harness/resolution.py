@@ -157,23 +157,15 @@ def frontier_figure(results: list[Any], path: Path | str) -> Path:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run every registered law on :func:`resolution_suite`; print the table; write the figure."""
-    from concurrent.futures import ProcessPoolExecutor
-    from multiprocessing import get_context
-
-    from fxc_env.baselines.harness.jobs import make_jobs, run_job
+    from fxc_env.baselines.harness.jobs import make_jobs, run_in_processes
     from fxc_env.baselines.harness.suite import builtin_contenders
-    from fxc_env.utils.threads import single_threaded_children
 
     parser = argparse.ArgumentParser(prog="python -m fxc_env.baselines.harness.resolution", description=main.__doc__)
     parser.add_argument("--seeds", type=int, default=5, help="seeded initial states per case")
     parser.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     parser.add_argument("--out", default="out/resolution_frontier.png", help="the figure's path")
     args = parser.parse_args(argv)
-    jobs = make_jobs(resolution_suite(args.seeds), builtin_contenders())
-    with single_threaded_children(), ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
-        results = list(pool.map(run_job, jobs))
-    for result, job in zip(results, jobs, strict=True):
-        result.job = job  # as submitted (a Topology compares by identity)
+    results = run_in_processes(make_jobs(resolution_suite(args.seeds), builtin_contenders()), args.workers)
     refused = sorted({(r.job.contender.name, r.error.split(":")[0]) for r in results if r.error})
     print("\n".join(resolution_section(results)))
     print("refused: " + ", ".join(f"{name} ({argument})" for name, argument in refused))

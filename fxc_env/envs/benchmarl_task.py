@@ -35,6 +35,7 @@ import torch
 from torchrl.data import Composite
 from torchrl.envs import DTypeCastTransform, EnvBase
 
+from fxc_env.config.scenarios import SCENARIOS
 from fxc_env.config.tasks import TASKS
 from fxc_env.core import validation
 from fxc_env.envs.torch_env import GROUP, ConsensusTorchEnv
@@ -145,30 +146,12 @@ class FxcTaskClass(TaskClass):
         return ENV_NAME
 
 
-class FxcTask(Task):
+class _FxcTasks(Task):
     """fxc_env's scenarios as BenchMARL tasks; ``FxcTask.PAPER_FIG1.get_from_yaml()`` gives the task.
 
     ``get_from_yaml()`` reads the shipped ``fxc_env/envs/benchmarl_tasks/<scenario>.yaml``
     (``get_from_yaml(path)`` another file), ``get_task(config)`` takes a dict.
     """
-
-    PAPER_FIG1 = None
-    RING_6 = None
-    RANDOM_20_PLANAR = None
-    GENERALIST = None
-    SATURATED = None
-    FORMATION_HEXAGON = None
-    FORMATION_LINE = None
-    # The named, versioned tasks (fxc_env.config.tasks): settings, K and evaluation seeds frozen.
-    PAPER_FIG1_V1 = None
-    RINGS20_V1 = None
-    GENERALIST_V1 = None
-    SATURATED_V1 = None
-    # v2: the same settings at K = 50 with action_mode="plan_balanced" (docs: tasks/index.md, "Named tasks").
-    PAPER_FIG1_V2 = None
-    RINGS20_V2 = None
-    GENERALIST_V2 = None
-    SATURATED_V2 = None
 
     @staticmethod
     def associated_class() -> type[FxcTaskClass]:
@@ -201,6 +184,17 @@ class FxcTask(Task):
                 f"path: expected a YAML mapping of ConsensusTorchEnv arguments, got a {type(config).__name__} in {path}"
             )
         return self.get_task(config=config)
+
+
+#: One member per scenario of :data:`~fxc_env.config.scenarios.SCENARIOS` (``PAPER_FIG1``, ``RING_6``, ...), then per
+#: named task of :data:`~fxc_env.config.tasks.TASKS` (``RINGS20_V1``; v2: the same settings at K = 50 with
+#: ``action_mode="plan_balanced"``, docs: tasks/index.md, "Named tasks"): the name upper-cased, ``-`` as ``_``.
+FxcTask = _FxcTasks(
+    "FxcTask",
+    [(name.replace("-", "_").upper(), None) for name in (*SCENARIOS, *TASKS)],
+    module=__name__,
+    qualname="FxcTask",
+)
 
 
 def register() -> None:

@@ -49,14 +49,17 @@ class GainScheduledExtractor(nn.Module):
         return self.forward_actor(features), self.forward_critic(features)
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
+        return self._linear_law(self.gains, features)
+
+    def _linear_law(self, gain_network: nn.Module, features: torch.Tensor) -> torch.Tensor:
+        """``sum_j G_j row_ij`` with ``G`` from ``gain_network`` on the context, ``(..., 2)``."""
         lead = features.shape[:-1]
         rows = features[..., : self.rows_end].reshape(*lead, self.slots, 2, 1)
-        gains = self.gains(features[..., self.rows_end :]).reshape(*lead, self.slots, 2, 2)
+        gains = gain_network(features[..., self.rows_end :]).reshape(*lead, self.slots, 2, 2)
         # The gain from position rows into the velocity plan is in units of T / T_s (docs: training.md, "The gain-scheduled network").
         scale = torch.ones_like(gains)
         scale[..., 1, 0] = features[..., self.rows_end + self.slots + 1, None]
-        gains = gains * scale
-        return (gains @ rows).sum(dim=-3)[..., 0]
+        return ((gains * scale) @ rows).sum(dim=-3)[..., 0]
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
         return self.value(features)
@@ -104,14 +107,6 @@ class GatedGainExtractor(GainScheduledExtractor):
             raise ValueError(f"GatedGainPolicy: observations of size {obs_size} have no input-limit entry")
         self.hold_gains = mlp(obs_size - self.rows_end, 4 * self.slots, hidden)
         self.sharpness = nn.Parameter(torch.tensor(20.0))
-
-    def _linear_law(self, gain_network: nn.Module, features: torch.Tensor) -> torch.Tensor:
-        lead = features.shape[:-1]
-        rows = features[..., : self.rows_end].reshape(*lead, self.slots, 2, 1)
-        gains = gain_network(features[..., self.rows_end :]).reshape(*lead, self.slots, 2, 2)
-        scale = torch.ones_like(gains)
-        scale[..., 1, 0] = features[..., self.rows_end + self.slots + 1, None]
-        return ((gains * scale) @ rows).sum(dim=-3)[..., 0]
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
         plan = self._linear_law(self.gains, features)

@@ -204,12 +204,16 @@ class IntervalGainPolicy(Policy):
         return self
 
 
+def spectrum_matrix(topology: Any, g: int = 0) -> np.ndarray:
+    """``Ŵ = (D + I)^{-1} L`` of graph ``g`` of a topology (its only one: a fixed topology), dense ``(N, N)``."""
+    laplacian = topology.laplacian(g)
+    laplacian = laplacian.toarray() if hasattr(laplacian, "toarray") else np.asarray(laplacian)
+    return laplacian / (np.asarray(topology.in_degree[g], dtype=np.float64)[:, None] + 1.0)
+
+
 def spectrum(topology: Any) -> np.ndarray:
     """The eigenvalues of ``(D + I)^{-1} L`` of a fixed topology, ``(N,)`` complex (dense; consensus mode 0 included)."""
-    laplacian = topology.laplacian(0)
-    laplacian = laplacian.toarray() if hasattr(laplacian, "toarray") else np.asarray(laplacian)
-    w_hat = laplacian / (np.asarray(topology.in_degree[0], dtype=np.float64)[:, None] + 1.0)
-    return np.linalg.eigvals(w_hat)
+    return np.linalg.eigvals(spectrum_matrix(topology))
 
 
 def read_interval_gains(path: str | Path) -> IntervalGainPolicy:

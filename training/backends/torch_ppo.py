@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -217,9 +217,8 @@ class Trainer(TrainerFiles):
             per_agent = advantages.reshape(-1)
         targets = targets.reshape(-1)
         total = obs.shape[0]
-        sums = torch.zeros(5, dtype=torch.float32, device=self.device)
-        count = 0
-        for index in self._minibatches(total, s.minibatch_size):
+
+        def step(index: torch.Tensor) -> torch.Tensor:
             batch = obs[index]
             if self.central:
                 value_index = torch.div(index, n, rounding_mode="floor")
@@ -227,17 +226,22 @@ class Trainer(TrainerFiles):
             else:
                 value, target = model.critic(batch).squeeze(-1), targets[index]
             mean = model.actor(batch)
-            sums += self._minibatch_step(mean, actions[index], old_log_probs[index], per_agent[index], value, target)
-            count += 1
-        self.n_updates += count
-        return sums / count
+            return self._minibatch_step(mean, actions[index], old_log_probs[index], per_agent[index], value, target)
 
-    def _minibatches(self, total: int, size: int) -> Iterator[torch.Tensor]:
-        """``epochs`` passes over ``total`` items, each in a fresh order from the generator, ``size`` at a time."""
+        return self._passes(total, s.minibatch_size, step)
+
+    def _passes(self, total: int, size: int, step: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
+        """``epochs`` passes over ``total`` items, each in a fresh order from the generator, ``size`` at a time:
+        the mean of ``step(index)`` (a minibatch's five statistics, :meth:`_minibatch_step`) over the minibatches."""
+        sums = torch.zeros(5, dtype=torch.float32, device=self.device)
+        count = 0
         for _ in range(self.settings.epochs):
             order = torch.randperm(total, generator=self.generator, device=self.device)
             for first in range(0, total, size):
-                yield order[first : first + size]
+                sums += step(order[first : first + size])
+                count += 1
+        self.n_updates += count
+        return sums / count
 
     def _minibatch_step(
         self,
@@ -286,10 +290,8 @@ class Trainer(TrainerFiles):
             states, value_targets = self.states, targets  # [T, B, S], [T, B]
         else:
             per_agent, value_targets = advantages.reshape(t, sequences), targets.reshape(t, sequences)
-        size = max(1, s.minibatch_size // t)
-        sums = torch.zeros(5, dtype=torch.float32, device=self.device)
-        count = 0
-        for index in self._minibatches(sequences, size):
+
+        def step(index: torch.Tensor) -> torch.Tensor:
             mean, _ = model.actor.sequence(obs[:, index], start[index])
             if self.central:
                 episodes = torch.unique(torch.div(index, n, rounding_mode="floor"))
@@ -298,12 +300,11 @@ class Trainer(TrainerFiles):
             else:
                 value = model.critic(obs[:, index]).squeeze(-1)
                 target = value_targets[:, index]
-            sums += self._minibatch_step(
+            return self._minibatch_step(
                 mean, actions[:, index], old_log_probs[:, index], per_agent[:, index], value, target
             )
-            count += 1
-        self.n_updates += count
-        return sums / count
+
+        return self._passes(sequences, max(1, s.minibatch_size // t), step)
 
     def _update_graphs(self, advantages: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
         """``gnn``: minibatches of whole (step, episode) graphs, ``max(1, minibatch_size // N)`` of them."""
@@ -319,18 +320,15 @@ class Trainer(TrainerFiles):
             states, value_targets = self.states.reshape(graphs, self.state_size), targets.reshape(graphs)
         else:
             per_agent, value_targets = advantages.reshape(graphs, n), targets.reshape(graphs, n)
-        size = max(1, s.minibatch_size // n)
-        sums = torch.zeros(5, dtype=torch.float32, device=self.device)
-        count = 0
-        for index in self._minibatches(graphs, size):
+
+        def step(index: torch.Tensor) -> torch.Tensor:
             mean = model.actor(obs[index], edge_index[index], edge_mask[index])
             value = model.critic((states if self.central else obs)[index]).squeeze(-1)
-            sums += self._minibatch_step(
+            return self._minibatch_step(
                 mean, actions[index], old_log_probs[index], per_agent[index], value, value_targets[index]
             )
-            count += 1
-        self.n_updates += count
-        return sums / count
+
+        return self._passes(graphs, max(1, s.minibatch_size // n), step)
 
 
 def train_torch(args: TrainArgs) -> Path:

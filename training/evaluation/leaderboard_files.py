@@ -24,8 +24,9 @@ from typing import Any
 import numpy as np
 
 from fxc_env.config.tasks import NamedTask
+from fxc_env.core.validation import short_repr
 from fxc_env.training.evaluation import statistics
-from fxc_env.training.evaluation.seed_evaluation import LOG_FLOOR, MARL_EVAL_ENV, _episode_metrics
+from fxc_env.training.evaluation.seed_scores import LOG_FLOOR, MARL_EVAL_ENV, marl_eval_entry
 
 #: A training run's timers (``seconds``): collecting batches, updating the networks, scoring its learning curve
 #: (not training), and ``Experiment.run``'s wall time (all three and BenchMARL's own bookkeeping).
@@ -63,7 +64,7 @@ def record_problem(record: dict[str, Any], task: NamedTask, expected: dict[str, 
     wanted = {**{k: v for k, v in result_record(task).items() if k != "fxc_env_commit"}, **expected}
     for field, value in wanted.items():
         if record[field] != value:
-            return f"records {field} {_short(record[field])}, not {_short(value)}"
+            return f"records {field} {short_repr(record[field])}, not {short_repr(value)}"
     return ""
 
 
@@ -131,7 +132,7 @@ def curve_problem(record: dict[str, Any], episodes: int) -> str:
     if frames[0] != 0 or not all(isinstance(f, int) and not isinstance(f, bool) for f in frames):
         return "holds a learning curve that does not start at 0 frames"
     if frames != sorted(frames) or curve[-1]["frames"] != record["frames"]:
-        return f"holds a learning curve whose frames {_short(frames)} do not rise to its {record['frames']}"
+        return f"holds a learning curve whose frames {short_repr(frames)} do not rise to its {record['frames']}"
     for point in curve:
         if problem := scores_problem(point, episodes):
             return f"{problem} at {point['frames']} frames of its learning curve"
@@ -205,11 +206,7 @@ def marl_eval_record(
             errors, energy = by_task[task], energies[name][task]
             for k in range(runs):
                 row = k if len(errors) == runs else 0  # a deterministic contender's one row under every run key
-                metrics = _episode_metrics(errors[row], energy[row])
-                out[task].setdefault(name, {})[f"seed_{k}"] = {
-                    "step_0": {"step_count": 0, **metrics},
-                    "absolute_metrics": metrics,
-                }
+                out[task].setdefault(name, {})[f"seed_{k}"] = marl_eval_entry(errors[row], energy[row], 0)
     return {MARL_EVAL_ENV: out}
 
 
@@ -244,11 +241,6 @@ def write_json(path: Path, record: dict[str, Any]) -> None:
     partial = path.with_suffix(".json.partial")
     partial.write_text(json.dumps(record, indent=1) + "\n")
     os.replace(partial, path)
-
-
-def _short(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def cost_lines(runs: dict[str, dict[str, list[dict[str, Any]]]]) -> list[str]:

@@ -20,7 +20,7 @@ import numpy as np
 
 from fxc_env.config import make_config
 from fxc_env.config.tasks import NamedTask
-from fxc_env.engine import ConsensusEngine
+from fxc_env.policies.protocol import seeded_metrics
 from fxc_env.training.evaluation.evaluate import scored_settings
 from fxc_env.training.evaluation.leaderboard_files import result_record
 
@@ -84,16 +84,9 @@ def kind_settings(task: NamedTask, algorithm: str) -> dict[str, Any]:
 def score_actor(task: NamedTask, act: Any) -> dict[str, list[float]]:
     """``act`` (``(S, N, obs) -> (S, N, action)`` arrays) on the task's evaluation episodes, as the suite plays them."""
     config = make_config(**scored_settings(task))
-    seeds = task.eval_seeds
-    engine = ConsensusEngine(config, n_episodes=len(seeds))
-    draws = [engine.draw_episode(np.random.default_rng(seed)) for seed in seeds]
-    engine.reset_from_draws(draws, rng=np.random.default_rng([*seeds, config.n_intervals]))  # the suite's stream
-    obs = np.empty((engine.n_episodes, config.n_agents, config.layout.size))
+    stream = np.random.default_rng([*task.eval_seeds, config.n_intervals])  # the suite's stream
     with np.errstate(all="ignore"):
-        while not engine.done:
-            engine.observations(out=obs)
-            engine.step(np.asarray(act(obs), dtype=np.float64))
-        metrics = engine.batch_metrics()
+        metrics = seeded_metrics(config, act, task.eval_seeds, stream)
     errors = metrics["relative_deadline_error"]
     return {
         "deadline_error": np.where(np.isfinite(errors), errors, np.inf).tolist(),

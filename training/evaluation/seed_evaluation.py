@@ -28,26 +28,14 @@ from fxc_env.training.evaluation.seed_scores import (  # noqa: F401
     LOG_FLOOR,
     MARL_EVAL_ENV,
     TrainedRun,
-    _episode_metrics,
     case_scores,
     write_seed_report,
 )
 from fxc_env.training.run_dir import recorded_args
 
-#: Training seed of each shipped policy (its recipe in ``fxc_env/pretrained/README.md``: ``--seed 0``;
+#: Training seed of each shipped policy: 0 for every one (its recipe in ``fxc_env/pretrained/README.md``: ``--seed 0``;
 #: ``rings``: ``python -m fxc_env.training.recipes.rings --seed 0``, the default).
-SHIPPED_SEEDS = {
-    "pretrained": 0,
-    "generalist": 0,
-    "saturated": 0,
-    "paper_fig1": 0,
-    "rings": 0,
-    "rings_gru": 0,
-    "rings_scratch": 0,
-    "agnostic": 0,
-    "ppo_rings20": 0,
-    "diff_rings20": 0,
-}
+SHIPPED_SEEDS = dict.fromkeys(SHIPPED, 0)
 #: A run directory or file named ``...seed<k>...`` was trained with seed k.
 _SEED_IN_NAME = re.compile(r"seed(\d+)")
 #: Files that make a directory a run (else it is read as a folder of ``*-seed<k>`` runs).

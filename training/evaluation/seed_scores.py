@@ -166,12 +166,15 @@ def seed_table(records: Sequence[dict[str, Any]], label: str, seeds: Sequence[in
     return "\n".join(lines)
 
 
-def _episode_metrics(errors: np.ndarray, energies: np.ndarray) -> dict[str, list[float]]:
-    return {
+def marl_eval_entry(errors: np.ndarray, energies: np.ndarray, step_count: int) -> dict[str, Any]:
+    """One run's entry in marl-eval's layout: ``step_0`` (with ``step_count``) and ``absolute_metrics``, each the
+    episodes' ``deadline_error``, ``decades_reached`` and ``energy`` lists."""
+    metrics = {
         "deadline_error": [float(e) for e in errors],
         "decades_reached": [float(-d) for d in statistics.decades(errors, LOG_FLOOR)],
         "energy": [float(e) for e in energies],
     }
+    return {"step_0": {"step_count": step_count, **metrics}, "absolute_metrics": metrics}
 
 
 def marl_eval_record(scores: Sequence[CaseScores], runs: Sequence[TrainedRun], label: str) -> dict[str, Any]:
@@ -186,13 +189,9 @@ def marl_eval_record(scores: Sequence[CaseScores], runs: Sequence[TrainedRun], l
             continue
         algorithms: dict[str, Any] = {label: {}, "reference": {}}
         for i, run in enumerate(runs):
-            learned = _episode_metrics(case.learned_error[i], case.learned_energy[i])
-            reference = _episode_metrics(case.reference_error, case.reference_energy)
-            for name, metrics in ((label, learned), ("reference", reference)):
-                algorithms[name][f"seed_{run.seed}"] = {
-                    "step_0": {"step_count": run.timesteps, **metrics},
-                    "absolute_metrics": metrics,
-                }
+            seed = f"seed_{run.seed}"
+            algorithms[label][seed] = marl_eval_entry(case.learned_error[i], case.learned_energy[i], run.timesteps)
+            algorithms["reference"][seed] = marl_eval_entry(case.reference_error, case.reference_energy, run.timesteps)
         tasks[case.case.key] = algorithms
     return {MARL_EVAL_ENV: tasks}
 

@@ -30,7 +30,7 @@ from fxc_env.core.families import TopologyFamily
 from fxc_env.core.validation import ArgumentError, integer
 from fxc_env.engine.consensus_engine import ConsensusEngine
 from fxc_env.policies.domain import training_domain
-from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum
+from fxc_env.policies.interval_gains import IntervalGainPolicy, load_interval_gains, spectrum, spectrum_matrix
 from fxc_env.policies.policy_files import training_settings
 from fxc_env.policies.protocol import seeded_engine
 from fxc_env.policies.reference import ReferencePolicy
@@ -181,13 +181,6 @@ def drawn_rings(engine: Any, rng: np.random.Generator, count: int) -> tuple[np.n
     draws = [engine.draw_episode(rng) for _ in range(count)]
     x0, v0 = (np.stack([getattr(d, key)[:, 0] for d in draws]) for key in ("x0", "v0"))
     return x0, v0, spectrum_matrix(draws[0].topology)
-
-
-def spectrum_matrix(topology: Any, g: int = 0) -> np.ndarray:
-    """``Ŵ = (D + I)^{-1} L`` of graph ``g`` of a topology (its only one: a fixed topology), dense ``(N, N)``."""
-    laplacian = topology.laplacian(g)
-    laplacian = laplacian.toarray() if hasattr(laplacian, "toarray") else np.asarray(laplacian)
-    return laplacian / (np.asarray(topology.in_degree[g], dtype=np.float64)[:, None] + 1.0)
 
 
 # ---------------------------------------------------------------------------------- training
