@@ -129,39 +129,18 @@ def _costs(per_component: Any, u0: Any, u1: Any, xp: Any) -> tuple[Any, Any]:
 
 
 def advance_into(
-    x: np.ndarray,
-    v: np.ndarray,
-    u0: np.ndarray,
-    u1: np.ndarray,
-    T: float,
-    x_out: np.ndarray,
-    v_out: np.ndarray,
-    scratch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    x: np.ndarray, v: np.ndarray, u0: np.ndarray, u1: np.ndarray, T: float, x_out: np.ndarray, v_out: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`advance_with_costs` written into ``x_out`` and ``v_out``, returning the energy and the peak.
 
     numpy's fast path of the engine (no temporaries for the new state), where a handful of
     small arrays make numpy's per-call cost dominate. ``x_out`` may be ``x`` (and ``v_out``
-    ``v``) to advance in place. ``scratch``: three arrays shaped like ``u0`` that hold every
-    temporary (:func:`interval_increments`' operations in its order, so the same values); the
-    energy and peak returned are then views of them, valid until their next use.
+    ``v``) to advance in place.
     """
-    if scratch is None:
-        dx, dv, per_component = interval_increments(v, u0, u1, T)
-        np.add(x, dx, out=x_out)
-        np.add(v, dv, out=v_out)
-        return _costs(per_component, u0, u1, np)
-    total, first, second = scratch
-    np.add(u0, u1, out=total)
-    np.add(np.multiply(T, v, out=first), np.multiply(T * T / 6.0, np.add(u0, total, out=second), out=second), out=first)
-    np.add(x, first, out=x_out)
-    np.add(v, np.multiply(0.5 * T, total, out=first), out=v_out)
-    np.add(np.multiply(u0, total, out=first), np.multiply(u1, u1, out=second), out=first)
-    np.multiply(first, T / 3.0, out=first)  # per component: T (u0^2 + u0 u1 + u1^2) / 3
-    np.maximum(np.abs(u0, out=second), np.abs(u1, out=total), out=second)
-    if first.shape[-1] == 1:
-        return first[..., 0], second[..., 0]
-    return np.sum(first, axis=-1), np.max(second, axis=-1)
+    dx, dv, per_component = interval_increments(v, u0, u1, T)
+    np.add(x, dx, out=x_out)
+    np.add(v, dv, out=v_out)
+    return _costs(per_component, u0, u1, np)
 
 
 def interval_energy(u0: np.ndarray, u1: np.ndarray, T: np.ndarray | float) -> np.ndarray:

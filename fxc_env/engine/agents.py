@@ -180,15 +180,13 @@ class DoubleIntegratorAgents:
         flat_scale = local_scale().reshape(rows, 1) if self.normalized and not raw_plans else None
         u0, u1 = np.empty((rows, 1, dim)), np.empty((rows, 1, dim))
         energy, peak = np.empty((rows, 1)), np.empty((rows, 1))
-        scratch = [np.empty((min(BLOCK_AGENTS, rows), 1, dim)) for _ in range(3)]
         for start in range(0, rows, BLOCK_AGENTS):
             part = slice(start, start + BLOCK_AGENTS)
             block_scale = None if flat_scale is None else flat_scale[part]
             u0[part], u1[part] = self.inputs(flat_actions[part], T, lambda: block_scale, raw_plans)  # noqa: B023
             x, v = flat_state[part, None, 0], flat_state[part, None, 1]
-            m = x.shape[0]
             energy[part], peak[part] = dynamics.advance_into(
-                x, v, u0[part], u1[part], T, flat_out[part, None, 0], flat_out[part, None, 1], [a[:m] for a in scratch]
+                x, v, u0[part], u1[part], T, flat_out[part, None, 0], flat_out[part, None, 1]
             )
         return u0.reshape(b, n, dim), u1.reshape(b, n, dim), energy.reshape(b, n), peak.reshape(b, n)
 

@@ -177,19 +177,3 @@ def test_advance_in_place_equals_the_separate_closed_forms():
         np.testing.assert_allclose(v, expected_v, rtol=1e-15, atol=1e-15)
         np.testing.assert_allclose(energy, interval_energy(u0, u1, T), rtol=1e-14)
         np.testing.assert_array_equal(peak, interval_peak(u0, u1))
-
-
-@pytest.mark.parametrize("dim", [1, 3])
-def test_advance_into_with_scratch_buffers_gives_the_same_bits(dim):
-    rng = np.random.default_rng(dim)
-    x, v, u0, u1 = (rng.normal(size=(50, 1, dim)) * 10.0 ** rng.integers(-8, 8, size=(50, 1, dim)) for _ in range(4))
-    T = 0.37
-    expected_x, expected_v = np.empty_like(x), np.empty_like(v)
-    expected = dynamics.advance_into(x, v, u0, u1, T, expected_x, expected_v)
-    got_x, got_v = np.empty_like(x), np.empty_like(v)
-    scratch = tuple(np.full_like(u0, np.nan) for _ in range(3))
-    got = dynamics.advance_into(x, v, u0, u1, T, got_x, got_v, scratch)
-    np.testing.assert_array_equal(got_x, expected_x)
-    np.testing.assert_array_equal(got_v, expected_v)
-    for a, b in zip(got, expected, strict=True):
-        np.testing.assert_array_equal(a, b)
