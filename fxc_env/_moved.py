@@ -103,6 +103,15 @@ def public_names(module: types.ModuleType) -> list[str]:
     return [name for name in vars(module) if not name.startswith("_")]
 
 
+class _CallableModule(types.ModuleType):
+    """An old path whose package holds a function of its name (``fxc_env.training.train``, now the function
+    ``train(args)``): importing the path binds the module on the package in the function's place, so the
+    module calls the function and ``fxc_env.training.train(args)`` keeps working."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return self.__wrapped__(*args, **kwargs)
+
+
 class _Loader(importlib.abc.Loader):
     """Builds the module at an old path: the new modules' public names, a warning naming where they are."""
 
@@ -112,6 +121,10 @@ class _Loader(importlib.abc.Loader):
     def exec_module(self, module: types.ModuleType) -> None:
         old = module.__name__
         new = MOVED[old]
+        parent, _, child = old.rpartition(".")
+        shadowed = vars(sys.modules[parent]).get(child)
+        if callable(shadowed) and not isinstance(shadowed, types.ModuleType):
+            module.__class__, module.__wrapped__ = _CallableModule, shadowed
         warn(f"{old} moved to {' and '.join(new)}: import from there; the old path goes away in the next release")
         targets = [importlib.import_module(name) for name in new]
         exported: list[str] = []

@@ -11,11 +11,13 @@ import importlib
 import importlib.util
 import subprocess
 import sys
+import types
 import warnings
 
 import pytest
 
 import fxc_env
+from fxc_env.core.validation import ArgumentError
 
 #: Every module path of the previous release that moved, and where its names are now.
 OLD_TO_NEW = {
@@ -103,10 +105,15 @@ README_IMPORTS = {
 
 
 def forget(path: str) -> None:
-    """Drop an old module from this process, so that importing it runs (and warns) again."""
+    """Drop an old module from this process, so that importing it runs (and warns) again (a package's function of
+    the same name stays: ``fxc_env.training.train``)."""
     sys.modules.pop(path, None)
     parent, _, child = path.rpartition(".")
-    vars(importlib.import_module(parent)).pop(child, None)
+    names = vars(importlib.import_module(parent))
+    if isinstance(names.get(child), types.ModuleType):
+        module = names.pop(child)
+        if callable(module):  # it stood over the package's function: put the function back
+            names[child] = module.__wrapped__
 
 
 def import_old(path: str) -> tuple[object, list[warnings.WarningMessage]]:
@@ -115,6 +122,24 @@ def import_old(path: str) -> tuple[object, list[warnings.WarningMessage]]:
         warnings.simplefilter("always")
         module = importlib.import_module(path)
     return module, [w for w in caught if issubclass(w.category, DeprecationWarning)]
+
+
+def test_the_old_module_path_of_train_leaves_fxc_env_training_train_a_working_function():
+    """``import fxc_env.training.train`` (the module's old path) binds the module on the package where the
+    function ``fxc_env.training.train(args)`` is: the module calls the function, the same error for a bad back end."""
+    import fxc_env.training as training
+    from fxc_env.training import TrainArgs
+
+    function = training.train
+    with pytest.raises(ArgumentError) as direct:
+        function(TrainArgs(backend="nope"))
+    module, caught = import_old("fxc_env.training.train")
+    assert caught and training.train is module
+    with pytest.raises(ArgumentError) as through_the_module:
+        training.train(TrainArgs(backend="nope"))
+    assert str(through_the_module.value) == str(direct.value) and "backend" in str(direct.value)
+    forget("fxc_env.training.train")
+    assert training.train is function
 
 
 @pytest.mark.parametrize("old", sorted(OLD_TO_NEW))
