@@ -77,6 +77,20 @@ def _subtract(rows: Any, own: Any) -> Any:
     return rows - own
 
 
+def noise_free(config: EnvConfig, backend: Any) -> bool:
+    """Whether the observations are the sampled relative states as they are, up to their dtype: on numpy, of
+    double integrators (``agent_model``: none), with no measurement noise (``obs_noise``), no quantum
+    (``obs_resolution``), no lost links (``link_dropout``), and some in-neighbour slots."""
+    return bool(
+        backend.is_numpy
+        and config.model is None
+        and config.obs_noise == 0
+        and config.obs_resolution == 0
+        and config.link_dropout == 0
+        and config.layout.slots
+    )
+
+
 class Observer:
     """The engine's measurements and observations (cached per instant).
 
@@ -100,17 +114,8 @@ class Observer:
         self.backend = backend
         self.tables = tables
         self.normalized = bool(config.obs_mode == "normalized" and self.layout.slots)
-        #: The numpy fast path applies (noise-free, dropout-free double integrators, some slots,
-        #: episodes of at least :data:`BLOCKED_FROM` agents).
-        self.blocked = bool(
-            backend.is_numpy
-            and config.n_agents >= BLOCKED_FROM
-            and config.model is None
-            and config.obs_noise == 0
-            and config.obs_resolution == 0
-            and config.link_dropout == 0
-            and self.layout.slots
-        )
+        #: The numpy fast path applies (:func:`noise_free`, episodes of at least :data:`BLOCKED_FROM` agents).
+        self.blocked = noise_free(config, backend) and config.n_agents >= BLOCKED_FROM
         #: What the local scale weighs velocities by: ``T_s`` (``plan_balanced``), else None (``T_{k+1}``).
         self.velocity_weight = config.velocity_weight
         self._measured: tuple | None = None

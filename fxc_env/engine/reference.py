@@ -21,6 +21,8 @@ import numpy as np
 from fxc_env.config import EnvConfig
 from fxc_env.core.validation import ArgumentError
 
+from .observations import noise_free
+
 #: Agents per block of :meth:`NeighbourPlans.plans` (the gathered rows, 1 MiB at 4 slots and dim = 1, stay in the cache).
 BLOCK_AGENTS = 16384
 
@@ -33,15 +35,7 @@ def exact_observations(config: EnvConfig, backend: Any) -> bool:
     (``agent_model``: their plan is another map) or no in-neighbour slots; nor on torch (the
     sparse product is scipy's).
     """
-    return bool(
-        backend.is_numpy
-        and config.model is None
-        and config.obs_noise == 0
-        and config.obs_resolution == 0
-        and config.link_dropout == 0
-        and config.obs_dtype == "float64"
-        and config.layout.slots
-    )
+    return noise_free(config, backend) and config.obs_dtype == "float64"
 
 
 class NeighbourPlans:
