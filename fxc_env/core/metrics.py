@@ -72,10 +72,8 @@ def spread(z: np.ndarray) -> np.ndarray:
     if n == 0 or math.prod(lead) == 0:
         return np.zeros(lead)[()]
     centred = _centred_components(z)  # (dim, B, N)
-    if n <= PAIRWISE_AGENTS or centred.shape[1] * n * n <= PAIRWISE_PAIRS or dim > 3:
-        largest = _pairwise_max(centred)
-    else:
-        largest = _filtered_max(centred)
+    pairwise = n <= PAIRWISE_AGENTS or centred.shape[1] * n * n <= PAIRWISE_PAIRS or dim > 3
+    largest = _pairwise_max(centred) if pairwise else _filtered_max(centred)
     return np.sqrt(largest).reshape(lead)[()]
 
 

@@ -312,11 +312,8 @@ class TorchBackend(NumpyBackend):
 
     def clear_flags(self, episodes: Any = None) -> None:
         """Clear the flags of the restarted ``episodes`` (a ``(B,)`` mask; None: all)."""
-        xp = self.xp
-        if episodes is None:
-            self.invalid = xp.zeros_like(self.invalid)
-        else:
-            self.invalid = xp.where(episodes, xp.zeros_like(self.invalid), self.invalid)
+        zeros = self.xp.zeros_like(self.invalid)
+        self.invalid = zeros if episodes is None else self.xp.where(episodes, zeros, self.invalid)
 
     def checked_state(
         self, name: str, value: Any, shape: tuple[int, ...], limit: float = validation.STATE_LIMIT

@@ -90,10 +90,8 @@ class GraphTable:
         periods = self.period_host if numpy_side else self.period
         if self.random_switching:
             local = switching_draw(periods)
-        elif not clock.per_episode:
-            local = clock.k % periods
         else:
-            local = clock.steps % self.period
+            local = clock.steps % self.period if clock.per_episode else clock.k % periods
         self.graph_ids = (self.offset_host if numpy_side else self.offset) + local
 
     def graph_indices(self) -> Any:
@@ -128,10 +126,8 @@ class GraphTable:
         """
         if self.same_graph:
             index = self.neighbour_index[self.graph]
-            if self.backend.is_numpy:  # numpy fast path: take with mode="clip" skips the bounds check (1.3x)
-                rows = np.take(values, index, axis=1, mode="clip")
-            else:
-                rows = values[:, index]
+            # numpy fast path: take with mode="clip" skips the bounds check (1.3x)
+            rows = np.take(values, index, axis=1, mode="clip") if self.backend.is_numpy else values[:, index]
             return rows, self.mask_features[self.graph]
         index = self.neighbour_index[self.graph_ids]  # (B, N, slots)
         return values[self._episode_index, index], self.mask_features[self.graph_ids]

@@ -70,9 +70,7 @@ class ReferencePolicy(Policy):
         plan from the neighbour sums alone, no observations; else
         ``engine.step(self.act(engine.observations()))`` (numpy or torch). The same interval to rounding either way.
         """
-        if engine.neighbour_plans.exact:
-            return engine.step_reference()
-        return engine.step(self.act(engine.observations()))
+        return engine.step_reference() if engine.neighbour_plans.exact else engine.step(self.act(engine.observations()))
 
     def act(self, obs: Any) -> Any:
         """Eq. (11) from flat observations ``(..., obs_size)``: actions ``(..., 2 dim)`` (numpy or torch)."""

@@ -47,9 +47,7 @@ def synchronizer(device: Any) -> Callable[[], None] | None:
     """``torch.cuda.synchronize`` for a CUDA device, else None (nothing to wait for)."""
     import torch
 
-    if torch.device(device).type != "cuda":
-        return None
-    return lambda: torch.cuda.synchronize(device)
+    return (lambda: torch.cuda.synchronize(device)) if torch.device(device).type == "cuda" else None
 
 
 def release_memory(device: Any) -> None:

@@ -218,10 +218,9 @@ def build_experiment(task: NamedTask, algorithm: str, seed: int, frames: int, fo
         import torch_geometric
 
         actor = GnnConfig(topology="full", self_loops=False, gnn_class=torch_geometric.nn.conv.GATv2Conv, gnn_kwargs={})
-    elif model == "gru":
-        actor = GruConfig.get_from_yaml()  # BenchMARL's GRU (128 hidden units, one layer) and its MLP head
     else:
-        actor = _mlp(MlpConfig, task)
+        # gru: BenchMARL's GRU (128 hidden units, one layer) and its MLP head
+        actor = GruConfig.get_from_yaml() if model == "gru" else _mlp(MlpConfig, task)
     member = FxcTask[task.id.replace("-", "_").upper()]
     experiment = Experiment(
         task=member.get_from_yaml(),
