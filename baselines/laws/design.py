@@ -57,8 +57,7 @@ def nonzero_eigenvalues(laplacian: np.ndarray) -> np.ndarray:
     a directed path's defective eigenvalue 1 over a circle of radius ``eps^(1/N)``).
     """
     if _is_acyclic(laplacian):
-        diagonal = np.sort(np.diag(laplacian))
-        return diagonal[1:].astype(complex)  # the root's zero is the smallest
+        return np.sort(np.diag(laplacian))[1:].astype(complex)  # the root's zero is the smallest
     return np.linalg.eigvals(reduced(laplacian)).astype(complex)
 
 

@@ -73,8 +73,7 @@ def design_eigenvalues(topology: Topology) -> np.ndarray:
     """
     if topology.period != 1:
         raise ArgumentError("topology: the minimum-time design needs one fixed graph")
-    identity_weight = 1.0 / (topology.in_degree[0] + 1.0)
-    w_hat = sp.csr_array(sp.diags_array(identity_weight) @ topology.laplacian(0))
+    w_hat = sp.csr_array(sp.diags_array(1.0 / (topology.in_degree[0] + 1.0)) @ topology.laplacian(0))
     forward = topology.adjacency(0).T  # forward[j, i] != 0: edge j -> i
     n_comp, labels = csgraph.connected_components(forward, directed=True, connection="strong")
     coo = forward.tocoo()
@@ -136,8 +135,7 @@ def leja_factors(eigenvalues: np.ndarray) -> list[Factor]:
     Each next factor kills the eigenvalue where the partial product ``prod_j |1 - mu'/mu_j|`` is largest (ties:
     the larger modulus; Reichel 1990).
     """
-    points = np.asarray(eigenvalues, dtype=complex)
-    units = [complex(mu) for mu in points if mu.imag >= 0]
+    units = [complex(mu) for mu in np.asarray(eigenvalues, dtype=complex) if mu.imag >= 0]
     if not units:
         return []
     values = np.array(units)

@@ -157,8 +157,7 @@ class SignallingPolicy(SignalPolicy):
                 update = k // m
                 heard, mine = memory["heard"], (memory["c"] if update < n_first else memory["second"])
                 if update < n_first:  # stage 1: differences of the unknown q_i(0) plus changes
-                    base = memory["base"]
-                    initial = predicted_register(base, T_s)
+                    initial = predicted_register(memory["base"], T_s)
                     differences = initial + heard - mine[..., None, :]
                 else:  # stage 2: registers of known values
                     differences = heard - mine[..., None, :]

@@ -104,8 +104,7 @@ class TopologyMixture:
 
     def draw(self, n_agents: int, rng: np.random.Generator) -> Topology:
         probabilities = np.asarray(self.weights) / math.fsum(self.weights)
-        chosen = self.families[int(rng.choice(len(self.families), p=probabilities))]
-        return chosen.draw(n_agents, rng)
+        return self.families[int(rng.choice(len(self.families), p=probabilities))].draw(n_agents, rng)
 
 
 AnyFamily = TopologyFamily | TopologyMixture

@@ -61,8 +61,7 @@ def _information(topology: Topology, times: np.ndarray) -> np.ndarray:
             ),
             shape=(n, len(edges)),
         )
-        laplacian = (incidence @ incidence.T).toarray()
-        information += np.kron(laplacian, gram)
+        information += np.kron((incidence @ incidence.T).toarray(), gram)
     return information
 
 
@@ -347,5 +346,4 @@ def resolution_floor(topology: Topology, times: Any, quantum: Any, dim: int = 1)
     if not (np.all(np.isfinite(quanta)) and np.all(quanta >= 0)):
         raise ArgumentError(f"quantum: expected finite numbers >= 0, got {quantum!r}")
     dim = validation.integer("dim", dim, 1)
-    unit = resolution_worst_state(topology, times)[1]
-    return np.sqrt(dim) * unit * quanta
+    return np.sqrt(dim) * resolution_worst_state(topology, times)[1] * quanta

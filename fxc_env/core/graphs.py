@@ -98,13 +98,11 @@ class Topology:
     def adjacency(self, g: int = 0) -> sp.csr_array:
         """Adjacency ``A`` of graph ``g`` (``a_ij = 1`` iff i receives from j), sparse ``(N, N)``."""
         e = self.edges[g]
-        data = np.ones(len(e))
-        return sp.csr_array((data, (e[:, 1], e[:, 0])), shape=(self.n_agents,) * 2)
+        return sp.csr_array((np.ones(len(e)), (e[:, 1], e[:, 0])), shape=(self.n_agents,) * 2)
 
     def laplacian(self, g: int = 0) -> sp.csr_array:
         """Laplacian ``L = D - A`` of graph ``g``, sparse ``(N, N)``."""
-        a = self.adjacency(g)
-        return sp.diags_array(self.in_degree[g].astype(float)) - a
+        return sp.diags_array(self.in_degree[g].astype(float)) - self.adjacency(g)
 
     def averaging_matrix(self, g: int = 0) -> sp.csr_array:
         """``W = I - (D + I)^{-1} L`` of graph ``g`` (row-stochastic, sparse ``(N, N)``).
@@ -113,8 +111,7 @@ class Topology:
         interval of the paper's controller maps ``V(t_k)`` to ``W V(t_k)`` (eq. 17a).
         """
         inv = 1.0 / (self.in_degree[g] + 1.0)
-        a = self.adjacency(g)
-        return sp.diags_array(inv) @ (a + sp.eye_array(self.n_agents, format="csr"))
+        return sp.diags_array(inv) @ (self.adjacency(g) + sp.eye_array(self.n_agents, format="csr"))
 
     def union(self) -> sp.csr_array:
         """Adjacency of the union of the period's graphs (the joint graph), sparse."""
@@ -310,8 +307,7 @@ def _infer_n_agents(graphs: Iterable[Any], positions: Iterable[str]) -> int:
     largest = -1
     for graph, position in zip(graphs, positions, strict=True):
         if _is_digraph(graph):
-            nodes = _digraph_nodes(graph, "topology", position)
-            largest = max(largest, max(nodes, default=-1))
+            largest = max(largest, max(_digraph_nodes(graph, "topology", position), default=-1))
         else:
             array = _edge_array(graph, "topology", position)
             largest = max(largest, int(array.max()) if array.size else -1)

@@ -261,8 +261,7 @@ def apply_matrix(matrix: np.ndarray, z: np.ndarray) -> np.ndarray:
 
 def apply_transposed(matrix_t: np.ndarray, z: np.ndarray) -> np.ndarray:
     """``z @ matrix_t`` for ``z`` ``(..., n)`` and a C-ordered ``(n, n)`` transpose, as one 2-D product."""
-    n = matrix_t.shape[0]
-    return (z.reshape(-1, n) @ matrix_t).reshape(z.shape)
+    return (z.reshape(-1, matrix_t.shape[0]) @ matrix_t).reshape(z.shape)
 
 
 def polynomial_peak(p: list[Any]) -> Any:

@@ -71,8 +71,7 @@ def _real_matrix(name: str, value: Any, expected: str, copy: bool = True) -> np.
 
 def _structural_levels(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Breadth-first level of each state from the input through the nonzero pattern of A, ``(n,)`` int."""
-    n = A.shape[0]
-    levels = np.full(n, -1)
+    levels = np.full(A.shape[0], -1)
     frontier = np.any(B != 0, axis=1)
     levels[frontier] = 0
     level = 0
@@ -283,8 +282,7 @@ def check_horizon(model: LinearModel, settling_time: float) -> None:
 
 def _unstable_eigenvalues(model: LinearModel) -> str:
     """A's eigenvalues with a positive real part, as text (``1.5, 0.2+1j``)."""
-    eigenvalues = np.linalg.eigvals(model.A)
-    unstable = [complex(mu) for mu in eigenvalues if mu.real > 0]
+    unstable = [complex(mu) for mu in np.linalg.eigvals(model.A) if mu.real > 0]
     return ", ".join(f"{mu.real:.4g}" + (f"{mu.imag:+.4g}j" if mu.imag else "") for mu in unstable)
 
 

@@ -145,8 +145,7 @@ def linear_energy_bound(model: LinearModel, z0: Any, settling_time: Any, offsets
             raise ArgumentError(f"offsets: expected shape {z.shape[-3:]}, got {h.shape}")
         z = z - h
     T = validation.real("settling_time", settling_time, positive=True)
-    maps = model.interval_maps([T])
-    bound, beyond = _linear_bound(maps, z, T)
+    bound, beyond = _linear_bound(model.interval_maps([T]), z, T)
     if np.any(beyond):
         raise ArgumentError(f"settling_time: {_beyond_text(bound, beyond)} at T_s = {T:g} s")
     return bound

@@ -379,8 +379,7 @@ class Formation:
         has no velocity (``v0`` is not used). With offsets, ``h`` is subtracted (t = 0).
         """
         xp, n = self.backend.xp, self.n_states
-        parts = [x0, v0][:n] + [xp.zeros_like(x0)] * (n - 2)
-        fresh = xp.stack(parts, axis=2)
+        fresh = xp.stack([x0, v0][:n] + [xp.zeros_like(x0)] * (n - 2), axis=2)
         return fresh if self.offsets is None else fresh - self.offsets
 
     def absolute(self, state: Any, clock: Any) -> Any:

@@ -148,8 +148,7 @@ class EpisodeClock:
 
     def per_instant(self, table: Any) -> Any:
         """Each episode's row of a ``(K + 1, F)`` table: ``(B, 1, F)``."""
-        xp = namespace(self.steps)
-        return xp.take(table, self.steps, axis=0)[:, None, :]
+        return namespace(self.steps).take(table, self.steps, axis=0)[:, None, :]
 
     def episode_steps(self, backend: Any) -> Any:
         return self.steps

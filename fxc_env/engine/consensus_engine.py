@@ -287,8 +287,7 @@ class ConsensusEngine:
         are known on the host); a non-finite entry sets :attr:`invalid` on the device (read
         by :meth:`raise_if_invalid`), so the check never waits on the device.
         """
-        expected = (self.n_episodes, self.config.n_agents, self.config.action_size)
-        return self.backend.checked(actions, expected, name)
+        return self.backend.checked(actions, (self.n_episodes, self.config.n_agents, self.config.action_size), name)
 
     def raise_if_invalid(self) -> None:
         """Raise :class:`ArgumentError` if any episode saw a non-finite action or result (torch: one read off the device; the flags are then cleared, so it is reported once)."""

@@ -63,8 +63,7 @@ def sample_initial_state(config: EnvConfig, rng: np.random.Generator) -> tuple[n
     position_range = _draw_scale(config.position_range, rng)
     velocity_range = _draw_scale(config.velocity_range, rng)
     x0 = rng.uniform(-position_range, position_range, size=shape)
-    v0 = rng.uniform(-velocity_range, velocity_range, size=shape)
-    return x0, v0
+    return x0, rng.uniform(-velocity_range, velocity_range, size=shape)
 
 
 def draw_episode(config: EnvConfig, rng: np.random.Generator) -> EpisodeDraw:
@@ -148,5 +147,4 @@ def _half_widths(half_widths: tuple[float, float], xp: Any, uniform: Callable, b
     low, high = half_widths
     if low == high:
         return low
-    unit = uniform((b, 1, 1))
-    return xp.exp(math.log(low) + unit * (math.log(high) - math.log(low)))
+    return xp.exp(math.log(low) + uniform((b, 1, 1)) * (math.log(high) - math.log(low)))

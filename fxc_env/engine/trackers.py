@@ -55,8 +55,7 @@ class EpisodeTrackers:
         self.z0 = backend.zeros((b, n, n_states, dim))
         #: Settling thresholds as a column, ``(len(TRACKED_THRESHOLDS), 1)``.
         self._thresholds = backend.array(np.array(TRACKED_THRESHOLDS)[:, None])
-        model = config.model if config.model is not None else LinearModel(*model_matrices("double_integrator"))
-        self._model = model
+        self._model = config.model if config.model is not None else LinearModel(*model_matrices("double_integrator"))
         #: ``(topology, (radius_bound, all_roots_bound))`` by the topology's id (a graph's bounds are computed once).
         self._bounds_cache: dict[int, tuple[Any, tuple[float, float]]] = {}
         #: ``(topology, noise floor at sigma = 1 in metres)`` by the topology's id, likewise.

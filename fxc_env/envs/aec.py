@@ -129,8 +129,7 @@ class ConsensusAECEnv(AECEnv, EzPickle):
                 raise ArgumentError(f"action of {agent}: its episode has ended, so the only valid action is None")
             self._was_dead_step(action)
             return
-        checked = self.parallel.check_action(agent, action, name=f"action of {agent}")
-        self._actions[agent] = checked
+        self._actions[agent] = self.parallel.check_action(agent, action, name=f"action of {agent}")
         if self._turn < len(self.agents) - 1:
             if self._turn == 0:
                 self._clear_rewards()  # the previous interval's rewards were seen by everyone

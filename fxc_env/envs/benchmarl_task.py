@@ -123,8 +123,7 @@ class FxcTaskClass(TaskClass):
     # ------------------------------------------------------------ specs (unbatched: BenchMARL's convention)
     def observation_spec(self, env: EnvBase) -> Composite:
         """The group's entries only: ``("agents", "observation")`` of shape ``[N, obs_size]``."""
-        spec = env.full_observation_spec_unbatched
-        return Composite({GROUP: spec[GROUP].clone()})
+        return Composite({GROUP: env.full_observation_spec_unbatched[GROUP].clone()})
 
     def state_spec(self, env: EnvBase) -> Composite | None:
         """``"state"`` ``[N * 2 dim + 3]`` with ``global_state="normalized"``, else None."""

@@ -217,8 +217,7 @@ class ConsensusParallelEnv(ParallelEnv, EzPickle):
     def _build(self) -> None:
         """The engine, the agents and their spaces, and the episode's bookkeeping, of :attr:`config`."""
         self.engine = ConsensusEngine(self.config, n_episodes=1)
-        n = self.config.n_agents
-        self.possible_agents = [f"agent_{i}" for i in range(n)]
+        self.possible_agents = [f"agent_{i}" for i in range(self.config.n_agents)]
         self.agents: list[str] = []
         self._agent_index = {agent: i for i, agent in enumerate(self.possible_agents)}
         self._agent_set = set(self.possible_agents)

@@ -316,8 +316,7 @@ class ConsensusTorchEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         engine = self.engine
-        actions = engine.validate_actions(tensordict.get((GROUP, "action")), "actions")
-        outcome = engine.step(actions)
+        outcome = engine.step(engine.validate_actions(tensordict.get((GROUP, "action")), "actions"))
         b, n = self.batch_size[0], self.n_agents
         terminated = outcome.terminated
         if not isinstance(terminated, torch.Tensor):

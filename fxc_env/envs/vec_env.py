@@ -242,8 +242,7 @@ class ConsensusVecEnv(VecEnv):
         return list(self._infos_pool)
 
     def _observe(self) -> np.ndarray:
-        obs = self.engine.observations().reshape(self.num_envs, -1)
-        return obs.astype(self.config.observation_dtype, copy=False)
+        return self.engine.observations().reshape(self.num_envs, -1).astype(self.config.observation_dtype, copy=False)
 
     # ------------------------------------------------------------------ step
     def step_async(self, actions: np.ndarray) -> None:

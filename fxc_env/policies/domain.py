@@ -235,8 +235,7 @@ def _range_text(pair: Any) -> str:
 def _values_text(values: Any) -> str:
     if values is None:
         return "none"
-    distinct = sorted(set(values))
-    return ", ".join(f"{v:g}" for v in distinct)
+    return ", ".join(f"{v:g}" for v in sorted(set(values)))
 
 
 def graph_label(entry: Mapping[str, Any]) -> str:

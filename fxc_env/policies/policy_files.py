@@ -108,8 +108,7 @@ class SavedModel:
 
         if not deterministic:
             raise ArgumentError("deterministic: a SavedModel acts deterministically only (deterministic=True)")
-        shape = self.observation_space.shape
-        obs = np.asarray(observation).reshape((-1, *shape))
+        obs = np.asarray(observation).reshape((-1, *self.observation_space.shape))
         with torch.no_grad():
             out = self.policy(torch.as_tensor(obs).float())
             if self.squash:

@@ -115,8 +115,7 @@ def call_policy(policy: Any, observation: Any, act: Callable[[Any], Any], conver
         if len({row.shape for row in rows}) > 1:
             shapes = {agent: row.shape for agent, row in zip(agents, rows, strict=True)}
             raise ArgumentError(f"observations: every agent's observation must have one shape, got {shapes}")
-        stacked = np.stack(rows)
-        return dict(zip(agents, act(stacked), strict=True))
+        return dict(zip(agents, act(np.stack(rows)), strict=True))
     obs = flat_observation(observation) if isinstance(observation, Mapping) else observation
     obs = np.asarray(obs, dtype=np.float64) if convert or not hasattr(obs, "shape") else obs
     if needs_team(policy) and obs.ndim < 2:

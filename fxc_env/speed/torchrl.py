@@ -74,8 +74,7 @@ def torchrl_batched_stepper(n_episodes: int, seed: int = 0, device: str = "cpu")
     from fxc_env.policies.torchrl_reference import reference_policy
 
     env = ConsensusTorchEnv(batch_size=n_episodes, device=device, seed=seed, scenario="paper_fig1")
-    policy = reference_policy(env)
-    return _stepper(env, policy)
+    return _stepper(env, reference_policy(env))
 
 
 #: The TorchRL table's rows: (key, label) per contender at each size.

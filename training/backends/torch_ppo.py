@@ -179,8 +179,7 @@ class Trainer(TrainerFiles):
         """GAE: advantages, value targets ``[T, B, N]`` (local) or ``[T, B]`` (central), and the explained variance."""
         s = self.settings
         with torch.no_grad():
-            inputs = self.states if self.central else self.obs
-            values = self.model.critic(inputs).squeeze(-1)
+            values = self.model.critic(self.states if self.central else self.obs).squeeze(-1)
             rewards = self.rewards if self.central else self.rewards[:, :, None]
             advantages = torch.empty_like(values)
             running = torch.zeros_like(values[0])

@@ -167,8 +167,7 @@ def custom_case(env_kwargs: dict[str, Any]) -> tuple[BenchmarkCase, float]:
         given = {**given, **spec} if isinstance(spec, dict) else given  # the spec's parameter, or a flat alias
         conditions += [(name, given[name]) for name in MODEL_PARAMETERS.values() if given.get(name) is not None]
     topology = config.family if config.family is not None else config.topology
-    case = BenchmarkCase(topology, config.n_agents, conditions=tuple(conditions), dim=config.dim)
-    return case, config.settling_time
+    return BenchmarkCase(topology, config.n_agents, conditions=tuple(conditions), dim=config.dim), config.settling_time
 
 
 #: Settings that belong to each contender (its schedule, K, modes, width), not to the case.

@@ -186,8 +186,7 @@ def leaderboard_command(args: argparse.Namespace) -> int:
     algorithms = check_algorithms(list(args.algorithms))
     refuse_unread_budget(args, algorithms)
     out = output_directory("--out", args.out)
-    contenders = scored_names()
-    rescore, train = plan_files(out, tasks, algorithms, seeds, frames, contenders)
+    rescore, train = plan_files(out, tasks, algorithms, seeds, frames, scored_names())
     for task in tasks:
         make_out(out / task.id)
     for task in (task for task in tasks if task.id in rescore):

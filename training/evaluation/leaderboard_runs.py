@@ -163,8 +163,7 @@ def train_and_score(task: NamedTask, algorithm: str, seed: int, frames: int, fol
     experiment.callbacks.append(curve)
     start = time.perf_counter()
     experiment.run()
-    wall = time.perf_counter() - start
-    seconds = {**curve.seconds, "wall": wall}
+    seconds = {**curve.seconds, "wall": time.perf_counter() - start}
     trained = curve.points[-1]
     return {**result_record(task), "algorithm": algorithm, "seed": seed, "frames": int(experiment.total_frames),
             "deadline_error": trained["deadline_error"], "energy": trained["energy"], "curve": curve.points,

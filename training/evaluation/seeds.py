@@ -76,8 +76,7 @@ def plan_seed_runs(args: TrainArgs, *, flags: bool = True) -> list[SeedRun]:
     Raises :class:`~fxc_env.core.validation.ArgumentError` naming the flag (with ``flags``) or
     field for a bad ``--seeds`` or any seed's bad arguments, run directory or resume checks.
     """
-    name = "--seeds" if flags else "seeds"
-    seeds = parse_seeds(args.seeds, name)
+    seeds = parse_seeds(args.seeds, "--seeds" if flags else "seeds")
     planned = []
     for seed in seeds:
         one = dataclasses.replace(args, seed=seed, seeds=None, run_dir=seed_run_dir(args, seed))

@@ -43,8 +43,7 @@ def iqm(scores: np.ndarray, axis: int = -1) -> np.ndarray:
     if n == 0:
         raise ArgumentError("scores: the interquartile mean of no scores is undefined")
     cut = n // 4
-    kept = np.take(ordered, np.arange(cut, n - cut), axis=axis)
-    return kept.mean(axis=axis)
+    return np.take(ordered, np.arange(cut, n - cut), axis=axis).mean(axis=axis)
 
 
 #: Aggregates by name: each maps ``(..., n)`` scores to ``(...)`` along the last axis.

@@ -314,8 +314,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print("wrote", out / "policy.pt")
         policy = TorchPolicy(record_policy)
     for n in measure:
-        result = evaluate(policy, n, range(args.seeds))
-        print(rings.comparison_line("gru rings", result))
+        print(rings.comparison_line("gru rings", evaluate(policy, n, range(args.seeds))))
     return 0
 
 
