@@ -33,7 +33,7 @@ def exact_observations(config: EnvConfig, backend: Any) -> bool:
     Not so with measurement noise (``obs_noise``), rows rounded to a quantum (``obs_resolution``),
     lost links (``link_dropout``), float32 observations (rounded rows), general linear agents
     (``agent_model``: their plan is another map) or no in-neighbour slots; nor on torch (the
-    sparse product is scipy's).
+    gather is numpy's ``take``).
     """
     return noise_free(config, backend) and config.obs_dtype == "float64"
 
