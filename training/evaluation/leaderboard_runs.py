@@ -54,7 +54,11 @@ OFF_POLICY = frozenset({"masac", "maddpg"})
 #: Per task (``tasks``): on ``saturated-v2`` the on-policy lr is 3e-4, since at 1e-3 MAPPO reached 0.002 to
 #: 0.034 by 448k frames and then collapsed in all three seeds (1.3 to 1.7 at 1,024k; docs results.md); on
 #: ``generalist-v2`` too, since at 1e-3 IPPO climbed from 0.35 at 64k frames to 0.4-0.78 at 1,024k in all three
-#: seeds (at 3e-4 MAPPO ends at 0.178 instead of 0.249 and IPPO at 0.459 instead of 0.500).
+#: seeds (at 3e-4 MAPPO ends at 0.178 instead of 0.249 and IPPO at 0.459 instead of 0.500); and there GAE's
+#: ``lmbda`` is 1 (BenchMARL's default 0.9): the advantage is then the return to go less the critic's value,
+#: so IPPO's one-agent critic, which cannot tell a directed path from a ring, is only a baseline and no
+#: longer biases the gradient through its bootstrapped values (IPPO seed 0: 0.532 at 0.9, 0.307 at 1; docs
+#: results.md, "IPPO on generalist-v2"). A task's ``algorithm`` fields update its kind's.
 SETTINGS: dict[int, dict[str, Any]] = {
     1: {},
     2: {
@@ -67,7 +71,10 @@ SETTINGS: dict[int, dict[str, Any]] = {
         "num_cells": (64, 64),
         "on_policy": {"lr": 1e-3, "algorithm": {"scale_mapping": "biased_softplus_0.22_0.1"}},
         "off_policy": {"lr": 3e-4, "algorithm": {}},
-        "tasks": {"saturated-v2": {"on_policy": {"lr": 3e-4}}, "generalist-v2": {"on_policy": {"lr": 3e-4}}},
+        "tasks": {
+            "saturated-v2": {"on_policy": {"lr": 3e-4}},
+            "generalist-v2": {"on_policy": {"lr": 3e-4, "algorithm": {"lmbda": 1.0}}},
+        },
     },
 }
 #: The keys of a version's :data:`SETTINGS` that are not fields of BenchMARL's ``ExperimentConfig``.
@@ -78,7 +85,9 @@ def kind_settings(task: NamedTask, algorithm: str) -> dict[str, Any]:
     """The task version's settings of ``algorithm``'s kind (``lr``, ``algorithm``: config fields), with the task's
     own where :data:`SETTINGS` gives them (``tasks``); {} for v1."""
     version, kind = SETTINGS[task.version], "off_policy" if algorithm in OFF_POLICY else "on_policy"
-    return {**version.get(kind, {}), **version.get("tasks", {}).get(task.id, {}).get(kind, {})}
+    common, own = version.get(kind, {}), version.get("tasks", {}).get(task.id, {}).get(kind, {})
+    merged, algorithm = {**common, **own}, {**common.get("algorithm", {}), **own.get("algorithm", {})}
+    return {**merged, "algorithm": algorithm} if algorithm else merged
 
 
 def score_actor(task: NamedTask, act: Any) -> dict[str, list[float]]:
