@@ -171,4 +171,10 @@ def test_the_v2_settings_reach_benchmarl_per_kind_of_algorithm(tmp_path):
     for name in ("saturated-v2", "generalist-v2"):  # the tasks' own: MAPPO collapsed, IPPO drifted at 1e-3 (results.md)
         for algorithm in ("mappo", "ippo"):
             experiment, _ = build_experiment(TASKS[name], algorithm, 0, 6400, tmp_path / name / algorithm)
+            config = experiment.algorithm_config
             assert experiment.config.lr == 3e-4, (name, algorithm)
+            # generalist-v2's own GAE lambda (IPPO's one-agent critic only a baseline) beside the kind's scale floor
+            assert (config.lmbda, config.scale_mapping) == (
+                1.0 if name == "generalist-v2" else 0.9,
+                "biased_softplus_0.22_0.1",
+            ), (name, algorithm)

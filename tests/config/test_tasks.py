@@ -19,9 +19,14 @@ V1 = {
     "saturated-v1": {"scenario": "saturated", "n_intervals": 200},
 }
 
-#: The v2 tasks as released: v1's settings at K = 50 with the plan_balanced interface in a ±1 box.
+#: The v2 tasks as released: v1's settings at K = 50 with the plan_balanced interface in a ±1 box; generalist-v2's
+#: reward floored at 1e-3 D(0) (its return stops paying for over-solving the easy episodes).
 V2_INTERFACE = {"action_mode": "plan_balanced", "action_bound": 1.0, "n_intervals": 50}
-V2 = {name.replace("-v1", "-v2"): {**settings, **V2_INTERFACE} for name, settings in V1.items()}
+V2_OWN = {"generalist-v2": {"reward_floor": 1e-3}}
+V2 = {
+    name.replace("-v1", "-v2"): {**settings, **V2_INTERFACE, **V2_OWN.get(name.replace("-v1", "-v2"), {})}
+    for name, settings in V1.items()
+}
 
 #: What each v1 task resolves to (N, K, T_s, schedule, input limits, observation slots): the scenarios'
 #: presets it names must not drift under it either.
@@ -46,6 +51,7 @@ def test_the_v2_tasks_are_the_v1_tasks_on_the_balanced_interface_at_k_50():
     for name in V2:
         config = make_config(**task_kwargs(name))
         assert (config.action_mode, config.action_bound, config.n_intervals) == ("plan_balanced", 1.0, 50)
+        assert config.reward_floor == (1e-3 if name == "generalist-v2" else 1e-12)
 
 
 @pytest.mark.parametrize("name", sorted(RESOLVED))

@@ -73,7 +73,7 @@ SETTINGS: dict[int, dict[str, Any]] = {
         "off_policy": {"lr": 3e-4, "algorithm": {}},
         "tasks": {
             "saturated-v2": {"on_policy": {"lr": 3e-4}},
-            "generalist-v2": {"on_policy": {"lr": 3e-4, "algorithm": {"lmbda": 1.0}}},
+            "generalist-v2": {"on_policy": {"lr": 1e-4, "algorithm": {"lmbda": 1.0}}},
         },
     },
 }
