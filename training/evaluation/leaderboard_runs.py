@@ -83,11 +83,10 @@ _NOT_EXPERIMENT_FIELDS = ("num_cells", "on_policy", "off_policy", "episodes_per_
 
 def kind_settings(task: NamedTask, algorithm: str) -> dict[str, Any]:
     """The task version's settings of ``algorithm``'s kind (``lr``, ``algorithm``: config fields), with the task's
-    own where :data:`SETTINGS` gives them (``tasks``); {} for v1."""
+    own where :data:`SETTINGS` gives them (``tasks``: its fields update the kind's); no ``lr`` and no fields for v1."""
     version, kind = SETTINGS[task.version], "off_policy" if algorithm in OFF_POLICY else "on_policy"
     common, own = version.get(kind, {}), version.get("tasks", {}).get(task.id, {}).get(kind, {})
-    merged, algorithm = {**common, **own}, {**common.get("algorithm", {}), **own.get("algorithm", {})}
-    return {**merged, "algorithm": algorithm} if algorithm else merged
+    return {**common, **own, "algorithm": {**common.get("algorithm", {}), **own.get("algorithm", {})}}
 
 
 def score_actor(task: NamedTask, act: Any) -> dict[str, list[float]]:
@@ -220,7 +219,7 @@ def build_experiment(task: NamedTask, algorithm: str, seed: int, frames: int, fo
 
     algorithm_config, model = ALGORITHMS[algorithm]
     algorithm_settings = getattr(benchmarl_algorithms, algorithm_config).get_from_yaml()
-    for name, value in kind_settings(task, algorithm).get("algorithm", {}).items():
+    for name, value in kind_settings(task, algorithm)["algorithm"].items():
         setattr(algorithm_settings, name, value)
     if model == "gnn":
         import torch_geometric
