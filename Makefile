@@ -31,7 +31,7 @@ CHECK_SHARDS := check-shard-1 check-shard-2
 
 .PHONY: demo test check docs $(CHECK_SHARDS) benchmarl lint format clean
 
-$(STAMP): pyproject.toml constraints.txt
+$(STAMP): pyproject.toml constraints.txt fxc_env/engine/_reference_kernel.c
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt -e ".[test]"
 	touch $(STAMP)
@@ -46,12 +46,12 @@ $(TORCHRL_STAMP): $(STAMP)
 	$(BIN)/pip install $(PIP_FLAGS) -c constraints.txt --no-deps id-marl-eval
 	touch $(TORCHRL_STAMP)
 
-$(RLLIB_STAMP): pyproject.toml constraints-rllib.txt
+$(RLLIB_STAMP): pyproject.toml constraints-rllib.txt fxc_env/engine/_reference_kernel.c
 	test -x $(RLLIB_BIN)/python || $(PYTHON) -m venv $(RLLIB_VENV)
 	$(RLLIB_BIN)/pip install $(PIP_FLAGS) -c constraints-rllib.txt -e ".[rllib,test]"
 	touch $(RLLIB_STAMP)
 
-$(BENCHMARL_STAMP): pyproject.toml constraints-benchmarl.txt
+$(BENCHMARL_STAMP): pyproject.toml constraints-benchmarl.txt fxc_env/engine/_reference_kernel.c
 	test -x $(BENCHMARL_BIN)/python || $(PYTHON) -m venv $(BENCHMARL_VENV)
 	$(BENCHMARL_BIN)/pip install $(PIP_FLAGS) -c constraints-benchmarl.txt -e ".[benchmarl,test]"
 	$(BENCHMARL_BIN)/python -m fxc_env.envs.benchmarl_run --install-plugin

@@ -121,8 +121,8 @@ class DoubleIntegratorAgents:
         self._ends = dynamics.input_ends(self.plans, self.normalized, config.velocity_weight)
         #: Each episode's input limit ``u_max`` (m/s^2), ``(B,)``; None without a limit.
         self.u_max: Any = None
-        self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
-        self._range_weights = np.array([1.0, config.settling_time])
+        self.no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
+        self.range_weights = np.array([1.0, config.settling_time])
 
     def inputs(self, actions: Any, T: Any, local_scale: Callable[[], Any], raw_plans: bool = False) -> tuple[Any, Any]:
         """The affine input's end values ``(u(t_k+), u(t_{k+1}-))`` of actions (the card's Action Space).
@@ -159,7 +159,7 @@ class DoubleIntegratorAgents:
                 x_next, v_next, energy, peak = dynamics.advance_with_costs(x, v, u0, u1, T)
                 following = self.backend.xp.stack([x_next, v_next], axis=2)
             return Interval(
-                following, energy, peak, u0, u1, self._no_saturation, None, None, self.disagreement(following)
+                following, energy, peak, u0, u1, self.no_saturation, None, None, self.disagreement(following)
             )
 
     def _advance_blocked(
@@ -203,7 +203,7 @@ class DoubleIntegratorAgents:
                     ranges = values.max(axis=-1) - values.min(axis=-1)
                 else:
                     ranges = values.max(axis=1) - values.min(axis=1)
-                return ranges @ self._range_weights  # e_x + T_s e_v
+                return ranges @ self.range_weights  # e_x + T_s e_v
             ranges = xp.max(values, axis=1) - xp.min(values, axis=1)
             return ranges[:, 0] + self.config.settling_time * ranges[:, 1]
         return disagreement(state[:, :, 0], state[:, :, 1], self.config.settling_time)
@@ -245,7 +245,7 @@ class LinearAgents:
         self.backend = backend
         self.normalized = config.obs_mode == "normalized"
         self.u_max: Any = None
-        self._no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
+        self.no_saturation = backend.zeros((backend.n_episodes, config.n_agents))
         self._row_scales = backend.array(config.row_scales)
         #: torch: the interval maps' factors on the device (:class:`_DeviceMaps`); None on numpy.
         self._device_maps = None if backend.is_numpy else _DeviceMaps(config.interval_maps, backend)
@@ -292,7 +292,7 @@ class LinearAgents:
                 u_start, u_end = u_start[..., 0], u_end[..., 0]
             out[...] = np.swapaxes(following, -1, -2)
             energy, peak, disagreement = energy.sum(axis=-1), peak.max(axis=-1), state_disagreement(out, c)
-            return Interval(out, energy, peak, u_start, u_end, self._no_saturation, None, delta, disagreement)
+            return Interval(out, energy, peak, u_start, u_end, self.no_saturation, None, delta, disagreement)
 
     def _advance_device(self, state: Any, plan: Any, k: int) -> Interval:
         """:meth:`advance` on torch: the same maps (:meth:`IntervalMaps.steer <fxc_env.core.linear.IntervalMaps.steer>`,
@@ -312,7 +312,7 @@ class LinearAgents:
             u_start, u_end = u_start[..., 0], u_end[..., 0]
         energy, peak = xp.sum(energy, axis=-1), xp.max(maps.peak(k, nu), axis=-1)
         disagreement = state_disagreement(following, self.config)
-        return Interval(following, energy, peak, u_start, u_end, self._no_saturation, None, delta, disagreement)
+        return Interval(following, energy, peak, u_start, u_end, self.no_saturation, None, delta, disagreement)
 
     def disagreement(self, state: Any) -> Any:
         """``D = sum_l T_s^l e_{z_l}`` per episode ``(B,)`` (:func:`state_disagreement`)."""

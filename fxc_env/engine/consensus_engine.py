@@ -19,7 +19,7 @@ is refused at once, state unchanged; on torch it sets a per-episode flag, read o
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -306,8 +306,12 @@ class ConsensusEngine:
         self.clock.check_can_step()
         actions = actions if raw_plans else self.plans_from_actions(actions)
         interval = self.agents.advance(self.state, actions, self.clock, self.local_scale, self._spare, raw_plans)
+        return self._conclude(interval, lambda: actions)
+
+    def _conclude(self, interval: Any, actions: Callable[[], Any]) -> StepOutcome:
+        """Adopt the played ``interval`` once finite (else refuse, naming ``actions()``), then move the clock, trackers and graphs."""
         self.state, self._spare = self.backend.commit_if_finite(
-            self.state, interval, lambda: self.backend.refusal(actions, interval, self.k, self.current_interval())
+            self.state, interval, lambda: self.backend.refusal(actions(), interval, self.k, self.current_interval())
         )
         self.backend.flag(self.clock.past_deadline())
         reached = self.clock.advance()
@@ -319,7 +323,11 @@ class ConsensusEngine:
 
     def step_reference(self) -> StepOutcome:
         """One interval of the paper's controller (eq. 11), ``step(ReferencePolicy(config)(observations()))`` to rounding, from the neighbour sums alone where the agents observe exactly (:mod:`~fxc_env.engine.reference`; else :class:`ArgumentError`)."""
-        return self.step(self.neighbour_plans.plans(self.state, self.clock, self.graphs), raw_plans=True)
+        plans = self.neighbour_plans
+        interval = plans.interval(self.state, self.clock, self.graphs, self.agents, self._spare)
+        if interval is None:
+            return self.step(plans.plans(self.state, self.clock, self.graphs), raw_plans=True)
+        return self._conclude(interval, lambda: plans.plans(self.state, self.clock, self.graphs))
 
     # ---------------------------------------------------------------- metrics
     def batch_metrics(self) -> dict[str, np.ndarray]:

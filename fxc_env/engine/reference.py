@@ -4,12 +4,20 @@ The reference controller plans ``a_x = (sum_j (x_j - x_i) + T sum_j (v_j - v_i))
 ``a_v = sum_j (v_j - v_i) / (d_i + 1)`` over the in-neighbours j of the coming interval's graph
 (:class:`~fxc_env.policies.reference.ReferencePolicy` reads these sums off the observation). When the
 observation holds the true relative states (:func:`exact_observations`), :class:`NeighbourPlans`
-forms the sums straight from the state, block by block of agents in the cache, with the
-observation's own differences ``z_j - z_i`` (so they round alike: bit for bit with raw
-observations), and :meth:`ConsensusEngine.step_reference <fxc_env.engine.ConsensusEngine.step_reference>`
-plays the plans with the minimum-energy input and the exact step: the observation path's interval
-to rounding, without its ``(B, N, obs_size)`` observations (docs: performance.md, "The reference
-fast path").
+forms the sums straight from the state with the observation's own differences ``z_j - z_i``, and
+:meth:`ConsensusEngine.step_reference <fxc_env.engine.ConsensusEngine.step_reference>` plays the
+plans with the minimum-energy input and the exact step: the observation path's interval, bit for
+bit with raw observations (to rounding with normalized ones), without its ``(B, N, obs_size)``
+observations (docs: performance.md, "The reference fast path").
+
+The work is done by a compiled kernel, :data:`KERNEL` (``fxc_env/engine/_reference_kernel.c``,
+built by ``pip install`` from pyproject.toml's ext-modules): per agent, in one pass, the gather of
+the in-neighbours' ``[x_j, v_j]``, the sums slot by slot, the plan, and for unlimited double
+integrators the whole interval (the input's ends, the exact step, energy, peak and the
+disagreement's ranges) while the gathered rows are in the cache: numpy's operations in numpy's
+order, so the same values, where numpy needs some twenty passes over the agents and a gather
+that alone costs half a sparse product. An install without a C compiler has no kernel: then
+``ReferencePolicy.step`` builds the observations and ``step_reference`` refuses, saying why.
 """
 
 from __future__ import annotations
@@ -21,10 +29,14 @@ import numpy as np
 from fxc_env.config import EnvConfig
 from fxc_env.core.validation import ArgumentError
 
+from .agents import Interval
 from .observations import noise_free
 
-#: Agents per block of :meth:`NeighbourPlans.plans` (the gathered rows, 1 MiB at 4 slots and dim = 1, stay in the cache).
-BLOCK_AGENTS = 16384
+try:
+    #: The compiled kernel of the reference interval; None where the install had no C compiler.
+    from . import _reference_kernel as KERNEL
+except ImportError:  # the observation path serves
+    KERNEL = None
 
 
 def exact_observations(config: EnvConfig, backend: Any) -> bool:
@@ -33,7 +45,7 @@ def exact_observations(config: EnvConfig, backend: Any) -> bool:
     Not so with measurement noise (``obs_noise``), rows rounded to a quantum (``obs_resolution``),
     lost links (``link_dropout``), float32 observations (rounded rows), general linear agents
     (``agent_model``: their plan is another map) or no in-neighbour slots; nor on torch (the
-    gather is numpy's ``take``).
+    kernel reads numpy's memory).
     """
     return noise_free(config, backend) and config.obs_dtype == "float64"
 
@@ -47,65 +59,85 @@ class NeighbourPlans:
     """
 
     def __init__(self, config: EnvConfig, backend: Any) -> None:
-        #: The agents observe exactly: :meth:`plans` applies.
-        self.exact = exact_observations(config, backend)
+        observe_exactly = exact_observations(config, backend)
+        #: :meth:`plans` applies: the agents observe exactly and the install built :data:`KERNEL`.
+        self.exact = observe_exactly and KERNEL is not None
+        #: :meth:`interval` applies too: unlimited double integrators, float64 states.
+        self.fusable = self.exact and config.u_max_choices is None and backend.dtype == np.float64
+        self._refusal = None if self.exact else _refusal(observe_exactly)
         self.config = config
         self.n_episodes = backend.n_episodes
         self._plans: np.ndarray | None = None
-        #: ``1 / (d_i + 1)`` ``(N, 2 dim)`` by row of the graph table whose rows they are (made at first use).
+        #: ``1 / (d_i + 1)`` ``(N,)`` by row of the graph table whose rows they are (made at first use).
         self._weights: tuple[Any, dict[int, np.ndarray]] = (None, {})
 
     def __getstate__(self) -> dict[str, Any]:
         return {**self.__dict__, "_plans": None, "_weights": (None, {})}  # scratch space, made again on first use
 
     def _weight(self, graphs: Any, graph: int) -> np.ndarray:
-        """``1 / (d_i + 1)`` of row ``graph`` of ``graphs`` (the table's own degrees, cached), once per plan entry ``(N, 2 dim)``.
-
-        Repeated along the row so that multiplying the plans by it is one contiguous run (a
-        ``(N, 1)`` column broadcast over ``2 dim`` entries makes numpy loop per agent).
-        """
+        """``1 / (d_i + 1)`` ``(N,)`` of row ``graph`` of ``graphs`` (the table's own degrees, cached)."""
         if self._weights[0] is not graphs:
             self._weights = (graphs, {})
         cached = self._weights[1]
         if graph not in cached:
-            weight = 1.0 / (graphs.mask_features[graph].sum(axis=1, keepdims=True) + 1.0)
-            cached[graph] = np.repeat(weight, 2 * self.config.dim, axis=1)
+            cached[graph] = 1.0 / (graphs.mask_features[graph].sum(axis=1) + 1.0)
         return cached[graph]
+
+    def _episodes(self, graphs: Any, clock: Any) -> list[tuple[int, np.ndarray, np.ndarray, float]]:
+        """Per episode: its index, its coming graph's in-neighbour slots ``(N, slots)``, ``1 / (d_i + 1)`` and ``T``."""
+        if self._refusal is not None:
+            raise ArgumentError(self._refusal)
+        clock.check_can_step()
+        intervals = np.broadcast_to(np.ravel(clock.interval(1)), (self.n_episodes,))
+        rows = (int(graph) for graph in graphs.graph_ids)
+        return [(b, graphs.neighbour_index[g], self._weight(graphs, g), intervals[b]) for b, g in enumerate(rows)]
 
     def plans(self, state: np.ndarray, clock: Any, graphs: Any) -> np.ndarray:
         """Every agent's plan at ``t_k`` for the state ``(B, N, 2, dim)`` and each episode's coming graph.
 
-        Per block of agents (:meth:`GraphTable.blocks <fxc_env.engine.graph_table.GraphTable.blocks>`),
-        in the cache: gather ``[x_j, v_j]`` of every slot, subtract the agent's own (padded slots
-        give exact zeros), add the slots up, then ``a_v = S_v / (d_i + 1)`` and
+        Per agent, in :data:`KERNEL`: gather ``[x_j, v_j]`` of every slot, subtract the agent's own
+        (padded slots give exact zeros), add the slots up, then ``a_v = S_v / (d_i + 1)`` and
         ``a_x = (S_x + T S_v) / (d_i + 1)``, the policy's arithmetic. A reused buffer: consume it
         before the next call. Refused (:class:`ArgumentError` naming ``step_reference``) unless
-        the observations are exact.
+        :attr:`exact`.
         """
-        if not self.exact:
-            raise ArgumentError(
-                "step_reference: the paper's plan from exact neighbour sums needs exact observations on numpy "
-                "(no obs_noise, obs_resolution, link_dropout or float32 obs_dtype; double-integrator agents); "
-                "step with ReferencePolicy(config)(observations()) instead"
-            )
-        clock.check_can_step()
-        b, n, dim, slots = self.n_episodes, self.config.n_agents, self.config.dim, self.config.layout.slots
+        b, n, dim = self.n_episodes, self.config.n_agents, self.config.dim
         if self._plans is None:
             self._plans = np.empty((b, n, 2 * dim))
-        intervals = np.broadcast_to(np.ravel(clock.interval(1)), (b,))
-        block = min(BLOCK_AGENTS, n)
-        gathered, moved = np.empty((slots, block, 2 * dim)), np.empty((block, dim))
-        for episode in range(b):
-            flat = state[episode].reshape(n, 2 * dim)  # [x | v] per agent
-            graph = int(graphs.graph_ids[episode])
-            weight = self._weight(graphs, graph)
-            for start, index, _ in graphs.blocks(graph, block):
-                stop = start + index.shape[1]
-                rows, sums = gathered[:, : stop - start], self._plans[episode, start:stop]
-                np.take(flat, index, axis=0, out=rows, mode="clip")
-                np.subtract(rows, flat[start:stop], out=rows)  # z_j - z_i
-                np.add.reduce(rows, axis=0, out=sums)  # [S_x | S_v]
-                np.multiply(sums[:, dim:], intervals[episode], out=moved[: stop - start])
-                sums[:, :dim] += moved[: stop - start]
-                np.multiply(sums, weight[start:stop], out=sums)  # over d_i + 1
+        for episode, index, weight, T in self._episodes(graphs, clock):
+            KERNEL.plans(state[episode], index, weight, n, dim, T, self._plans[episode])
         return self._plans
+
+    def interval(self, state: np.ndarray, clock: Any, graphs: Any, agents: Any, out: np.ndarray) -> Interval | None:
+        """The coming interval of :meth:`plans`' plans played in :data:`KERNEL`, its new state in ``out``; None where it does not apply.
+
+        Applies where :attr:`fusable` holds: one pass per episode makes
+        the state at ``t_{k+1}`` ``(B, N, 2, dim)``, the input's ends ``(B, N, dim)``, its energy
+        and peak ``(B, N)`` and (``dim = 1``) the ranges of x and v, the very values of
+        ``agents.advance(state, plans(...))`` (:class:`~fxc_env.engine.agents.Interval`). Else the
+        caller steps with :meth:`plans`.
+        """
+        if not self.fusable:
+            return None
+        b, n, dim = self.n_episodes, self.config.n_agents, self.config.dim
+        u0, u1, energy, peak, ranges = (np.empty(shape) for shape in ((b, n, dim),) * 2 + ((b, n),) * 2 + ((b, 2),))
+        for episode, index, weight, T in self._episodes(graphs, clock):
+            outputs = (out[episode], u0[episode], u1[episode], energy[episode], peak[episode], ranges[episode])
+            KERNEL.interval(state[episode], index, weight, n, dim, T, *outputs)
+        disagreement = ranges @ agents.range_weights if dim == 1 else agents.disagreement(out)
+        return Interval(out, energy, peak, u0, u1, agents.no_saturation, disagreement=disagreement)
+
+
+def _refusal(observe_exactly: bool) -> str:
+    """Why ``step_reference`` does not apply: the observations are not exact, or the kernel was not built."""
+    if observe_exactly:
+        return (
+            "step_reference: the paper's plan from exact neighbour sums needs the compiled kernel "
+            "fxc_env.engine._reference_kernel, which this install did not build (no C compiler at pip install); "
+            "ReferencePolicy(config).step(engine) plays the same interval from the observations"
+        )
+    return (
+        "step_reference: the paper's plan from exact neighbour sums needs exact observations on numpy "
+        "(no obs_noise, obs_resolution, link_dropout or float32 obs_dtype; double-integrator agents); "
+        "step with ReferencePolicy(config)(observations()) instead"
+    )

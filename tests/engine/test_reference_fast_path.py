@@ -3,7 +3,8 @@
 Where the agents observe exactly, ``ReferencePolicy.step(engine)`` plays the same episode as
 ``engine.step(policy(engine.observations()))`` to rounding (bit for bit with raw observations),
 without building observations; with any option that makes observations differ from the true
-relative states it is not taken.
+relative states, or without the compiled kernel (``fxc_env/engine/_reference_kernel.c``), it is
+not taken.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import pytest
 
 from fxc_env import ReferencePolicy, make_config
 from fxc_env.core.validation import ArgumentError
-from fxc_env.engine import ConsensusEngine
+from fxc_env.engine import ConsensusEngine, reference
 
 EXACT = [
     {"scenario": "paper_fig1"},
@@ -22,7 +23,7 @@ EXACT = [
     {"topology": "random", "n_agents": 200, "mean_in_degree": 3.0, "topology_period": 3, "switching": "random"},
     {"topology": "random", "n_agents": 100, "mean_in_degree": 3.0, "action_mode": "plan_balanced", "u_max": [1.0, 3.0]},
     {"topology": "ring", "n_agents": 6, "dim": 2, "formation_offsets": np.eye(6, 2), "action_mode": "accel"},
-    # More than one block of agents (the fast path's blocks of 16384).
+    # Beyond the kernel's prefetch distance and the observation path's blocks of 16384 agents.
     {"topology": "random", "n_agents": 20000, "mean_in_degree": 4.0, "n_intervals": 4},
 ]
 INEXACT = [
@@ -32,6 +33,11 @@ INEXACT = [
     {"obs_dtype": "float32"},
     {"agent_model": "single_integrator"},
 ]
+
+
+def test_the_install_built_the_compiled_kernel():
+    # Without it ReferencePolicy.step builds the observations (the same values, slower) and step_reference refuses.
+    assert reference.KERNEL is not None, "pip install -e . built no fxc_env.engine._reference_kernel (a C compiler?)"
 
 
 def episode(config, fast: bool, n_episodes: int = 3):
@@ -80,7 +86,22 @@ def test_raw_observations_give_the_observation_path_bit_for_bit(dim, action_mode
     states, outcomes, _ = episode(config, fast=False)
     fast_states, fast_outcomes, _ = episode(config, fast=True)
     np.testing.assert_array_equal(fast_states, states)
-    np.testing.assert_array_equal(np.array([o[2] for o in fast_outcomes]), np.array([o[2] for o in outcomes]))
+    for index in range(3):  # u_start, u_end, energy
+        np.testing.assert_array_equal(
+            np.array([o[index] for o in fast_outcomes]), np.array([o[index] for o in outcomes])
+        )
+
+
+@pytest.mark.parametrize("dim", [1, 2])
+def test_an_interval_that_would_overflow_is_refused_with_the_state_kept(dim):
+    engine = ConsensusEngine(make_config(topology="ring", n_agents=8, dim=dim))
+    engine.reset_from_draws([engine.draw_episode(np.random.default_rng(0))])
+    engine.state[0, ::2] *= 1e307  # past what a reset accepts: the plans' inputs overflow float64
+    before = engine.state.copy()
+    with pytest.raises(ArgumentError, match="would overflow float64"):
+        engine.step_reference()
+    np.testing.assert_array_equal(engine.state, before)
+    assert engine.k == 0
 
 
 def test_the_reference_policy_steps_without_observations_where_they_are_exact(monkeypatch):
@@ -98,15 +119,20 @@ def test_the_reference_policy_steps_without_observations_where_they_are_exact(mo
     assert engine.batch_metrics()["relative_deadline_error"][0] < 1e-10
 
 
-@pytest.mark.parametrize("option", INEXACT, ids=lambda s: next(iter(s)))
-def test_inexact_observations_refuse_the_fast_path_and_the_policy_steps_on_observations(option):
-    config = make_config("paper_fig1", **option)
+@pytest.mark.parametrize("option", [*INEXACT, "no kernel"], ids=lambda s: s if isinstance(s, str) else next(iter(s)))
+def test_inexact_observations_or_no_kernel_refuse_the_fast_path_and_the_policy_steps_on_observations(
+    option, monkeypatch
+):
+    if option == "no kernel":  # an install without a C compiler
+        monkeypatch.setattr(reference, "KERNEL", None)
+    config = make_config("paper_fig1", **({} if option == "no kernel" else option))
     engine, expected = ConsensusEngine(config), ConsensusEngine(config)
     assert not engine.neighbour_plans.exact
     for e in (engine, expected):
         e.reset_from_draws([e.draw_episode(np.random.default_rng(0))], rng=np.random.default_rng(3))
     before = engine.state.copy()
-    with pytest.raises(ArgumentError, match="step_reference"):
+    reason = "did not build" if option == "no kernel" else "needs exact observations"
+    with pytest.raises(ArgumentError, match=f"step_reference: .*{reason}"):
         engine.step_reference()
     np.testing.assert_array_equal(engine.state, before)
     policy = ReferencePolicy(config)
