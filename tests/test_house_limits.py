@@ -14,6 +14,7 @@ import ast
 import io
 import textwrap
 import tokenize
+import tomllib
 from collections import Counter
 from pathlib import Path
 
@@ -27,6 +28,11 @@ NOT_CODE = {tokenize.COMMENT, tokenize.NL, tokenize.NEWLINE, tokenize.INDENT, to
 
 
 MODULES = library_modules()
+#: The compiled modules (pyproject.toml's ext-modules), by import name.
+COMPILED = {
+    module["name"]
+    for module in tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["ext-modules"]
+}
 
 
 def _rel(path: Path) -> str:
@@ -153,7 +159,7 @@ def _imported(name: str, path: Path) -> set[str]:
 
     visit(ast.parse(path.read_text()))
     resolved = set()
-    for target in targets:
+    for target in targets - COMPILED:  # a compiled module imports nothing of the library
         while target and target not in MODULES:
             target = target.rpartition(".")[0]
         if target and target != name:

@@ -34,7 +34,7 @@ from .observations import noise_free
 
 try:
     #: The compiled kernel of the reference interval; None where the install had no C compiler.
-    from . import _reference_kernel as KERNEL
+    import fxc_env.engine._reference_kernel as KERNEL
 except ImportError:  # the observation path serves
     KERNEL = None
 
