@@ -148,13 +148,8 @@ def interval_and_product(
 
 def product_goal_line(seconds_per_interval: float | None, seconds_per_product: float | None) -> str:
     """The line comparing one interval at N = :data:`INTERVAL_GOAL_N` with a bare CSR product (None: not measured)."""
-    kernel = (
-        "the compiled kernel" if reference.KERNEL is not None else "numpy's path: the compiled kernel was not built"
-    )
-    where = (
-        f"one reference interval (neighbour sums, plan, exact step; {kernel}) / "
-        f"one scipy CSR product (Laplacian x [x v]) at N={INTERVAL_GOAL_N:,}"
-    )
+    path = "compiled kernel" if reference.KERNEL is not None else "observations: the compiled kernel was not built"
+    where = f"one reference interval ({path}) / one scipy CSR product (Laplacian x [x v]) at N={INTERVAL_GOAL_N:,}"
     goal = f"goal <= {PRODUCT_GOAL:g}x"
     if seconds_per_interval is None or seconds_per_product is None:
         return f"{where}: not measured ({goal}: pass --largest {INTERVAL_GOAL_N})"
