@@ -98,20 +98,16 @@ class ConsensusEngine:
     xp = property(lambda self: self.backend.xp, doc="The array API namespace of the backend.")
     dtype = property(lambda self: self.backend.dtype, doc="The dtype of every float array.")
     is_numpy = property(lambda self: self.backend.is_numpy, doc="numpy arrays (where the numpy fast paths apply).")
-    invalid = property(
-        lambda self: self.backend.invalid, doc="Per-episode flags of bad steps ``(B,)`` (torch; None on numpy)."
-    )
+    invalid = property(lambda self: self.backend.invalid, doc="Bad-step flags ``(B,)`` (torch; None on numpy).")
     k = property(lambda self: self.clock.k, doc="Lock-step instant index (host), valid while :attr:`steps` is None.")
     steps = property(
-        lambda self: self.clock.steps, doc="Each episode's instant ``(B,)`` after a partial reset, else None."
+        lambda self: self.clock.steps, doc="Instants ``(B,)`` per episode after a partial reset, else None."
     )
     time = property(lambda self: self.clock.time, doc="Current sampling instant ``t_k`` in seconds (lock step).")
     topologies = property(lambda self: self.graphs.topologies, doc="Each episode's topology.")
     x0 = property(lambda self: self.trackers.x0, doc="Each episode's initial positions ``(B, N, dim)``.")
     v0 = property(lambda self: self.trackers.v0, doc="Each episode's initial velocities ``(B, N, dim)``.")
-    z0 = property(
-        lambda self: self.trackers.z0, doc="Each episode's initial state ``(B, N, n, dim)`` (engine coordinates)."
-    )
+    z0 = property(lambda self: self.trackers.z0, doc="Initial states ``(B, N, n, dim)`` (engine coordinates).")
     initial_disagreement = property(lambda self: self.trackers.initial_disagreement, doc="``D(0)`` ``(B,)``.")
     current_disagreement = property(lambda self: self.trackers.current_disagreement, doc="``D(t_k)`` ``(B,)``.")
 
@@ -120,9 +116,7 @@ class ConsensusEngine:
         lambda self, value: setattr(self.agents, "u_max", value),
         doc="Each episode's input limit ``u_max`` (m/s^2), ``(B,)``, or None without a limit (held by the agents' part).",
     )
-    x = property(
-        lambda self: self.state[:, :, 0], doc="Positions ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`)."
-    )
+    x = property(lambda self: self.state[:, :, 0], doc="Positions ``(B, N, dim)`` at ``t_k``, a view of :attr:`state`.")
     v = property(
         lambda self: self.xp.zeros_like(self.x) if self.config.n_states == 1 else self.state[:, :, 1],
         doc="Velocities ``(B, N, dim)`` at ``t_k`` (a view of :attr:`state`; zeros for a single integrator).",
@@ -323,11 +317,9 @@ class ConsensusEngine:
 
     def step_reference(self) -> StepOutcome:
         """One interval of the paper's controller (eq. 11), ``step(ReferencePolicy(config)(observations()))`` to rounding, from the neighbour sums alone where the agents observe exactly (:mod:`~fxc_env.engine.reference`; else :class:`ArgumentError`)."""
-        plans = self.neighbour_plans
-        interval = plans.interval(self.state, self.clock, self.graphs, self.agents, self._spare)
-        if interval is None:
-            return self.step(plans.plans(self.state, self.clock, self.graphs), raw_plans=True)
-        return self._conclude(interval, lambda: plans.plans(self.state, self.clock, self.graphs))
+        parts, plans = (self.state, self.clock, self.graphs), self.neighbour_plans
+        interval = plans.interval(*parts, self.agents, self.local_scale, self._spare)
+        return self._conclude(interval, lambda: plans.plans(*parts))
 
     # ---------------------------------------------------------------- metrics
     def batch_metrics(self) -> dict[str, np.ndarray]:

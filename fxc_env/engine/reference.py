@@ -108,17 +108,20 @@ class NeighbourPlans:
             KERNEL.plans(state[episode], index, weight, n, dim, T, self._plans[episode])
         return self._plans
 
-    def interval(self, state: np.ndarray, clock: Any, graphs: Any, agents: Any, out: np.ndarray) -> Interval | None:
-        """The coming interval of :meth:`plans`' plans played in :data:`KERNEL`, its new state in ``out``; None where it does not apply.
+    def interval(
+        self, state: np.ndarray, clock: Any, graphs: Any, agents: Any, local_scale: Any, out: np.ndarray
+    ) -> Interval:
+        """The coming interval under :meth:`plans`' plans, its new state in ``out`` (numpy's spare buffer).
 
-        Applies where :attr:`fusable` holds: one pass per episode makes
-        the state at ``t_{k+1}`` ``(B, N, 2, dim)``, the input's ends ``(B, N, dim)``, its energy
-        and peak ``(B, N)`` and (``dim = 1``) the ranges of x and v, the very values of
-        ``agents.advance(state, plans(...))`` (:class:`~fxc_env.engine.agents.Interval`). Else the
-        caller steps with :meth:`plans`.
+        Where :attr:`fusable` holds, :data:`KERNEL` makes it in one pass per episode: the state at
+        ``t_{k+1}`` ``(B, N, 2, dim)``, the input's ends ``(B, N, dim)``, its energy and peak
+        ``(B, N)`` and (``dim = 1``) the ranges of x and v, the very values of
+        ``agents.advance(state, plans(...))`` (:class:`~fxc_env.engine.agents.Interval`). Else
+        ``agents`` play the plans (with ``local_scale``, as :meth:`ConsensusEngine.step
+        <fxc_env.engine.ConsensusEngine.step>` does). Refused, like :meth:`plans`, unless :attr:`exact`.
         """
         if not self.fusable:
-            return None
+            return agents.advance(state, self.plans(state, clock, graphs), clock, local_scale, out, raw_plans=True)
         b, n, dim = self.n_episodes, self.config.n_agents, self.config.dim
         u0, u1, energy, peak, ranges = (np.empty(shape) for shape in ((b, n, dim),) * 2 + ((b, n),) * 2 + ((b, 2),))
         for episode, index, weight, T in self._episodes(graphs, clock):

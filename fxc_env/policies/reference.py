@@ -65,7 +65,8 @@ class ReferencePolicy(Policy):
     def step(self, engine: Any) -> Any:
         """Play one interval of ``engine`` (a :class:`~fxc_env.engine.ConsensusEngine` of this config) under eq. (11); its :class:`StepOutcome`.
 
-        Where its agents observe exactly (:func:`~fxc_env.engine.reference.exact_observations`):
+        Where its agents observe exactly (:func:`~fxc_env.engine.reference.exact_observations`) and
+        the install built the compiled kernel (:data:`~fxc_env.engine.reference.KERNEL`):
         :meth:`ConsensusEngine.step_reference <fxc_env.engine.ConsensusEngine.step_reference>`, the
         plan from the neighbour sums alone, no observations; else
         ``engine.step(self.act(engine.observations()))`` (numpy or torch). The same interval to rounding either way.
