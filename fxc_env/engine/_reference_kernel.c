@@ -11,10 +11,10 @@
  *
  * Every operation is the numpy path's, in its order, in IEEE double arithmetic: built without
  * contracting a * b + c into a fused multiply-add (-ffp-contract=off, pyproject.toml), the
- * results are bit for bit numpy's (tests/engine/test_reference_fast_path.py). Extremes
- * propagate NaN like numpy's max and min, so a non-finite step is refused as on numpy.
+ * results are bit for bit numpy's (tests/engine/test_reference_fast_path.py). The ranges turn
+ * NaN once any new state is not finite (x - x is summed in), so such a step is refused as on numpy.
  *
- * Arrays (C-contiguous, checked by size here and by dtype in reference.py):
+ * Arrays (C-contiguous; checked by size here, float64 by reference.exact_observations):
  *   state   (N, 2, dim) float64  [x | v] per agent at t_k
  *   index   (N, slots)  int64    in-neighbour of every slot, padded slots the agent itself
  *   weight  (N,)        float64  1 / (d_i + 1)
@@ -77,8 +77,8 @@ static int parse_inputs(PyObject *args, Inputs *in, double *T, Py_buffer *output
     }
     if (!ok) return -1;
     const Py_ssize_t f = (Py_ssize_t)sizeof(double);
-    if (in->n < 1 || in->dim < 1 || in->dim > MAX_DIM || in->state.len != in->n * 2 * in->dim * f || in->weight.len != in->n * f ||
-        in->index.len % (in->n * (Py_ssize_t)sizeof(int64_t)) != 0) {
+    if (in->n < 1 || in->dim < 1 || in->dim > MAX_DIM || in->state.len != in->n * 2 * in->dim * f ||
+        in->weight.len != in->n * f || in->index.len % (in->n * (Py_ssize_t)sizeof(int64_t)) != 0) {
         PyErr_SetString(PyExc_ValueError, "state, index, weight: sizes do not match N and dim");
         release(in);
         for (int k = 0; k < n_outputs; k++) PyBuffer_Release(&outputs[k]);

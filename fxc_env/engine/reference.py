@@ -44,10 +44,10 @@ def exact_observations(config: EnvConfig, backend: Any) -> bool:
 
     Not so with measurement noise (``obs_noise``), rows rounded to a quantum (``obs_resolution``),
     lost links (``link_dropout``), float32 observations (rounded rows), general linear agents
-    (``agent_model``: their plan is another map) or no in-neighbour slots; nor on torch (the
-    kernel reads numpy's memory).
+    (``agent_model``: their plan is another map) or no in-neighbour slots; nor on torch or a
+    float32 engine (the kernel reads numpy's float64 memory).
     """
-    return noise_free(config, backend) and config.obs_dtype == "float64"
+    return noise_free(config, backend) and config.obs_dtype == "float64" and backend.dtype == np.float64
 
 
 class NeighbourPlans:
@@ -62,8 +62,8 @@ class NeighbourPlans:
         observe_exactly = exact_observations(config, backend)
         #: :meth:`plans` applies: the agents observe exactly and the install built :data:`KERNEL`.
         self.exact = observe_exactly and KERNEL is not None
-        #: :meth:`interval` applies too: unlimited double integrators, float64 states.
-        self.fusable = self.exact and config.u_max_choices is None and backend.dtype == np.float64
+        #: :meth:`interval` applies too: unlimited double integrators.
+        self.fusable = self.exact and config.u_max_choices is None
         self._refusal = None if self.exact else _refusal(observe_exactly)
         self.config = config
         self.n_episodes = backend.n_episodes
@@ -141,6 +141,6 @@ def _refusal(observe_exactly: bool) -> str:
         )
     return (
         "step_reference: the paper's plan from exact neighbour sums needs exact observations on numpy "
-        "(no obs_noise, obs_resolution, link_dropout or float32 obs_dtype; double-integrator agents); "
+        "(no obs_noise, obs_resolution, link_dropout, float32 obs_dtype or float32 engine; double-integrator agents); "
         "step with ReferencePolicy(config)(observations()) instead"
     )

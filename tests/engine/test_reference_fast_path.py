@@ -119,14 +119,17 @@ def test_the_reference_policy_steps_without_observations_where_they_are_exact(mo
     assert engine.batch_metrics()["relative_deadline_error"][0] < 1e-10
 
 
-@pytest.mark.parametrize("option", [*INEXACT, "no kernel"], ids=lambda s: s if isinstance(s, str) else next(iter(s)))
+@pytest.mark.parametrize(
+    "option", [*INEXACT, "float32 engine", "no kernel"], ids=lambda s: s if isinstance(s, str) else next(iter(s))
+)
 def test_inexact_observations_or_no_kernel_refuse_the_fast_path_and_the_policy_steps_on_observations(
     option, monkeypatch
 ):
     if option == "no kernel":  # an install without a C compiler
         monkeypatch.setattr(reference, "KERNEL", None)
-    config = make_config("paper_fig1", **({} if option == "no kernel" else option))
-    engine, expected = ConsensusEngine(config), ConsensusEngine(config)
+    config = make_config("paper_fig1", **({} if isinstance(option, str) else option))
+    dtype = "float32" if option == "float32 engine" else "float64"
+    engine, expected = ConsensusEngine(config, dtype=dtype), ConsensusEngine(config, dtype=dtype)
     assert not engine.neighbour_plans.exact
     for e in (engine, expected):
         e.reset_from_draws([e.draw_episode(np.random.default_rng(0))], rng=np.random.default_rng(3))
