@@ -78,8 +78,9 @@ static int parse_inputs(PyObject *args, Inputs *in, double *T, Py_buffer *output
     if (!ok) return -1;
     const Py_ssize_t f = (Py_ssize_t)sizeof(double);
     if (in->n < 1 || in->dim < 1 || in->dim > MAX_DIM || in->state.len != in->n * 2 * in->dim * f ||
-        in->weight.len != in->n * f || in->index.len % (in->n * (Py_ssize_t)sizeof(int64_t)) != 0) {
-        PyErr_SetString(PyExc_ValueError, "state, index, weight: sizes do not match N and dim");
+        in->weight.len != in->n * f || in->index.len == 0 ||
+        in->index.len % (in->n * (Py_ssize_t)sizeof(int64_t)) != 0) {
+        PyErr_SetString(PyExc_ValueError, "state, index, weight: sizes do not match N, dim and at least one slot");
         release(in);
         for (int k = 0; k < n_outputs; k++) PyBuffer_Release(&outputs[k]);
         return -1;
@@ -119,12 +120,12 @@ static PyObject *plans(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
-/* The interval's outputs for agents [0, n): the new state, the input's ends, energy and peak; the ranges for dim = 1. */
+/* The interval's outputs: the new state, the input's ends, energy and peak; the ranges for dim = 1. */
 typedef struct {
     double *next, *u0, *u1, *energy, *peak, *ranges;
 } Outputs;
 
-/* One pass over the agents; inlined with dim = 1, 2 and 3 constants (the line, the plane, space) and once for any dim. */
+/* One pass over the agents; inlined with dim = 1, 2 and 3 constants (line, plane, space) and once for any dim. */
 static inline __attribute__((always_inline)) void play(const double *state, const int64_t *index,
                                                        const double *weight, Py_ssize_t n, Py_ssize_t slots,
                                                        const Py_ssize_t dim, double T, Outputs out) {
