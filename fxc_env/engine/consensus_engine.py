@@ -101,7 +101,7 @@ class ConsensusEngine:
     invalid = property(lambda self: self.backend.invalid, doc="Bad-step flags ``(B,)`` (torch; None on numpy).")
     k = property(lambda self: self.clock.k, doc="Lock-step instant index (host), valid while :attr:`steps` is None.")
     steps = property(
-        lambda self: self.clock.steps, doc="Instants ``(B,)`` per episode after a partial reset, else None."
+        lambda self: self.clock.steps, doc="Each episode's instant ``(B,)`` after a partial reset, else None."
     )
     time = property(lambda self: self.clock.time, doc="Current sampling instant ``t_k`` in seconds (lock step).")
     topologies = property(lambda self: self.graphs.topologies, doc="Each episode's topology.")

@@ -16,7 +16,7 @@ the in-neighbours' ``[x_j, v_j]``, the sums slot by slot, the plan, and for unli
 integrators the whole interval (the input's ends, the exact step, energy, peak and the
 disagreement's ranges) while the gathered rows are in the cache: numpy's operations in numpy's
 order, so the same values, where numpy needs some twenty passes over the agents and a gather
-that alone costs half a sparse product. An install without a C compiler has no kernel: then
+that alone costs about two thirds of a sparse product. An install without a C compiler has no kernel: then
 ``ReferencePolicy.step`` builds the observations and ``step_reference`` refuses, saying why.
 """
 
